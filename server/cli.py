@@ -1,0 +1,4 @@
+"""The ``armtrack`` command line."""
+def main(argv=None) -> int:
+    print("armtrack")
+    return 0
