@@ -1,1 +1,29 @@
-"""armtrack."""
+"""The arm model of ``spec/kinematics.md``: forward kinematics, joint angles, the seeds' DH tables."""
+
+from .dh import (
+    DHMap,
+    DHRow,
+    dh_chain,
+    dh_point_positions,
+    dh_segment_orientations,
+    paper_map,
+    thesis_map,
+)
+from .forward import POINTS, ArmPose, forward_kinematics
+from .inverse import JointAngleParams, JointAngles, JointAngleSolver, joint_angles
+from .joints import (
+    ANGLE_NAMES,
+    ELEVATION,
+    JOINTS,
+    NORMAL_RANGE_DEG,
+    PAPER_RANGE_DEG,
+    REPORTED_ANGLES,
+    SEGMENTS,
+)
+
+__all__ = [
+    "ANGLE_NAMES", "ELEVATION", "JOINTS", "NORMAL_RANGE_DEG", "PAPER_RANGE_DEG", "POINTS",
+    "REPORTED_ANGLES", "SEGMENTS", "ArmPose", "DHMap", "DHRow", "JointAngleParams",
+    "JointAngleSolver", "JointAngles", "dh_chain", "dh_point_positions",
+    "dh_segment_orientations", "forward_kinematics", "joint_angles", "paper_map", "thesis_map",
+]
