@@ -1,4 +1,4 @@
-"""The arm model of ``spec/kinematics.md``: forward kinematics, joint angles, the seeds' DH tables."""
+"""The arm model of ``spec/kinematics.md``: forward kinematics, joint angles, seed DH tables."""
 
 from .dh import (
     DHMap,

@@ -18,8 +18,8 @@ The shoulder (``Z·X·Y``) is singular at ±90° abduction, where only
 * outside the zone the decomposition has two branches, ``(f, a, r)`` and
   ``(f + π, π - a, r + π)``; the branch is the one continuous with the angles before
   (at the very start: the one that strays less beyond the AAOS normal ranges, the
-  principal one, ``|abduction| ≤ 90°``, on a tie), so abduction goes on past 90° instead of flexion and rotation
-  flipping by 180°;
+  principal one, ``|abduction| ≤ 90°``, on a tie), so abduction goes on past 90°
+  instead of flexion and rotation flipping by 180°;
 * every angle is unwrapped over time, so a motion past ±180° stays continuous.
 
 ``shoulder_elevation`` — the angle between the upper arm's distal axis and the thorax's
