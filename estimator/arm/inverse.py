@@ -166,7 +166,12 @@ def _relative_rotations(R_world: Mapping[str, np.ndarray], side: Side) -> dict[s
     R_of = {"thorax": np.asarray(R_world.get("thorax", np.broadcast_to(np.eye(3), (n, 3, 3))))}
     for joint in JOINTS:
         R_of[joint.child] = np.asarray(R_world.get(joint.child, R_of[joint.parent]), dtype=float)
-    relative = {j.child: np.swapaxes(R_of[j.parent], -1, -2) @ R_of[j.child] for j in JOINTS}
+    identity = np.broadcast_to(np.eye(3), (n, 3, 3))
+    relative = {
+        j.child: np.swapaxes(R_of[j.parent], -1, -2) @ R_of[j.child] if j.child in R_world
+        else identity  # exactly 0 for a joint whose segment has no sensor
+        for j in JOINTS
+    }
     if side == "left":
         relative = {k: mirror_sagittal(v) for k, v in relative.items()}
     return relative

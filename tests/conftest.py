@@ -1,0 +1,16 @@
+"""Shared fixtures. Tests that need ``../shared`` (the spec's data, beside the repo) skip
+with a clear reason when it is absent, as in a user's clone; CI has it."""
+
+from pathlib import Path
+
+import pytest
+
+SHARED_DIR = Path(__file__).resolve().parents[1].parent / "shared"
+
+
+@pytest.fixture(scope="session")
+def shared_dir() -> Path:
+    if not (SHARED_DIR / "data" / "recordings").is_dir():
+        pytest.skip(f"needs the shared data folder beside the repo ({SHARED_DIR}); "
+                    "a user's clone has none, CI has it")
+    return SHARED_DIR
