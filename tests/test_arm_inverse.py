@@ -1,5 +1,7 @@
 """Joint angles from segment orientations: exact inverse, residuals, the shoulder singularity."""
 
+import itertools
+
 import numpy as np
 import pytest
 from armtrack.estimator.arm import (
@@ -191,7 +193,7 @@ def test_streaming_in_chunks_equals_batch(chunk_sizes, side):
     bounds = np.cumsum([0, *chunk_sizes])
     bounds = np.unique(np.r_[bounds[bounds < 2001], 2001])
     parts = [solver.update({k: v[a:b] for k, v in R_world.items()})
-             for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+             for a, b in itertools.pairwise(bounds)]
     for k in REPORTED_ANGLES:
         np.testing.assert_allclose(np.concatenate([p.angles[k] for p in parts]),
                                    batch.angles[k], atol=1e-12, rtol=0, err_msg=k)
