@@ -1,4 +1,85 @@
-"""The ``armtrack`` command line."""
-def main(argv=None) -> int:
-    print("armtrack")
-    return 0
+"""The ``armtrack`` command line.
+
+Each sub-command is a thin shell over the estimator: argument parsing, clear messages,
+exit codes (0 success, 2 bad input). Heavy imports happen inside the commands so that
+``armtrack --help`` is instant.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from armtrack.estimator.errors import EstimatorError
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="armtrack",
+        description="Remote arm rehabilitation: IMU recordings in, joint angles and the "
+        "arm's pose out. Angles follow spec/kinematics.md (degrees at this edge).",
+    )
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    pose = commands.add_parser(
+        "pose",
+        help="the arm's pose (segment orientations, joint positions) from joint angles",
+        description="Forward kinematics of the 9-DoF arm. Give angles as NAME=DEGREES "
+        "(e.g. shoulder_abduction=90 elbow_flexion=45), or a CSV of angles over time with "
+        "--angles-csv (columns t and any of the joint-angle names, in degrees). Positions "
+        "are in the thorax frame (X anterior, Y superior, Z right), in metres.",
+    )
+    pose.add_argument("angles", nargs="*", metavar="NAME=DEGREES")
+    pose.add_argument("--side", choices=("right", "left"), default="right")
+    size = pose.add_mutually_exclusive_group()
+    size.add_argument("--height", type=float, default=1.75, metavar="METRES",
+                      help="body height for the segment lengths (default 1.75)")
+    size.add_argument("--lengths", metavar="C,U,F,H",
+                      help="measured clavicle, upper arm, forearm, hand lengths in metres")
+    pose.add_argument("--angles-csv", type=Path, metavar="FILE",
+                      help="angles over time; writes a CSV of positions")
+    pose.add_argument("-o", "--output", type=Path, metavar="FILE",
+                      help="where to write the positions CSV (default: standard output)")
+    pose.add_argument("--json", action="store_true", help="print one pose as JSON")
+
+    check = commands.add_parser(
+        "check",
+        help="validate a recording file and summarise it",
+        description="Reads a recording (spec/recording.md) with every rule checked; prints "
+        "its sensors, rates, lost samples, calibration and marks, or the line and rule "
+        "it breaks.",
+    )
+    check.add_argument("recording", type=Path)
+    check.add_argument("--json", action="store_true", help="print the summary as JSON")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    try:
+        if args.command == "pose":
+            from .commands.pose import run_pose
+
+            return run_pose(args)
+        if args.command == "check":
+            from .commands.check import run_check
+
+            return run_check(args)
+    except EstimatorError as exc:
+        print(f"armtrack {args.command}: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"armtrack {args.command}: {exc}", file=sys.stderr)
+        return 2
+    raise AssertionError(f"unhandled command {args.command}")  # argparse guarantees a command
+
+
+def print_json(value: object) -> None:
+    print(json.dumps(value, indent=2))
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

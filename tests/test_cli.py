@@ -1,0 +1,92 @@
+"""The ``armtrack`` command as a user runs it: the installed console script, a real process."""
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from armtrack.estimator.arm import POINTS, forward_kinematics
+from armtrack.estimator.body import SegmentLengths
+
+ARMTRACK = shutil.which("armtrack", path=str(Path(sys.executable).parent)) or "armtrack"
+
+
+def run(*args, check=True):
+    result = subprocess.run([ARMTRACK, *map(str, args)], capture_output=True, text=True,
+                            timeout=60)
+    if check:
+        assert result.returncode == 0, result.stderr
+    return result
+
+
+def test_help_lists_the_commands():
+    out = run("--help").stdout
+    assert "pose" in out and "check" in out
+
+
+def test_pose_json_matches_forward_kinematics():
+    out = json.loads(run("pose", "--side", "left", "--height", "1.62", "shoulder_flexion=70",
+                         "elbow_flexion=30", "--json").stdout)
+    pose = forward_kinematics({"shoulder_flexion": np.deg2rad(70), "elbow_flexion": np.deg2rad(30)},
+                              "left", SegmentLengths.from_height(1.62))
+    for point in POINTS:
+        np.testing.assert_allclose(out["positions_m"][point], pose.p_thorax[point], atol=1e-12)
+    assert out["shoulder_elevation_deg"] == pytest.approx(70.0)
+
+
+def test_pose_table_is_readable():
+    out = run("pose", "shoulder_abduction=90").stdout
+    assert "positions in the thorax frame" in out and "hand" in out
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["pose", "shoulder_abdction=90"], "unknown joint angle 'shoulder_abdction'"),
+        (["pose", "elbow_flexion=abc"], "elbow_flexion: 'abc' is not a number"),
+        (["pose", "--height", "17", "elbow_flexion=10"], "body height"),
+        (["pose", "--lengths", "0.2,0.3", "elbow_flexion=10"], "--lengths takes four numbers"),
+        (["check", "no-such-file.csv"], "no-such-file.csv"),
+    ],
+)
+def test_bad_input_exits_2_with_a_clear_message(args, message):
+    result = run(*args, check=False)
+    assert result.returncode == 2
+    assert message in result.stderr
+    assert "Traceback" not in result.stderr
+
+
+def test_pose_from_truth_angles_csv_reproduces_truth_positions(shared_dir, tmp_path):
+    truth_csv = shared_dir / "data" / "recordings" / "left_reach_50hz.truth.csv"
+    out = tmp_path / "positions.csv"
+    run("pose", "--angles-csv", truth_csv, "--side", "left", "--height", "1.70", "-o", out)
+    got = np.genfromtxt(out, delimiter=",", names=True)
+    truth = np.genfromtxt(truth_csv, delimiter=",", names=True)
+    worst = max(np.abs(got[c] - truth[c]).max() for c in got.dtype.names)
+    print(f"armtrack pose --angles-csv vs truth positions: {worst * 1e3:.4f} mm")
+    assert worst < 1e-5
+
+
+def test_check_summarises_a_shared_recording(shared_dir):
+    out = json.loads(run("check", shared_dir / "data" / "recordings" / "elbow_6axis.csv",
+                         "--json").stdout)
+    assert out["side"] == "right" and out["height_m"] == 1.8
+    assert set(out["sensors"]) == {"upper_arm", "forearm", "hand"}
+    assert all(s["axes"] == 6 and s["rate_hz"] == pytest.approx(100.0)
+               for s in out["sensors"].values())
+    assert [c["pose"] for c in out["calibration"]] == ["npose", "tpose"]
+
+
+def test_check_refuses_a_broken_file_naming_line_and_rule(tmp_path):
+    broken = tmp_path / "broken.csv"
+    broken.write_text(
+        "# armtrack-recording: 1\n# side: right\n# height_m: 1.80\n"
+        "t,sensor,ax,ay,az,gx,gy,gz,mx,my,mz\n"
+        "0.00,forearm,0,9.81,0,0,0,0,,,\n"
+        "0.01,elbow,0,9.81,0,0,0,0,,,\n")
+    result = run("check", broken, check=False)
+    assert result.returncode == 2
+    assert "line 6" in result.stderr and "elbow" in result.stderr
