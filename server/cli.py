@@ -1,8 +1,7 @@
 """The ``armtrack`` command line.
 
 Each sub-command is a thin shell over the estimator: argument parsing, clear messages,
-exit codes (0 success, 2 bad input). Heavy imports happen inside the commands so that
-``armtrack --help`` is instant.
+exit codes (0 success, 2 bad input, with the message on standard error).
 """
 
 from __future__ import annotations
@@ -54,6 +53,17 @@ def _parser() -> argparse.ArgumentParser:
     )
     check.add_argument("recording", type=Path)
     check.add_argument("--json", action="store_true", help="print the summary as JSON")
+
+    simulate = commands.add_parser(
+        "simulate",
+        help="write a simulated recording with its ground truth",
+        description="Simulates an exercise session (calibration poses, then the exercise) "
+        "with exact IMU physics, sensor mounting, noise, gyroscope bias and optional faults; "
+        "writes the recording and a truth CSV of joint angles (deg) and positions (m).",
+    )
+    from .commands.simulate import add_arguments
+
+    add_arguments(simulate)
     return parser
 
 
@@ -68,6 +78,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             from .commands.check import run_check
 
             return run_check(args)
+        if args.command == "simulate":
+            from .commands.simulate import run_simulate
+
+            return run_simulate(args)
     except EstimatorError as exc:
         print(f"armtrack {args.command}: {exc}", file=sys.stderr)
         return 2

@@ -90,3 +90,22 @@ def test_check_refuses_a_broken_file_naming_line_and_rule(tmp_path):
     result = run("check", broken, check=False)
     assert result.returncode == 2
     assert "line 6" in result.stderr and "elbow" in result.stderr
+
+
+def test_simulate_writes_a_recording_and_its_truth(tmp_path):
+    out = tmp_path / "left.csv"
+    printed = run("simulate", "--exercise", "reach", "--side", "left", "--rate", "50",
+                  "--six-axis", "--lost", "0.02", "--jitter-ms", "1", "-o", out).stdout
+    assert "wrote" in printed
+    summary = json.loads(run("check", out, "--json").stdout)
+    assert summary["side"] == "left"
+    assert all(s["axes"] == 6 and 1.0 < s["lost_percent"] < 3.5 and
+               s["rate_hz"] == pytest.approx(50, abs=1) for s in summary["sensors"].values())
+    truth = np.genfromtxt(tmp_path / "left.truth.csv", delimiter=",", names=True)
+    assert truth["shoulder_flexion"].max() == pytest.approx(80.0, abs=0.1)
+
+
+def test_simulate_refuses_unknown_sensors(tmp_path):
+    result = run("simulate", "--sensors", "upper_arm,elbow", "-o", tmp_path / "x.csv",
+                 check=False)
+    assert result.returncode == 2 and "unknown sensor(s) ['elbow']" in result.stderr

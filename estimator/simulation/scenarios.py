@@ -1,0 +1,134 @@
+"""Named exercises and the calibration sequence every simulated recording starts with.
+
+Timeline (as in ``shared/data/recordings``): N-pose still from 0 to 3.0 s (header window
+0.5–3.0 s), up to the T-pose by 5.0 s, held to 8.5 s (header window 5.5–8.0 s), back to
+the N-pose by 10.0 s; the exercise starts at ``EXERCISE_START_S`` = 11 s.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from ..errors import InvalidArgument
+from .profiles import Motion, Profile, Ramp, Sine, hold_and_return, repetitions
+
+DEG = np.pi / 180.0
+NPOSE_WINDOW_S = (0.5, 3.0)
+TPOSE_WINDOW_S = (5.5, 8.0)
+EXERCISE_START_S = 11.0
+#: Exercise accuracy is scored from here on (after the return from the T-pose).
+SCORED_FROM_S = 10.5
+
+
+def calibration_sequence() -> dict[str, Profile]:
+    """N-pose, then T-pose (90° abduction) and back: ramps on ``shoulder_abduction``."""
+    return {"shoulder_abduction": Profile(ramps=(Ramp(4.0, 90 * DEG, 0.25),
+                                                 Ramp(9.25, -90 * DEG, 0.1875)))}
+
+
+def _merge(*parts: dict[str, Profile]) -> dict[str, Profile]:
+    merged: dict[str, Profile] = {}
+    for part in parts:
+        for name, profile in part.items():
+            merged[name] = merged.get(name, Profile()) + profile
+    return merged
+
+
+def _single(name: str, default_amplitude_deg: float, default_reps: int):
+    def build(reps: int | None, amplitude_deg: float | None, start: float):
+        count = default_reps if reps is None else reps
+        amplitude = (default_amplitude_deg if amplitude_deg is None else amplitude_deg) * DEG
+        return {name: repetitions(start, count, amplitude)}, {}
+    return build
+
+
+def _elbow_held(name: str, first_deg: float, second_deg: float, default_reps: int):
+    """Elbow to 90° and held; ``name`` to ``first_deg`` ×reps then ``second_deg`` ×reps."""
+    def build(reps: int | None, amplitude_deg: float | None, start: float):
+        count = default_reps if reps is None else reps
+        scale = 1.0 if amplitude_deg is None else amplitude_deg / first_deg
+        elbow = Profile(ramps=(Ramp(start + 0.75, 90 * DEG, 0.375),))
+        first = repetitions(start + 2.0, count, first_deg * scale * DEG)
+        second = repetitions(start + 2.0 + count * 4.5, count, second_deg * scale * DEG)
+        end = start + 2.0 + 2 * count * 4.5
+        elbow = elbow + Profile(ramps=(Ramp(end + 0.75, -90 * DEG, 0.375),))
+        return {"elbow_flexion": elbow, name: first + second}, {}
+    return build
+
+
+def _reach(flexion_deg: float, elbow_deg: float, default_reps: int, sway_deg: float = 0.0):
+    def build(reps: int | None, amplitude_deg: float | None, start: float):
+        count = default_reps if reps is None else reps
+        scale = 1.0 if amplitude_deg is None else amplitude_deg / flexion_deg
+        joints = {"shoulder_flexion": repetitions(start, count, flexion_deg * scale * DEG),
+                  "elbow_flexion": repetitions(start, count, elbow_deg * scale * DEG)}
+        trunk = {}
+        if sway_deg:
+            trunk = {"trunk_flexion": Profile(sines=(Sine(sway_deg * DEG, 0.23),)),
+                     "trunk_lateral": Profile(sines=(Sine(0.5 * sway_deg * DEG, 0.17, 1.0),))}
+        return joints, trunk
+    return build
+
+
+def _combined(default_reps: int):
+    """Elbow to 110° ×reps, then wrist flexion to 40° ×(reps − 1)."""
+    def build(reps: int | None, amplitude_deg: float | None, start: float):
+        count = default_reps if reps is None else reps
+        scale = 1.0 if amplitude_deg is None else amplitude_deg / 110.0
+        elbow = repetitions(start, count, 110 * scale * DEG)
+        wrist = repetitions(start + count * 4.5, max(count - 1, 0), 40 * scale * DEG)
+        return {"elbow_flexion": elbow, "wrist_flexion": wrist}, {}
+    return build
+
+
+def _drinking(default_reps: int):
+    """Hand to mouth: flexion 45°, elbow 130°, pronation −40° together."""
+    def build(reps: int | None, amplitude_deg: float | None, start: float):
+        count = default_reps if reps is None else reps
+        scale = 1.0 if amplitude_deg is None else amplitude_deg / 130.0
+        return {"shoulder_flexion": repetitions(start, count, 45 * scale * DEG),
+                "elbow_flexion": repetitions(start, count, 130 * scale * DEG),
+                "forearm_pronation": repetitions(start, count, -40 * scale * DEG),
+                "shoulder_abduction": repetitions(start, count, 15 * scale * DEG)}, {}
+    return build
+
+
+ExerciseBuilder = Callable[[int | None, float | None, float],
+                           tuple[dict[str, Profile], dict[str, Profile]]]
+
+#: Exercise name → builder(repetitions, amplitude [deg], start [s]) → (joints, trunk).
+EXERCISES: dict[str, ExerciseBuilder] = {
+    "elbow_flexion": _single("elbow_flexion", 120.0, 5),
+    "shoulder_abduction": _single("shoulder_abduction", 80.0, 5),
+    "shoulder_flexion": _single("shoulder_flexion", 150.0, 5),
+    "abduction_120": _single("shoulder_abduction", 120.0, 4),
+    "shoulder_rotation": _elbow_held("shoulder_rotation", 60.0, -50.0, 3),
+    "wrist_flexion": _elbow_held("wrist_flexion", 60.0, -50.0, 3),
+    "pronation": _elbow_held("forearm_pronation", 75.0, -75.0, 3),
+    "wrist_deviation": _elbow_held("wrist_deviation", 25.0, -15.0, 3),
+    "reach": _reach(80.0, 70.0, 5),
+    "trunk_reach": _reach(70.0, 50.0, 5, sway_deg=4.0),
+    "elbow_wrist": _combined(7),
+    "drinking": _drinking(5),
+    "shrug": _single("clavicle_elevation", 25.0, 5),
+    "still": lambda reps, amplitude, start: ({}, {}),
+}
+
+
+def exercise_motion(name: str, *, repetitions_count: int | None = None,
+                    amplitude_deg: float | None = None, calibration: bool = True,
+                    start_s: float | None = None) -> Motion:
+    """The calibration sequence (optional) followed by the named exercise."""
+    if name not in EXERCISES:
+        raise InvalidArgument(f"unknown exercise {name!r}; one of {', '.join(sorted(EXERCISES))}")
+    start = (EXERCISE_START_S if calibration else 1.0) if start_s is None else start_s
+    joints, trunk = EXERCISES[name](repetitions_count, amplitude_deg, start)
+    if calibration:
+        joints = _merge(calibration_sequence(), joints)
+    return Motion(joints=joints, trunk=trunk)
+
+
+__all__ = ["EXERCISES", "SCORED_FROM_S", "calibration_sequence", "exercise_motion",
+           "hold_and_return"]
