@@ -95,6 +95,31 @@ def _drinking(default_reps: int):
     return build
 
 
+def _sets(default_sets: int):
+    """A long session: sets of elbow flexion to 100° ×10, pronation to 50° ×9 (elbow at
+    90°), wrist flexion to 30° ×9, with 8 s rests in the N-pose between exercises."""
+    def build(reps: int | None, amplitude_deg: float | None, start: float):
+        sets = default_sets if reps is None else reps
+        scale = 1.0 if amplitude_deg is None else amplitude_deg / 100.0
+        joints: dict[str, Profile] = {}
+        t = start
+        for _ in range(sets):
+            joints = _merge(joints, {"elbow_flexion": repetitions(t, 10, 100 * scale * DEG,
+                                                                  rise=1.0, hold=0.3, rest=0.5)})
+            t += 10 * 2.8 + 8.0
+            joints = _merge(joints, {
+                "elbow_flexion": hold_and_return(t, 90 * DEG, 1.5, 9 * 2.8 + 1.0),
+                "forearm_pronation": repetitions(t + 2.0, 9, 50 * scale * DEG, rise=1.0,
+                                                 hold=0.3, rest=0.5)})
+            t += 2.0 + 9 * 2.8 + 3.0 + 8.0
+            joints = _merge(joints, {"wrist_flexion": repetitions(t, 9, 30 * scale * DEG,
+                                                                  rise=1.0, hold=0.3,
+                                                                  rest=0.5)})
+            t += 9 * 2.8 + 8.0
+        return joints, {}
+    return build
+
+
 ExerciseBuilder = Callable[[int | None, float | None, float],
                            tuple[dict[str, Profile], dict[str, Profile]]]
 
@@ -113,6 +138,7 @@ EXERCISES: dict[str, ExerciseBuilder] = {
     "elbow_wrist": _combined(7),
     "drinking": _drinking(5),
     "shrug": _single("clavicle_elevation", 25.0, 5),
+    "long_session": _sets(4),
     "still": lambda reps, amplitude, start: ({}, {}),
 }
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 from pathlib import Path
 
 from armtrack.estimator.body import SENSOR_NAMES
@@ -29,6 +30,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lost", type=float, default=0.0, metavar="FRACTION",
                         help="share of samples lost at random, e.g. 0.02")
     parser.add_argument("--jitter-ms", type=float, default=0.0, help="timestamp jitter")
+    parser.add_argument("--bias-walk", type=float, default=0.0, metavar="RAD_S_PER_SQRT_S",
+                        help="gyroscope bias random walk, e.g. 2e-4 (drifts over a session)")
     parser.add_argument("--magnet", action="store_true",
                         help="a magnet near the hand's path disturbs the magnetometers")
     parser.add_argument("--no-calibration", action="store_true",
@@ -46,7 +49,8 @@ def run_simulate(args: argparse.Namespace) -> int:
         nine_axis=not args.six_axis, sensors=sensors, repetitions=args.reps,
         amplitude_deg=args.amplitude, calibration=not args.no_calibration, seed=args.seed,
         jitter_s=args.jitter_ms / 1000.0, lost_fraction=args.lost,
-        magnet_near_hand=args.magnet)
+        magnet_near_hand=args.magnet,
+        errors=replace(SimulationConfig().errors, gyro_bias_walk=args.bias_walk))
     result = simulate(config)
     truth_path = args.truth or args.output.with_name(
         args.output.name.removesuffix(".csv") + ".truth.csv")
