@@ -24,8 +24,9 @@ from .body_motion import BodyMotion
 
 GRAVITY = np.array([0.0, 0.0, -9.81])
 
-#: The earth's field [µT] in the world frame (x north): 48 µT at 65° inclination.
-EARTH_FIELD_UT = np.array([48.0 * np.cos(np.deg2rad(65.0)), 0.0, -48.0 * np.sin(np.deg2rad(65.0))])
+#: The earth's field [µT] in the world frame, ENU (x east, y north, z up): 48 µT pointing
+#: north and down at 65° inclination, as in central Europe.
+EARTH_FIELD_UT = np.array([0.0, 48.0 * np.cos(np.deg2rad(65.0)), -48.0 * np.sin(np.deg2rad(65.0))])
 
 #: The point each sensor's segment hangs from (its origin for the sensor offset).
 SEGMENT_ORIGIN = {"thorax": "sternal_notch", "clavicle": "sternal_notch",
