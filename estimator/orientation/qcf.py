@@ -1,0 +1,121 @@
+"""``qcf``: the default orientation filter, a quaternion complementary filter.
+
+Mahony's explicit complementary filter family (seed thesis §2.2.4), with what a clinic's
+sensors need:
+
+* the gyroscope integrated exactly (quaternion exponential) over each sample's own ``dt``,
+  so gaps and timestamp jitter do no harm;
+* tilt from the specific force low-passed *in the inertial frame* by a second-order filter
+  (time constant ``tau_acc``), as in VQF: the body's own acceleration, whose integral is a
+  bounded velocity, cancels out of it far better than out of a per-sample correction;
+* the magnetometer acting on heading only (a rotation about the vertical, so a disturbed
+  field never tilts the estimate), and ignored while its norm or dip departs from the
+  reference learned in a clean field (a magnet, a steel table);
+* the gyroscope bias estimated online: quickly whenever the sensor rests (rest detected
+  from the low-passed gyroscope and accelerometer), slowly from the corrections in motion.
+
+Parameters are one set for every sensor and session; see ``QcfParams``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import InvalidArgument
+from .base import OrientationOutput, check_inputs
+from .qcf_kernel import EMPTY_MAG, PARAM_SIZE, STATE_SIZE, kernel, kernel_python
+
+
+@dataclass(frozen=True)
+class QcfParams:
+    """Tuning of ``qcf``. Times in seconds, rates in rad/s, fields in µT."""
+
+    #: Time constant of the second-order low-pass of the specific force in I [s].
+    tau_acc: float = 4.0
+    #: Time constant of the heading correction from the magnetometer [s].
+    tau_mag: float = 6.0
+    #: Low-pass time constant of the rest detector [s].
+    tau_lowpass: float = 0.5
+    #: Rest: low-passed rate minus bias, and rate minus low-passed rate, below this [rad/s].
+    rest_gyr: float = 0.05
+    #: Rest: accelerometer minus its low-pass below this [m/s²].
+    rest_acc: float = 0.5
+    #: Stillness must last this long before it counts as rest [s].
+    rest_time: float = 1.0
+    #: Bias gain from tilt corrections in motion [1/s] (an integral time of 1/ki).
+    ki_bias: float = 0.02
+    #: Bias gain from heading corrections in motion [1/s].
+    ki_bias_mag: float = 0.02
+    #: Largest bias believed [rad/s].
+    bias_max: float = 0.2
+    #: Relative deviation of |m| from the reference that marks a disturbed field.
+    mag_norm_tolerance: float = 0.08
+    #: Deviation of the field's dip from the reference that marks a disturbance [rad].
+    mag_dip_tolerance: float = float(np.deg2rad(6.0))
+    #: Time constant with which the reference field follows a clean field [s].
+    tau_mag_reference: float = 30.0
+    #: A disturbance steady for this long becomes the new reference [s].
+    mag_reaccept: float = 60.0
+    #: Longest ``dt`` integrated in one step [s]; longer gaps are treated as this.
+    max_dt: float = 1.0
+    #: Samples of a rest averaged before its mean replaces the bias estimate.
+    rest_min_samples: float = 20.0
+    #: Rest samples count toward the bias only once the rest has gone on this long after
+    #: them [s], so the slow start of a movement never leaks into the bias.
+    rest_guard: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name, value in self.__dict__.items():
+            if not (np.isfinite(value) and value > 0):
+                raise InvalidArgument(f"QcfParams.{name} must be a positive number, got {value!r}")
+
+    def as_array(self) -> np.ndarray:
+        values = [self.tau_acc, self.tau_mag, self.tau_lowpass, self.rest_gyr,
+                  self.rest_acc, self.rest_time, self.ki_bias, self.ki_bias_mag, self.bias_max,
+                  self.mag_norm_tolerance, self.mag_dip_tolerance, self.tau_mag_reference,
+                  self.mag_reaccept, self.max_dt, self.rest_min_samples, self.rest_guard]
+        assert len(values) == PARAM_SIZE
+        return np.array(values, dtype=np.float64)
+
+
+@dataclass
+class QcfState:
+    """Everything carried between chunks (see ``qcf_kernel`` for the layout)."""
+
+    vector: np.ndarray = field(default_factory=lambda: np.zeros(STATE_SIZE))
+
+    @property
+    def gyr_bias(self) -> np.ndarray:
+        return self.vector[9:12].copy()
+
+
+@dataclass
+class QuaternionComplementaryFilter:
+    """The ``qcf`` filter: ``update`` per chunk, ``update_batch`` for a whole recording."""
+
+    params: QcfParams = field(default_factory=QcfParams)
+    state: QcfState = field(default_factory=QcfState)
+    #: Use the compiled kernel when numba is installed (False: the pure-Python fallback).
+    compiled: bool = True
+    name: str = field(default="qcf", init=False)
+
+    def __post_init__(self) -> None:
+        self._params = self.params.as_array()
+
+    def update(self, t, acc, gyr, mag=None) -> OrientationOutput:
+        t, acc, gyr, mag = check_inputs(t, acc, gyr, mag)
+        n = t.shape[0]
+        q = np.empty((n, 4))
+        bias = np.empty((n, 3))
+        rest = np.zeros(n, dtype=np.bool_)
+        disturbed = np.zeros(n, dtype=np.bool_)
+        run = kernel if self.compiled else kernel_python
+        run(t, acc, gyr, EMPTY_MAG if mag is None else mag, 0 if mag is None else 1,
+            self._params, self.state.vector, q, bias, rest, disturbed)
+        return OrientationOutput(q=q, gyr_bias=bias, rest=rest, mag_disturbed=disturbed)
+
+    def update_batch(self, t, acc, gyr, mag=None) -> OrientationOutput:
+        self.state = QcfState()
+        return self.update(t, acc, gyr, mag)

@@ -1,0 +1,345 @@
+"""The recursion of the quaternion complementary filter (``qcf``), one sample at a time.
+
+This is the only per-sample loop of the estimator. It is plain Python on scalars so that
+numba can compile it (``kernel``); ``kernel_python`` is the same function uncompiled, the
+fallback when numba is not installed, and gives the same numbers to 1e-9.
+
+The estimate is split in three, as in VQF (Laidig & Seel 2023):
+``q = Rz(δ) · q_acc · q_gyr`` — ``q_gyr`` integrates the bias-corrected gyroscope from the
+sensor to a drifting inertial frame I; ``q_acc`` tilts I onto the earth frame E so that the
+low-passed specific force, filtered *in I*, points up; ``δ`` turns E about the vertical so
+the magnetometer's horizontal part points north (9-axis only). Filtering the specific force
+in the inertial frame with a second-order low-pass removes the body's own acceleration far
+better than a first-order correction: its residue is about ``x ω0²`` for a displacement
+``x`` (``ω0 = √2 / tau_acc``) instead of ``v ω0`` for a velocity ``v``.
+
+State layout (float64): ``[0:4]`` q_gyr · ``[4:8]`` q_acc · ``[8]`` δ [rad] · ``[9:12]``
+gyroscope bias [rad/s] · ``[12]`` last t [s] · ``[13]`` initialised · ``[14]`` time still so
+far [s] · ``[15:18]`` low-passed gyroscope · ``[18:21]`` low-passed accelerometer (sensor) ·
+``[21:24]`` filtered specific force in I · ``[24:27]`` its rate · ``[27]`` reference field
+norm [µT] · ``[28]`` reference dip [rad] · ``[29]`` time disturbed so far [s] · ``[30:33]``
+sum of the gyroscope over the current rest · ``[33]`` samples in it · ``[34:37]`` sum of
+the samples still waiting for the guard time · ``[37]`` their count · ``[38]`` their time · ``[39:42]`` the previous gyroscope sample.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+STATE_SIZE = 42
+
+# Indices into the parameter vector, see QcfParams.as_array.
+(P_TAU_ACC, P_TAU_MAG, P_TAU_LP, P_REST_GYR, P_REST_ACC, P_REST_TIME,
+ P_KI_BIAS, P_KI_BIAS_MAG, P_BIAS_MAX, P_MAG_NORM_TOL, P_MAG_DIP_TOL, P_TAU_MAG_REF,
+ P_MAG_REACCEPT, P_MAX_DT, P_REST_MIN_SAMPLES, P_REST_GUARD) = range(16)
+PARAM_SIZE = 16
+
+
+def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out_rest,
+                  out_disturbed):
+    """Run the filter over samples ``0..N-1``, updating ``state`` in place and writing the
+    outputs. ``has_mag``: 1 when ``mag`` holds magnetometer rows, 0 otherwise."""
+    tau_acc = params[P_TAU_ACC]
+    tau_mag = params[P_TAU_MAG]
+    tau_lp = params[P_TAU_LP]
+    rest_gyr = params[P_REST_GYR]
+    rest_acc = params[P_REST_ACC]
+    rest_time_needed = params[P_REST_TIME]
+    ki_bias = params[P_KI_BIAS]
+    ki_bias_mag = params[P_KI_BIAS_MAG]
+    bias_max = params[P_BIAS_MAX]
+    mag_norm_tol = params[P_MAG_NORM_TOL]
+    mag_dip_tol = params[P_MAG_DIP_TOL]
+    tau_mag_ref = params[P_TAU_MAG_REF]
+    mag_reaccept = params[P_MAG_REACCEPT]
+    max_dt = params[P_MAX_DT]
+    rest_min_samples = params[P_REST_MIN_SAMPLES]
+    rest_guard = params[P_REST_GUARD]
+    w0 = math.sqrt(2.0) / tau_acc
+
+    gw, gx, gy, gz = state[0], state[1], state[2], state[3]
+    cw, cx, cy, cz = state[4], state[5], state[6], state[7]
+    delta = state[8]
+    bx, by, bz = state[9], state[10], state[11]
+    t_last = state[12]
+    initialised = state[13]
+    still_time = state[14]
+    glx, gly, glz = state[15], state[16], state[17]
+    alx, aly, alz = state[18], state[19], state[20]
+    fx, fy, fz = state[21], state[22], state[23]
+    vx, vy, vz = state[24], state[25], state[26]
+    ref_norm, ref_dip = state[27], state[28]
+    disturbed_time = state[29]
+    sx, sy, sz, count = state[30], state[31], state[32], state[33]
+    px, py, pz, pending, pending_time = state[34], state[35], state[36], state[37], state[38]
+    lwx, lwy, lwz = state[39], state[40], state[41]
+
+    for i in range(t.shape[0]):
+        ax, ay, az = acc[i, 0], acc[i, 1], acc[i, 2]
+        wx, wy, wz = gyr[i, 0], gyr[i, 1], gyr[i, 2]
+        a_norm = math.sqrt(ax * ax + ay * ay + az * az)
+        at_rest = False
+        disturbed = False
+
+        if initialised == 0.0:
+            gw, gx, gy, gz = 1.0, 0.0, 0.0, 0.0
+            # q_acc: the shortest rotation taking the measured up (sensor = I now) to +z.
+            if a_norm > 0.0:
+                ux, uy, uz = ax / a_norm, ay / a_norm, az / a_norm
+            else:
+                ux, uy, uz = 0.0, 0.0, 1.0
+            h = math.sqrt(max(0.5 * (1.0 + uz), 0.0))
+            if h > 1e-9:
+                cw, cx, cy, cz = h, uy / (2.0 * h), -ux / (2.0 * h), 0.0
+            else:
+                cw, cx, cy, cz = 0.0, 1.0, 0.0, 0.0
+            fx, fy, fz = ax, ay, az
+            vx, vy, vz = 0.0, 0.0, 0.0
+            glx, gly, glz = wx, wy, wz
+            alx, aly, alz = ax, ay, az
+            t_last = t[i]
+            initialised = 1.0
+            if has_mag == 1:
+                mx, my, mz = mag[i, 0], mag[i, 1], mag[i, 2]
+                # field in E = q_acc m (q_gyr is the identity)
+                r00 = 1 - 2 * (cy * cy + cz * cz)
+                r01 = 2 * (cx * cy - cw * cz)
+                r02 = 2 * (cx * cz + cw * cy)
+                r10 = 2 * (cx * cy + cw * cz)
+                r11 = 1 - 2 * (cx * cx + cz * cz)
+                r12 = 2 * (cy * cz - cw * cx)
+                r20 = 2 * (cx * cz - cw * cy)
+                r21 = 2 * (cy * cz + cw * cx)
+                r22 = 1 - 2 * (cx * cx + cy * cy)
+                mex = r00 * mx + r01 * my + r02 * mz
+                mey = r10 * mx + r11 * my + r12 * mz
+                mez = r20 * mx + r21 * my + r22 * mz
+                delta = math.atan2(mex, mey)
+                ref_norm = math.sqrt(mx * mx + my * my + mz * mz)
+                ref_dip = math.atan2(-mez, math.sqrt(mex * mex + mey * mey))
+        else:
+            dt = t[i] - t_last
+            t_last = t[i]
+            if dt < 0.0:
+                dt = 0.0
+            if dt > max_dt:
+                dt = max_dt
+
+            # Rest: gyroscope and accelerometer steady for rest_time seconds.
+            k_lp = dt / (tau_lp + dt)
+            glx += k_lp * (wx - glx)
+            gly += k_lp * (wy - gly)
+            glz += k_lp * (wz - glz)
+            alx += k_lp * (ax - alx)
+            aly += k_lp * (ay - aly)
+            alz += k_lp * (az - alz)
+            dev_g = math.sqrt((wx - glx) ** 2 + (wy - gly) ** 2 + (wz - glz) ** 2)
+            rate = math.sqrt((glx - bx) ** 2 + (gly - by) ** 2 + (glz - bz) ** 2)
+            dev_a = math.sqrt((ax - alx) ** 2 + (ay - aly) ** 2 + (az - alz) ** 2)
+            if dev_g < rest_gyr and rate < rest_gyr and dev_a < rest_acc:
+                still_time += dt
+            else:
+                still_time = 0.0
+                px, py, pz, pending, pending_time = 0.0, 0.0, 0.0, 0.0, 0.0
+            if still_time >= rest_time_needed:
+                at_rest = True
+                if still_time - dt < rest_time_needed:
+                    sx, sy, sz, count = 0.0, 0.0, 0.0, 0.0  # a new rest: a new mean
+                # Samples wait rest_guard seconds before they count, so that the slow
+                # start of the next movement never leaks into the bias.
+                px += wx
+                py += wy
+                pz += wz
+                pending += 1.0
+                pending_time += dt
+                if pending_time >= rest_guard:
+                    sx += px
+                    sy += py
+                    sz += pz
+                    count += pending
+                    px, py, pz, pending, pending_time = 0.0, 0.0, 0.0, 0.0, 0.0
+                    if count >= rest_min_samples:
+                        bx, by, bz = sx / count, sy / count, sz / count
+
+            # Strapdown: q_gyr ← q_gyr ⊗ exp(½ (ω̄ − b) dt), ω̄ the mean of the rates at the
+            # interval's two ends (trapezoidal: second order, no lag of half a sample).
+            ox = (0.5 * (wx + lwx) - bx) * dt
+            oy = (0.5 * (wy + lwy) - by) * dt
+            oz = (0.5 * (wz + lwz) - bz) * dt
+            angle = math.sqrt(ox * ox + oy * oy + oz * oz)
+            if angle > 1e-12:
+                c, s = math.cos(0.5 * angle), math.sin(0.5 * angle) / angle
+            else:
+                c, s = 1.0 - angle * angle / 8.0, 0.5 - angle * angle / 48.0
+            dw, dx, dy, dz = c, s * ox, s * oy, s * oz
+            gw, gx, gy, gz = (gw * dw - gx * dx - gy * dy - gz * dz,
+                              gw * dx + gx * dw + gy * dz - gz * dy,
+                              gw * dy - gx * dz + gy * dw + gz * dx,
+                              gw * dz + gx * dy - gy * dx + gz * dw)
+            n = math.sqrt(gw * gw + gx * gx + gy * gy + gz * gz)
+            gw, gx, gy, gz = gw / n, gx / n, gy / n, gz / n
+
+            # Specific force in I, low-passed by a second-order filter (ω0 = √2 / tau_acc).
+            r00 = 1 - 2 * (gy * gy + gz * gz)
+            r01 = 2 * (gx * gy - gw * gz)
+            r02 = 2 * (gx * gz + gw * gy)
+            r10 = 2 * (gx * gy + gw * gz)
+            r11 = 1 - 2 * (gx * gx + gz * gz)
+            r12 = 2 * (gy * gz - gw * gx)
+            r20 = 2 * (gx * gz - gw * gy)
+            r21 = 2 * (gy * gz + gw * gx)
+            r22 = 1 - 2 * (gx * gx + gy * gy)
+            aix = r00 * ax + r01 * ay + r02 * az
+            aiy = r10 * ax + r11 * ay + r12 * az
+            aiz = r20 * ax + r21 * ay + r22 * az
+            # (No gating on |a|: skipping the samples that accelerate most would bias the
+            # mean the low-pass forms; the filter itself rejects short knocks.)
+            kw = w0 * w0 * dt
+            kd = math.sqrt(2.0) * w0 * dt
+            vx += kw * (aix - fx) - kd * vx
+            vy += kw * (aiy - fy) - kd * vy
+            vz += kw * (aiz - fz) - kd * vz
+            fx += dt * vx
+            fy += dt * vy
+            fz += dt * vz
+
+            # Tilt: turn q_acc by the whole angle that brings the filtered force (in E) up.
+            q00 = 1 - 2 * (cy * cy + cz * cz)
+            q01 = 2 * (cx * cy - cw * cz)
+            q02 = 2 * (cx * cz + cw * cy)
+            q10 = 2 * (cx * cy + cw * cz)
+            q11 = 1 - 2 * (cx * cx + cz * cz)
+            q12 = 2 * (cy * cz - cw * cx)
+            q20 = 2 * (cx * cz - cw * cy)
+            q21 = 2 * (cy * cz + cw * cx)
+            q22 = 1 - 2 * (cx * cx + cy * cy)
+            fex = q00 * fx + q01 * fy + q02 * fz
+            fey = q10 * fx + q11 * fy + q12 * fz
+            fez = q20 * fx + q21 * fy + q22 * fz
+            f_norm = math.sqrt(fex * fex + fey * fey + fez * fez)
+            if f_norm > 0.0:
+                fex, fey, fez = fex / f_norm, fey / f_norm, fez / f_norm
+                h = math.sqrt(max(0.5 * (1.0 + fez), 0.0))
+                if h > 1e-9:
+                    ew, ex, ey = h, fey / (2.0 * h), -fex / (2.0 * h)
+                    cw, cx, cy, cz = (ew * cw - ex * cx - ey * cy,
+                                      ew * cx + ex * cw + ey * cz,
+                                      ew * cy - ex * cz + ey * cw,
+                                      ew * cz + ex * cy - ey * cx)
+                    n = math.sqrt(cw * cw + cx * cx + cy * cy + cz * cz)
+                    cw, cx, cy, cz = cw / n, cx / n, cy / n, cz / n
+                    if not at_rest:
+                        # Bias from the tilt correction: the correction (E, rad) seen in the
+                        # sensor frame is the drift the bias caused (Mahony's integral term).
+                        tx, ty = 2.0 * ex, 2.0 * ey  # small rotation vector, E frame
+                        # E → sensor: (q_acc q_gyr)ᵀ; q_acc maps I→E, q_gyr maps sensor→I
+                        ix = q00 * tx + q10 * ty
+                        iy = q01 * tx + q11 * ty
+                        iz = q02 * tx + q12 * ty
+                        bx -= ki_bias * (r00 * ix + r10 * iy + r20 * iz)
+                        by -= ki_bias * (r01 * ix + r11 * iy + r21 * iz)
+                        bz -= ki_bias * (r02 * ix + r12 * iy + r22 * iz)
+
+            if has_mag == 1:
+                mx, my, mz = mag[i, 0], mag[i, 1], mag[i, 2]
+                m_norm = math.sqrt(mx * mx + my * my + mz * mz)
+                # field in I, then in E
+                mix = r00 * mx + r01 * my + r02 * mz
+                miy = r10 * mx + r11 * my + r12 * mz
+                miz = r20 * mx + r21 * my + r22 * mz
+                q00 = 1 - 2 * (cy * cy + cz * cz)
+                q01 = 2 * (cx * cy - cw * cz)
+                q02 = 2 * (cx * cz + cw * cy)
+                q10 = 2 * (cx * cy + cw * cz)
+                q11 = 1 - 2 * (cx * cx + cz * cz)
+                q12 = 2 * (cy * cz - cw * cx)
+                q20 = 2 * (cx * cz - cw * cy)
+                q21 = 2 * (cy * cz + cw * cx)
+                q22 = 1 - 2 * (cx * cx + cy * cy)
+                mex = q00 * mix + q01 * miy + q02 * miz
+                mey = q10 * mix + q11 * miy + q12 * miz
+                mez = q20 * mix + q21 * miy + q22 * miz
+                horizontal = math.sqrt(mex * mex + mey * mey)
+                dip = math.atan2(-mez, horizontal)
+                disturbed = (abs(m_norm - ref_norm) > mag_norm_tol * ref_norm
+                             or abs(dip - ref_dip) > mag_dip_tol or horizontal <= 0.0)
+                if disturbed:
+                    disturbed_time += dt
+                    if disturbed_time > mag_reaccept:
+                        ref_norm, ref_dip = m_norm, dip  # a new steady field: a new room
+                        disturbed_time = 0.0
+                else:
+                    disturbed_time = 0.0
+                    k_ref = dt / (tau_mag_ref + dt)
+                    ref_norm += k_ref * (m_norm - ref_norm)
+                    ref_dip += k_ref * (dip - ref_dip)
+                    error = math.atan2(mex, mey) - delta
+                    error = (error + math.pi) % (2.0 * math.pi) - math.pi
+                    step = dt / (tau_mag + dt) * error
+                    delta += step
+                    if not at_rest:
+                        # the heading step is the drift about E's vertical; in the sensor
+                        # frame that axis is (q_acc q_gyr)ᵀ e_z
+                        bx -= ki_bias_mag * step * (r00 * q20 + r10 * q21 + r20 * q22)
+                        by -= ki_bias_mag * step * (r01 * q20 + r11 * q21 + r21 * q22)
+                        bz -= ki_bias_mag * step * (r02 * q20 + r12 * q21 + r22 * q22)
+
+            if bx > bias_max:
+                bx = bias_max
+            elif bx < -bias_max:
+                bx = -bias_max
+            if by > bias_max:
+                by = bias_max
+            elif by < -bias_max:
+                by = -bias_max
+            if bz > bias_max:
+                bz = bias_max
+            elif bz < -bias_max:
+                bz = -bias_max
+
+        # Output q = Rz(δ) ⊗ q_acc ⊗ q_gyr
+        ow = cw * gw - cx * gx - cy * gy - cz * gz
+        ox = cw * gx + cx * gw + cy * gz - cz * gy
+        oy = cw * gy - cx * gz + cy * gw + cz * gx
+        oz = cw * gz + cx * gy - cy * gx + cz * gw
+        hc, hs = math.cos(0.5 * delta), math.sin(0.5 * delta)
+        out_q[i, 0] = hc * ow - hs * oz
+        out_q[i, 1] = hc * ox - hs * oy
+        out_q[i, 2] = hc * oy + hs * ox
+        out_q[i, 3] = hc * oz + hs * ow
+        out_bias[i, 0], out_bias[i, 1], out_bias[i, 2] = bx, by, bz
+        out_rest[i] = at_rest
+        lwx, lwy, lwz = wx, wy, wz
+        out_disturbed[i] = disturbed
+
+    state[0], state[1], state[2], state[3] = gw, gx, gy, gz
+    state[4], state[5], state[6], state[7] = cw, cx, cy, cz
+    state[8] = delta
+    state[9], state[10], state[11] = bx, by, bz
+    state[12] = t_last
+    state[13] = initialised
+    state[14] = still_time
+    state[15], state[16], state[17] = glx, gly, glz
+    state[18], state[19], state[20] = alx, aly, alz
+    state[21], state[22], state[23] = fx, fy, fz
+    state[24], state[25], state[26] = vx, vy, vz
+    state[27], state[28] = ref_norm, ref_dip
+    state[29] = disturbed_time
+    state[30], state[31], state[32], state[33] = sx, sy, sz, count
+    state[34], state[35], state[36], state[37], state[38] = px, py, pz, pending, pending_time
+    state[39], state[40], state[41] = lwx, lwy, lwz
+
+
+def _compile():
+    try:
+        import numba
+    except ImportError:  # the pure-Python fallback: same numbers, slower
+        return kernel_python, False
+    return numba.njit(cache=True, nogil=True)(kernel_python), True
+
+
+kernel, COMPILED = _compile()
+
+EMPTY_MAG = np.zeros((0, 3))
