@@ -1,6 +1,8 @@
 """``qcf`` against the simulator's true sensor orientations, and its contracts: compiled
 equals pure Python, chunks equal batch, rest and disturbance detection."""
 
+import itertools
+
 import numpy as np
 import pytest
 from armtrack.estimator.errors import InvalidArgument, InvalidShape
@@ -118,7 +120,7 @@ def test_chunks_equal_batch(chunk_sizes, six_axis):
     bounds = np.unique(np.r_[0, np.cumsum(chunk_sizes)].clip(0, len(stream.t)))
     bounds = np.r_[bounds[bounds < len(stream.t)], len(stream.t)]
     parts = []
-    for a, b in zip(bounds[:-1], bounds[1:], strict=True):
+    for a, b in itertools.pairwise(bounds):
         mag = None if stream.mag is None else stream.mag[a:b]
         parts.append(f.update(stream.t[a:b], stream.acc[a:b], stream.gyr[a:b], mag).q)
     np.testing.assert_allclose(np.concatenate(parts), batch.q, atol=1e-12, rtol=0)

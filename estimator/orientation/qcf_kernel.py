@@ -19,7 +19,8 @@ far [s] · ``[15:18]`` low-passed gyroscope · ``[18:21]`` low-passed accelerome
 ``[21:24]`` filtered specific force in I · ``[24:27]`` its rate · ``[27]`` reference field
 norm [µT] · ``[28]`` reference dip [rad] · ``[29]`` time disturbed so far [s] · ``[30:33]``
 sum of the gyroscope over the current rest · ``[33]`` samples in it · ``[34:37]`` sum of
-the samples still waiting for the guard time · ``[37]`` their count · ``[38]`` their time · ``[39:42]`` the previous gyroscope sample.
+the samples still waiting for the guard time · ``[37]`` their count · ``[38]`` their
+time · ``[39:42]`` the previous gyroscope sample.
 """
 
 from __future__ import annotations
