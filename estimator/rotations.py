@@ -115,3 +115,28 @@ def mirror_sagittal(R: np.ndarray) -> np.ndarray:
     R[..., 2, :2] *= -1.0
     R[..., :2, 2] *= -1.0
     return R
+
+
+def quat_slerp(q0: np.ndarray, q1: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Spherical interpolation from ``q0`` to ``q1`` (wxyz, ``(..., 4)``) at fractions ``u``
+    (``(...)``, 0 → q0, 1 → q1), along the shorter arc."""
+    q0 = np.asarray(q0, dtype=float)
+    q1 = np.asarray(q1, dtype=float)
+    u = np.asarray(u, dtype=float)[..., None]
+    dot = np.sum(q0 * q1, axis=-1, keepdims=True)
+    q1 = np.where(dot < 0.0, -q1, q1)
+    dot = np.abs(dot).clip(max=1.0)
+    theta = np.arccos(dot)
+    sin_theta = np.sin(theta)
+    near = sin_theta < 1e-9
+    safe = np.where(near, 1.0, sin_theta)
+    w0 = np.where(near, 1.0 - u, np.sin((1.0 - u) * theta) / safe)
+    w1 = np.where(near, u, np.sin(u * theta) / safe)
+    q = w0 * q0 + w1 * q1
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def yaw_of(R: np.ndarray) -> np.ndarray:
+    """The rotation about world z [rad] closest to ``R`` (``(..., 3, 3)``)."""
+    R = _check_matrix(R)
+    return np.arctan2(R[..., 1, 0] - R[..., 0, 1], R[..., 0, 0] + R[..., 1, 1])

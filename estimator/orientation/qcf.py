@@ -34,6 +34,8 @@ class QcfParams:
 
     #: Time constant of the second-order low-pass of the specific force in I [s].
     tau_acc: float = 4.0
+    #: The same at rest, and the longest used while the filter warms up [s].
+    tau_acc_rest: float = 0.5
     #: Time constant of the heading correction from the magnetometer [s].
     tau_mag: float = 6.0
     #: Low-pass time constant of the rest detector [s].
@@ -75,7 +77,8 @@ class QcfParams:
         values = [self.tau_acc, self.tau_mag, self.tau_lowpass, self.rest_gyr,
                   self.rest_acc, self.rest_time, self.ki_bias, self.ki_bias_mag, self.bias_max,
                   self.mag_norm_tolerance, self.mag_dip_tolerance, self.tau_mag_reference,
-                  self.mag_reaccept, self.max_dt, self.rest_min_samples, self.rest_guard]
+                  self.mag_reaccept, self.max_dt, self.rest_min_samples, self.rest_guard,
+                  self.tau_acc_rest]
         assert len(values) == PARAM_SIZE
         return np.array(values, dtype=np.float64)
 

@@ -20,7 +20,7 @@ far [s] · ``[15:18]`` low-passed gyroscope · ``[18:21]`` low-passed accelerome
 norm [µT] · ``[28]`` reference dip [rad] · ``[29]`` time disturbed so far [s] · ``[30:33]``
 sum of the gyroscope over the current rest · ``[33]`` samples in it · ``[34:37]`` sum of
 the samples still waiting for the guard time · ``[37]`` their count · ``[38]`` their
-time · ``[39:42]`` the previous gyroscope sample.
+time · ``[39:42]`` the previous gyroscope sample · ``[42]`` the first sample's time.
 """
 
 from __future__ import annotations
@@ -29,13 +29,13 @@ import math
 
 import numpy as np
 
-STATE_SIZE = 42
+STATE_SIZE = 43
 
 # Indices into the parameter vector, see QcfParams.as_array.
 (P_TAU_ACC, P_TAU_MAG, P_TAU_LP, P_REST_GYR, P_REST_ACC, P_REST_TIME,
  P_KI_BIAS, P_KI_BIAS_MAG, P_BIAS_MAX, P_MAG_NORM_TOL, P_MAG_DIP_TOL, P_TAU_MAG_REF,
- P_MAG_REACCEPT, P_MAX_DT, P_REST_MIN_SAMPLES, P_REST_GUARD) = range(16)
-PARAM_SIZE = 16
+ P_MAG_REACCEPT, P_MAX_DT, P_REST_MIN_SAMPLES, P_REST_GUARD, P_TAU_ACC_REST) = range(17)
+PARAM_SIZE = 17
 
 
 def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out_rest,
@@ -58,7 +58,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     max_dt = params[P_MAX_DT]
     rest_min_samples = params[P_REST_MIN_SAMPLES]
     rest_guard = params[P_REST_GUARD]
-    w0 = math.sqrt(2.0) / tau_acc
+    tau_acc_rest = params[P_TAU_ACC_REST]
 
     gw, gx, gy, gz = state[0], state[1], state[2], state[3]
     cw, cx, cy, cz = state[4], state[5], state[6], state[7]
@@ -76,6 +76,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     sx, sy, sz, count = state[30], state[31], state[32], state[33]
     px, py, pz, pending, pending_time = state[34], state[35], state[36], state[37], state[38]
     lwx, lwy, lwz = state[39], state[40], state[41]
+    t_start = state[42]
 
     for i in range(t.shape[0]):
         ax, ay, az = acc[i, 0], acc[i, 1], acc[i, 2]
@@ -101,6 +102,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
             glx, gly, glz = wx, wy, wz
             alx, aly, alz = ax, ay, az
             t_last = t[i]
+            t_start = t[i]
             initialised = 1.0
             if has_mag == 1:
                 mx, my, mz = mag[i, 0], mag[i, 1], mag[i, 2]
@@ -197,6 +199,12 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
             aiz = r20 * ax + r21 * ay + r22 * az
             # (No gating on |a|: skipping the samples that accelerate most would bias the
             # mean the low-pass forms; the filter itself rejects short knocks.)
+            # Faster at rest (nothing to reject) and while the filter warms up.
+            tau = tau_acc_rest if at_rest else tau_acc
+            elapsed = t[i] - t_start
+            if elapsed < tau:
+                tau = max(elapsed, 10.0 * dt, 0.05)
+            w0 = math.sqrt(2.0) / tau
             kw = w0 * w0 * dt
             kd = math.sqrt(2.0) * w0 * dt
             vx += kw * (aix - fx) - kd * vx
@@ -278,7 +286,9 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
                     ref_dip += k_ref * (dip - ref_dip)
                     error = math.atan2(mex, mey) - delta
                     error = (error + math.pi) % (2.0 * math.pi) - math.pi
-                    step = dt / (tau_mag + dt) * error
+                    # warming up, the heading is the running mean of the first readings
+                    tau_m = min(tau_mag, max(t[i] - t_start, dt))
+                    step = dt / (tau_m + dt) * error
                     delta += step
                     if not at_rest:
                         # the heading step is the drift about E's vertical; in the sensor
@@ -331,6 +341,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     state[30], state[31], state[32], state[33] = sx, sy, sz, count
     state[34], state[35], state[36], state[37], state[38] = px, py, pz, pending, pending_time
     state[39], state[40], state[41] = lwx, lwy, lwz
+    state[42] = t_start
 
 
 def _compile():

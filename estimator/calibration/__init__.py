@@ -1,0 +1,14 @@
+"""Calibration: the poses, sensor-to-segment rotations and their quality."""
+
+from .mounting import (
+    default_R_segment_sensor,
+    heading_from_arm,
+    tilt_only_R_sensor_segment,
+    two_pose_R_sensor_segment,
+)
+from .plan import CalibrationPlan, poses_from_marks
+from .quality import CalibrationWarning, stillness_warning, turn_warning
+
+__all__ = ["CalibrationPlan", "CalibrationWarning", "default_R_segment_sensor",
+           "heading_from_arm", "poses_from_marks", "stillness_warning",
+           "tilt_only_R_sensor_segment", "turn_warning", "two_pose_R_sensor_segment"]

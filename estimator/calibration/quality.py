@@ -1,0 +1,76 @@
+"""Calibration quality: warnings a therapist can act on, estimated from the pose windows.
+
+* a pose that was not still (the gyroscope or the accelerometer moved during it);
+* a T-pose that was not a T-pose (the upper arm did not turn about 90° from the N-pose);
+* a sensor that looks swapped (an arm sensor that did not turn with the arm, or a trunk
+  or clavicle sensor that turned as if it were on the arm).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..rotations import angle_between
+
+#: A pose is still when the gyroscope's rms stays below this [rad/s] …
+STILL_GYR_RMS = 0.1
+#: … and the accelerometer's spread below this [m/s²].
+STILL_ACC_STD = 0.5
+#: The upper arm turns 90° between N- and T-pose; outside this window it was no T-pose [deg].
+TPOSE_TURN_DEG = (65.0, 115.0)
+#: An arm sensor turning less than this between the poses did not ride the arm [deg].
+ARM_TURN_MIN_DEG = 45.0
+#: A trunk or clavicle sensor turning more than this did [deg].
+BODY_TURN_MAX_DEG = 30.0
+
+
+@dataclass(frozen=True)
+class CalibrationWarning:
+    """``code``: ``pose-not-still``, ``not-a-tpose``, ``sensor-swapped`` or
+    ``default-mounting``; ``sensor``: the sensor concerned, or None; ``message``: plain words."""
+
+    code: str
+    sensor: str | None
+    message: str
+
+
+def stillness_warning(name: str, sensor: str, gyr: np.ndarray, acc: np.ndarray
+                      ) -> CalibrationWarning | None:
+    """A warning when ``sensor`` moved during the pose ``name``."""
+    if len(gyr) < 2:
+        return CalibrationWarning("pose-not-still", sensor,
+                                  f"the {name} window holds too few {sensor} samples")
+    gyr_rms = float(np.sqrt(np.mean(np.sum((gyr - gyr.mean(axis=0)) ** 2, axis=1))))
+    acc_std = float(np.sqrt(np.mean(np.sum((acc - acc.mean(axis=0)) ** 2, axis=1))))
+    if gyr_rms > STILL_GYR_RMS or acc_std > STILL_ACC_STD:
+        return CalibrationWarning(
+            "pose-not-still", sensor,
+            f"{sensor} was not still during the {name} (rotation {gyr_rms:.2f} rad/s rms, "
+            f"acceleration spread {acc_std:.2f} m/s²); hold the pose still and repeat it")
+    return None
+
+
+def turn_warning(sensor: str, up_npose: np.ndarray, up_tpose: np.ndarray
+                 ) -> CalibrationWarning | None:
+    """Warnings from how far ``sensor``'s gravity turned between the N- and T-pose."""
+    turn = float(np.rad2deg(angle_between(up_npose, up_tpose)))
+    if sensor in ("upper_arm", "forearm", "hand"):
+        if turn < ARM_TURN_MIN_DEG:
+            return CalibrationWarning(
+                "sensor-swapped", sensor,
+                f"the {sensor} sensor turned only {turn:.0f}° between N-pose and T-pose; is it "
+                f"on the {sensor.replace('_', ' ')}, or is it swapped with a trunk sensor?")
+        lo, hi = TPOSE_TURN_DEG
+        if sensor == "upper_arm" and not lo <= turn <= hi:
+            return CalibrationWarning(
+                "not-a-tpose", sensor,
+                f"the upper arm turned {turn:.0f}° between N-pose and T-pose, not about 90°: "
+                f"the T-pose was not a T-pose (arm horizontal to the side)")
+    elif turn > BODY_TURN_MAX_DEG:
+        return CalibrationWarning(
+            "sensor-swapped", sensor,
+            f"the {sensor} sensor turned {turn:.0f}° between N-pose and T-pose as if it were "
+            f"on the arm; is it swapped with an arm sensor?")
+    return None

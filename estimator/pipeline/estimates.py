@@ -1,0 +1,65 @@
+"""What the pipeline gives: joint angles and the arm's pose at the reference sensor's times."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..arm.forward import POINTS
+from ..arm.joints import REPORTED_ANGLES, SEGMENTS
+
+#: The order a reference sensor is chosen in (``spec/kinematics.md``, "Estimates").
+REFERENCE_ORDER = ("upper_arm", "forearm", "hand", "trunk", "clavicle")
+
+
+@dataclass(frozen=True)
+class Estimates:
+    """Estimates at times ``t`` [s] (N,).
+
+    ``angles``: ``REPORTED_ANGLES`` → [rad] (N,); ``residuals``: what the 2-DoF joints
+    cannot express [rad] (N,); ``positions``: shoulder, elbow, wrist, hand → [m] (N, 3) in
+    the thorax frame; ``R_world_segment``: thorax … hand → (N, 3, 3) in the world (ENU,
+    heading from the magnetometer or, on 6-axis kits, from the N-pose).
+    """
+
+    t: np.ndarray
+    angles: dict[str, np.ndarray]
+    residuals: dict[str, np.ndarray]
+    positions: dict[str, np.ndarray]
+    R_world_segment: dict[str, np.ndarray]
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+    def degrees(self) -> dict[str, np.ndarray]:
+        return {k: np.rad2deg(v) for k, v in self.angles.items()}
+
+    @staticmethod
+    def empty() -> Estimates:
+        return Estimates(
+            t=np.zeros(0), angles={k: np.zeros(0) for k in REPORTED_ANGLES},
+            residuals={k: np.zeros(0) for k in ("clavicle_axial", "elbow_carrying",
+                                                "wrist_twist")},
+            positions={p: np.zeros((0, 3)) for p in POINTS},
+            R_world_segment={s: np.zeros((0, 3, 3)) for s in SEGMENTS})
+
+    @staticmethod
+    def concatenate(parts: Sequence[Estimates]) -> Estimates:
+        parts = [p for p in parts if len(p)] or [Estimates.empty()]
+
+        def cat(getter):
+            return {k: np.concatenate([getter(p)[k] for p in parts]) for k in getter(parts[0])}
+
+        return Estimates(t=np.concatenate([p.t for p in parts]), angles=cat(lambda p: p.angles),
+                         residuals=cat(lambda p: p.residuals),
+                         positions=cat(lambda p: p.positions),
+                         R_world_segment=cat(lambda p: p.R_world_segment))
+
+    def table(self) -> tuple[list[str], np.ndarray]:
+        """Columns and values of ``armtrack estimate``'s CSV: t, angles [deg], positions [m]."""
+        columns = ["t", *REPORTED_ANGLES] + [f"{p}_{a}" for p in POINTS for a in "xyz"]
+        values = np.column_stack([self.t, *(np.rad2deg(self.angles[k]) for k in REPORTED_ANGLES),
+                                  *(self.positions[p] for p in POINTS)])
+        return columns, values

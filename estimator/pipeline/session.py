@@ -1,0 +1,151 @@
+"""The estimation pipeline of one session: calibrate → orient → segment orientations →
+joint angles → positions. Batch and streaming are the same code.
+
+Every sensor's filter runs as its samples arrive (filters are causal). Nothing is
+estimated until calibration is final (``CalibrationPlan.final_time``) and every sensor's
+data have passed that time; then estimates are given at the reference sensor's sample
+times from its first sample on, each as soon as every other sensor has a sample at or
+after it (their orientations are interpolated there by slerp). ``finish`` gives the rest,
+holding a sensor's last orientation past its last sample. So a recording fed whole, or in
+chunks of any size and any interleaving of sensors, gives the same numbers.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..arm.forward import forward_kinematics
+from ..arm.inverse import JointAngleParams, JointAngleSolver
+from ..arm.joints import SEGMENT_OF_SENSOR
+from ..body import SENSOR_NAMES, SegmentLengths, Side
+from ..calibration import CalibrationPlan, poses_from_marks
+from ..errors import InvalidArgument
+from ..orientation import DEFAULT_FILTER
+from ..recording import Mark, Pose
+from ..rotations import quat_slerp, quat_to_matrix
+from .calibrate import Calibration, calibrate
+from .estimates import REFERENCE_ORDER, Estimates
+from .tracks import SensorTrack
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    """A session's fixed facts: ``side``, segment ``lengths`` [m], the ``sensors`` worn,
+    the orientation ``filter`` by name, and the joint-angle parameters."""
+
+    side: Side
+    lengths: SegmentLengths
+    sensors: tuple[str, ...]
+    filter: str = DEFAULT_FILTER
+    joint_params: JointAngleParams = field(default_factory=JointAngleParams)
+
+    def __post_init__(self) -> None:
+        unknown = [s for s in self.sensors if s not in SENSOR_NAMES]
+        if unknown or not self.sensors:
+            raise InvalidArgument(f"sensors must be some of {SENSOR_NAMES}, got {self.sensors}")
+
+    @property
+    def reference(self) -> str:
+        return next(s for s in REFERENCE_ORDER if s in self.sensors)
+
+
+class Pipeline:
+    """Feed samples with ``feed``, marks with ``add_mark`` (or poses up front); take
+    estimates with ``poll`` as they become available and the rest with ``finish``."""
+
+    def __init__(self, config: PipelineConfig, poses: Iterable[Pose] = ()):
+        self.config = config
+        self._tracks = {s: SensorTrack(s, config.filter) for s in config.sensors}
+        self._poses = list(poses)
+        self._marks: list[Mark] = []
+        self._solver = JointAngleSolver(config.side, config.joint_params)
+        self._next = 0  # index of the next reference sample to estimate
+        self.calibration: Calibration | None = None
+        self._finished = False
+
+    def add_mark(self, mark: Mark) -> None:
+        """A stream's mark; calibration poses are taken from ``npose``/``tpose`` marks."""
+        if self.calibration is None:
+            self._marks.append(mark)
+
+    def feed(self, sensor: str, t, acc, gyr, mag=None) -> None:
+        """Samples of one sensor (t [s] (N,), acc [m/s²], gyr [rad/s], mag [µT] or None)."""
+        if self._finished:
+            raise InvalidArgument("the pipeline was finished; start a new one")
+        if sensor not in self._tracks:
+            raise InvalidArgument(f"sensor {sensor!r} is not in this session "
+                                  f"({', '.join(self._tracks)})")
+        self._tracks[sensor].append(t, acc, gyr, mag)
+
+    def poll(self) -> Estimates:
+        """Every estimate that has become available since the last call."""
+        return self._advance(final=False)
+
+    def finish(self) -> Estimates:
+        """The end of the stream: calibrate if not yet done, and estimate the rest."""
+        self._finished = True
+        return self._advance(final=True)
+
+    # -- internals ---------------------------------------------------------------------
+    def _plan(self) -> CalibrationPlan:
+        return CalibrationPlan.from_poses([*self._poses, *poses_from_marks(self._marks)])
+
+    def _advance(self, final: bool) -> Estimates:
+        tracks = [t for t in self._tracks.values() if t.last_t > -np.inf]
+        if not tracks or self._tracks[self.config.reference].last_t == -np.inf:
+            return Estimates.empty()
+        if self.calibration is None:
+            plan = self._plan()
+            first = min(t.first_t for t in tracks)
+            final_time = plan.final_time(first)
+            passed = all(t.last_t >= final_time for t in self._tracks.values())
+            if not (passed or final):
+                return Estimates.empty()
+            present = {name: track for name, track in self._tracks.items()
+                       if track.last_t > -np.inf}
+            self.calibration = calibrate(present, plan, self.config.side, final_time)
+        return self._estimate(final)
+
+    def _estimate(self, final: bool) -> Estimates:
+        assert self.calibration is not None
+        t_ref = self._tracks[self.config.reference].arrays()[0]
+        horizon = np.inf if final else min(
+            (t.last_t for n, t in self._tracks.items() if n != self.config.reference),
+            default=np.inf)
+        stop = int(np.searchsorted(t_ref, horizon, "right")) if np.isfinite(horizon) \
+            else len(t_ref)
+        if stop <= self._next:
+            return Estimates.empty()
+        times = t_ref[self._next:stop]
+        self._next = stop
+
+        R_world: dict[str, np.ndarray] = {}
+        for name, track in self._tracks.items():
+            t, _, _, q = track.arrays()
+            if len(t) == 0:
+                continue
+            R_world[SEGMENT_OF_SENSOR[name]] = self.calibration.R_world_segment(
+                name, quat_to_matrix(_orientation_at(t, q, times)))
+        if "thorax" not in R_world:
+            R_world["thorax"] = np.broadcast_to(self.calibration.R_world_thorax,
+                                                (len(times), 3, 3))
+        angles = self._solver.update(R_world)
+        pose = forward_kinematics({k: v for k, v in angles.angles.items()
+                                   if k != "shoulder_elevation"}, self.config.side,
+                                  self.config.lengths)
+        R_world_segment = {s: R_world["thorax"] @ R for s, R in pose.R_thorax.items()}
+        return Estimates(t=times, angles=angles.angles, residuals=angles.residuals,
+                         positions=pose.p_thorax, R_world_segment=R_world_segment)
+
+
+def _orientation_at(t: np.ndarray, q: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """A sensor's orientation (wxyz) at ``times``: slerp between its bracketing samples,
+    held before its first and after its last sample."""
+    j = np.clip(np.searchsorted(t, times, "right") - 1, 0, len(t) - 1)
+    k = np.minimum(j + 1, len(t) - 1)
+    span = t[k] - t[j]
+    u = np.where(span > 0, (times - t[j]) / np.where(span > 0, span, 1.0), 0.0).clip(0.0, 1.0)
+    return quat_slerp(q[j], q[k], u)
