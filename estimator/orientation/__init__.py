@@ -2,10 +2,16 @@
 
 from ..errors import InvalidArgument
 from .base import OrientationFilter, OrientationOutput
+from .ekf import EkfParams, ExtendedKalmanFilter
+from .euler_cf import EulerCfParams, EulerComplementaryFilter
 from .qcf import QcfParams, QuaternionComplementaryFilter
 
-#: Filter name → class; each is built with its default parameters by ``make_filter``.
-FILTERS: dict[str, type] = {"qcf": QuaternionComplementaryFilter}
+#: Filter name → class; each is built with its default parameters by ``make_filter``:
+#: ``qcf`` the default, ``ekf`` the thesis's per-link EKF (plus gyroscope bias),
+#: ``euler-cf`` the seed paper's complementary filter as published (a reference).
+FILTERS: dict[str, type] = {"qcf": QuaternionComplementaryFilter,
+                            "ekf": ExtendedKalmanFilter,
+                            "euler-cf": EulerComplementaryFilter}
 DEFAULT_FILTER = "qcf"
 
 
@@ -16,5 +22,6 @@ def make_filter(name: str = DEFAULT_FILTER) -> OrientationFilter:
     return FILTERS[name]()
 
 
-__all__ = ["DEFAULT_FILTER", "FILTERS", "OrientationFilter", "OrientationOutput", "QcfParams",
+__all__ = ["DEFAULT_FILTER", "FILTERS", "EkfParams", "EulerCfParams", "EulerComplementaryFilter",
+           "ExtendedKalmanFilter", "OrientationFilter", "OrientationOutput", "QcfParams",
            "QuaternionComplementaryFilter", "make_filter"]

@@ -37,12 +37,15 @@ class QcfParams:
     #: The same at rest, and the longest used while the filter warms up [s].
     tau_acc_rest: float = 0.5
     #: Time constant of the heading correction from the magnetometer [s].
-    tau_mag: float = 6.0
+    tau_mag: float = 4.0
     #: Low-pass time constant of the rest detector [s].
     tau_lowpass: float = 0.5
-    #: Rest: low-passed rate minus bias, and rate minus low-passed rate, below this [rad/s].
+    #: Rest: every rate sample within this of its low-pass [rad/s].
     rest_gyr: float = 0.05
-    #: Rest: accelerometer minus its low-pass below this [m/s²].
+    #: Rest: the low-passed rate minus the bias below this [rad/s] (loose: the bias is
+    #: not known yet at the first rest).
+    rest_rate: float = 0.05
+    #: Rest: every accelerometer sample within this of its low-pass [m/s²].
     rest_acc: float = 0.5
     #: Stillness must last this long before it counts as rest [s].
     rest_time: float = 1.0
@@ -53,9 +56,9 @@ class QcfParams:
     #: Largest bias believed [rad/s].
     bias_max: float = 0.2
     #: Relative deviation of |m| from the reference that marks a disturbed field.
-    mag_norm_tolerance: float = 0.08
+    mag_norm_tolerance: float = 0.05
     #: Deviation of the field's dip from the reference that marks a disturbance [rad].
-    mag_dip_tolerance: float = float(np.deg2rad(6.0))
+    mag_dip_tolerance: float = float(np.deg2rad(3.0))
     #: Time constant with which the reference field follows a clean field [s].
     tau_mag_reference: float = 30.0
     #: A disturbance steady for this long becomes the new reference [s].
@@ -78,7 +81,7 @@ class QcfParams:
                   self.rest_acc, self.rest_time, self.ki_bias, self.ki_bias_mag, self.bias_max,
                   self.mag_norm_tolerance, self.mag_dip_tolerance, self.tau_mag_reference,
                   self.mag_reaccept, self.max_dt, self.rest_min_samples, self.rest_guard,
-                  self.tau_acc_rest]
+                  self.tau_acc_rest, self.rest_rate]
         assert len(values) == PARAM_SIZE
         return np.array(values, dtype=np.float64)
 

@@ -34,8 +34,9 @@ STATE_SIZE = 43
 # Indices into the parameter vector, see QcfParams.as_array.
 (P_TAU_ACC, P_TAU_MAG, P_TAU_LP, P_REST_GYR, P_REST_ACC, P_REST_TIME,
  P_KI_BIAS, P_KI_BIAS_MAG, P_BIAS_MAX, P_MAG_NORM_TOL, P_MAG_DIP_TOL, P_TAU_MAG_REF,
- P_MAG_REACCEPT, P_MAX_DT, P_REST_MIN_SAMPLES, P_REST_GUARD, P_TAU_ACC_REST) = range(17)
-PARAM_SIZE = 17
+ P_MAG_REACCEPT, P_MAX_DT, P_REST_MIN_SAMPLES, P_REST_GUARD, P_TAU_ACC_REST,
+ P_REST_RATE) = range(18)
+PARAM_SIZE = 18
 
 
 def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out_rest,
@@ -46,6 +47,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     tau_mag = params[P_TAU_MAG]
     tau_lp = params[P_TAU_LP]
     rest_gyr = params[P_REST_GYR]
+    rest_rate = params[P_REST_RATE]
     rest_acc = params[P_REST_ACC]
     rest_time_needed = params[P_REST_TIME]
     ki_bias = params[P_KI_BIAS]
@@ -138,10 +140,12 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
             alx += k_lp * (ax - alx)
             aly += k_lp * (ay - aly)
             alz += k_lp * (az - alz)
+            # the deviation of each sample from the low-pass reacts at once to a movement's
+            # onset (a smoothed measure would let its first samples into the bias)
             dev_g = math.sqrt((wx - glx) ** 2 + (wy - gly) ** 2 + (wz - glz) ** 2)
             rate = math.sqrt((glx - bx) ** 2 + (gly - by) ** 2 + (glz - bz) ** 2)
             dev_a = math.sqrt((ax - alx) ** 2 + (ay - aly) ** 2 + (az - alz) ** 2)
-            if dev_g < rest_gyr and rate < rest_gyr and dev_a < rest_acc:
+            if dev_g < rest_gyr and rate < rest_rate and dev_a < rest_acc:
                 still_time += dt
             else:
                 still_time = 0.0

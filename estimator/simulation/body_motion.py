@@ -12,8 +12,9 @@ and a point ``p = p_parent + R v`` (``v`` fixed in the frame) moves with
     p̈ = p̈_parent + R (α × v + ω × (ω × v)).
 
 So angular rates and accelerations are exact, from the profiles' closed-form derivatives,
-with no numerical differentiation. World frame: ENU (x east, y north, z up). The subject stands with the pelvis
-(the trunk's pivot) fixed; the thorax's sternal notch is ``trunk_length_m`` above it.
+with no numerical differentiation. World frame: ENU (x east, y north, z up). The subject
+stands with the pelvis (the trunk's pivot) fixed; the sternal notch is ``trunk_length_m``
+above it.
 """
 
 from __future__ import annotations

@@ -149,7 +149,8 @@ def exercise_motion(name: str, *, repetitions_count: int | None = None,
     """The calibration sequence (optional) followed by the named exercise."""
     if name not in EXERCISES:
         raise InvalidArgument(f"unknown exercise {name!r}; one of {', '.join(sorted(EXERCISES))}")
-    start = (EXERCISE_START_S if calibration else 1.0) if start_s is None else start_s
+    # without calibration poses the kit still lies still for 3 s before the exercise
+    start = (EXERCISE_START_S if calibration else 3.0) if start_s is None else start_s
     joints, trunk = EXERCISES[name](repetitions_count, amplitude_deg, start)
     if calibration:
         joints = _merge(calibration_sequence(), joints)
