@@ -61,9 +61,20 @@ def _parser() -> argparse.ArgumentParser:
         "with exact IMU physics, sensor mounting, noise, gyroscope bias and optional faults; "
         "writes the recording and a truth CSV of joint angles (deg) and positions (m).",
     )
+    from .commands import estimate, orient
     from .commands.simulate import add_arguments
 
     add_arguments(simulate)
+    estimate.add_arguments(commands.add_parser(
+        "estimate", help="joint angles and positions of a recording, with its range of motion",
+        description="Calibrates from the recording's poses, runs an orientation filter per "
+        "sensor and writes per-sample t, every joint angle of spec/kinematics.md (degrees), "
+        "shoulder_elevation and shoulder_x … hand_z (metres, thorax frame); prints the "
+        "range of motion against normal values."))
+    orient.add_arguments(commands.add_parser(
+        "orient", help="one sensor's orientation (quaternion, sensor to earth ENU)",
+        description="Runs an orientation filter on one IMU: input t,ax,ay,az,gx,gy,gz,"
+        "mx,my,mz; output t,qw,qx,qy,qz (R_world_sensor, earth x east, y north, z up)."))
     return parser
 
 
@@ -82,6 +93,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             from .commands.simulate import run_simulate
 
             return run_simulate(args)
+        if args.command == "estimate":
+            from .commands.estimate import run_estimate
+
+            return run_estimate(args)
+        if args.command == "orient":
+            from .commands.orient import run_orient
+
+            return run_orient(args)
     except EstimatorError as exc:
         print(f"armtrack {args.command}: {exc}", file=sys.stderr)
         return 2

@@ -109,3 +109,41 @@ def test_simulate_refuses_unknown_sensors(tmp_path):
     result = run("simulate", "--sensors", "upper_arm,elbow", "-o", tmp_path / "x.csv",
                  check=False)
     assert result.returncode == 2 and "unknown sensor(s) ['elbow']" in result.stderr
+
+
+def test_estimate_writes_angles_and_prints_the_range_of_motion(tmp_path):
+    rec = tmp_path / "elbow.csv"
+    run("simulate", "--exercise", "elbow_flexion", "--amplitude", "110", "-o", rec)
+    out = tmp_path / "angles.csv"
+    printed = run("estimate", rec, "-o", out).stdout
+    assert "calibration two-pose" in printed and "elbow_flexion" in printed
+    table = np.genfromtxt(out, delimiter=",", names=True)
+    assert table.dtype.names[:2] == ("t", "clavicle_protraction")
+    assert {"shoulder_elevation", "hand_z"} <= set(table.dtype.names)
+    truth = np.genfromtxt(tmp_path / "elbow.truth.csv", delimiter=",", names=True)
+    elbow = np.interp(truth["t"], table["t"], table["elbow_flexion"])
+    rmse = float(np.sqrt(np.mean((elbow - truth["elbow_flexion"])[truth["t"] > 10.5] ** 2)))
+    print(f"armtrack estimate: elbow flexion RMSE {rmse:.2f}° against the simulator's truth")
+    assert rmse < 1.0
+    rom_line = next(line for line in printed.splitlines() if "elbow_flexion" in line)
+    assert float(rom_line.split()[3]) == pytest.approx(110, abs=2)  # the range column
+
+
+def test_orient_matches_the_filter_and_refuses_bad_files(tmp_path):
+    from armtrack.estimator.orientation import make_filter
+    from armtrack.estimator.simulation import SimulationConfig, simulate
+
+    stream = simulate(SimulationConfig(exercise="reach", seed=3)).recording.sensors["forearm"]
+    imu = tmp_path / "imu.csv"
+    rows = np.column_stack([stream.t, stream.acc, stream.gyr, stream.mag])
+    imu.write_text("t,ax,ay,az,gx,gy,gz,mx,my,mz\n"
+                   + "\n".join(",".join(repr(float(v)) for v in row) for row in rows) + "\n")
+    out = tmp_path / "q.csv"
+    run("orient", imu, "-o", out)
+    q = np.loadtxt(out, delimiter=",", skiprows=1)
+    expected = make_filter().update_batch(stream.t, stream.acc, stream.gyr, stream.mag).q
+    np.testing.assert_allclose(q[:, 1:], expected, atol=1e-8)
+    broken = tmp_path / "broken.csv"
+    broken.write_text("t,ax,ay,az,gx,gy,gz,mx,my,mz\n0,0,0,9.8,0,0,0,,,\n0.01,0,0,9.8,0,0,0,1,2,\n")
+    result = run("orient", broken, check=False)
+    assert result.returncode == 2 and "line 3" in result.stderr and "mx,my,mz" in result.stderr

@@ -1,0 +1,63 @@
+"""``armtrack estimate``: joint angles and positions of a recording, and its range of motion."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from armtrack.estimator.metrics import range_of_motion_table
+from armtrack.estimator.orientation import DEFAULT_FILTER, FILTERS
+from armtrack.estimator.pipeline import estimate_recording
+from armtrack.estimator.recording import read_recording
+
+#: Seconds after the last calibration pose still counted as calibration (the return to
+#: the N-pose), so the poses never count as range of motion.
+CALIBRATION_TAIL_S = 2.5
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("recording", type=Path)
+    parser.add_argument("-o", "--output", type=Path, metavar="FILE",
+                        help="the angles CSV to write (default: standard output)")
+    parser.add_argument("--filter", choices=sorted(FILTERS), default=DEFAULT_FILTER,
+                        help=f"orientation filter (default {DEFAULT_FILTER})")
+
+
+def run_estimate(args: argparse.Namespace) -> int:
+    recording = read_recording(args.recording)
+    estimates, calibration = estimate_recording(recording, args.filter)
+    columns, values = estimates.table()
+    out = open(args.output, "w", encoding="utf-8") if args.output else sys.stdout  # noqa: SIM115
+    try:
+        out.write(",".join(columns) + "\n")
+        np.savetxt(out, values, delimiter=",",
+                   fmt=["%.4f"] + ["%.4f"] * (len(columns) - 13) + ["%.5f"] * 12)
+    finally:
+        if out is not sys.stdout:
+            out.close()
+
+    report = sys.stderr if args.output is None else sys.stdout
+    poses = recording.calibration
+    exclude = ([(float(estimates.t[0]) if len(estimates) else 0.0,
+                 max(p.end for p in poses) + CALIBRATION_TAIL_S)] if poses else None)
+    table = range_of_motion_table(estimates.angles, estimates.t, exclude=exclude)
+    print(f"{args.recording}: {len(estimates)} estimates, filter {args.filter}, calibration "
+          f"{calibration.method}" + (f", written to {args.output}" if args.output else ""),
+          file=report)
+    for warning in calibration.warnings:
+        print(f"  warning: {warning.message}", file=report)
+    if not table:
+        print("  no joint moved more than the noise", file=report)
+        return 0
+    print(f"  {'range of motion (deg)':<24}{'min':>8}{'max':>8}{'range':>8}{'normal':>12}"
+          f"{'% normal':>10}", file=report)
+    for name, rom in table.items():
+        normal = ("" if rom.normal_min_deg is None
+                  else f"{rom.normal_min_deg:.0f}…{rom.normal_max_deg:.0f}")
+        percent = "" if rom.percent_of_normal is None else f"{rom.percent_of_normal:.0f}"
+        print(f"  {name:<24}{rom.min_deg:8.1f}{rom.max_deg:8.1f}{rom.range_deg:8.1f}"
+              f"{normal:>12}{percent:>10}", file=report)
+    return 0
