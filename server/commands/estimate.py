@@ -7,11 +7,12 @@ import sys
 from pathlib import Path
 
 import numpy as np
-
 from armtrack.estimator.metrics import range_of_motion_table
 from armtrack.estimator.orientation import DEFAULT_FILTER, FILTERS
 from armtrack.estimator.pipeline import estimate_recording
 from armtrack.estimator.recording import read_recording
+
+from .output import open_output
 
 #: Seconds after the last calibration pose still counted as calibration (the return to
 #: the N-pose), so the poses never count as range of motion.
@@ -30,14 +31,10 @@ def run_estimate(args: argparse.Namespace) -> int:
     recording = read_recording(args.recording)
     estimates, calibration = estimate_recording(recording, args.filter)
     columns, values = estimates.table()
-    out = open(args.output, "w", encoding="utf-8") if args.output else sys.stdout  # noqa: SIM115
-    try:
+    with open_output(args.output) as out:
         out.write(",".join(columns) + "\n")
         np.savetxt(out, values, delimiter=",",
                    fmt=["%.4f"] + ["%.4f"] * (len(columns) - 13) + ["%.5f"] * 12)
-    finally:
-        if out is not sys.stdout:
-            out.close()
 
     report = sys.stderr if args.output is None else sys.stdout
     poses = recording.calibration

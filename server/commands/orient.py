@@ -3,15 +3,15 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.csv as pacsv
-
 from armtrack.estimator.errors import InvalidArgument
 from armtrack.estimator.orientation import DEFAULT_FILTER, FILTERS, make_filter
+
+from .output import open_output
 
 COLUMNS = ["t", "ax", "ay", "az", "gx", "gy", "gz", "mx", "my", "mz"]
 
@@ -66,11 +66,7 @@ def read_imu(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray
 def run_orient(args: argparse.Namespace) -> int:
     t, acc, gyr, mag = read_imu(args.imu)
     q = make_filter(args.filter).update_batch(t, acc, gyr, mag).q
-    out = open(args.output, "w", encoding="utf-8") if args.output else sys.stdout  # noqa: SIM115
-    try:
+    with open_output(args.output) as out:
         out.write("t,qw,qx,qy,qz\n")
         np.savetxt(out, np.column_stack([t, q]), delimiter=",", fmt=["%.6f"] + ["%.9f"] * 4)
-    finally:
-        if out is not sys.stdout:
-            out.close()
     return 0

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
 
 import numpy as np
 from armtrack.estimator.arm import ANGLE_NAMES, POINTS, forward_kinematics, joint_angles
@@ -73,13 +72,9 @@ def run_pose(args: argparse.Namespace) -> int:
         pose = forward_kinematics(angles, args.side, lengths)
         columns = ["t"] + [f"{p}_{a}" for p in POINTS for a in "xyz"]
         table = np.column_stack([t, *(pose.p_thorax[p] for p in POINTS)])
-        out = open(args.output, "w", encoding="utf-8") if args.output else sys.stdout
-        try:
+        with open_output(args.output) as out:
             out.write(",".join(columns) + "\n")
             np.savetxt(out, table, delimiter=",", fmt=["%.5f"] + ["%.6f"] * 12)
-        finally:
-            if out is not sys.stdout:
-                out.close()
         return 0
 
     degrees = _parse_assignments(args.angles)
