@@ -10,6 +10,8 @@ from armtrack.estimator.body import SegmentLengths
 from armtrack.estimator.errors import InvalidArgument
 from armtrack.estimator.rotations import matrix_to_quat
 
+from .output import open_output
+
 
 def _lengths(args: argparse.Namespace) -> SegmentLengths:
     if args.lengths is None:
