@@ -7,6 +7,7 @@ from armtrack.estimator.arm import REPORTED_ANGLES
 from armtrack.estimator.pipeline import Pipeline, PipelineConfig, estimate_recording
 from armtrack.estimator.recording import Mark, read_recording
 from armtrack.estimator.simulation import (
+    ImuErrors,
     Motion,
     Profile,
     Ramp,
@@ -28,9 +29,8 @@ SHARED = ["elbow_flexion", "shoulder_abduction", "shoulder_flexion", "wrist_flex
 #: Recordings where the estimator does not meet the bar yet (measured figures in the
 #: reason); strict, so the day one passes the mark must go.
 KNOWN_GAPS = {
-    "trunk_reach": "swaying trunk, no rest for the gyroscope bias: worst angle ≈ 3.4°",
-    "elbow_6axis_long": "5-min 6-axis session, bias drift: worst angle ≈ 2.8° (bar 2°)",
-    "abduction_120": "flexion/rotation near 90° abduction: worst angle ≈ 1.1°",
+    "trunk_reach": "swaying trunk, never at rest, so the gyroscope bias is learned only from "
+                   "the tilt corrections: worst angle ≈ 3.1°",
 }
 
 
@@ -80,6 +80,12 @@ SIMULATED = {
                                         sensors=("clavicle", "upper_arm", "forearm", "hand")),
     "six_axis_drinking": SimulationConfig(exercise="drinking", nine_axis=False, seed=13),
     "abduction_past_90": SimulationConfig(exercise="abduction_120", seed=14),
+    "long_6axis_drifting_bias": SimulationConfig(
+        exercise="long_session", nine_axis=False, seed=15,
+        errors=ImuErrors(gyro_noise=0.004, acc_noise=0.04, gyro_bias_walk=2e-4)),
+    "magnet_near_hand": SimulationConfig(exercise="reach", magnet_near_hand=True, seed=16),
+    "tall_body_shoulder_flexion": SimulationConfig(exercise="shoulder_flexion", seed=17,
+                                                   height_m=2.02),
 }
 
 
@@ -196,3 +202,28 @@ def test_without_poses_the_default_mounting_is_used_and_said():
                                 scored_from=EXERCISE_START_S - 10.0)
     print(f"default mounting, sensors mounted as assumed: worst {worst} {worst_deg:.2f}°")
     assert worst_deg <= ANGLE_BAR_DEG[True]
+
+
+def test_heading_constraint_recovers_a_forearm_heading_error():
+    """A forearm turned 6° about the vertical against its upper arm: the elbow's constraint
+    finds the turn once the elbow bends, and says nothing while it is straight. The
+    estimate is shrunk toward 0 by its prior (≈ prior / ∫D² dt, 5% here) and by the
+    linearisation: it must land within 15% of the turn, on the right side of 0."""
+    from armtrack.estimator.pipeline.constraints import HeadingConstraint
+    from armtrack.estimator.rotations import elemental
+
+    sim = simulate(SimulationConfig(exercise="elbow_flexion", seed=31))
+    R = {s: R @ sim.truth.mounts[s].R_segment_sensor.T
+         for s, R in sim.truth.R_world_sensor.items()}
+    t = sim.recording.sensors["upper_arm"].t
+    turned = elemental("z", np.deg2rad(6.0)) @ R["forearm"]
+    whole = HeadingConstraint().update(t, R["upper_arm"][:, :, 2], turned[:, :, 1])
+    straight = t < 10.0  # calibration poses: the elbow never bends
+    assert np.abs(whole[straight]).max() < np.deg2rad(0.05)
+    late = t > 25.0
+    print(f"heading constraint: {np.rad2deg(whole[late]).mean():.3f}° found for a -6° turn")
+    assert np.all((whole[late] < np.deg2rad(-6.0 * 0.85)) & (whole[late] > np.deg2rad(-6.0)))
+    chunked = HeadingConstraint()
+    parts = [chunked.update(t[a:a + 700], R["upper_arm"][a:a + 700, :, 2],
+                            turned[a:a + 700, :, 1]) for a in range(0, len(t), 700)]
+    np.testing.assert_allclose(np.concatenate(parts), whole, atol=1e-12)

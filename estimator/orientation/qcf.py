@@ -42,9 +42,13 @@ class QcfParams:
     tau_lowpass: float = 0.5
     #: Rest: every rate sample within this of its low-pass [rad/s].
     rest_gyr: float = 0.05
-    #: Rest: the low-passed rate minus the bias below this [rad/s] (loose: the bias is
-    #: not known yet at the first rest).
+    #: Rest: the low-passed rate minus the bias below this [rad/s] before any rest has
+    #: taught the bias (loose: a MEMS bias can be this large) …
     rest_rate: float = 0.05
+    #: … and after (tight: slow movements are not rest).
+    rest_rate_known: float = 0.02
+    #: Time constant with which later rests update the bias [s] (it drifts with temperature).
+    tau_bias_rest: float = 10.0
     #: Rest: every accelerometer sample within this of its low-pass [m/s²].
     rest_acc: float = 0.5
     #: Stillness must last this long before it counts as rest [s].
@@ -81,7 +85,8 @@ class QcfParams:
                   self.rest_acc, self.rest_time, self.ki_bias, self.ki_bias_mag, self.bias_max,
                   self.mag_norm_tolerance, self.mag_dip_tolerance, self.tau_mag_reference,
                   self.mag_reaccept, self.max_dt, self.rest_min_samples, self.rest_guard,
-                  self.tau_acc_rest, self.rest_rate]
+                  self.tau_acc_rest, self.rest_rate, self.tau_bias_rest,
+                  self.rest_rate_known]
         assert len(values) == PARAM_SIZE
         return np.array(values, dtype=np.float64)
 

@@ -20,7 +20,8 @@ far [s] · ``[15:18]`` low-passed gyroscope · ``[18:21]`` low-passed accelerome
 norm [µT] · ``[28]`` reference dip [rad] · ``[29]`` time disturbed so far [s] · ``[30:33]``
 sum of the gyroscope over the current rest · ``[33]`` samples in it · ``[34:37]`` sum of
 the samples still waiting for the guard time · ``[37]`` their count · ``[38]`` their
-time · ``[39:42]`` the previous gyroscope sample · ``[42]`` the first sample's time.
+time · ``[39:42]`` the previous gyroscope sample · ``[42]`` the first sample's time
+· ``[43]`` whether a rest has taught the bias.
 """
 
 from __future__ import annotations
@@ -29,14 +30,14 @@ import math
 
 import numpy as np
 
-STATE_SIZE = 43
+STATE_SIZE = 44
 
 # Indices into the parameter vector, see QcfParams.as_array.
 (P_TAU_ACC, P_TAU_MAG, P_TAU_LP, P_REST_GYR, P_REST_ACC, P_REST_TIME,
  P_KI_BIAS, P_KI_BIAS_MAG, P_BIAS_MAX, P_MAG_NORM_TOL, P_MAG_DIP_TOL, P_TAU_MAG_REF,
  P_MAG_REACCEPT, P_MAX_DT, P_REST_MIN_SAMPLES, P_REST_GUARD, P_TAU_ACC_REST,
- P_REST_RATE) = range(18)
-PARAM_SIZE = 18
+ P_REST_RATE, P_TAU_BIAS_REST, P_REST_RATE_KNOWN) = range(20)
+PARAM_SIZE = 20
 
 
 def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out_rest,
@@ -48,6 +49,8 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     tau_lp = params[P_TAU_LP]
     rest_gyr = params[P_REST_GYR]
     rest_rate = params[P_REST_RATE]
+    rest_rate_known = params[P_REST_RATE_KNOWN]
+    tau_bias_rest = params[P_TAU_BIAS_REST]
     rest_acc = params[P_REST_ACC]
     rest_time_needed = params[P_REST_TIME]
     ki_bias = params[P_KI_BIAS]
@@ -79,6 +82,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     px, py, pz, pending, pending_time = state[34], state[35], state[36], state[37], state[38]
     lwx, lwy, lwz = state[39], state[40], state[41]
     t_start = state[42]
+    bias_known = state[43]
 
     for i in range(t.shape[0]):
         ax, ay, az = acc[i, 0], acc[i, 1], acc[i, 2]
@@ -145,7 +149,8 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
             dev_g = math.sqrt((wx - glx) ** 2 + (wy - gly) ** 2 + (wz - glz) ** 2)
             rate = math.sqrt((glx - bx) ** 2 + (gly - by) ** 2 + (glz - bz) ** 2)
             dev_a = math.sqrt((ax - alx) ** 2 + (ay - aly) ** 2 + (az - alz) ** 2)
-            if dev_g < rest_gyr and rate < rest_rate and dev_a < rest_acc:
+            rate_limit = rest_rate if bias_known == 0.0 else rest_rate_known
+            if dev_g < rest_gyr and rate < rate_limit and dev_a < rest_acc:
                 still_time += dt
             else:
                 still_time = 0.0
@@ -162,19 +167,35 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
                 pending += 1.0
                 pending_time += dt
                 if pending_time >= rest_guard:
-                    sx += px
-                    sy += py
-                    sz += pz
-                    count += pending
+                    if bias_known == 0.0:
+                        # the first rest: the bias is the mean of everything so far
+                        sx += px
+                        sy += py
+                        sz += pz
+                        count += pending
+                        if count >= rest_min_samples:
+                            bx, by, bz = sx / count, sy / count, sz / count
+                            bias_known = 1.0
+                    else:
+                        # later: follow a drifting bias, each block weighted by its length
+                        k_b = pending_time / (tau_bias_rest + pending_time)
+                        bx += k_b * (px / pending - bx)
+                        by += k_b * (py / pending - by)
+                        bz += k_b * (pz / pending - bz)
                     px, py, pz, pending, pending_time = 0.0, 0.0, 0.0, 0.0, 0.0
-                    if count >= rest_min_samples:
-                        bx, by, bz = sx / count, sy / count, sz / count
 
             # Strapdown: q_gyr ← q_gyr ⊗ exp(½ (ω̄ − b) dt), ω̄ the mean of the rates at the
-            # interval's two ends (trapezoidal: second order, no lag of half a sample).
-            ox = (0.5 * (wx + lwx) - bx) * dt
-            oy = (0.5 * (wy + lwy) - by) * dt
-            oz = (0.5 * (wz + lwz) - bz) * dt
+            # interval's two ends (trapezoidal: second order, no lag of half a sample). At
+            # rest the rate is the low-pass's residue (a zero-velocity update): integrating
+            # bias and noise there would only add drift, of heading above all.
+            if at_rest:
+                ox = (0.5 * (wx + lwx) - glx) * dt
+                oy = (0.5 * (wy + lwy) - gly) * dt
+                oz = (0.5 * (wz + lwz) - glz) * dt
+            else:
+                ox = (0.5 * (wx + lwx) - bx) * dt
+                oy = (0.5 * (wy + lwy) - by) * dt
+                oz = (0.5 * (wz + lwz) - bz) * dt
             angle = math.sqrt(ox * ox + oy * oy + oz * oz)
             if angle > 1e-12:
                 c, s = math.cos(0.5 * angle), math.sin(0.5 * angle) / angle
@@ -346,6 +367,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     state[34], state[35], state[36], state[37], state[38] = px, py, pz, pending, pending_time
     state[39], state[40], state[41] = lwx, lwy, lwz
     state[42] = t_start
+    state[43] = bias_known
 
 
 def _compile():

@@ -25,8 +25,9 @@ from ..calibration import CalibrationPlan, poses_from_marks
 from ..errors import InvalidArgument
 from ..orientation import DEFAULT_FILTER
 from ..recording import Mark, Pose
-from ..rotations import quat_slerp, quat_to_matrix
+from ..rotations import elemental, quat_slerp, quat_to_matrix
 from .calibrate import Calibration, calibrate
+from .constraints import HeadingConstraint
 from .estimates import REFERENCE_ORDER, Estimates
 from .tracks import SensorTrack
 
@@ -65,6 +66,7 @@ class Pipeline:
         self._next = 0  # index of the next reference sample to estimate
         self.calibration: Calibration | None = None
         self._finished = False
+        self._constraints: dict[str, HeadingConstraint] = {}
 
     def add_mark(self, mark: Mark) -> None:
         """A stream's mark; calibration poses are taken from ``npose``/``tpose`` marks."""
@@ -107,6 +109,10 @@ class Pipeline:
             present = {name: track for name, track in self._tracks.items()
                        if track.last_t > -np.inf}
             self.calibration = calibrate(present, plan, self.config.side, final_time)
+            if not all(track.nine_axis for track in present.values()):
+                # 6-axis: keep the forearm's and hand's headings tied by the joints
+                self._constraints = {s: HeadingConstraint() for s in ("forearm", "hand")
+                                     if s in present}
         return self._estimate(final)
 
     def _estimate(self, final: bool) -> Estimates:
@@ -132,6 +138,8 @@ class Pipeline:
         if "thorax" not in R_world:
             R_world["thorax"] = np.broadcast_to(self.calibration.R_world_thorax,
                                                 (len(times), 3, 3))
+        if self._constraints:
+            self._apply_constraints(times, R_world)
         angles = self._solver.update(R_world)
         pose = forward_kinematics({k: v for k, v in angles.angles.items()
                                    if k != "shoulder_elevation"}, self.config.side,
@@ -139,6 +147,22 @@ class Pipeline:
         R_world_segment = {s: R_world["thorax"] @ R for s, R in pose.R_thorax.items()}
         return Estimates(t=times, angles=angles.angles, residuals=angles.residuals,
                          positions=pose.p_thorax, R_world_segment=R_world_segment)
+
+
+    def _apply_constraints(self, times: np.ndarray, R_world: dict[str, np.ndarray]) -> None:
+        """Turn the forearm and hand about the vertical by their joints' heading error."""
+        mirror = -1.0 if self.config.side == "left" else 1.0  # the left arm's Z is medial
+        pairs = {"forearm": ("upper_arm", 2, 1), "hand": ("forearm", 0, 2)}
+        for segment, constraint in self._constraints.items():
+            parent, u_axis, v_axis = pairs[segment]
+            if parent not in R_world:
+                continue
+            u = R_world[parent][:, :, u_axis] * (mirror if u_axis == 2 else 1.0)
+            v = R_world[segment][:, :, v_axis] * (mirror if v_axis == 2 else 1.0)
+            delta = constraint.update(times, u, v)
+            R_world[segment] = elemental("z", delta) @ R_world[segment]
+            if segment == "forearm" and "hand" in R_world and "hand" not in self._constraints:
+                R_world["hand"] = elemental("z", delta) @ R_world["hand"]
 
 
 def _orientation_at(t: np.ndarray, q: np.ndarray, times: np.ndarray) -> np.ndarray:
