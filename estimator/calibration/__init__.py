@@ -1,5 +1,6 @@
 """Calibration: the poses, sensor-to-segment rotations and their quality."""
 
+from .magnetometer import SphereFit, minmax_offset, sphere_fit_offset
 from .mounting import (
     default_R_segment_sensor,
     heading_from_arm,
@@ -9,6 +10,17 @@ from .mounting import (
 from .plan import CalibrationPlan, poses_from_marks
 from .quality import CalibrationWarning, stillness_warning, turn_warning
 
-__all__ = ["CalibrationPlan", "CalibrationWarning", "default_R_segment_sensor",
-           "heading_from_arm", "poses_from_marks", "stillness_warning",
-           "tilt_only_R_sensor_segment", "turn_warning", "two_pose_R_sensor_segment"]
+__all__ = [
+    "CalibrationPlan",
+    "CalibrationWarning",
+    "SphereFit",
+    "default_R_segment_sensor",
+    "heading_from_arm",
+    "minmax_offset",
+    "poses_from_marks",
+    "sphere_fit_offset",
+    "stillness_warning",
+    "tilt_only_R_sensor_segment",
+    "turn_warning",
+    "two_pose_R_sensor_segment",
+]

@@ -50,7 +50,7 @@ class QcfParams:
     #: Time constant with which later rests update the bias [s] (it drifts with temperature).
     tau_bias_rest: float = 10.0
     #: Rest: every accelerometer sample within this of its low-pass [m/s²].
-    rest_acc: float = 0.5
+    rest_acc: float = 0.25
     #: Stillness must last this long before it counts as rest [s].
     rest_time: float = 1.0
     #: Bias gain from tilt corrections in motion [1/s] (an integral time of 1/ki).
