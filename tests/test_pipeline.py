@@ -30,7 +30,7 @@ SHARED = ["elbow_flexion", "shoulder_abduction", "shoulder_flexion", "wrist_flex
 #: reason); strict, so the day one passes the mark must go.
 KNOWN_GAPS = {
     "trunk_reach": "swaying trunk, never at rest, so the gyroscope bias is learned only from "
-                   "the tilt corrections: worst angle ≈ 3.1°",
+                   "the tilt corrections: worst angle ≈ 2.9°, wrist 2.9 cm",
 }
 
 
