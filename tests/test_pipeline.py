@@ -227,3 +227,16 @@ def test_heading_constraint_recovers_a_forearm_heading_error():
     parts = [chunked.update(t[a:a + 700], R["upper_arm"][a:a + 700, :, 2],
                             turned[a:a + 700, :, 1]) for a in range(0, len(t), 700)]
     np.testing.assert_allclose(np.concatenate(parts), whole, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", ["elbow_6axis", "trunk_reach"])
+def test_shared_recording_streamed_in_chunks_equals_batch(shared_dir, name):
+    """A 6-axis kit (heading constraints) and one with a trunk sensor, chunked at random."""
+    from armtrack.estimator.pipeline import Estimates
+
+    recording = read_recording(shared_dir / "data" / "recordings" / f"{name}.csv")
+    batch, _ = estimate_recording(recording)
+    stream = Estimates.concatenate(feed_in_chunks(recording, np.random.default_rng(7)))
+    np.testing.assert_array_equal(stream.t, batch.t)
+    for k in REPORTED_ANGLES:
+        np.testing.assert_allclose(stream.angles[k], batch.angles[k], atol=1e-9, rtol=0)
