@@ -49,6 +49,9 @@ class QcfParams:
     rest_rate_known: float = 0.02
     #: Time constant with which later rests update the bias [s] (it drifts with temperature).
     tau_bias_rest: float = 10.0
+    #: A rest must have lasted this much longer before the orientation is held still
+    #: through it (the zero-velocity update) [s].
+    zupt_delay: float = 0.3
     #: Rest: every accelerometer sample within this of its low-pass [m/s²].
     rest_acc: float = 0.25
     #: Stillness must last this long before it counts as rest [s].
@@ -86,7 +89,7 @@ class QcfParams:
                   self.mag_norm_tolerance, self.mag_dip_tolerance, self.tau_mag_reference,
                   self.mag_reaccept, self.max_dt, self.rest_min_samples, self.rest_guard,
                   self.tau_acc_rest, self.rest_rate, self.tau_bias_rest,
-                  self.rest_rate_known]
+                  self.rest_rate_known, self.zupt_delay]
         assert len(values) == PARAM_SIZE
         return np.array(values, dtype=np.float64)
 

@@ -36,8 +36,8 @@ STATE_SIZE = 44
 (P_TAU_ACC, P_TAU_MAG, P_TAU_LP, P_REST_GYR, P_REST_ACC, P_REST_TIME,
  P_KI_BIAS, P_KI_BIAS_MAG, P_BIAS_MAX, P_MAG_NORM_TOL, P_MAG_DIP_TOL, P_TAU_MAG_REF,
  P_MAG_REACCEPT, P_MAX_DT, P_REST_MIN_SAMPLES, P_REST_GUARD, P_TAU_ACC_REST,
- P_REST_RATE, P_TAU_BIAS_REST, P_REST_RATE_KNOWN) = range(20)
-PARAM_SIZE = 20
+ P_REST_RATE, P_TAU_BIAS_REST, P_REST_RATE_KNOWN, P_ZUPT_DELAY) = range(21)
+PARAM_SIZE = 21
 
 
 def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out_rest,
@@ -51,6 +51,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     rest_rate = params[P_REST_RATE]
     rest_rate_known = params[P_REST_RATE_KNOWN]
     tau_bias_rest = params[P_TAU_BIAS_REST]
+    zupt_delay = params[P_ZUPT_DELAY]
     rest_acc = params[P_REST_ACC]
     rest_time_needed = params[P_REST_TIME]
     ki_bias = params[P_KI_BIAS]
@@ -188,7 +189,9 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
             # interval's two ends (trapezoidal: second order, no lag of half a sample). At
             # rest the rate is the low-pass's residue (a zero-velocity update): integrating
             # bias and noise there would only add drift, of heading above all.
-            if at_rest:
+            # (Only once the rest has outlasted the guard: a slow sway can look still for
+            # a second, and freezing it would be worse than the drift.)
+            if at_rest and still_time >= rest_time_needed + zupt_delay:
                 ox = (0.5 * (wx + lwx) - glx) * dt
                 oy = (0.5 * (wy + lwy) - gly) * dt
                 oz = (0.5 * (wz + lwz) - glz) * dt
