@@ -25,7 +25,7 @@ from ..calibration import CalibrationPlan, poses_from_marks
 from ..errors import InvalidArgument
 from ..orientation import DEFAULT_FILTER
 from ..recording import Mark, Pose
-from ..rotations import elemental, quat_slerp, quat_to_matrix
+from ..rotations import elemental, quat_to_matrix
 from .calibrate import Calibration, calibrate
 from .constraints import HeadingConstraint
 from .estimates import REFERENCE_ORDER, Estimates
@@ -130,11 +130,10 @@ class Pipeline:
 
         R_world: dict[str, np.ndarray] = {}
         for name, track in self._tracks.items():
-            t, _, _, q = track.arrays()
-            if len(t) == 0:
+            if track.last_t == -np.inf:
                 continue
             R_world[SEGMENT_OF_SENSOR[name]] = self.calibration.R_world_segment(
-                name, quat_to_matrix(_orientation_at(t, q, times)))
+                name, quat_to_matrix(track.orientation_at(times)))
         if "thorax" not in R_world:
             R_world["thorax"] = np.broadcast_to(self.calibration.R_world_thorax,
                                                 (len(times), 3, 3))
@@ -163,13 +162,3 @@ class Pipeline:
             R_world[segment] = elemental("z", delta) @ R_world[segment]
             if segment == "forearm" and "hand" in R_world and "hand" not in self._constraints:
                 R_world["hand"] = elemental("z", delta) @ R_world["hand"]
-
-
-def _orientation_at(t: np.ndarray, q: np.ndarray, times: np.ndarray) -> np.ndarray:
-    """A sensor's orientation (wxyz) at ``times``: slerp between its bracketing samples,
-    held before its first and after its last sample."""
-    j = np.clip(np.searchsorted(t, times, "right") - 1, 0, len(t) - 1)
-    k = np.minimum(j + 1, len(t) - 1)
-    span = t[k] - t[j]
-    u = np.where(span > 0, (times - t[j]) / np.where(span > 0, span, 1.0), 0.0).clip(0.0, 1.0)
-    return quat_slerp(q[j], q[k], u)

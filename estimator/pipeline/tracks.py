@@ -9,6 +9,7 @@ import numpy as np
 
 from ..errors import InvalidArgument
 from ..orientation import OrientationFilter, make_filter
+from ..rotations import quat_slerp
 
 
 @dataclass
@@ -66,3 +67,17 @@ class SensorTrack:
         t, acc, gyr, q = self.arrays()
         a, b = np.searchsorted(t, start, "left"), np.searchsorted(t, end, "right")
         return acc[a:b], gyr[a:b], q[a:b]
+
+    def window_times(self, start: float, end: float) -> np.ndarray:
+        t = self.arrays()[0]
+        return t[np.searchsorted(t, start, "left"):np.searchsorted(t, end, "right")]
+
+    def orientation_at(self, times: np.ndarray) -> np.ndarray:
+        """The filter's orientation (wxyz) at ``times``: slerp between the bracketing
+        samples, held before the first and after the last."""
+        t, _, _, q = self.arrays()
+        j = np.clip(np.searchsorted(t, times, "right") - 1, 0, len(t) - 1)
+        k = np.minimum(j + 1, len(t) - 1)
+        span = t[k] - t[j]
+        u = np.where(span > 0, (times - t[j]) / np.where(span > 0, span, 1.0), 0.0)
+        return quat_slerp(q[j], q[k], u.clip(0.0, 1.0))
