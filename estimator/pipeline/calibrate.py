@@ -6,6 +6,8 @@ thorax in the N-pose from the arm (every segment's axes are the thorax's there);
 trunk and clavicle sensors' headings from it. On a 6-axis kit each sensor's filter has a
 heading of its own: in the N-pose all segments point the same way, which gives each
 sensor the turn about the vertical that brings it into the reference sensor's world.
+With no pose at all (default mounting) the first second of the recording stands in for
+the N-pose: the patient is taken to start with the arm hanging.
 """
 
 from __future__ import annotations
