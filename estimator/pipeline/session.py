@@ -63,7 +63,7 @@ class Pipeline:
         self._poses = list(poses)
         self._marks: list[Mark] = []
         self._solver = JointAngleSolver(config.side, config.joint_params)
-        self._next = 0  # index of the next reference sample to estimate
+        self._given = 0  # reference samples estimated so far
         self.calibration: Calibration | None = None
         self._finished = False
         self._constraints: dict[str, HeadingConstraint] = {}
@@ -96,7 +96,7 @@ class Pipeline:
         return CalibrationPlan.from_poses([*self._poses, *poses_from_marks(self._marks)])
 
     def _advance(self, final: bool) -> Estimates:
-        tracks = [t for t in self._tracks.values() if t.last_t > -np.inf]
+        tracks = [t for t in self._tracks.values() if t.first_t < np.inf]
         if not tracks or self._tracks[self.config.reference].last_t == -np.inf:
             return Estimates.empty()
         if self.calibration is None:
@@ -107,7 +107,7 @@ class Pipeline:
             if not (passed or final):
                 return Estimates.empty()
             present = {name: track for name, track in self._tracks.items()
-                       if track.last_t > -np.inf}
+                       if track.first_t < np.inf}
             self.calibration = calibrate(present, plan, self.config.side, final_time)
             if not all(track.nine_axis for track in present.values()):
                 # 6-axis: keep the forearm's and hand's headings tied by the joints
@@ -117,20 +117,22 @@ class Pipeline:
 
     def _estimate(self, final: bool) -> Estimates:
         assert self.calibration is not None
-        t_ref = self._tracks[self.config.reference].arrays()[0]
+        reference = self._tracks[self.config.reference]
+        t_ref = reference.arrays()[0]
         horizon = np.inf if final else min(
             (t.last_t for n, t in self._tracks.items() if n != self.config.reference),
             default=np.inf)
+        start = self._given - reference.discarded
         stop = int(np.searchsorted(t_ref, horizon, "right")) if np.isfinite(horizon) \
             else len(t_ref)
-        if stop <= self._next:
+        if stop <= start:
             return Estimates.empty()
-        times = t_ref[self._next:stop]
-        self._next = stop
+        times = t_ref[start:stop].copy()
+        self._given += stop - start
 
         R_world: dict[str, np.ndarray] = {}
         for name, track in self._tracks.items():
-            if track.last_t == -np.inf:
+            if track.first_t == np.inf:
                 continue
             R_world[SEGMENT_OF_SENSOR[name]] = self.calibration.R_world_segment(
                 name, quat_to_matrix(track.orientation_at(times)))
@@ -144,6 +146,9 @@ class Pipeline:
                                    if k != "shoulder_elevation"}, self.config.side,
                                   self.config.lengths)
         R_world_segment = {s: R_world["thorax"] @ R for s, R in pose.R_thorax.items()}
+        # no later estimate looks further back than this one: the tracks forget the rest
+        for track in self._tracks.values():
+            track.discard_before(float(times[-1]))
         return Estimates(t=times, angles=angles.angles, residuals=angles.residuals,
                          positions=pose.p_thorax, R_world_segment=R_world_segment)
 
