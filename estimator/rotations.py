@@ -97,9 +97,19 @@ def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     q = np.asarray(q, dtype=float)
     if q.shape[-1] != 4:
         raise InvalidShape(f"quaternions must have shape (..., 4) wxyz, got {q.shape}")
-    shape = q.shape[:-1]
-    R = Rotation.from_quat(q.reshape(-1, 4), scalar_first=True).as_matrix()
-    return R.reshape(*shape, 3, 3)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    R = np.empty((*q.shape[:-1], 3, 3))
+    R[..., 0, 0] = 1 - 2 * (y * y + z * z)
+    R[..., 0, 1] = 2 * (x * y - w * z)
+    R[..., 0, 2] = 2 * (x * z + w * y)
+    R[..., 1, 0] = 2 * (x * y + w * z)
+    R[..., 1, 1] = 1 - 2 * (x * x + z * z)
+    R[..., 1, 2] = 2 * (y * z - w * x)
+    R[..., 2, 0] = 2 * (x * z - w * y)
+    R[..., 2, 1] = 2 * (y * z + w * x)
+    R[..., 2, 2] = 1 - 2 * (x * x + y * y)
+    return R
 
 
 def to_scipy_matrix(R: np.ndarray) -> Rotation:

@@ -89,6 +89,9 @@ class SensorTrack:
         """The filter's orientation (wxyz) at ``times``: slerp between the bracketing
         samples, held before the first and after the last."""
         t, _, _, q = self.arrays()
+        first = int(np.searchsorted(t, times[0], "left")) if len(times) else 0
+        if first + len(times) <= len(t) and np.array_equal(t[first:first + len(times)], times):
+            return q[first:first + len(times)]  # its own sample times: nothing to interpolate
         j = np.clip(np.searchsorted(t, times, "right") - 1, 0, len(t) - 1)
         k = np.minimum(j + 1, len(t) - 1)
         span = t[k] - t[j]
