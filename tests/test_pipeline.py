@@ -240,3 +240,28 @@ def test_shared_recording_streamed_in_chunks_equals_batch(shared_dir, name):
     np.testing.assert_array_equal(stream.t, batch.t)
     for k in REPORTED_ANGLES:
         np.testing.assert_allclose(stream.angles[k], batch.angles[k], atol=1e-9, rtol=0)
+
+
+def test_compiled_segment_orientations_equal_the_numpy_path():
+    """slerp + quaternion→matrix + heading + mounting, compiled, against the numpy helpers,
+    at times between samples, on them, before the first and after the last."""
+    from armtrack.estimator.pipeline.segment_kernel import _segment_python, segment_orientations
+    from armtrack.estimator.rotations import elemental, quat_slerp, quat_to_matrix
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(5)
+    t = np.cumsum(rng.uniform(0.005, 0.02, 300))
+    q = Rotation.random(300, rng=rng).as_quat(scalar_first=True)
+    q[1::2] *= -1  # both signs of the same rotations
+    times = np.sort(np.r_[rng.uniform(t[0] - 0.1, t[-1] + 0.1, 500), t[::7]])
+    R_ss = Rotation.random(rng=rng).as_matrix()
+    j = np.clip(np.searchsorted(t, times, "right") - 1, 0, len(t) - 1)
+    k = np.minimum(j + 1, len(t) - 1)
+    span = t[k] - t[j]
+    u = np.where(span > 0, (times - t[j]) / np.where(span > 0, span, 1), 0).clip(0, 1)
+    expected = elemental("z", 0.7) @ quat_to_matrix(quat_slerp(q[j], q[k], u)) @ R_ss
+    np.testing.assert_allclose(segment_orientations(t, q, times, R_ss, 0.7), expected,
+                               atol=1e-12)
+    out = np.empty((len(times), 3, 3))
+    _segment_python(t, q, times, R_ss, 0.7, out)
+    np.testing.assert_allclose(out, expected, atol=1e-12)

@@ -13,6 +13,9 @@ from ..arm.joints import REPORTED_ANGLES, SEGMENTS
 #: The order a reference sensor is chosen in (``spec/kinematics.md``, "Estimates").
 REFERENCE_ORDER = ("upper_arm", "forearm", "hand", "trunk", "clavicle")
 
+#: The rotations the 2-DoF joints cannot express, reported beside the angles.
+RESIDUALS = ("clavicle_axial", "elbow_carrying", "wrist_twist")
+
 
 @dataclass(frozen=True)
 class Estimates:
@@ -40,8 +43,7 @@ class Estimates:
     def empty() -> Estimates:
         return Estimates(
             t=np.zeros(0), angles={k: np.zeros(0) for k in REPORTED_ANGLES},
-            residuals={k: np.zeros(0) for k in ("clavicle_axial", "elbow_carrying",
-                                                "wrist_twist")},
+            residuals={k: np.zeros(0) for k in RESIDUALS},
             positions={p: np.zeros((0, 3)) for p in POINTS},
             R_world_segment={s: np.zeros((0, 3, 3)) for s in SEGMENTS})
 

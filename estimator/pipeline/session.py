@@ -17,18 +17,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..arm.forward import forward_kinematics
-from ..arm.inverse import JointAngleParams, JointAngleSolver
-from ..arm.joints import SEGMENT_OF_SENSOR
+from ..arm.compiled import CompiledJoints
+from ..arm.forward import POINTS
+from ..arm.inverse import JointAngleParams
+from ..arm.joints import REPORTED_ANGLES, SEGMENT_OF_SENSOR, SEGMENTS
 from ..body import SENSOR_NAMES, SegmentLengths, Side
 from ..calibration import CalibrationPlan, poses_from_marks
 from ..errors import InvalidArgument
 from ..orientation import DEFAULT_FILTER
 from ..recording import Mark, Pose
-from ..rotations import elemental, quat_to_matrix
+from ..rotations import elemental
 from .calibrate import Calibration, calibrate
 from .constraints import HeadingConstraint
-from .estimates import REFERENCE_ORDER, Estimates
+from .estimates import REFERENCE_ORDER, RESIDUALS, Estimates
+from .segment_kernel import segment_orientations
 from .tracks import SensorTrack
 
 
@@ -62,7 +64,7 @@ class Pipeline:
         self._tracks = {s: SensorTrack(s, config.filter) for s in config.sensors}
         self._poses = list(poses)
         self._marks: list[Mark] = []
-        self._solver = JointAngleSolver(config.side, config.joint_params)
+        self._joints = CompiledJoints(config.side, config.lengths, config.joint_params)
         self._given = 0  # reference samples estimated so far
         self.calibration: Calibration | None = None
         self._finished = False
@@ -134,24 +136,27 @@ class Pipeline:
         for name, track in self._tracks.items():
             if track.first_t == np.inf:
                 continue
-            R_world[SEGMENT_OF_SENSOR[name]] = self.calibration.R_world_segment(
-                name, quat_to_matrix(track.orientation_at(times)))
+            t, _, _, q = track.arrays()
+            R_world[SEGMENT_OF_SENSOR[name]] = segment_orientations(
+                t, q, times, self.calibration.R_sensor_segment[name],
+                self.calibration.heading[name])
         if "thorax" not in R_world:
             R_world["thorax"] = np.broadcast_to(self.calibration.R_world_thorax,
                                                 (len(times), 3, 3))
         if self._constraints:
             self._apply_constraints(times, R_world)
-        angles = self._solver.update(R_world)
-        pose = forward_kinematics({k: v for k, v in angles.angles.items()
-                                   if k != "shoulder_elevation"}, self.config.side,
-                                  self.config.lengths)
-        R_world_segment = {s: R_world["thorax"] @ R for s, R in pose.R_thorax.items()}
+        angles, residuals, positions, R_thorax = self._joints.update(R_world)
+        R_world_segment = {"thorax": np.array(R_world["thorax"])}
+        for i, segment in enumerate(SEGMENTS[1:]):
+            R_world_segment[segment] = R_world["thorax"] @ R_thorax[:, i]
         # no later estimate looks further back than this one: the tracks forget the rest
         for track in self._tracks.values():
             track.discard_before(float(times[-1]))
-        return Estimates(t=times, angles=angles.angles, residuals=angles.residuals,
-                         positions=pose.p_thorax, R_world_segment=R_world_segment)
-
+        return Estimates(
+            t=times, angles={k: angles[:, i] for i, k in enumerate(REPORTED_ANGLES)},
+            residuals={k: residuals[:, i] for i, k in enumerate(RESIDUALS)},
+            positions={p: positions[:, i] for i, p in enumerate(POINTS)},
+            R_world_segment=R_world_segment)
 
     def _apply_constraints(self, times: np.ndarray, R_world: dict[str, np.ndarray]) -> None:
         """Turn the forearm and hand about the vertical by their joints' heading error."""

@@ -1,0 +1,274 @@
+"""Joint angles and forward kinematics one sample at a time, compiled: the same numbers as
+``inverse.JointAngleSolver`` followed by ``forward.forward_kinematics`` (to 1e-9), at a
+fraction of their cost on the small chunks of a live stream.
+
+Input: the joints' relative rotations ``R_parent_child`` (N, 4, 3, 3) in chain order
+(clavicle, upper arm, forearm, hand), already mirrored to the right arm for a left arm
+(``inverse._relative_rotations``). Output per sample: the nine angles and
+``shoulder_elevation`` [rad] (N, 10), the three residuals [rad] (N, 3), positions of
+shoulder, elbow, wrist, hand [m] in the thorax frame (N, 4, 3) and ``R_thorax_segment``
+of clavicle … hand (N, 4, 3, 3), both for the arm's own side.
+
+State (float64, ``STATE_SIZE``): ``[0:3]`` last shoulder flexion, abduction, rotation ·
+``[3]`` has a last · ``[4]`` branch · ``[5]`` last sample in the singular zone ·
+``[6:12]`` last unwrapped clavicle protraction, elevation, elbow flexion, pronation,
+wrist flexion, deviation · ``[12]`` have those.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .joints import SEGMENTS
+
+STATE_SIZE = 13
+_TWO_PI = 2.0 * math.pi
+
+
+def _kernel_python(rel, side_sign, lengths, zone_sin, normal, state, angles, residuals,
+                   positions, R_thorax):
+    """``side_sign`` +1 right, −1 left; ``lengths`` (4,) clavicle, upper arm, forearm, hand
+    [m]; ``normal`` (3, 2) shoulder flexion/abduction/rotation normal ranges [rad]."""
+    pi = math.pi
+    for n in range(rel.shape[0]):
+        # -- sternoclavicular: Y·X·Z (eps −1): protraction, −elevation, axial residual
+        R = rel[n, 0]
+        prot, elev_neg, axial = _tait_bryan(R, 1, 0, 2, -1.0)
+        # -- elbow: Z·X·Y (eps +1): flexion, carrying residual, pronation
+        R = rel[n, 2]
+        ef, carrying, pron = _tait_bryan(R, 2, 0, 1, 1.0)
+        # -- wrist: X·Z·Y (eps −1): flexion, −deviation, twist residual
+        R = rel[n, 3]
+        wf, dev_neg, twist = _tait_bryan(R, 0, 2, 1, -1.0)
+        others = (prot, -elev_neg, ef, pron, wf, -dev_neg)
+        for i in range(6):
+            v = others[i]
+            if state[12] != 0.0:
+                v = _continue(state[6 + i], v)
+            state[6 + i] = v
+            angles[n, (0, 1, 5, 6, 7, 8)[i]] = v
+        state[12] = 1.0
+        residuals[n, 0], residuals[n, 1], residuals[n, 2] = axial, carrying, twist
+
+        # -- shoulder: Z·X·Y with its singular zone and branches (inverse.py)
+        R = rel[n, 1]
+        a, b, c = _tait_bryan(R, 2, 0, 1, 1.0)
+        p0, p1, p2 = a, -b, c
+        r1 = -pi + b
+        if -b >= 0.0:
+            r1 = pi + b
+        q0, q1, q2 = _wrap(a + pi), r1, _wrap(c + pi)
+        in_zone = math.cos(p1) < zone_sin
+        if in_zone:
+            held = state[0] if state[3] != 0.0 else 0.0
+            ch, sh = math.cos(held), math.sin(held)
+            # M = Rz(−held) R
+            m00 = ch * R[0, 0] + sh * R[1, 0]
+            m02 = ch * R[0, 2] + sh * R[1, 2]
+            m11 = -sh * R[0, 1] + ch * R[1, 1]
+            m21 = R[2, 1]
+            v0, v1, v2 = held, -math.atan2(m21, m11), math.atan2(m02, m00)
+        else:
+            if state[3] == 0.0:
+                cost0 = _beyond(p0, p1, p2, normal)
+                cost1 = _beyond(q0, q1, q2, normal)
+                state[4] = 1.0 if cost1 < cost0 else 0.0
+            elif state[5] != 0.0:
+                gap0 = (abs(_wrap(p0 - state[0])) + abs(_wrap(p1 - state[1]))
+                        + abs(_wrap(p2 - state[2])))
+                gap1 = (abs(_wrap(q0 - state[0])) + abs(_wrap(q1 - state[1]))
+                        + abs(_wrap(q2 - state[2])))
+                state[4] = 1.0 if gap1 < gap0 else 0.0
+            if state[4] == 0.0:
+                v0, v1, v2 = p0, p1, p2
+            else:
+                v0, v1, v2 = q0, q1, q2
+        if state[3] != 0.0:
+            v0 = _continue(state[0], v0)
+            v1 = _continue(state[1], v1)
+            v2 = _continue(state[2], v2)
+        state[0], state[1], state[2], state[3] = v0, v1, v2, 1.0
+        state[5] = 1.0 if in_zone else 0.0
+        angles[n, 2], angles[n, 3], angles[n, 4] = v0, v1, v2
+
+        # -- elevation: between the humerus's −Y and the thorax's −Y (R_thorax_humerus)
+        C, H = rel[n, 0], rel[n, 1]
+        h01 = C[0, 0] * H[0, 1] + C[0, 1] * H[1, 1] + C[0, 2] * H[2, 1]
+        h11 = C[1, 0] * H[0, 1] + C[1, 1] * H[1, 1] + C[1, 2] * H[2, 1]
+        h21 = C[2, 0] * H[0, 1] + C[2, 1] * H[1, 1] + C[2, 2] * H[2, 1]
+        angles[n, 9] = math.atan2(math.sqrt(h01 * h01 + h21 * h21), h11)
+
+        # -- forward kinematics from the angles (right-arm chain, mirrored for a left arm)
+        _forward(angles[n], side_sign, lengths, positions[n], R_thorax[n])
+
+
+def _tait_bryan(R, i, j, k, eps):
+    sb = eps * R[i, k]
+    cb = math.sqrt(R[i, i] * R[i, i] + R[i, j] * R[i, j])
+    b = math.atan2(sb, cb)
+    if cb < 1e-12:
+        return math.atan2(eps * R[k, j], R[j, j]), b, 0.0
+    return math.atan2(-eps * R[j, k], R[k, k]), b, math.atan2(-eps * R[i, j], R[i, i])
+
+
+def _wrap(x):
+    return (x + math.pi) % _TWO_PI - math.pi
+
+
+def _continue(last, v):
+    """``v`` moved by whole turns to within half a turn of ``last`` (as ``np.unwrap``)."""
+    d = v - last
+    dm = (d + math.pi) % _TWO_PI - math.pi
+    if dm == -math.pi and d > 0.0:
+        dm = math.pi
+    return v + (dm - d)
+
+
+def _beyond(f, a, r, normal):
+    total = 0.0
+    values = (f, a, r)
+    for i in range(3):
+        if values[i] < normal[i, 0]:
+            total += normal[i, 0] - values[i]
+        elif values[i] > normal[i, 1]:
+            total += values[i] - normal[i, 1]
+    return total
+
+
+def _matmul(A, B, out):
+    for r in range(3):
+        for c in range(3):
+            out[r, c] = A[r, 0] * B[0, c] + A[r, 1] * B[1, c] + A[r, 2] * B[2, c]
+
+
+def _elemental(axis, angle, out):
+    c, s = math.cos(angle), math.sin(angle)
+    for r in range(3):
+        for k in range(3):
+            out[r, k] = 0.0
+    i = axis
+    j, k = (i + 1) % 3, (i + 2) % 3
+    out[i, i] = 1.0
+    out[j, j] = c
+    out[k, k] = c
+    out[k, j] = s
+    out[j, k] = -s
+
+
+def _forward(angle, side_sign, lengths, positions, R_out):
+    E = np.empty((3, 3))
+    T = np.empty((3, 3))
+    R = np.eye(3)
+    # (axis, angle index, sign) of each elemental, chain order (joints.py)
+    axes = (1, 0, 2, 0, 1, 2, 1, 0, 2)
+    index = (0, 1, 2, 3, 4, 5, 6, 7, 8)
+    signs = (1.0, -1.0, 1.0, -1.0, 1.0, 1.0, 1.0, 1.0, -1.0)
+    ends = (2, 5, 7, 9)  # elementals that close a segment: clavicle, humerus, forearm, hand
+    e = 0
+    for seg in range(4):
+        while e < ends[seg]:
+            _elemental(axes[e], signs[e] * angle[index[e]], E)
+            _matmul(R, E, T)
+            for r in range(3):
+                for c in range(3):
+                    R[r, c] = T[r, c]
+            e += 1
+        for r in range(3):
+            for c in range(3):
+                R_out[seg, r, c] = R[r, c]
+    # positions: shoulder = R_TC (0, 0, l_c); each next point 1 segment length down its −Y
+    for k in range(3):
+        positions[0, k] = R_out[0, k, 2] * lengths[0]
+    for seg in range(1, 4):
+        for k in range(3):
+            positions[seg, k] = positions[seg - 1, k] - lengths[seg] * R_out[seg, k, 1]
+    if side_sign < 0.0:  # the mirror image through the sagittal plane: M R M, p M
+        for seg in range(4):
+            positions[seg, 2] = -positions[seg, 2]
+            R_out[seg, 2, 0] = -R_out[seg, 2, 0]
+            R_out[seg, 2, 1] = -R_out[seg, 2, 1]
+            R_out[seg, 0, 2] = -R_out[seg, 0, 2]
+            R_out[seg, 1, 2] = -R_out[seg, 1, 2]
+
+
+def _relative_python(Rw, present, side_sign, rel):
+    """``R_parent_child`` (N, 4, 3, 3) from ``R_world_segment`` (N, 5, 3, 3) of thorax …
+    hand, as ``inverse._relative_rotations``: a missing segment (``present[s] == 0``)
+    moves with its parent and its joint is exactly the identity; a missing thorax is the
+    identity; mirrored to the right arm when ``side_sign`` < 0."""
+    for n in range(Rw.shape[0]):
+        parent = 0  # the nearest present proximal segment (0: thorax)
+        for s in range(1, 5):
+            out = rel[n, s - 1]
+            if present[s] == 0:
+                for r in range(3):
+                    for c in range(3):
+                        out[r, c] = 1.0 if r == c else 0.0
+                continue
+            for r in range(3):
+                for c in range(3):
+                    if present[parent] == 0:  # the thorax fixed as the identity
+                        out[r, c] = Rw[n, s, r, c]
+                    else:
+                        out[r, c] = (Rw[n, parent, 0, r] * Rw[n, s, 0, c]
+                                     + Rw[n, parent, 1, r] * Rw[n, s, 1, c]
+                                     + Rw[n, parent, 2, r] * Rw[n, s, 2, c])
+            if side_sign < 0.0:
+                out[2, 0], out[2, 1] = -out[2, 0], -out[2, 1]
+                out[0, 2], out[1, 2] = -out[0, 2], -out[1, 2]
+            parent = s
+
+
+def _compile():
+    try:
+        import numba
+    except ImportError:  # the pure-Python fallback: same numbers, slower
+        return _kernel_python, _relative_python, False
+    jit = numba.njit(cache=True, nogil=True)
+    global _tait_bryan, _wrap, _continue, _beyond, _matmul, _elemental, _forward
+    _tait_bryan, _wrap, _continue, _beyond = (jit(_tait_bryan), jit(_wrap), jit(_continue),
+                                              jit(_beyond))
+    _matmul, _elemental = jit(_matmul), jit(_elemental)
+    _forward = jit(_forward)
+    return jit(_kernel_python), jit(_relative_python), True
+
+
+kernel, relative, COMPILED = _compile()
+
+
+class CompiledJoints:
+    """Streaming joint angles and forward kinematics with the compiled kernel: ``update``
+    takes chunks of ``R_world_segment`` like ``JointAngleSolver.update``."""
+
+    def __init__(self, side: str, lengths, params) -> None:
+        from .forward import check_side
+        from .joints import NORMAL_RANGE_DEG
+
+        self.side = check_side(side)
+        self._side_sign = 1.0 if side == "right" else -1.0
+        self._lengths = np.array([lengths.clavicle, lengths.upper_arm, lengths.forearm,
+                                  lengths.hand])
+        self._zone_sin = math.sin(params.singular_zone)
+        self._normal = np.deg2rad([NORMAL_RANGE_DEG[f"shoulder_{n}"]
+                                   for n in ("flexion", "abduction", "rotation")])
+        self._state = np.zeros(STATE_SIZE)
+
+    def update(self, R_world):
+        """``(angles (N, 10), residuals (N, 3), positions (N, 4, 3), R_thorax_segment
+        (N, 4, 3, 3))`` of a chunk; see the module docstring for the orders."""
+        n = next(iter(R_world.values())).shape[0]
+        Rw = np.empty((n, 5, 3, 3))
+        present = np.zeros(5)
+        for i, segment in enumerate(SEGMENTS):
+            if segment in R_world:
+                Rw[:, i] = R_world[segment]
+                present[i] = 1.0
+        rel = np.empty((n, 4, 3, 3))
+        relative(Rw, present, self._side_sign, rel)
+        angles, residuals = np.empty((n, 10)), np.empty((n, 3))
+        positions, R_thorax = np.empty((n, 4, 3)), np.empty((n, 4, 3, 3))
+        kernel(rel, self._side_sign, self._lengths, self._zone_sin, self._normal, self._state,
+               angles, residuals, positions, R_thorax)
+        return angles, residuals, positions, R_thorax
