@@ -152,6 +152,19 @@ def test_estimates_are_at_the_reference_sensor_times():
     estimates, _ = estimate_recording(sim.recording)
     np.testing.assert_array_equal(estimates.t, sim.recording.sensors["upper_arm"].t)
     assert not any(np.isnan(v).any() for v in estimates.angles.values())
+    # the segments in the world (for the 3D view): the model's, near the true ones
+    from scipy.spatial.transform import Rotation
+
+    for sensor in ("upper_arm", "forearm", "hand"):
+        true = sim.truth.R_world_sensor[sensor] @ sim.truth.mounts[sensor].R_segment_sensor.T
+        t_true = sim.recording.sensors[sensor].t
+        i = np.searchsorted(t_true, estimates.t).clip(0, len(t_true) - 1)
+        keep = np.abs(t_true[i] - estimates.t) < 1e-9
+        error = Rotation.from_matrix(estimates.R_world_segment[sensor][keep]).inv() * \
+            Rotation.from_matrix(true[i[keep]])
+        rmse = float(np.sqrt(np.mean(np.rad2deg(error.magnitude()) ** 2)))
+        print(f"{sensor} segment in the world: {rmse:.2f}° RMSE")
+        assert rmse < 1.0
 
 
 def calibration_motion(tpose_deg=90.0, wobble_deg=0.0):

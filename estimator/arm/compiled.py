@@ -256,8 +256,9 @@ class CompiledJoints:
         self._state = np.zeros(STATE_SIZE)
 
     def update(self, R_world):
-        """``(angles (N, 10), residuals (N, 3), positions (N, 4, 3), R_thorax_segment
-        (N, 4, 3, 3))`` of a chunk; see the module docstring for the orders."""
+        """``(angles (N, 10), residuals (N, 3), positions (N, 4, 3), R_world_segment
+        (N, 5, 3, 3))`` of a chunk: the model's segments thorax … hand in the world (the
+        thorax as given, the others from the angles); see the module docstring."""
         n = next(iter(R_world.values())).shape[0]
         Rw = np.empty((n, 5, 3, 3))
         present = np.zeros(5)
@@ -271,4 +272,7 @@ class CompiledJoints:
         positions, R_thorax = np.empty((n, 4, 3)), np.empty((n, 4, 3, 3))
         kernel(rel, self._side_sign, self._lengths, self._zone_sin, self._normal, self._state,
                angles, residuals, positions, R_thorax)
-        return angles, residuals, positions, R_thorax
+        R_out = np.empty((n, 5, 3, 3))
+        R_out[:, 0] = Rw[:, 0] if present[0] else np.eye(3)
+        np.matmul(R_out[:, :1], R_thorax, out=R_out[:, 1:])
+        return angles, residuals, positions, R_out

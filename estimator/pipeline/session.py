@@ -62,6 +62,7 @@ class Pipeline:
     def __init__(self, config: PipelineConfig, poses: Iterable[Pose] = ()):
         self.config = config
         self._tracks = {s: SensorTrack(s, config.filter) for s in config.sensors}
+        self._reference = config.reference
         self._poses = list(poses)
         self._marks: list[Mark] = []
         self._joints = CompiledJoints(config.side, config.lengths, config.joint_params)
@@ -99,7 +100,7 @@ class Pipeline:
 
     def _advance(self, final: bool) -> Estimates:
         tracks = [t for t in self._tracks.values() if t.first_t < np.inf]
-        if not tracks or self._tracks[self.config.reference].last_t == -np.inf:
+        if not tracks or self._tracks[self._reference].last_t == -np.inf:
             return Estimates.empty()
         if self.calibration is None:
             plan = self._plan()
@@ -119,10 +120,10 @@ class Pipeline:
 
     def _estimate(self, final: bool) -> Estimates:
         assert self.calibration is not None
-        reference = self._tracks[self.config.reference]
+        reference = self._tracks[self._reference]
         t_ref = reference.arrays()[0]
         horizon = np.inf if final else min(
-            (t.last_t for n, t in self._tracks.items() if n != self.config.reference),
+            (t.last_t for n, t in self._tracks.items() if n != self._reference),
             default=np.inf)
         start = self._given - reference.discarded
         stop = int(np.searchsorted(t_ref, horizon, "right")) if np.isfinite(horizon) \
@@ -145,10 +146,8 @@ class Pipeline:
                                                 (len(times), 3, 3))
         if self._constraints:
             self._apply_constraints(times, R_world)
-        angles, residuals, positions, R_thorax = self._joints.update(R_world)
-        R_world_segment = {"thorax": np.array(R_world["thorax"])}
-        for i, segment in enumerate(SEGMENTS[1:]):
-            R_world_segment[segment] = R_world["thorax"] @ R_thorax[:, i]
+        angles, residuals, positions, R_world_all = self._joints.update(R_world)
+        R_world_segment = {segment: R_world_all[:, i] for i, segment in enumerate(SEGMENTS)}
         # no later estimate looks further back than this one: the tracks forget the rest
         for track in self._tracks.values():
             track.discard_before(float(times[-1]))
