@@ -41,11 +41,8 @@ class Estimates:
 
     @staticmethod
     def empty() -> Estimates:
-        return Estimates(
-            t=np.zeros(0), angles={k: np.zeros(0) for k in REPORTED_ANGLES},
-            residuals={k: np.zeros(0) for k in RESIDUALS},
-            positions={p: np.zeros((0, 3)) for p in POINTS},
-            R_world_segment={s: np.zeros((0, 3, 3)) for s in SEGMENTS})
+        """No estimates (one shared, read-only instance: a poll with nothing new is free)."""
+        return _EMPTY
 
     @staticmethod
     def concatenate(parts: Sequence[Estimates]) -> Estimates:
@@ -65,3 +62,16 @@ class Estimates:
         values = np.column_stack([self.t, *(np.rad2deg(self.angles[k]) for k in REPORTED_ANGLES),
                                   *(self.positions[p] for p in POINTS)])
         return columns, values
+
+
+def _read_only(array: np.ndarray) -> np.ndarray:
+    array.flags.writeable = False
+    return array
+
+
+_EMPTY = Estimates(
+    t=_read_only(np.zeros(0)),
+    angles={k: _read_only(np.zeros(0)) for k in REPORTED_ANGLES},
+    residuals={k: _read_only(np.zeros(0)) for k in RESIDUALS},
+    positions={p: _read_only(np.zeros((0, 3))) for p in POINTS},
+    R_world_segment={s: _read_only(np.zeros((0, 3, 3))) for s in SEGMENTS})
