@@ -83,6 +83,9 @@ SIMULATED = {
     "long_6axis_drifting_bias": SimulationConfig(
         exercise="long_session", nine_axis=False, seed=15,
         errors=ImuErrors(gyro_noise=0.004, acc_noise=0.04, gyro_bias_walk=2e-4)),
+    "long_6axis_left": SimulationConfig(
+        exercise="long_session", side="left", nine_axis=False, seed=18,
+        errors=ImuErrors(gyro_noise=0.004, acc_noise=0.04, gyro_bias_walk=2e-4)),
     "magnet_near_hand": SimulationConfig(exercise="reach", magnet_near_hand=True, seed=16),
     "tall_body_shoulder_flexion": SimulationConfig(exercise="shoulder_flexion", seed=17,
                                                    height_m=2.02),
