@@ -158,15 +158,15 @@ class Pipeline:
             R_world_segment=R_world_segment)
 
     def _apply_constraints(self, times: np.ndarray, R_world: dict[str, np.ndarray]) -> None:
-        """Turn the forearm and hand about the vertical by their joints' heading error."""
-        mirror = -1.0 if self.config.side == "left" else 1.0  # the left arm's Z is medial
+        """Turn the forearm and hand about the vertical by their joints' heading error.
+        (A left arm's medial Z flips ``u·v`` and ``D`` alike: the estimate is the same.)"""
         pairs = {"forearm": ("upper_arm", 2, 1), "hand": ("forearm", 0, 2)}
         for segment, constraint in self._constraints.items():
             parent, u_axis, v_axis = pairs[segment]
             if parent not in R_world:
                 continue
-            u = R_world[parent][:, :, u_axis] * (mirror if u_axis == 2 else 1.0)
-            v = R_world[segment][:, :, v_axis] * (mirror if v_axis == 2 else 1.0)
+            u = R_world[parent][:, :, u_axis]
+            v = R_world[segment][:, :, v_axis]
             delta = constraint.update(times, u, v)
             R_world[segment] = elemental("z", delta) @ R_world[segment]
             if segment == "forearm" and "hand" in R_world and "hand" not in self._constraints:
