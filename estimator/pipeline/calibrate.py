@@ -29,7 +29,7 @@ from ..calibration import (
     turn_warning,
     two_pose_R_sensor_segment,
 )
-from ..rotations import elemental, yaw_of
+from ..rotations import yaw_of
 from .tracks import SensorTrack
 
 ARM = ("upper_arm", "forearm", "hand")
@@ -40,7 +40,8 @@ class Calibration:
     """The result: ``method`` (two-pose, n-pose, default), ``final_time_s``;
     ``R_sensor_segment`` per sensor; ``heading`` per sensor [rad], the turn about the
     vertical applied to its world (0 with a magnetometer); ``R_world_thorax`` the fixed
-    thorax when there is no trunk sensor; ``warnings``."""
+    thorax when there is no trunk sensor; ``warnings``. A segment's orientation is
+    ``Rz(heading) · R_world_sensor · R_sensor_segment`` (``segment_kernel``)."""
 
     method: str
     final_time_s: float
@@ -48,11 +49,6 @@ class Calibration:
     heading: dict[str, float]
     R_world_thorax: np.ndarray
     warnings: tuple[CalibrationWarning, ...]
-
-    def R_world_segment(self, sensor: str, R_world_sensor: np.ndarray) -> np.ndarray:
-        """Segment orientations (N, 3, 3) from the sensor's filter output (N, 3, 3)."""
-        turn = elemental("z", self.heading[sensor])
-        return turn @ R_world_sensor @ self.R_sensor_segment[sensor]
 
 
 def _up(acc: np.ndarray) -> np.ndarray:

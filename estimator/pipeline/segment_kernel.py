@@ -1,7 +1,7 @@
 """A sensor's segment orientation at given times, compiled: slerp between the sensor's
 bracketing samples (held before the first and after the last), quaternion to matrix,
 then ``Rz(heading) · R_world_sensor · R_sensor_segment``. The same numbers as
-``quat_slerp`` + ``quat_to_matrix`` + ``Calibration.R_world_segment`` (to 1e-12), in one
+``quat_slerp`` + ``quat_to_matrix`` + the heading and mounting products (to 1e-12), in one
 pass instead of a dozen small numpy calls per chunk."""
 
 from __future__ import annotations

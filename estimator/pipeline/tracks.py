@@ -10,7 +10,6 @@ import numpy as np
 
 from ..errors import InvalidArgument
 from ..orientation import OrientationFilter, make_filter
-from ..rotations import quat_slerp
 
 #: Columns kept per sample: t, acc (3), gyr (3), q (4).
 _WIDTH = 11
@@ -84,16 +83,3 @@ class SensorTrack:
         t, acc, gyr, q = self.arrays()
         a, b = np.searchsorted(t, start, "left"), np.searchsorted(t, end, "right")
         return acc[a:b], gyr[a:b], q[a:b]
-
-    def orientation_at(self, times: np.ndarray) -> np.ndarray:
-        """The filter's orientation (wxyz) at ``times``: slerp between the bracketing
-        samples, held before the first and after the last."""
-        t, _, _, q = self.arrays()
-        first = int(np.searchsorted(t, times[0], "left")) if len(times) else 0
-        if first + len(times) <= len(t) and np.array_equal(t[first:first + len(times)], times):
-            return q[first:first + len(times)]  # its own sample times: nothing to interpolate
-        j = np.clip(np.searchsorted(t, times, "right") - 1, 0, len(t) - 1)
-        k = np.minimum(j + 1, len(t) - 1)
-        span = t[k] - t[j]
-        u = np.where(span > 0, (times - t[j]) / np.where(span > 0, span, 1.0), 0.0)
-        return quat_slerp(q[j], q[k], u.clip(0.0, 1.0))
