@@ -134,3 +134,17 @@ def test_bad_input_is_named():
         make_filter("kalman")
     with pytest.raises(InvalidArgument, match="tau_acc"):
         QcfParams(tau_acc=-1.0)
+
+
+def test_repeated_timestamps_and_gaps_are_harmless():
+    """Equal timestamps (allowed: t is non-decreasing) give dt = 0; a gap of seconds gives
+    a long dt: neither may crash or produce a non-finite orientation."""
+    stream = simulate(SimulationConfig(exercise="reach", seed=9)).recording.sensors["hand"]
+    t = stream.t.copy()
+    t[1] = t[0]  # the first two samples at one time
+    t[500:505] = t[499]
+    t[2000:] += 3.0  # a 3 s gap
+    for name, mag in [(n, m) for n in ("qcf", "ekf", "euler-cf") for m in (stream.mag, None)]:
+        out = make_filter(name).update_batch(t, stream.acc, stream.gyr, mag)
+        assert np.isfinite(out.q).all(), name
+        np.testing.assert_allclose(np.linalg.norm(out.q, axis=1), 1.0, atol=1e-12)

@@ -315,7 +315,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
                     error = math.atan2(mex, mey) - delta
                     error = (error + math.pi) % (2.0 * math.pi) - math.pi
                     # warming up, the heading is the running mean of the first readings
-                    tau_m = min(tau_mag, max(t[i] - t_start, dt))
+                    tau_m = min(tau_mag, max(t[i] - t_start, dt, 1e-3))
                     step = dt / (tau_m + dt) * error
                     delta += step
                     if not at_rest:
