@@ -221,21 +221,40 @@ def _relative_python(Rw, present, side_sign, rel):
             parent = s
 
 
+def _to_world_python(Rw, present, R_out):
+    """``R_out[:, 1:]`` holds ``R_thorax_segment``; make every entry ``R_world_segment``
+    with the thorax of ``Rw`` (the identity when it has no sensor)."""
+    for n in range(R_out.shape[0]):
+        for s in range(1, 5):
+            for c in range(3):
+                x, y, z = R_out[n, s, 0, c], R_out[n, s, 1, c], R_out[n, s, 2, c]
+                for r in range(3):
+                    if present[0] != 0.0:
+                        R_out[n, s, r, c] = (Rw[n, 0, r, 0] * x + Rw[n, 0, r, 1] * y
+                                             + Rw[n, 0, r, 2] * z)
+        for r in range(3):
+            for c in range(3):
+                if present[0] != 0.0:
+                    R_out[n, 0, r, c] = Rw[n, 0, r, c]
+                else:
+                    R_out[n, 0, r, c] = 1.0 if r == c else 0.0
+
+
 def _compile():
     try:
         import numba
     except ImportError:  # the pure-Python fallback: same numbers, slower
-        return _kernel_python, _relative_python, False
+        return _kernel_python, _relative_python, _to_world_python, False
     jit = numba.njit(cache=True, nogil=True)
     global _tait_bryan, _wrap, _continue, _beyond, _matmul, _elemental, _forward
     _tait_bryan, _wrap, _continue, _beyond = (jit(_tait_bryan), jit(_wrap), jit(_continue),
                                               jit(_beyond))
     _matmul, _elemental = jit(_matmul), jit(_elemental)
     _forward = jit(_forward)
-    return jit(_kernel_python), jit(_relative_python), True
+    return jit(_kernel_python), jit(_relative_python), jit(_to_world_python), True
 
 
-kernel, relative, COMPILED = _compile()
+kernel, relative, to_world, COMPILED = _compile()
 
 
 class CompiledJoints:
@@ -258,7 +277,8 @@ class CompiledJoints:
     def update(self, R_world):
         """``(angles (N, 10), residuals (N, 3), positions (N, 4, 3), R_world_segment
         (N, 5, 3, 3))`` of a chunk: the model's segments thorax … hand in the world (the
-        thorax as given, the others from the angles); see the module docstring."""
+        thorax as given, the others from the angles); see the module docstring.
+        ``R_world``: segment → (N, 3, 3), as ``JointAngleSolver.update`` takes it."""
         n = next(iter(R_world.values())).shape[0]
         Rw = np.empty((n, 5, 3, 3))
         present = np.zeros(5)
@@ -266,13 +286,17 @@ class CompiledJoints:
             if segment in R_world:
                 Rw[:, i] = R_world[segment]
                 present[i] = 1.0
+        return self.update_stacked(Rw, present)
+
+    def update_stacked(self, Rw: np.ndarray, present: np.ndarray):
+        """The same from ``R_world_segment`` stacked (N, 5, 3, 3) in ``SEGMENTS`` order and
+        ``present`` (5,) 1.0 where a segment has a sensor (the others are not read)."""
+        n = Rw.shape[0]
         rel = np.empty((n, 4, 3, 3))
         relative(Rw, present, self._side_sign, rel)
         angles, residuals = np.empty((n, 10)), np.empty((n, 3))
-        positions, R_thorax = np.empty((n, 4, 3)), np.empty((n, 4, 3, 3))
+        positions, R_out = np.empty((n, 4, 3)), np.empty((n, 5, 3, 3))
         kernel(rel, self._side_sign, self._lengths, self._zone_sin, self._normal, self._state,
-               angles, residuals, positions, R_thorax)
-        R_out = np.empty((n, 5, 3, 3))
-        R_out[:, 0] = Rw[:, 0] if present[0] else np.eye(3)
-        np.matmul(R_out[:, :1], R_thorax, out=R_out[:, 1:])
+               angles, residuals, positions, R_out[:, 1:])
+        to_world(Rw, present, R_out)
         return angles, residuals, positions, R_out

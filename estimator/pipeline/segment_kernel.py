@@ -72,9 +72,12 @@ _segment = _compile()
 
 
 def segment_orientations(t: np.ndarray, q: np.ndarray, times: np.ndarray,
-                         R_sensor_segment: np.ndarray, heading: float) -> np.ndarray:
-    """``R_world_segment`` (N, 3, 3) at ``times`` [s] (N,), increasing."""
-    out = np.empty((len(times), 3, 3))
+                         R_sensor_segment: np.ndarray, heading: float,
+                         out: np.ndarray | None = None) -> np.ndarray:
+    """``R_world_segment`` (N, 3, 3) at ``times`` [s] (N,), increasing; written into
+    ``out`` when given (it may be a strided view)."""
+    if out is None:
+        out = np.empty((len(times), 3, 3))
     if len(times):
         _segment(np.ascontiguousarray(t), np.ascontiguousarray(q),
                  np.ascontiguousarray(times), np.ascontiguousarray(R_sensor_segment),

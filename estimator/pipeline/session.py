@@ -133,20 +133,23 @@ class Pipeline:
         times = t_ref[start:stop].copy()
         self._given += stop - start
 
-        R_world: dict[str, np.ndarray] = {}
+        n = len(times)
+        Rw = np.empty((n, 5, 3, 3))  # R_world_segment in SEGMENTS order
+        present = np.zeros(5)
         for name, track in self._tracks.items():
             if track.first_t == np.inf:
                 continue
+            index = _SEGMENT_INDEX[SEGMENT_OF_SENSOR[name]]
             t, _, _, q = track.arrays()
-            R_world[SEGMENT_OF_SENSOR[name]] = segment_orientations(
-                t, q, times, self.calibration.R_sensor_segment[name],
-                self.calibration.heading[name])
-        if "thorax" not in R_world:
-            R_world["thorax"] = np.broadcast_to(self.calibration.R_world_thorax,
-                                                (len(times), 3, 3))
+            segment_orientations(t, q, times, self.calibration.R_sensor_segment[name],
+                                 self.calibration.heading[name], out=Rw[:, index])
+            present[index] = 1.0
+        if not present[0]:  # no trunk sensor: the thorax stays where calibration put it
+            Rw[:, 0] = self.calibration.R_world_thorax
+            present[0] = 1.0
         if self._constraints:
-            self._apply_constraints(times, R_world)
-        angles, residuals, positions, R_world_all = self._joints.update(R_world)
+            self._apply_constraints(times, Rw, present)
+        angles, residuals, positions, R_world_all = self._joints.update_stacked(Rw, present)
         R_world_segment = {segment: R_world_all[:, i] for i, segment in enumerate(SEGMENTS)}
         # no later estimate looks further back than this one: the tracks forget the rest
         for track in self._tracks.values():
@@ -157,17 +160,21 @@ class Pipeline:
             positions={p: positions[:, i] for i, p in enumerate(POINTS)},
             R_world_segment=R_world_segment)
 
-    def _apply_constraints(self, times: np.ndarray, R_world: dict[str, np.ndarray]) -> None:
+    def _apply_constraints(self, times: np.ndarray, Rw: np.ndarray, present: np.ndarray
+                           ) -> None:
         """Turn the forearm and hand about the vertical by their joints' heading error.
         (A left arm's medial Z flips ``u·v`` and ``D`` alike: the estimate is the same.)"""
-        pairs = {"forearm": ("upper_arm", 2, 1), "hand": ("forearm", 0, 2)}
+        forearm, hand = _SEGMENT_INDEX["forearm"], _SEGMENT_INDEX["hand"]
+        pairs = {"forearm": (_SEGMENT_INDEX["upper_arm"], forearm, 2, 1),
+                 "hand": (forearm, hand, 0, 2)}
         for segment, constraint in self._constraints.items():
-            parent, u_axis, v_axis = pairs[segment]
-            if parent not in R_world:
+            parent, child, u_axis, v_axis = pairs[segment]
+            if not present[parent]:
                 continue
-            u = R_world[parent][:, :, u_axis]
-            v = R_world[segment][:, :, v_axis]
-            delta = constraint.update(times, u, v)
-            R_world[segment] = elemental("z", delta) @ R_world[segment]
-            if segment == "forearm" and "hand" in R_world and "hand" not in self._constraints:
-                R_world["hand"] = elemental("z", delta) @ R_world["hand"]
+            delta = constraint.update(times, Rw[:, parent, :, u_axis], Rw[:, child, :, v_axis])
+            Rw[:, child] = elemental("z", delta) @ Rw[:, child]
+            if segment == "forearm" and present[hand] and "hand" not in self._constraints:
+                Rw[:, hand] = elemental("z", delta) @ Rw[:, hand]
+
+
+_SEGMENT_INDEX = {segment: i for i, segment in enumerate(SEGMENTS)}
