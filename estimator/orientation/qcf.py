@@ -62,6 +62,15 @@ class QcfParams:
     ki_bias_mag: float = 0.02
     #: Largest bias believed [rad/s].
     bias_max: float = 0.2
+    #: Window over which the field's turning is summed for the bias [s] …
+    mag_window: float = 2.0
+    #: … the time constant with which old windows are forgotten [s] …
+    tau_bias_mag: float = 60.0
+    #: … and the weight of the current bias against them [µT²·s²] before a rest has taught
+    #: the bias …
+    mag_bias_prior: float = 3e4
+    #: … and after (a rest's mean is worth more than a minute of turning field).
+    mag_bias_prior_known: float = 1e7
     #: Relative deviation of |m| from the reference that marks a disturbed field.
     mag_norm_tolerance: float = 0.05
     #: Deviation of the field's dip from the reference that marks a disturbance [rad].
@@ -89,7 +98,8 @@ class QcfParams:
                   self.mag_norm_tolerance, self.mag_dip_tolerance, self.tau_mag_reference,
                   self.mag_reaccept, self.max_dt, self.rest_min_samples, self.rest_guard,
                   self.tau_acc_rest, self.rest_rate, self.tau_bias_rest,
-                  self.rest_rate_known, self.zupt_delay]
+                  self.rest_rate_known, self.zupt_delay, self.mag_window,
+                  self.tau_bias_mag, self.mag_bias_prior, self.mag_bias_prior_known]
         assert len(values) == PARAM_SIZE
         return np.array(values, dtype=np.float64)
 

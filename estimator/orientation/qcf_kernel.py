@@ -21,7 +21,9 @@ norm [µT] · ``[28]`` reference dip [rad] · ``[29]`` time disturbed so far [s]
 sum of the gyroscope over the current rest · ``[33]`` samples in it · ``[34:37]`` sum of
 the samples still waiting for the guard time · ``[37]`` their count · ``[38]`` their
 time · ``[39:42]`` the previous gyroscope sample · ``[42]`` the first sample's time
-· ``[43]`` whether a rest has taught the bias.
+· ``[43]`` whether a rest has taught the bias · ``[44:63]`` the field-turning bias
+estimator: window sums V, Y, first field, window time, information matrix and vector
+· ``[63:66]`` the previous field sample · ``[66]`` a window is open.
 """
 
 from __future__ import annotations
@@ -30,14 +32,15 @@ import math
 
 import numpy as np
 
-STATE_SIZE = 44
+STATE_SIZE = 67
 
 # Indices into the parameter vector, see QcfParams.as_array.
 (P_TAU_ACC, P_TAU_MAG, P_TAU_LP, P_REST_GYR, P_REST_ACC, P_REST_TIME,
  P_KI_BIAS, P_KI_BIAS_MAG, P_BIAS_MAX, P_MAG_NORM_TOL, P_MAG_DIP_TOL, P_TAU_MAG_REF,
  P_MAG_REACCEPT, P_MAX_DT, P_REST_MIN_SAMPLES, P_REST_GUARD, P_TAU_ACC_REST,
- P_REST_RATE, P_TAU_BIAS_REST, P_REST_RATE_KNOWN, P_ZUPT_DELAY) = range(21)
-PARAM_SIZE = 21
+ P_REST_RATE, P_TAU_BIAS_REST, P_REST_RATE_KNOWN, P_ZUPT_DELAY, P_MAG_WINDOW,
+ P_TAU_BIAS_MAG, P_MAG_BIAS_PRIOR, P_MAG_BIAS_PRIOR_KNOWN) = range(25)
+PARAM_SIZE = 25
 
 
 def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out_rest,
@@ -52,6 +55,10 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     rest_rate_known = params[P_REST_RATE_KNOWN]
     tau_bias_rest = params[P_TAU_BIAS_REST]
     zupt_delay = params[P_ZUPT_DELAY]
+    mag_window = params[P_MAG_WINDOW]
+    tau_bias_mag = params[P_TAU_BIAS_MAG]
+    mag_bias_prior = params[P_MAG_BIAS_PRIOR]
+    mag_bias_prior_known = params[P_MAG_BIAS_PRIOR_KNOWN]
     rest_acc = params[P_REST_ACC]
     rest_time_needed = params[P_REST_TIME]
     ki_bias = params[P_KI_BIAS]
@@ -84,6 +91,11 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     lwx, lwy, lwz = state[39], state[40], state[41]
     t_start = state[42]
     bias_known = state[43]
+    mVx, mVy, mVz, mYx, mYy, mYz = state[44], state[45], state[46], state[47], state[48], state[49]
+    m0x, m0y, m0z, mw_time = state[50], state[51], state[52], state[53]
+    i00, i11, i22, i01, i02, i12 = state[54], state[55], state[56], state[57], state[58], state[59]
+    z0, z1, z2 = state[60], state[61], state[62]
+    lmx, lmy, lmz, m_started = state[63], state[64], state[65], state[66]
 
     for i in range(t.shape[0]):
         ax, ay, az = acc[i, 0], acc[i, 1], acc[i, 2]
@@ -303,11 +315,64 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
                 disturbed = (abs(m_norm - ref_norm) > mag_norm_tol * ref_norm
                              or abs(dip - ref_dip) > mag_dip_tol or horizontal <= 0.0)
                 if disturbed:
+                    # a window of the field's turning that the disturbance spoils is dropped
+                    mw_time, m_started = 0.0, 0.0
+                    mVx, mVy, mVz, mYx, mYy, mYz = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
                     disturbed_time += dt
                     if disturbed_time > mag_reaccept:
                         ref_norm, ref_dip = m_norm, dip  # a new steady field: a new room
                         disturbed_time = 0.0
                 else:
+                    # Bias from how the field turns in the sensor frame: for a constant
+                    # field m, ω_meas × m + dm/dt = b × m. Over a window, with
+                    # V = ∫m dt and Y = ∫ω×m dt + Δm: b × V = Y, two equations in b,
+                    # free of any acceleration. Windows add to an information matrix
+                    # that forgets with tau_bias_mag; the estimate pulls b toward it.
+                    if m_started == 0.0:
+                        m0x, m0y, m0z = mx, my, mz
+                        m_started = 1.0
+                    else:  # trapezoids, so the sums span exactly what Δm spans
+                        h = 0.5 * dt
+                        mVx += h * (lmx + mx)
+                        mVy += h * (lmy + my)
+                        mVz += h * (lmz + mz)
+                        mYx += h * ((lwy * lmz - lwz * lmy) + (wy * mz - wz * my))
+                        mYy += h * ((lwz * lmx - lwx * lmz) + (wz * mx - wx * mz))
+                        mYz += h * ((lwx * lmy - lwy * lmx) + (wx * my - wy * mx))
+                        mw_time += dt
+                    lmx, lmy, lmz = mx, my, mz
+                    if mw_time >= mag_window:
+                        Yx, Yy, Yz = mYx + mx - m0x, mYy + my - m0y, mYz + mz - m0z
+                        decay = math.exp(-mw_time / tau_bias_mag)
+                        vv = mVx * mVx + mVy * mVy + mVz * mVz
+                        i00 = decay * i00 + vv - mVx * mVx
+                        i11 = decay * i11 + vv - mVy * mVy
+                        i22 = decay * i22 + vv - mVz * mVz
+                        i01 = decay * i01 - mVx * mVy
+                        i02 = decay * i02 - mVx * mVz
+                        i12 = decay * i12 - mVy * mVz
+                        # the normal equations of −[V]× b = Y: (|V|² − V Vᵀ) b = V × Y
+                        z0 = decay * z0 + (mVy * Yz - mVz * Yy)
+                        z1 = decay * z1 + (mVz * Yx - mVx * Yz)
+                        z2 = decay * z2 + (mVx * Yy - mVy * Yx)
+                        # solve (I + λ) b = z + λ b_now (λ: the weight of the current b)
+                        lam = mag_bias_prior if bias_known == 0.0 else mag_bias_prior_known
+                        a00, a11, a22 = i00 + lam, i11 + lam, i22 + lam
+                        r0, r1, r2 = z0 + lam * bx, z1 + lam * by, z2 + lam * bz
+                        det = (a00 * (a11 * a22 - i12 * i12) - i01 * (i01 * a22 - i12 * i02)
+                               + i02 * (i01 * i12 - a11 * i02))
+                        if det > 0.0:
+                            nbx = (r0 * (a11 * a22 - i12 * i12) - i01 * (r1 * a22 - i12 * r2)
+                                   + i02 * (r1 * i12 - a11 * r2)) / det
+                            nby = (a00 * (r1 * a22 - i12 * r2) - r0 * (i01 * a22 - i12 * i02)
+                                   + i02 * (i01 * r2 - r1 * i02)) / det
+                            nbz = (a00 * (a11 * r2 - r1 * i12) - i01 * (i01 * r2 - r1 * i02)
+                                   + r0 * (i01 * i12 - a11 * i02)) / det
+                            if not at_rest:
+                                bx, by, bz = nbx, nby, nbz
+                        mw_time = 0.0
+                        mVx, mVy, mVz, mYx, mYy, mYz = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+                        m0x, m0y, m0z = mx, my, mz  # the next window starts here
                     disturbed_time = 0.0
                     k_ref = dt / (tau_mag_ref + dt)
                     ref_norm += k_ref * (m_norm - ref_norm)
@@ -371,6 +436,11 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     state[39], state[40], state[41] = lwx, lwy, lwz
     state[42] = t_start
     state[43] = bias_known
+    state[44], state[45], state[46], state[47], state[48], state[49] = mVx, mVy, mVz, mYx, mYy, mYz
+    state[50], state[51], state[52], state[53] = m0x, m0y, m0z, mw_time
+    state[54], state[55], state[56], state[57], state[58], state[59] = i00, i11, i22, i01, i02, i12
+    state[60], state[61], state[62] = z0, z1, z2
+    state[63], state[64], state[65], state[66] = lmx, lmy, lmz, m_started
 
 
 def _compile():
