@@ -66,11 +66,9 @@ class QcfParams:
     mag_window: float = 2.0
     #: … the time constant with which old windows are forgotten [s] …
     tau_bias_mag: float = 60.0
-    #: … and the weight of the current bias against them [µT²·s²] before a rest has taught
-    #: the bias …
+    #: … and the weight of the current bias against them [µT²·s²]. This estimator runs
+    #: only until a rest has taught the bias.
     mag_bias_prior: float = 3e4
-    #: … and after (a rest's mean is worth more than a minute of turning field).
-    mag_bias_prior_known: float = 1e7
     #: Relative deviation of |m| from the reference that marks a disturbed field.
     mag_norm_tolerance: float = 0.05
     #: Deviation of the field's dip from the reference that marks a disturbance [rad].
@@ -99,7 +97,7 @@ class QcfParams:
                   self.mag_reaccept, self.max_dt, self.rest_min_samples, self.rest_guard,
                   self.tau_acc_rest, self.rest_rate, self.tau_bias_rest,
                   self.rest_rate_known, self.zupt_delay, self.mag_window,
-                  self.tau_bias_mag, self.mag_bias_prior, self.mag_bias_prior_known]
+                  self.tau_bias_mag, self.mag_bias_prior]
         assert len(values) == PARAM_SIZE
         return np.array(values, dtype=np.float64)
 

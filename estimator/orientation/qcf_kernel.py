@@ -39,8 +39,8 @@ STATE_SIZE = 67
  P_KI_BIAS, P_KI_BIAS_MAG, P_BIAS_MAX, P_MAG_NORM_TOL, P_MAG_DIP_TOL, P_TAU_MAG_REF,
  P_MAG_REACCEPT, P_MAX_DT, P_REST_MIN_SAMPLES, P_REST_GUARD, P_TAU_ACC_REST,
  P_REST_RATE, P_TAU_BIAS_REST, P_REST_RATE_KNOWN, P_ZUPT_DELAY, P_MAG_WINDOW,
- P_TAU_BIAS_MAG, P_MAG_BIAS_PRIOR, P_MAG_BIAS_PRIOR_KNOWN) = range(25)
-PARAM_SIZE = 25
+ P_TAU_BIAS_MAG, P_MAG_BIAS_PRIOR) = range(24)
+PARAM_SIZE = 24
 
 
 def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out_rest,
@@ -58,7 +58,6 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     mag_window = params[P_MAG_WINDOW]
     tau_bias_mag = params[P_TAU_BIAS_MAG]
     mag_bias_prior = params[P_MAG_BIAS_PRIOR]
-    mag_bias_prior_known = params[P_MAG_BIAS_PRIOR_KNOWN]
     rest_acc = params[P_REST_ACC]
     rest_time_needed = params[P_REST_TIME]
     ki_bias = params[P_KI_BIAS]
@@ -323,56 +322,59 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
                         ref_norm, ref_dip = m_norm, dip  # a new steady field: a new room
                         disturbed_time = 0.0
                 else:
-                    # Bias from how the field turns in the sensor frame: for a constant
-                    # field m, ω_meas × m + dm/dt = b × m. Over a window, with
-                    # V = ∫m dt and Y = ∫ω×m dt + Δm: b × V = Y, two equations in b,
-                    # free of any acceleration. Windows add to an information matrix
-                    # that forgets with tau_bias_mag; the estimate pulls b toward it.
-                    if m_started == 0.0:
-                        m0x, m0y, m0z = mx, my, mz
-                        m_started = 1.0
-                    else:  # trapezoids, so the sums span exactly what Δm spans
-                        h = 0.5 * dt
-                        mVx += h * (lmx + mx)
-                        mVy += h * (lmy + my)
-                        mVz += h * (lmz + mz)
-                        mYx += h * ((lwy * lmz - lwz * lmy) + (wy * mz - wz * my))
-                        mYy += h * ((lwz * lmx - lwx * lmz) + (wz * mx - wx * mz))
-                        mYz += h * ((lwx * lmy - lwy * lmx) + (wx * my - wy * mx))
-                        mw_time += dt
-                    lmx, lmy, lmz = mx, my, mz
-                    if mw_time >= mag_window:
-                        Yx, Yy, Yz = mYx + mx - m0x, mYy + my - m0y, mYz + mz - m0z
-                        decay = math.exp(-mw_time / tau_bias_mag)
-                        vv = mVx * mVx + mVy * mVy + mVz * mVz
-                        i00 = decay * i00 + vv - mVx * mVx
-                        i11 = decay * i11 + vv - mVy * mVy
-                        i22 = decay * i22 + vv - mVz * mVz
-                        i01 = decay * i01 - mVx * mVy
-                        i02 = decay * i02 - mVx * mVz
-                        i12 = decay * i12 - mVy * mVz
-                        # the normal equations of −[V]× b = Y: (|V|² − V Vᵀ) b = V × Y
-                        z0 = decay * z0 + (mVy * Yz - mVz * Yy)
-                        z1 = decay * z1 + (mVz * Yx - mVx * Yz)
-                        z2 = decay * z2 + (mVx * Yy - mVy * Yx)
-                        # solve (I + λ) b = z + λ b_now (λ: the weight of the current b)
-                        lam = mag_bias_prior if bias_known == 0.0 else mag_bias_prior_known
-                        a00, a11, a22 = i00 + lam, i11 + lam, i22 + lam
-                        r0, r1, r2 = z0 + lam * bx, z1 + lam * by, z2 + lam * bz
-                        det = (a00 * (a11 * a22 - i12 * i12) - i01 * (i01 * a22 - i12 * i02)
-                               + i02 * (i01 * i12 - a11 * i02))
-                        if det > 0.0:
-                            nbx = (r0 * (a11 * a22 - i12 * i12) - i01 * (r1 * a22 - i12 * r2)
-                                   + i02 * (r1 * i12 - a11 * r2)) / det
-                            nby = (a00 * (r1 * a22 - i12 * r2) - r0 * (i01 * a22 - i12 * i02)
-                                   + i02 * (i01 * r2 - r1 * i02)) / det
-                            nbz = (a00 * (a11 * r2 - r1 * i12) - i01 * (i01 * r2 - r1 * i02)
-                                   + r0 * (i01 * i12 - a11 * i02)) / det
-                            if not at_rest:
-                                bx, by, bz = nbx, nby, nbz
-                        mw_time = 0.0
-                        mVx, mVy, mVz, mYx, mYy, mYz = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-                        m0x, m0y, m0z = mx, my, mz  # the next window starts here
+                    if bias_known == 0.0:
+                        # Bias from how the field turns in the sensor frame: for a constant
+                        # field m, ω_meas × m + dm/dt = b × m. Over a window, with
+                        # V = ∫m dt and Y = ∫ω×m dt + Δm: b × V = Y, two equations in b,
+                        # free of any acceleration. Windows add to an information matrix
+                        # that forgets with tau_bias_mag; the estimate pulls b toward it.
+                        # (Only until a rest has taught the bias: a rest's mean is worth
+                        # more than minutes of turning field, and the filter runs faster.)
+                        if m_started == 0.0:
+                            m0x, m0y, m0z = mx, my, mz
+                            m_started = 1.0
+                        else:  # trapezoids, so the sums span exactly what Δm spans
+                            h = 0.5 * dt
+                            mVx += h * (lmx + mx)
+                            mVy += h * (lmy + my)
+                            mVz += h * (lmz + mz)
+                            mYx += h * ((lwy * lmz - lwz * lmy) + (wy * mz - wz * my))
+                            mYy += h * ((lwz * lmx - lwx * lmz) + (wz * mx - wx * mz))
+                            mYz += h * ((lwx * lmy - lwy * lmx) + (wx * my - wy * mx))
+                            mw_time += dt
+                        lmx, lmy, lmz = mx, my, mz
+                        if mw_time >= mag_window:
+                            Yx, Yy, Yz = mYx + mx - m0x, mYy + my - m0y, mYz + mz - m0z
+                            decay = math.exp(-mw_time / tau_bias_mag)
+                            vv = mVx * mVx + mVy * mVy + mVz * mVz
+                            i00 = decay * i00 + vv - mVx * mVx
+                            i11 = decay * i11 + vv - mVy * mVy
+                            i22 = decay * i22 + vv - mVz * mVz
+                            i01 = decay * i01 - mVx * mVy
+                            i02 = decay * i02 - mVx * mVz
+                            i12 = decay * i12 - mVy * mVz
+                            # the normal equations of −[V]× b = Y: (|V|² − V Vᵀ) b = V × Y
+                            z0 = decay * z0 + (mVy * Yz - mVz * Yy)
+                            z1 = decay * z1 + (mVz * Yx - mVx * Yz)
+                            z2 = decay * z2 + (mVx * Yy - mVy * Yx)
+                            # solve (I + λ) b = z + λ b_now (λ: the weight of the current b)
+                            lam = mag_bias_prior
+                            a00, a11, a22 = i00 + lam, i11 + lam, i22 + lam
+                            r0, r1, r2 = z0 + lam * bx, z1 + lam * by, z2 + lam * bz
+                            det = (a00 * (a11 * a22 - i12 * i12) - i01 * (i01 * a22 - i12 * i02)
+                                   + i02 * (i01 * i12 - a11 * i02))
+                            if det > 0.0:
+                                nbx = (r0 * (a11 * a22 - i12 * i12) - i01 * (r1 * a22 - i12 * r2)
+                                       + i02 * (r1 * i12 - a11 * r2)) / det
+                                nby = (a00 * (r1 * a22 - i12 * r2) - r0 * (i01 * a22 - i12 * i02)
+                                       + i02 * (i01 * r2 - r1 * i02)) / det
+                                nbz = (a00 * (a11 * r2 - r1 * i12) - i01 * (i01 * r2 - r1 * i02)
+                                       + r0 * (i01 * i12 - a11 * i02)) / det
+                                if not at_rest:
+                                    bx, by, bz = nbx, nby, nbz
+                            mw_time = 0.0
+                            mVx, mVy, mVz, mYx, mYy, mYz = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+                            m0x, m0y, m0z = mx, my, mz  # the next window starts here
                     disturbed_time = 0.0
                     k_ref = dt / (tau_mag_ref + dt)
                     ref_norm += k_ref * (m_norm - ref_norm)
