@@ -63,6 +63,7 @@ class Pipeline:
         self.config = config
         self._tracks = {s: SensorTrack(s, config.filter) for s in config.sensors}
         self._reference = config.reference
+        self._others = [t for n, t in self._tracks.items() if n != self._reference]
         self._poses = list(poses)
         self._marks: list[Mark] = []
         self._joints = CompiledJoints(config.side, config.lengths, config.joint_params)
@@ -99,6 +100,8 @@ class Pipeline:
         return CalibrationPlan.from_poses([*self._poses, *poses_from_marks(self._marks)])
 
     def _advance(self, final: bool) -> Estimates:
+        if self.calibration is not None:
+            return self._estimate(final)
         tracks = [t for t in self._tracks.values() if t.first_t < np.inf]
         if not tracks or self._tracks[self._reference].last_t == -np.inf:
             return Estimates.empty()
@@ -122,9 +125,11 @@ class Pipeline:
         assert self.calibration is not None
         reference = self._tracks[self._reference]
         t_ref = reference.arrays()[0]
-        horizon = np.inf if final else min(
-            (t.last_t for n, t in self._tracks.items() if n != self._reference),
-            default=np.inf)
+        horizon = np.inf
+        if not final:
+            for track in self._others:
+                if track.last_t < horizon:
+                    horizon = track.last_t
         start = self._given - reference.discarded
         stop = int(np.searchsorted(t_ref, horizon, "right")) if np.isfinite(horizon) \
             else len(t_ref)
