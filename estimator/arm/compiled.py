@@ -240,21 +240,37 @@ def _to_world_python(Rw, present, R_out):
                     R_out[n, 0, r, c] = 1.0 if r == c else 0.0
 
 
+# The three steps of one chunk, called together so a live poll pays one dispatch. The
+# names below are the pure-Python functions, or their compiled twins once numba is in.
+_RELATIVE, _KERNEL, _TO_WORLD = _relative_python, _kernel_python, _to_world_python
+
+
+def _chunk_python(Rw, present, side_sign, lengths, zone_sin, normal, state, rel, angles,
+                  residuals, positions, R_out):
+    _RELATIVE(Rw, present, side_sign, rel)
+    _KERNEL(rel, side_sign, lengths, zone_sin, normal, state, angles, residuals, positions,
+            R_out[:, 1:])
+    _TO_WORLD(Rw, present, R_out)
+
+
 def _compile():
     try:
         import numba
     except ImportError:  # the pure-Python fallback: same numbers, slower
-        return _kernel_python, _relative_python, _to_world_python, False
+        return _kernel_python, _relative_python, _to_world_python, _chunk_python, False
     jit = numba.njit(cache=True, nogil=True)
     global _tait_bryan, _wrap, _continue, _beyond, _matmul, _elemental, _forward
     _tait_bryan, _wrap, _continue, _beyond = (jit(_tait_bryan), jit(_wrap), jit(_continue),
                                               jit(_beyond))
     _matmul, _elemental = jit(_matmul), jit(_elemental)
     _forward = jit(_forward)
-    return jit(_kernel_python), jit(_relative_python), jit(_to_world_python), True
+    global _RELATIVE, _KERNEL, _TO_WORLD
+    _KERNEL, _RELATIVE, _TO_WORLD = jit(_kernel_python), jit(_relative_python), jit(
+        _to_world_python)
+    return _KERNEL, _RELATIVE, _TO_WORLD, jit(_chunk_python), True
 
 
-kernel, relative, to_world, COMPILED = _compile()
+kernel, relative, to_world, chunk, COMPILED = _compile()
 
 
 class CompiledJoints:
@@ -292,11 +308,8 @@ class CompiledJoints:
         """The same from ``R_world_segment`` stacked (N, 5, 3, 3) in ``SEGMENTS`` order and
         ``present`` (5,) 1.0 where a segment has a sensor (the others are not read)."""
         n = Rw.shape[0]
-        rel = np.empty((n, 4, 3, 3))
-        relative(Rw, present, self._side_sign, rel)
         angles, residuals = np.empty((n, 10)), np.empty((n, 3))
         positions, R_out = np.empty((n, 4, 3)), np.empty((n, 5, 3, 3))
-        kernel(rel, self._side_sign, self._lengths, self._zone_sin, self._normal, self._state,
-               angles, residuals, positions, R_out[:, 1:])
-        to_world(Rw, present, R_out)
+        chunk(Rw, present, self._side_sign, self._lengths, self._zone_sin, self._normal,
+              self._state, np.empty((n, 4, 3, 3)), angles, residuals, positions, R_out)
         return angles, residuals, positions, R_out

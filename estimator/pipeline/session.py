@@ -155,15 +155,14 @@ class Pipeline:
         if self._constraints:
             self._apply_constraints(times, Rw, present)
         angles, residuals, positions, R_world_all = self._joints.update_stacked(Rw, present)
-        R_world_segment = {segment: R_world_all[:, i] for i, segment in enumerate(SEGMENTS)}
         # no later estimate looks further back than this one: the tracks forget the rest
         for track in self._tracks.values():
             track.discard_before(float(times[-1]))
-        return Estimates(
-            t=times, angles={k: angles[:, i] for i, k in enumerate(REPORTED_ANGLES)},
-            residuals={k: residuals[:, i] for i, k in enumerate(RESIDUALS)},
-            positions={p: positions[:, i] for i, p in enumerate(POINTS)},
-            R_world_segment=R_world_segment)
+        return Estimates(  # columns of the kernel's arrays, by name (views, no copies)
+            t=times, angles=dict(zip(REPORTED_ANGLES, angles.T, strict=True)),
+            residuals=dict(zip(RESIDUALS, residuals.T, strict=True)),
+            positions=dict(zip(POINTS, positions.swapaxes(0, 1), strict=True)),
+            R_world_segment=dict(zip(SEGMENTS, R_world_all.swapaxes(0, 1), strict=True)))
 
     def _apply_constraints(self, times: np.ndarray, Rw: np.ndarray, present: np.ndarray
                            ) -> None:
