@@ -281,3 +281,23 @@ def test_compiled_segment_orientations_equal_the_numpy_path():
     out = np.empty((len(times), 3, 3))
     _segment_python(t, q, times, R_ss, 0.7, out)
     np.testing.assert_allclose(out, expected, atol=1e-12)
+
+
+def test_swapped_forearm_and_hand_sensors_are_flagged_by_the_joint_residuals():
+    """Gravity cannot tell a forearm from a hand sensor in the N- and T-pose; the joints
+    can once the wrist moves."""
+    from armtrack.estimator.pipeline.quality import residual_warnings
+    from armtrack.estimator.recording import Recording
+
+    sim = simulate(SimulationConfig(exercise="wrist_flexion", seed=51))
+    good, _ = estimate_recording(sim.recording)
+    assert residual_warnings(good, tuple(sim.recording.sensors)) == []
+    streams = dict(sim.recording.sensors)
+    streams["forearm"], streams["hand"] = streams["hand"], streams["forearm"]
+    swapped = Recording(side="right", sensors=streams, height_m=1.75,
+                        calibration=sim.recording.calibration)
+    estimates, calibration = estimate_recording(swapped)
+    assert not any(w.code == "sensor-swapped" for w in calibration.warnings)  # gravity: no
+    warnings = residual_warnings(estimates, tuple(streams))
+    print([w.message for w in warnings])
+    assert [w.code for w in warnings] and all(w.code == "joint-residual" for w in warnings)

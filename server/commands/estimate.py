@@ -10,6 +10,7 @@ import numpy as np
 from armtrack.estimator.metrics import range_of_motion_table
 from armtrack.estimator.orientation import DEFAULT_FILTER, FILTERS
 from armtrack.estimator.pipeline import estimate_recording
+from armtrack.estimator.pipeline.quality import residual_warnings
 from armtrack.estimator.recording import read_recording
 
 from .output import open_output
@@ -44,7 +45,8 @@ def run_estimate(args: argparse.Namespace) -> int:
     print(f"{args.recording}: {len(estimates)} estimates, filter {args.filter}, calibration "
           f"{calibration.method}" + (f", written to {args.output}" if args.output else ""),
           file=report)
-    for warning in calibration.warnings:
+    for warning in (*calibration.warnings,
+                    *residual_warnings(estimates, tuple(recording.sensors))):
         print(f"  warning: {warning.message}", file=report)
     if not table:
         print("  no joint moved more than the noise", file=report)
