@@ -301,3 +301,30 @@ def test_swapped_forearm_and_hand_sensors_are_flagged_by_the_joint_residuals():
     warnings = residual_warnings(estimates, tuple(streams))
     print([w.message for w in warnings])
     assert [w.code for w in warnings] and all(w.code == "joint-residual" for w in warnings)
+
+
+#: The repetition counts of shared/data/recordings/README.md (exact).
+REPETITIONS = {
+    "elbow_flexion": {"elbow_flexion": 5}, "shoulder_abduction": {"shoulder_abduction": 5},
+    "shoulder_flexion": {"shoulder_flexion": 5}, "wrist_flexion": {"wrist_flexion": 6},
+    "pronation": {"forearm_pronation": 6},
+    "left_reach_50hz": {"shoulder_flexion": 5, "elbow_flexion": 5},
+    "elbow_6axis": {"elbow_flexion": 7, "wrist_flexion": 6},
+    "elbow_6axis_long": {"elbow_flexion": 40, "forearm_pronation": 36, "wrist_flexion": 36},
+    "trunk_reach": {"shoulder_flexion": 5, "elbow_flexion": 5},
+    "abduction_120": {"shoulder_abduction": 4},
+}
+
+
+@pytest.mark.parametrize("name", sorted(REPETITIONS))
+def test_repetitions_counted_on_the_estimates_match_the_shared_readme(shared_dir, name):
+    from armtrack.estimator.metrics import repetitions_by_angle
+
+    recording = read_recording(shared_dir / "data" / "recordings" / f"{name}.csv")
+    estimates, _ = estimate_recording(recording)
+    calibration_end = max(p.end for p in recording.calibration) + 2.5
+    counted = repetitions_by_angle({k: estimates.angles[k] for k in REPETITIONS[name]},
+                                   estimates.t, exclude=[(estimates.t[0], calibration_end)])
+    got = {k: len(v) for k, v in counted.items()}
+    print(f"{name}: {got}")
+    assert got == REPETITIONS[name]

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
-from armtrack.estimator.metrics import range_of_motion_table
+from armtrack.estimator.metrics import range_of_motion_table, repetitions_by_angle
 from armtrack.estimator.orientation import DEFAULT_FILTER, FILTERS
 from armtrack.estimator.pipeline import estimate_recording
 from armtrack.estimator.pipeline.quality import residual_warnings
@@ -51,12 +51,14 @@ def run_estimate(args: argparse.Namespace) -> int:
     if not table:
         print("  no joint moved more than the noise", file=report)
         return 0
+    repetitions = repetitions_by_angle({k: estimates.angles[k] for k in table}, estimates.t,
+                                       exclude=exclude)
     print(f"  {'range of motion (deg)':<24}{'min':>8}{'max':>8}{'range':>8}{'normal':>12}"
-          f"{'% normal':>10}", file=report)
+          f"{'% normal':>10}{'reps':>6}", file=report)
     for name, rom in table.items():
         normal = ("" if rom.normal_min_deg is None
                   else f"{rom.normal_min_deg:.0f}…{rom.normal_max_deg:.0f}")
         percent = "" if rom.percent_of_normal is None else f"{rom.percent_of_normal:.0f}"
         print(f"  {name:<24}{rom.min_deg:8.1f}{rom.max_deg:8.1f}{rom.range_deg:8.1f}"
-              f"{normal:>12}{percent:>10}", file=report)
+              f"{normal:>12}{percent:>10}{len(repetitions[name]):>6}", file=report)
     return 0
