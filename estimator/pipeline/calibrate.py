@@ -5,7 +5,10 @@ Order: arm sensors first (two-pose, N-pose-only or default mounting); then the w
 thorax in the N-pose from the arm (every segment's axes are the thorax's there); then the
 trunk and clavicle sensors' headings from it. On a 6-axis kit each sensor's filter has a
 heading of its own: in the N-pose all segments point the same way, which gives each
-sensor the turn about the vertical that brings it into the reference sensor's world.
+sensor the turn about the vertical that brings it into the reference sensor's world; there
+a trunk or clavicle sensor's own turn about the vertical is the default mounting's (no
+shared heading makes it observable), so the thorax is right in the N-pose and a trunk
+sensor mounted turned on the sternum mixes forward and sideways bending by that turn.
 With no pose at all (default mounting) the first second of the recording stands in for
 the N-pose: the patient is taken to start with the arm hanging.
 """
