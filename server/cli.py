@@ -7,6 +7,7 @@ exit codes (0 success, 2 bad input, with the message on standard error).
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import os
 import sys
@@ -82,26 +83,9 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     try:
-        if args.command == "pose":
-            from .commands.pose import run_pose
-
-            return run_pose(args)
-        if args.command == "check":
-            from .commands.check import run_check
-
-            return run_check(args)
-        if args.command == "simulate":
-            from .commands.simulate import run_simulate
-
-            return run_simulate(args)
-        if args.command == "estimate":
-            from .commands.estimate import run_estimate
-
-            return run_estimate(args)
-        if args.command == "orient":
-            from .commands.orient import run_orient
-
-            return run_orient(args)
+        # one module per command, each with run(args); imported only when used
+        command = importlib.import_module(f".commands.{args.command}", __package__)
+        return command.run(args)
     except EstimatorError as exc:
         print(f"armtrack {args.command}: {exc}", file=sys.stderr)
         return 2
@@ -112,7 +96,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     except OSError as exc:
         print(f"armtrack {args.command}: {exc}", file=sys.stderr)
         return 2
-    raise AssertionError(f"unhandled command {args.command}")  # argparse guarantees a command
 
 
 def print_json(value: object) -> None:

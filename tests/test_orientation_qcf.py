@@ -134,6 +134,12 @@ def test_bad_input_is_named():
         make_filter("kalman")
     with pytest.raises(InvalidArgument, match="tau_acc"):
         QcfParams(tau_acc=-1.0)
+    still = np.tile([0.0, 0.0, 9.81], (3, 1))
+    with pytest.raises(InvalidArgument, match="t goes backwards at sample 2"):
+        f.update(np.array([0.0, 0.02, 0.01]), still, np.zeros((3, 3)))
+    f.update(np.array([1.0, 1.01]), still[:2], np.zeros((2, 3)))
+    with pytest.raises(InvalidArgument, match="between chunks"):
+        f.update(np.array([0.5]), still[:1], np.zeros((1, 3)))
 
 
 def test_repeated_timestamps_and_gaps_are_harmless():

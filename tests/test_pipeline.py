@@ -319,10 +319,11 @@ REPETITIONS = {
 @pytest.mark.parametrize("name", sorted(REPETITIONS))
 def test_repetitions_counted_on_the_estimates_match_the_shared_readme(shared_dir, name):
     from armtrack.estimator.metrics import repetitions_by_angle
+    from armtrack.server.commands.estimate import CALIBRATION_TAIL_S
 
     recording = read_recording(shared_dir / "data" / "recordings" / f"{name}.csv")
     estimates, _ = estimate_recording(recording)
-    calibration_end = max(p.end for p in recording.calibration) + 2.5
+    calibration_end = max(p.end for p in recording.calibration) + CALIBRATION_TAIL_S
     counted = repetitions_by_angle({k: estimates.angles[k] for k in REPETITIONS[name]},
                                    estimates.t, exclude=[(estimates.t[0], calibration_end)])
     got = {k: len(v) for k, v in counted.items()}

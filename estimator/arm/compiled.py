@@ -21,8 +21,6 @@ import math
 
 import numpy as np
 
-from .joints import SEGMENTS
-
 STATE_SIZE = 13
 _TWO_PI = 2.0 * math.pi
 
@@ -275,7 +273,7 @@ kernel, relative, to_world, chunk, COMPILED = _compile()
 
 class CompiledJoints:
     """Streaming joint angles and forward kinematics with the compiled kernel: ``update``
-    takes chunks of ``R_world_segment`` like ``JointAngleSolver.update``."""
+    takes chunks of ``R_world_segment`` stacked in ``SEGMENTS`` order."""
 
     def __init__(self, side: str, lengths, params) -> None:
         from .forward import check_side
@@ -290,23 +288,12 @@ class CompiledJoints:
                                    for n in ("flexion", "abduction", "rotation")])
         self._state = np.zeros(STATE_SIZE)
 
-    def update(self, R_world):
+    def update(self, Rw: np.ndarray, present: np.ndarray):
         """``(angles (N, 10), residuals (N, 3), positions (N, 4, 3), R_world_segment
-        (N, 5, 3, 3))`` of a chunk: the model's segments thorax … hand in the world (the
-        thorax as given, the others from the angles); see the module docstring.
-        ``R_world``: segment → (N, 3, 3), as ``JointAngleSolver.update`` takes it."""
-        n = next(iter(R_world.values())).shape[0]
-        Rw = np.empty((n, 5, 3, 3))
-        present = np.zeros(5)
-        for i, segment in enumerate(SEGMENTS):
-            if segment in R_world:
-                Rw[:, i] = R_world[segment]
-                present[i] = 1.0
-        return self.update_stacked(Rw, present)
-
-    def update_stacked(self, Rw: np.ndarray, present: np.ndarray):
-        """The same from ``R_world_segment`` stacked (N, 5, 3, 3) in ``SEGMENTS`` order and
-        ``present`` (5,) 1.0 where a segment has a sensor (the others are not read)."""
+        (N, 5, 3, 3))`` of a chunk, from ``R_world_segment`` stacked (N, 5, 3, 3) in
+        ``SEGMENTS`` order and ``present`` (5,), 1.0 where a segment has a sensor (the
+        others are not read). Output segments: thorax as given, the others from the angles;
+        see the module docstring for the orders."""
         n = Rw.shape[0]
         angles, residuals = np.empty((n, 10)), np.empty((n, 3))
         positions, R_out = np.empty((n, 4, 3)), np.empty((n, 5, 3, 3))

@@ -22,7 +22,7 @@ from typing import Protocol
 
 import numpy as np
 
-from ..errors import InvalidShape
+from ..errors import InvalidArgument, InvalidShape
 
 
 @dataclass(frozen=True)
@@ -70,3 +70,18 @@ def check_inputs(t, acc, gyr, mag) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
         if mag.shape != (n, 3):
             raise InvalidShape(f"mag must have shape ({n}, 3) like t, got {mag.shape}")
     return t, acc, gyr, mag
+
+
+def check_time(t: np.ndarray, prev_t: float | None) -> None:
+    """Timestamps must be finite and must not go backwards, within the chunk or from the
+    previous one (``prev_t``, the last time the filter saw, or None)."""
+    if t.size == 0:
+        return
+    if not np.all(np.isfinite(t)):
+        raise InvalidArgument("t must be finite")
+    if prev_t is not None and t[0] < prev_t:
+        raise InvalidArgument(f"t goes backwards between chunks ({t[0]} after {prev_t})")
+    back = np.flatnonzero(np.diff(t) < 0)
+    if back.size:
+        i = int(back[0]) + 1
+        raise InvalidArgument(f"t goes backwards at sample {i} ({t[i]} after {t[i - 1]})")

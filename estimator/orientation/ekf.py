@@ -74,7 +74,7 @@ import numpy as np
 
 from ..errors import InvalidArgument
 from ..rotations import matrix_to_quat
-from .base import OrientationOutput, check_inputs
+from .base import OrientationOutput, check_inputs, check_time
 
 N_STATE = 10
 W, Q, B = slice(0, 3), slice(3, 7), slice(7, 10)
@@ -287,7 +287,7 @@ class ExtendedKalmanFilter:
         (N, 3), ``mag`` [µT] (N, 3) or None."""
         t, acc, gyr, mag = check_inputs(t, acc, gyr, mag)
         n = t.shape[0]
-        _check_time(t, self.state.t if self.state is not None else None)
+        check_time(t, self.state.t if self.state is not None else None)
         q_out = np.empty((n, 4))
         bias_out = np.empty((n, 3))
         rest_out = np.zeros(n, dtype=bool)
@@ -366,18 +366,3 @@ def _rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     """``R(q) v`` for a unit quaternion q (4,) wxyz and a vector v (3,)."""
     w, u = q[0], q[1:]
     return v + 2.0 * np.cross(u, np.cross(u, v) + w * v)
-
-
-def _check_time(t: np.ndarray, prev_t: float | None) -> None:
-    """Timestamps must be finite and must not go backwards, within the chunk or from the
-    previous one."""
-    if t.size == 0:
-        return
-    if not np.all(np.isfinite(t)):
-        raise InvalidArgument("t must be finite")
-    if prev_t is not None and t[0] < prev_t:
-        raise InvalidArgument(f"t goes backwards between chunks ({t[0]} after {prev_t})")
-    back = np.flatnonzero(np.diff(t) < 0)
-    if back.size:
-        i = int(back[0]) + 1
-        raise InvalidArgument(f"t goes backwards at sample {i} ({t[i]} after {t[i - 1]})")

@@ -76,7 +76,7 @@ import numpy as np
 
 from ..errors import InvalidArgument
 from ..rotations import elemental, matrix_to_quat
-from .base import OrientationOutput, check_inputs
+from .base import OrientationOutput, check_inputs, check_time
 
 #: Lower bound on ``cos θ_a`` in eq. (4): only guards the division at exactly ±90° pitch.
 MIN_COS_PITCH = 1e-9
@@ -175,7 +175,7 @@ class EulerComplementaryFilter:
         t, acc, gyr, mag = check_inputs(t, acc, gyr, mag)
         n = t.shape[0]
         prev_t = self.state.t if self.state is not None else None
-        _check_time(t, prev_t)
+        check_time(t, prev_t)
         if n == 0:
             return _empty_output()
 
@@ -222,17 +222,3 @@ def _empty_output() -> OrientationOutput:
 def _wrap(angle: float) -> float:
     """Angle [rad] into [−π, π]."""
     return math.remainder(angle, 2.0 * math.pi)
-
-
-def _check_time(t: np.ndarray, prev_t: float | None) -> None:
-    """Timestamps must not go backwards, within the chunk or from the previous one."""
-    if t.size == 0:
-        return
-    if not np.all(np.isfinite(t)):
-        raise InvalidArgument("t must be finite")
-    if prev_t is not None and t[0] < prev_t:
-        raise InvalidArgument(f"t goes backwards between chunks ({t[0]} after {prev_t})")
-    back = np.flatnonzero(np.diff(t) < 0)
-    if back.size:
-        i = int(back[0]) + 1
-        raise InvalidArgument(f"t goes backwards at sample {i} ({t[i]} after {t[i - 1]})")

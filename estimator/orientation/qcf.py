@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InvalidArgument
-from .base import OrientationOutput, check_inputs
+from .base import OrientationOutput, check_inputs, check_time
 from .qcf_kernel import EMPTY_MAG, PARAM_SIZE, STATE_SIZE, kernel, kernel_python
 
 
@@ -134,8 +134,11 @@ class QuaternionComplementaryFilter:
         rest = np.zeros(n, dtype=np.bool_)
         disturbed = np.zeros(n, dtype=np.bool_)
         run = kernel if self.compiled else kernel_python
-        run(t, acc, gyr, EMPTY_MAG if mag is None else mag, 0 if mag is None else 1,
-            self._params, self.state.vector, q, bias, rest, disturbed)
+        bad = run(t, acc, gyr, EMPTY_MAG if mag is None else mag, 0 if mag is None else 1,
+                  self._params, self.state.vector, q, bias, rest, disturbed)
+        if bad >= 0:  # the kernel checked the times first and changed nothing: say why
+            check_time(t, self.state.vector[12] if self.state.vector[13] else None)
+            raise InvalidArgument(f"t at sample {bad} is not after the previous one")
         return OrientationOutput(q=q, gyr_bias=bias, rest=rest, mag_disturbed=disturbed)
 
     def update_batch(self, t, acc, gyr, mag=None) -> OrientationOutput:

@@ -32,6 +32,8 @@ import math
 
 import numpy as np
 
+from ..scalar_rotations import quat_to_rows
+
 STATE_SIZE = 67
 
 # Indices into the parameter vector, see QcfParams.as_array.
@@ -46,7 +48,16 @@ PARAM_SIZE = 24
 def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out_rest,
                   out_disturbed):
     """Run the filter over samples ``0..N-1``, updating ``state`` in place and writing the
-    outputs. ``has_mag``: 1 when ``mag`` holds magnetometer rows, 0 otherwise."""
+    outputs. ``has_mag``: 1 when ``mag`` holds magnetometer rows, 0 otherwise.
+
+    Returns −1, or — touching nothing — the index of the first sample whose time is not
+    finite or goes backwards (from the previous sample, or for sample 0 from the last
+    one of the previous chunk)."""
+    previous = state[12] if state[13] != 0.0 else -math.inf
+    for i in range(t.shape[0]):
+        if not t[i] >= previous:  # also false for NaN
+            return i
+        previous = t[i]
     tau_acc = params[P_TAU_ACC]
     tau_mag = params[P_TAU_MAG]
     tau_lp = params[P_TAU_LP]
@@ -125,15 +136,8 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
             if has_mag == 1:
                 mx, my, mz = mag[i, 0], mag[i, 1], mag[i, 2]
                 # field in E = q_acc m (q_gyr is the identity)
-                r00 = 1 - 2 * (cy * cy + cz * cz)
-                r01 = 2 * (cx * cy - cw * cz)
-                r02 = 2 * (cx * cz + cw * cy)
-                r10 = 2 * (cx * cy + cw * cz)
-                r11 = 1 - 2 * (cx * cx + cz * cz)
-                r12 = 2 * (cy * cz - cw * cx)
-                r20 = 2 * (cx * cz - cw * cy)
-                r21 = 2 * (cy * cz + cw * cx)
-                r22 = 1 - 2 * (cx * cx + cy * cy)
+                (r00, r01, r02, r10, r11,
+                 r12, r20, r21, r22) = quat_to_rows(cw, cx, cy, cz)
                 mex = r00 * mx + r01 * my + r02 * mz
                 mey = r10 * mx + r11 * my + r12 * mz
                 mez = r20 * mx + r21 * my + r22 * mz
@@ -224,15 +228,8 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
             gw, gx, gy, gz = gw / n, gx / n, gy / n, gz / n
 
             # Specific force in I, low-passed by a second-order filter (ω0 = √2 / tau_acc).
-            r00 = 1 - 2 * (gy * gy + gz * gz)
-            r01 = 2 * (gx * gy - gw * gz)
-            r02 = 2 * (gx * gz + gw * gy)
-            r10 = 2 * (gx * gy + gw * gz)
-            r11 = 1 - 2 * (gx * gx + gz * gz)
-            r12 = 2 * (gy * gz - gw * gx)
-            r20 = 2 * (gx * gz - gw * gy)
-            r21 = 2 * (gy * gz + gw * gx)
-            r22 = 1 - 2 * (gx * gx + gy * gy)
+            (r00, r01, r02, r10, r11,
+             r12, r20, r21, r22) = quat_to_rows(gw, gx, gy, gz)
             aix = r00 * ax + r01 * ay + r02 * az
             aiy = r10 * ax + r11 * ay + r12 * az
             aiz = r20 * ax + r21 * ay + r22 * az
@@ -254,15 +251,8 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
             fz += dt * vz
 
             # Tilt: turn q_acc by the whole angle that brings the filtered force (in E) up.
-            q00 = 1 - 2 * (cy * cy + cz * cz)
-            q01 = 2 * (cx * cy - cw * cz)
-            q02 = 2 * (cx * cz + cw * cy)
-            q10 = 2 * (cx * cy + cw * cz)
-            q11 = 1 - 2 * (cx * cx + cz * cz)
-            q12 = 2 * (cy * cz - cw * cx)
-            q20 = 2 * (cx * cz - cw * cy)
-            q21 = 2 * (cy * cz + cw * cx)
-            q22 = 1 - 2 * (cx * cx + cy * cy)
+            (q00, q01, q02, q10, q11,
+             q12, q20, q21, q22) = quat_to_rows(cw, cx, cy, cz)
             fex = q00 * fx + q01 * fy + q02 * fz
             fey = q10 * fx + q11 * fy + q12 * fz
             fez = q20 * fx + q21 * fy + q22 * fz
@@ -297,15 +287,8 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
                 mix = r00 * mx + r01 * my + r02 * mz
                 miy = r10 * mx + r11 * my + r12 * mz
                 miz = r20 * mx + r21 * my + r22 * mz
-                q00 = 1 - 2 * (cy * cy + cz * cz)
-                q01 = 2 * (cx * cy - cw * cz)
-                q02 = 2 * (cx * cz + cw * cy)
-                q10 = 2 * (cx * cy + cw * cz)
-                q11 = 1 - 2 * (cx * cx + cz * cz)
-                q12 = 2 * (cy * cz - cw * cx)
-                q20 = 2 * (cx * cz - cw * cy)
-                q21 = 2 * (cy * cz + cw * cx)
-                q22 = 1 - 2 * (cx * cx + cy * cy)
+                (q00, q01, q02, q10, q11,
+                 q12, q20, q21, q22) = quat_to_rows(cw, cx, cy, cz)
                 mex = q00 * mix + q01 * miy + q02 * miz
                 mey = q10 * mix + q11 * miy + q12 * miz
                 mez = q20 * mix + q21 * miy + q22 * miz
@@ -443,6 +426,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     state[54], state[55], state[56], state[57], state[58], state[59] = i00, i11, i22, i01, i02, i12
     state[60], state[61], state[62] = z0, z1, z2
     state[63], state[64], state[65], state[66] = lmx, lmy, lmz, m_started
+    return -1
 
 
 def _compile():

@@ -10,6 +10,8 @@ import math
 
 import numpy as np
 
+from ..scalar_rotations import quat_to_rows
+
 
 def _segment_python(t, q, times, R_sensor_segment, heading, out):
     """``t`` (M,) and ``q`` (M, 4) wxyz of the sensor; ``times`` (N,); ``out`` (N, 3, 3)."""
@@ -41,15 +43,8 @@ def _segment_python(t, q, times, R_sensor_segment, heading, out):
         w, x, y, z = w0 * aw + w1 * bw, w0 * ax + w1 * bx, w0 * ay + w1 * by, w0 * az + w1 * bz
         norm = math.sqrt(w * w + x * x + y * y + z * z)
         w, x, y, z = w / norm, x / norm, y / norm, z / norm
-        r00 = 1 - 2 * (y * y + z * z)
-        r01 = 2 * (x * y - w * z)
-        r02 = 2 * (x * z + w * y)
-        r10 = 2 * (x * y + w * z)
-        r11 = 1 - 2 * (x * x + z * z)
-        r12 = 2 * (y * z - w * x)
-        r20 = 2 * (x * z - w * y)
-        r21 = 2 * (y * z + w * x)
-        r22 = 1 - 2 * (x * x + y * y)
+        (r00, r01, r02, r10, r11,
+         r12, r20, r21, r22) = quat_to_rows(w, x, y, z)
         # Rz(heading) · R
         h00, h01, h02 = ch * r00 - sh * r10, ch * r01 - sh * r11, ch * r02 - sh * r12
         h10, h11, h12 = sh * r00 + ch * r10, sh * r01 + ch * r11, sh * r02 + ch * r12

@@ -154,7 +154,7 @@ class Pipeline:
             present[0] = 1.0
         if self._constraints:
             self._apply_constraints(times, Rw, present)
-        angles, residuals, positions, R_world_all = self._joints.update_stacked(Rw, present)
+        angles, residuals, positions, R_world_all = self._joints.update(Rw, present)
         # no later estimate looks further back than this one: the tracks forget the rest
         for track in self._tracks.values():
             track.discard_before(float(times[-1]))

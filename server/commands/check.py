@@ -8,7 +8,7 @@ from armtrack.estimator.recording import read_recording
 from armtrack.estimator.sampling import summarise_sampling
 
 
-def run_check(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
     recording = read_recording(args.recording)
     lengths = recording.segment_lengths()
     sensors = {}

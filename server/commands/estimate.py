@@ -28,7 +28,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"orientation filter (default {DEFAULT_FILTER})")
 
 
-def run_estimate(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
     recording = read_recording(args.recording)
     estimates, calibration = estimate_recording(recording, args.filter)
     columns, values = estimates.table()

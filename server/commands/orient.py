@@ -63,7 +63,7 @@ def read_imu(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray
     return t, base[:, 1:4], base[:, 4:7], mag if row_present[0] else None
 
 
-def run_orient(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
     t, acc, gyr, mag = read_imu(args.imu)
     q = make_filter(args.filter).update_batch(t, acc, gyr, mag).q
     with open_output(args.output) as out:

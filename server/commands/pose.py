@@ -65,7 +65,7 @@ def _read_angles_csv(path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     return table[:, 0], {name: np.deg2rad(table[:, i + 1]) for i, name in enumerate(wanted)}
 
 
-def run_pose(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
     lengths = _lengths(args)
     if args.angles_csv is not None:
         if args.angles:

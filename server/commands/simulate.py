@@ -39,7 +39,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0)
 
 
-def run_simulate(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
     sensors = tuple(s.strip() for s in args.sensors.split(",") if s.strip())
     unknown = [s for s in sensors if s not in SENSOR_NAMES]
     if unknown:
