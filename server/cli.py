@@ -63,7 +63,7 @@ def _parser() -> argparse.ArgumentParser:
         "with exact IMU physics, sensor mounting, noise, gyroscope bias and optional faults; "
         "writes the recording and a truth CSV of joint angles (deg) and positions (m).",
     )
-    from .commands import estimate, orient
+    from .commands import estimate, orient, stream
     from .commands.simulate import add_arguments
 
     add_arguments(simulate)
@@ -77,6 +77,11 @@ def _parser() -> argparse.ArgumentParser:
         "orient", help="one sensor's orientation (quaternion, sensor to earth ENU)",
         description="Runs an orientation filter on one IMU: input t,ax,ay,az,gx,gy,gz,"
         "mx,my,mz; output t,qw,qx,qy,qz (R_world_sensor, earth x east, y north, z up)."))
+    stream.add_arguments(commands.add_parser(
+        "stream", help="play a recording to the server as a sensor kit (spec/ingest.md)",
+        description="Connects to the ingest WebSocket with a device token and streams a "
+        "recording (or a simulated exercise) paced by its clock, resuming after a lost "
+        "connection; prints progress to standard error and a summary at the end."))
     return parser
 
 

@@ -1,0 +1,123 @@
+"""``armtrack stream``: play a recording (or a simulated exercise) to the server as a
+sensor kit would, over the ingest protocol of ``spec/ingest.md``."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import math
+import os
+import sys
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from armtrack.estimator.errors import InvalidArgument
+from armtrack.estimator.recording import Recording, read_recording
+from armtrack.estimator.simulation import EXERCISES, SimulationConfig, simulate
+
+if TYPE_CHECKING:  # the emulator (and websockets) load only when streaming
+    from ..emulator import KitEmulator, KitStats
+
+#: Exit code when the server refuses the kit or cannot be reached (2 is bad input).
+EXIT_REFUSED = 1
+
+
+def _default_url() -> str:
+    host = os.environ.get("ARMTRACK_HOST", "127.0.0.1")
+    port = os.environ.get("ARMTRACK_PORT", "8000")
+    return f"ws://{host}:{port}/ws/ingest"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument("recording", nargs="?", type=Path,
+                        help="the recording to stream (spec/recording.md)")
+    source.add_argument("--exercise", choices=sorted(EXERCISES),
+                        help="stream a simulated exercise session instead of a file")
+    parser.add_argument("--url", default=_default_url(),
+                        help="the ingest WebSocket (default ws://$ARMTRACK_HOST:"
+                        "$ARMTRACK_PORT/ws/ingest, i.e. %(default)s)")
+    parser.add_argument("--token", default=os.environ.get("ARMTRACK_TOKEN"),
+                        help="the device token (default $ARMTRACK_TOKEN)")
+    parser.add_argument("--speed", type=float, default=1.0,
+                        help="playback speed: 1 real time, 10 ten times faster, "
+                        "0 or inf as fast as possible (default 1)")
+    parser.add_argument("--rows-per-message", type=int, default=10, metavar="N",
+                        help="sample rows per message, 1 to 1000 (default 10)")
+    parser.add_argument("--device", default="armtrack-emulator", metavar="NAME",
+                        help="the device name sent in hello")
+    parser.add_argument("--quiet", action="store_true", help="no progress lines")
+    simulated = parser.add_argument_group("with --exercise")
+    simulated.add_argument("--side", choices=("right", "left"), default="right")
+    simulated.add_argument("--rate", type=float, default=100.0, metavar="HZ")
+    simulated.add_argument("--six-axis", action="store_true", help="no magnetometer")
+    simulated.add_argument("--seed", type=int, default=0)
+
+
+def _recording(args: argparse.Namespace) -> tuple[Recording, str]:
+    if args.recording is not None:
+        return read_recording(args.recording), str(args.recording)
+    config = SimulationConfig(exercise=args.exercise, side=args.side, rate_hz=args.rate,
+                              nine_axis=not args.six_axis, seed=args.seed)
+    return simulate(config).recording, f"simulated {args.exercise}"
+
+
+def _progress(kit: KitEmulator, started: float) -> str:
+    s = kit.stats
+    elapsed = max(time.monotonic() - started, 1e-9)
+    return (f"sent {s.sent}/{s.total} messages ({s.rows_sent} rows), acked {s.acked}"
+            + (f", refused {s.refused}" if s.refused else "")
+            + (f", reconnects {s.reconnects}" if s.reconnects else "")
+            + f", {s.rows_acked / elapsed:.0f} rows/s")
+
+
+async def _stream(kit: KitEmulator, quiet: bool) -> KitStats:
+    started = time.monotonic()
+    run = asyncio.create_task(kit.run())
+    while not quiet:
+        done, _ = await asyncio.wait({run}, timeout=1.0)
+        if done:
+            break
+        print(_progress(kit, started), file=sys.stderr, flush=True)
+    return await run
+
+
+def _summary(kit: KitEmulator, what: str, url: str) -> str:
+    s = kit.stats
+    lines = [f"streamed {what} to {url}: stream {s.stream}, session {s.session}",
+             f"  {s.acked} of {s.total} messages acked ({s.rows_acked} rows) in "
+             f"{s.elapsed_s or 0.0:.1f} s; resent {s.resent}, refused {s.refused}, "
+             f"reconnects {s.reconnects}"]
+    latency = s.latency_percentiles()
+    if latency:
+        lines.append("  ack latency " + ", ".join(
+            f"p{p:g} {v * 1000:.1f} ms" for p, v in latency.items()))
+    lines += [f"  error: seq {e['seq']}: {e['reason']}" for e in s.errors[:10]]
+    if len(s.errors) > 10:
+        lines.append(f"  … and {len(s.errors) - 10} more errors")
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    if not args.token:
+        raise InvalidArgument("give the device token with --token or $ARMTRACK_TOKEN")
+    if not (args.speed >= 0) or math.isnan(args.speed):
+        raise InvalidArgument(f"--speed must be >= 0, got {args.speed}")
+    from ..emulator import KitEmulator, KitError
+
+    recording, what = _recording(args)
+    kit = KitEmulator(recording, args.url, args.token, device=args.device,
+                      rows_per_message=args.rows_per_message, speed=args.speed)
+    try:
+        asyncio.run(_stream(kit, args.quiet))
+    except KitError as exc:  # KitRefused too: the message says what was refused
+        print(f"armtrack stream: {exc}", file=sys.stderr)
+        return EXIT_REFUSED
+    except KeyboardInterrupt:
+        s = kit.stats
+        print(f"armtrack stream: interrupted after {s.sent} of {s.total} messages sent, "
+              f"{s.acked} acked (stream {s.stream})", file=sys.stderr)
+        return 130
+    print(_summary(kit, what, args.url))
+    return 0
