@@ -63,7 +63,7 @@ def _parser() -> argparse.ArgumentParser:
         "with exact IMU physics, sensor mounting, noise, gyroscope bias and optional faults; "
         "writes the recording and a truth CSV of joint angles (deg) and positions (m).",
     )
-    from .commands import estimate, orient, stream
+    from .commands import create_user, estimate, orient, reprocess, serve, stream
     from .commands.simulate import add_arguments
 
     add_arguments(simulate)
@@ -82,6 +82,19 @@ def _parser() -> argparse.ArgumentParser:
         description="Connects to the ingest WebSocket with a device token and streams a "
         "recording (or a simulated exercise) paced by its clock, resuming after a lost "
         "connection; prints progress to standard error and a summary at the end."))
+    serve.add_arguments(commands.add_parser(
+        "serve", help="run the server (REST API, ingest WebSocket, dashboard)",
+        description="Runs armtrack under uvicorn. Settings come from the environment "
+        "(ARMTRACK_DATABASE_URL, ARMTRACK_DATA_DIR, ARMTRACK_HOST, ARMTRACK_PORT, ...) and "
+        "these flags; the database is migrated on start."))
+    create_user.add_arguments(commands.add_parser(
+        "create-user", help="make a therapist account",
+        description="Creates a therapist who can sign in; the password comes from "
+        "--password or standard input."))
+    reprocess.add_arguments(commands.add_parser(
+        "reprocess", help="recompute stored sessions' estimates with this estimator",
+        description="Re-estimates sessions from their stored raw data and records the "
+        "estimator version and settings used."))
     return parser
 
 
@@ -89,7 +102,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     try:
         # one module per command, each with run(args); imported only when used
-        command = importlib.import_module(f".commands.{args.command}", __package__)
+        module = args.command.replace("-", "_")
+        command = importlib.import_module(f".commands.{module}", __package__)
         return command.run(args)
     except EstimatorError as exc:
         print(f"armtrack {args.command}: {exc}", file=sys.stderr)

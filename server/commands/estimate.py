@@ -6,14 +6,13 @@ import argparse
 import sys
 from pathlib import Path
 
-import numpy as np
 from armtrack.estimator.metrics import range_of_motion_table, repetitions_by_angle
 from armtrack.estimator.orientation import DEFAULT_FILTER, FILTERS
 from armtrack.estimator.pipeline import estimate_recording
 from armtrack.estimator.pipeline.quality import residual_warnings
 from armtrack.estimator.recording import read_recording
 
-from .output import open_output
+from .output import open_output, write_angles_csv
 
 #: Seconds after the last calibration pose still counted as calibration (the return to
 #: the N-pose), so the poses never count as range of motion.
@@ -33,9 +32,7 @@ def run(args: argparse.Namespace) -> int:
     estimates, calibration = estimate_recording(recording, args.filter)
     columns, values = estimates.table()
     with open_output(args.output) as out:
-        out.write(",".join(columns) + "\n")
-        np.savetxt(out, values, delimiter=",",
-                   fmt=["%.4f"] + ["%.4f"] * (len(columns) - 13) + ["%.5f"] * 12)
+        write_angles_csv(out, columns, values)
 
     report = sys.stderr if args.output is None else sys.stdout
     poses = recording.calibration

@@ -29,3 +29,13 @@ def open_output(path: Path | None) -> Iterator[TextIO]:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
+
+
+def write_angles_csv(out: TextIO, columns: list[str], values) -> None:
+    """``armtrack estimate``'s table: t and angles [deg] to 4 decimals, positions [m] to 5
+    (the last 12 columns)."""
+    import numpy as np
+
+    out.write(",".join(columns) + "\n")
+    np.savetxt(out, values, delimiter=",",
+               fmt=["%.4f"] * (len(columns) - 12) + ["%.5f"] * 12)

@@ -1,0 +1,93 @@
+"""What routes depend on: a database session, the signed-in therapist, and ownership
+checks (another therapist's patient is 404, as if it did not exist)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from datetime import UTC, datetime
+from typing import Annotated
+
+from fastapi import Depends, HTTPException, Query, Request, status
+from fastapi.security import OAuth2PasswordBearer
+from sqlalchemy import select
+from sqlalchemy.orm import Session as DbSession
+
+from ..auth import hash_token
+from ..db import models
+from ..services import Services
+
+oauth2 = OAuth2PasswordBearer(tokenUrl="/api/auth/token", auto_error=False)
+
+
+def services(request: Request) -> Services:
+    return request.app.state.services
+
+
+def database(request: Request) -> Iterator[DbSession]:
+    with request.app.state.services.db() as db:
+        yield db
+
+
+Db = Annotated[DbSession, Depends(database)]
+
+
+def unauthorized(detail: str = "sign in first: a valid bearer token is required"
+                 ) -> HTTPException:
+    return HTTPException(status.HTTP_401_UNAUTHORIZED, detail,
+                         headers={"WWW-Authenticate": "Bearer"})
+
+
+def current_therapist(db: Db, token: Annotated[str | None, Depends(oauth2)]
+                      ) -> models.Therapist:
+    if not token:
+        raise unauthorized()
+    row = db.scalar(select(models.AccessToken).where(
+        models.AccessToken.token_hash == hash_token(token)))
+    if row is None or _aware(row.expires_at) <= datetime.now(UTC):
+        raise unauthorized("the token is unknown or has expired: sign in again")
+    therapist = db.get(models.Therapist, row.therapist_id)
+    if therapist is None:
+        raise unauthorized()
+    return therapist
+
+
+def _aware(moment: datetime) -> datetime:
+    """SQLite gives naive datetimes back; they were stored in UTC."""
+    return moment if moment.tzinfo else moment.replace(tzinfo=UTC)
+
+
+Therapist = Annotated[models.Therapist, Depends(current_therapist)]
+
+
+class Page:
+    """``?limit=&offset=`` of a list."""
+
+    def __init__(self, limit: Annotated[int, Query(ge=1, le=1000)] = 100,
+                 offset: Annotated[int, Query(ge=0)] = 0):
+        self.limit = limit
+        self.offset = offset
+
+
+def own_patient(db: DbSession, therapist: models.Therapist, patient_id: int) -> models.Patient:
+    patient = db.get(models.Patient, patient_id)
+    if patient is None or patient.therapist_id != therapist.id:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"no patient {patient_id}")
+    return patient
+
+
+def own_session(db: DbSession, therapist: models.Therapist, session_id: int) -> models.Session:
+    session = db.get(models.Session, session_id)
+    if session is not None:
+        patient = db.get(models.Patient, session.patient_id)
+        if patient is not None and patient.therapist_id == therapist.id:
+            return session
+    raise HTTPException(status.HTTP_404_NOT_FOUND, f"no session {session_id}")
+
+
+def own_device(db: DbSession, therapist: models.Therapist, device_id: int) -> models.Device:
+    device = db.get(models.Device, device_id)
+    if device is not None:
+        patient = db.get(models.Patient, device.patient_id)
+        if patient is not None and patient.therapist_id == therapist.id:
+            return device
+    raise HTTPException(status.HTTP_404_NOT_FOUND, f"no device {device_id}")

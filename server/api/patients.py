@@ -1,0 +1,94 @@
+"""Patients and their devices (sensor kits and their tokens)."""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+from typing import Annotated
+
+from fastapi import APIRouter, Depends, status
+from sqlalchemy import select
+
+from ..auth import new_token
+from ..db import models
+from ..services import Services
+from .deps import Db, Page, Therapist, own_device, own_patient, services
+from .erase import erase_patient
+from .schemas import DeviceCreated, DeviceIn, DeviceOut, PatientIn, PatientOut
+
+router = APIRouter(prefix="/api", tags=["patients"])
+
+
+@router.post("/patients", response_model=PatientOut, status_code=status.HTTP_201_CREATED)
+def create_patient(body: PatientIn, db: Db, therapist: Therapist) -> models.Patient:
+    patient = models.Patient(therapist_id=therapist.id, **body.model_dump())
+    db.add(patient)
+    db.commit()
+    return patient
+
+
+@router.get("/patients", response_model=list[PatientOut])
+def list_patients(db: Db, therapist: Therapist, page: Annotated[Page, Depends()],
+                  q: str | None = None) -> list[models.Patient]:
+    """The therapist's patients by name; ``q`` keeps those whose name contains it."""
+    query = select(models.Patient).where(models.Patient.therapist_id == therapist.id)
+    if q:
+        query = query.where(models.Patient.name.icontains(q, autoescape=True))
+    return list(db.scalars(query.order_by(models.Patient.name, models.Patient.id)
+                           .limit(page.limit).offset(page.offset)))
+
+
+@router.get("/patients/{patient_id}", response_model=PatientOut)
+def get_patient(patient_id: int, db: Db, therapist: Therapist) -> models.Patient:
+    return own_patient(db, therapist, patient_id)
+
+
+@router.delete("/patients/{patient_id}", status_code=status.HTTP_204_NO_CONTENT)
+async def delete_patient(patient_id: int, therapist: Therapist,
+                         svc: Annotated[Services, Depends(services)]) -> None:
+    """Erase the patient with all their sessions, data and devices."""
+    device_ids = await svc.run_db(_patient_devices, therapist, patient_id)
+    for device_id in device_ids:
+        await svc.revoke_device(device_id)
+    await svc.run_db(erase_patient, patient_id)
+
+
+def _patient_devices(db, therapist, patient_id: int) -> list[int]:
+    own_patient(db, therapist, patient_id)
+    return list(db.scalars(select(models.Device.id)
+                           .where(models.Device.patient_id == patient_id)))
+
+
+@router.post("/patients/{patient_id}/devices", response_model=DeviceCreated,
+             status_code=status.HTTP_201_CREATED)
+def create_device(patient_id: int, body: DeviceIn, db: Db, therapist: Therapist) -> dict:
+    """A new sensor kit for the patient; its token is in this answer only."""
+    own_patient(db, therapist, patient_id)
+    token, digest = new_token("dev_")
+    device = models.Device(patient_id=patient_id, name=body.name, token_hash=digest)
+    db.add(device)
+    db.commit()
+    return {**DeviceOut.model_validate(device).model_dump(), "token": token}
+
+
+@router.get("/patients/{patient_id}/devices", response_model=list[DeviceOut])
+def list_devices(patient_id: int, db: Db, therapist: Therapist,
+                 page: Annotated[Page, Depends()]) -> list[models.Device]:
+    own_patient(db, therapist, patient_id)
+    return list(db.scalars(select(models.Device).where(models.Device.patient_id == patient_id)
+                           .order_by(models.Device.id).limit(page.limit).offset(page.offset)))
+
+
+@router.delete("/devices/{device_id}", status_code=status.HTTP_204_NO_CONTENT)
+async def revoke_device(device_id: int, therapist: Therapist,
+                        svc: Annotated[Services, Depends(services)]) -> None:
+    """Revoke a device: its token stops working at once; open streams close with 4401."""
+    await svc.run_db(_revoke, therapist, device_id)
+    await svc.revoke_device(device_id)
+
+
+def _revoke(db, therapist, device_id: int) -> None:
+    device = own_device(db, therapist, device_id)
+    if device.revoked_at is None:
+        device.revoked_at = datetime.now(UTC)
+        db.commit()
+

@@ -1,0 +1,70 @@
+"""Request and response bodies of the REST API (they make the OpenAPI document)."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Any, Literal
+
+from armtrack.estimator.body import HEIGHT_RANGE_M
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class TokenOut(BaseModel):
+    access_token: str
+    token_type: Literal["bearer"] = "bearer"
+    expires_in: int = Field(description="seconds until the token expires")
+
+
+class PatientIn(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    name: str = Field(min_length=1, max_length=200)
+    side: Literal["right", "left"] = Field(description="the arm followed")
+    height_m: float = Field(ge=HEIGHT_RANGE_M[0], le=HEIGHT_RANGE_M[1],
+                            description="body height [m], for segment lengths")
+
+
+class PatientOut(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+    id: int
+    name: str
+    side: Literal["right", "left"]
+    height_m: float
+    created_at: datetime
+
+
+class DeviceIn(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    name: str = Field(min_length=1, max_length=200)
+
+
+class DeviceOut(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+    id: int
+    patient_id: int
+    name: str
+    created_at: datetime
+    revoked_at: datetime | None
+
+
+class DeviceCreated(DeviceOut):
+    token: str = Field(description="the device token; shown this once, stored hashed")
+
+
+class SessionOut(BaseModel):
+    id: int
+    patient_id: int
+    device_id: int | None
+    source: Literal["stream", "upload"]
+    status: Literal["live", "closed", "interrupted"]
+    started_at: datetime
+    ended_at: datetime | None
+    side: Literal["right", "left"]
+    sensors: list[str]
+    nine_axis: dict[str, bool]
+    samples: int
+    rate_hz: float | None
+    metadata: dict[str, str]
+    processed: bool = Field(description="estimates are stored for this session")
+    calibration: dict[str, Any] | None
+    estimator: dict[str, Any] | None
+    processing_error: str | None

@@ -1,0 +1,173 @@
+"""Sessions: lists, details, closing, erasing, uploads of recorded files and exports of
+the raw data (a recording file) and the estimates (``armtrack estimate``'s CSV)."""
+
+from __future__ import annotations
+
+import io
+from datetime import UTC, datetime
+from typing import Annotated
+
+from armtrack.estimator.errors import EstimatorError
+from armtrack.estimator.recording import format_recording, parse_recording
+from fastapi import APIRouter, Depends, Form, HTTPException, UploadFile, status
+from fastapi.responses import Response
+from sqlalchemy import select
+from sqlalchemy.orm import Session as DbSession
+
+from ..auth import hash_token
+from ..commands.output import write_angles_csv
+from ..db import models
+from ..services import Services
+from ..store.processing import process_session, stored_estimates
+from ..store.recordings import add_recording, session_recording
+from .deps import Db, Page, Therapist, current_therapist, oauth2, own_patient, own_session
+from .deps import services as get_services
+from .erase import erase_session
+from .schemas import SessionOut
+
+router = APIRouter(prefix="/api", tags=["sessions"])
+
+#: Columns of the angles export: those of ``armtrack estimate``.
+ANGLE_COLUMNS_END = "hand_z"
+
+
+def session_out(session: models.Session) -> SessionOut:
+    return SessionOut(
+        id=session.id, patient_id=session.patient_id, device_id=session.device_id,
+        source=session.source, status=session.status, started_at=session.started_at,
+        ended_at=session.ended_at, side=session.side, sensors=list(session.sensors),
+        nine_axis={k: bool(v.get("nine_axis")) for k, v in session.sensors.items()},
+        samples=session.samples, rate_hz=session.rate_hz, metadata=dict(session.meta or {}),
+        processed=bool(session.estimate_columns), calibration=session.calibration,
+        estimator=session.estimator, processing_error=session.processing_error)
+
+
+@router.get("/patients/{patient_id}/sessions", response_model=list[SessionOut])
+def list_sessions(patient_id: int, db: Db, therapist: Therapist,
+                  page: Annotated[Page, Depends()]) -> list[SessionOut]:
+    """A patient's sessions, newest first."""
+    own_patient(db, therapist, patient_id)
+    sessions = db.scalars(select(models.Session).where(models.Session.patient_id == patient_id)
+                          .order_by(models.Session.started_at.desc(), models.Session.id.desc())
+                          .limit(page.limit).offset(page.offset))
+    return [session_out(s) for s in sessions]
+
+
+@router.get("/sessions/{session_id}", response_model=SessionOut)
+def get_session(session_id: int, db: Db, therapist: Therapist) -> SessionOut:
+    return session_out(own_session(db, therapist, session_id))
+
+
+@router.post("/sessions/{session_id}/close", response_model=SessionOut)
+async def close_session(session_id: int, therapist: Therapist,
+                        svc: Annotated[Services, Depends(get_services)]) -> SessionOut:
+    """Close a live or interrupted session (a live stream is ended) and estimate it."""
+    session = await svc.run_db(lambda db: own_session(db, therapist, session_id))
+    if session.status == "closed":
+        raise HTTPException(status.HTTP_409_CONFLICT, f"session {session_id} is already closed")
+    for stream_id, connection in list(svc.connections.items()):
+        state = svc.streams.get(stream_id)
+        if state is not None and state.session_id == session_id:
+            await connection.close(1000, "session closed by the therapist")
+            await state.idle.wait()
+    await svc.run_db(_close, session_id)
+    await _run_compute(svc, session_id)
+    return await svc.run_db(lambda db: session_out(db.get(models.Session, session_id)))
+
+
+def _close(db: DbSession, session_id: int) -> None:
+    session = db.get(models.Session, session_id)
+    if session is not None:
+        session.status = "closed"
+        session.ended_at = datetime.now(UTC)
+        db.commit()
+
+
+async def _run_compute(svc: Services, session_id: int) -> None:
+    def work() -> None:
+        with svc.db() as db:
+            process_session(db, session_id)
+    await svc.in_background(work)
+
+
+@router.delete("/sessions/{session_id}", status_code=status.HTTP_204_NO_CONTENT)
+async def delete_session(session_id: int, therapist: Therapist,
+                         svc: Annotated[Services, Depends(get_services)]) -> None:
+    """Erase the session and all its data (an open stream of it is closed first)."""
+    await svc.run_db(lambda db: own_session(db, therapist, session_id))
+    for stream_id, connection in list(svc.connections.items()):
+        state = svc.streams.get(stream_id)
+        if state is not None and state.session_id == session_id:
+            await connection.close(1000, "session erased")
+            await state.idle.wait()
+    await svc.run_db(erase_session, session_id)
+
+
+def uploader(db: Db, token: Annotated[str | None, Depends(oauth2)]
+             ) -> models.Therapist | models.Device:
+    """A therapist, or a device uploading for its own patient."""
+    if token:
+        device = db.scalar(select(models.Device).where(
+            models.Device.token_hash == hash_token(token), models.Device.revoked_at.is_(None)))
+        if device is not None:
+            return device
+    return current_therapist(db, token)
+
+
+@router.post("/recordings", response_model=SessionOut, status_code=status.HTTP_201_CREATED)
+def upload_recording(db: Db, who: Annotated[models.Therapist | models.Device,
+                                            Depends(uploader)],
+                     file: UploadFile, patient_id: Annotated[int | None, Form()] = None,
+                     ) -> SessionOut:
+    """A recording file (``spec/recording.md``) recorded offline: stored as a new closed
+    session and estimated. With a device token the patient is the device's own."""
+    if isinstance(who, models.Device):
+        if patient_id is not None and patient_id != who.patient_id:
+            raise HTTPException(status.HTTP_404_NOT_FOUND, f"no patient {patient_id}")
+        patient = db.get(models.Patient, who.patient_id)
+        device_id = who.id
+    else:
+        if patient_id is None:
+            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                                "patient_id is required with a therapist's token")
+        patient = own_patient(db, who, patient_id)
+        device_id = None
+    assert patient is not None
+    try:
+        recording = parse_recording(file.file.read())
+    except EstimatorError as exc:
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            f"{file.filename or 'file'}: {exc}") from None
+    session = add_recording(db, patient, recording, device_id)
+    db.commit()
+    process_session(db, session.id)
+    db.refresh(session)
+    return session_out(session)
+
+
+@router.get("/sessions/{session_id}/recording.csv", response_class=Response,
+            responses={200: {"content": {"text/csv": {}}}})
+def export_recording(session_id: int, db: Db, therapist: Therapist) -> Response:
+    """The session's raw data as a recording file; it reads back to the stored numbers."""
+    session = own_session(db, therapist, session_id)
+    data = format_recording(session_recording(db, session))
+    return Response(data, media_type="text/csv", headers={
+        "Content-Disposition": f'attachment; filename="session-{session_id}.csv"'})
+
+
+@router.get("/sessions/{session_id}/angles.csv", response_class=Response,
+            responses={200: {"content": {"text/csv": {}}}})
+def export_angles(session_id: int, db: Db, therapist: Therapist) -> Response:
+    """Per-sample joint angles [deg] and positions [m], as ``armtrack estimate`` writes."""
+    session = own_session(db, therapist, session_id)
+    columns, values = stored_estimates(db, session)
+    if not columns:
+        raise HTTPException(status.HTTP_409_CONFLICT,
+                            f"session {session_id} has no estimates yet"
+                            + (f": {session.processing_error}" if session.processing_error
+                               else " (it is live or being processed)"))
+    width = columns.index(ANGLE_COLUMNS_END) + 1
+    out = io.StringIO()
+    write_angles_csv(out, columns[:width], values[:, :width])
+    return Response(out.getvalue(), media_type="text/csv", headers={
+        "Content-Disposition": f'attachment; filename="session-{session_id}-angles.csv"'})

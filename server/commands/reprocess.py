@@ -1,0 +1,46 @@
+"""``armtrack reprocess SESSION_ID``: recompute a stored session's estimates with the
+current estimator (the session keeps the version and settings they came from)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from .serve import add_arguments as add_server_arguments
+from .serve import settings_from
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("session_ids", type=int, nargs="+", metavar="SESSION_ID")
+    parser.add_argument("--filter", default="qcf", help="orientation filter (default qcf)")
+    add_server_arguments(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    from armtrack.server.db import models
+    from armtrack.server.services import Services
+    from armtrack.server.store.processing import process_session
+
+    services = Services(settings_from(args))
+    failed = 0
+    try:
+        services.migrate()
+        for session_id in args.session_ids:
+            with services.db() as db:
+                session = db.get(models.Session, session_id)
+                if session is None:
+                    print(f"armtrack reprocess: no session {session_id}", file=sys.stderr)
+                    failed += 1
+                    continue
+                before = (session.estimator or {}).get("version", "none")
+                process_session(db, session_id, args.filter)
+                db.refresh(session)
+                if session.processing_error:
+                    print(f"session {session_id}: {session.processing_error}", file=sys.stderr)
+                    failed += 1
+                    continue
+                print(f"session {session_id}: estimates from {before} → "
+                      f"{session.estimator['version']} ({args.filter})")
+    finally:
+        services.engine.dispose()
+    return 2 if failed else 0

@@ -1,0 +1,179 @@
+"""The stored data: therapists, patients, devices, sessions, raw samples, marks and
+estimates (SQLAlchemy 2.0 typed models; the schema itself is made by the migrations).
+
+Samples and estimates are stored in blocks: one row holds one ingest message's rows (or a
+slice of an uploaded file) as packed float64, so a 30-minute session is a few thousand
+rows, not half a million ORM objects. Times are seconds on the kit's clock.
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+from typing import Any, ClassVar
+
+from sqlalchemy import (
+    JSON,
+    BigInteger,
+    DateTime,
+    Float,
+    ForeignKey,
+    Index,
+    Integer,
+    LargeBinary,
+    String,
+)
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
+
+
+def utcnow() -> datetime:
+    return datetime.now(UTC)
+
+
+class Base(DeclarativeBase):
+    type_annotation_map: ClassVar = {dict[str, Any]: JSON, list[Any]: JSON}
+
+
+class Therapist(Base):
+    __tablename__ = "therapists"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    username: Mapped[str] = mapped_column(String(128), unique=True)
+    password_hash: Mapped[str] = mapped_column(String(256))
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+
+
+class AccessToken(Base):
+    """A therapist's sign-in: the SHA-256 of an opaque bearer token, until ``expires_at``."""
+
+    __tablename__ = "access_tokens"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    therapist_id: Mapped[int] = mapped_column(
+        ForeignKey("therapists.id", ondelete="CASCADE"), index=True)
+    token_hash: Mapped[str] = mapped_column(String(64), unique=True)
+    expires_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
+
+
+class Patient(Base):
+    __tablename__ = "patients"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    therapist_id: Mapped[int] = mapped_column(
+        ForeignKey("therapists.id", ondelete="CASCADE"), index=True)
+    name: Mapped[str] = mapped_column(String(200))
+    side: Mapped[str] = mapped_column(String(5))
+    height_m: Mapped[float] = mapped_column(Float)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+
+
+class Device(Base):
+    """A sensor kit of one patient; its token is stored as a SHA-256 only."""
+
+    __tablename__ = "devices"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    patient_id: Mapped[int] = mapped_column(
+        ForeignKey("patients.id", ondelete="CASCADE"), index=True)
+    name: Mapped[str] = mapped_column(String(200))
+    token_hash: Mapped[str] = mapped_column(String(64), unique=True)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+    revoked_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+
+
+class Session(Base):
+    """One recording session: streamed live (``source`` ``stream``) or uploaded.
+
+    ``status``: ``live``, ``interrupted`` (the stream went away and may resume), ``closed``.
+    ``sensors``: {name: {"nine_axis": bool}}. ``calibration``: the poses and method the
+    estimates used. ``estimator``: version and settings of the stored estimates.
+    """
+
+    __tablename__ = "sessions"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    patient_id: Mapped[int] = mapped_column(
+        ForeignKey("patients.id", ondelete="CASCADE"), index=True)
+    device_id: Mapped[int | None] = mapped_column(
+        ForeignKey("devices.id", ondelete="SET NULL"))
+    source: Mapped[str] = mapped_column(String(10))
+    status: Mapped[str] = mapped_column(String(12), index=True)
+    side: Mapped[str] = mapped_column(String(5))
+    height_m: Mapped[float | None] = mapped_column(Float)
+    lengths: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    rate_hz: Mapped[float | None] = mapped_column(Float)
+    sensors: Mapped[dict[str, Any]] = mapped_column(JSON)
+    meta: Mapped[dict[str, Any]] = mapped_column("metadata", JSON, default=dict)
+    started_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+    ended_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+    samples: Mapped[int] = mapped_column(BigInteger, default=0)
+    calibration: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    estimator: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    estimate_columns: Mapped[list[Any] | None] = mapped_column(JSON)
+    processing_error: Mapped[str | None] = mapped_column(String(2000))
+
+    streams: Mapped[list[Stream]] = relationship(back_populates="session",
+                                                 cascade="all, delete-orphan")
+
+
+class Stream(Base):
+    """An ingest stream (``spec/ingest.md``): its id, and the next ``seq`` it expects,
+    committed with the data so a resume after a crash starts where the store ends."""
+
+    __tablename__ = "streams"
+
+    id: Mapped[str] = mapped_column(String(40), primary_key=True)
+    session_id: Mapped[int] = mapped_column(
+        ForeignKey("sessions.id", ondelete="CASCADE"), index=True)
+    device_id: Mapped[int | None] = mapped_column(
+        ForeignKey("devices.id", ondelete="SET NULL"))
+    next_seq: Mapped[int] = mapped_column(BigInteger, default=0)
+    last_t: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+
+    session: Mapped[Session] = relationship(back_populates="streams")
+
+
+class SampleBlock(Base):
+    """Consecutive rows of one sensor: ``data`` is float64 (n, 10) little-endian,
+    columns t, ax, ay, az, gx, gy, gz, mx, my, mz (NaN magnetometer on a 6-axis sensor),
+    zlib-compressed. ``ordinal`` orders a sensor's blocks in time."""
+
+    __tablename__ = "sample_blocks"
+    __table_args__ = (Index("ix_sample_blocks_session_sensor", "session_id", "sensor",
+                            "ordinal"),)
+
+    id: Mapped[int] = mapped_column(BigInteger().with_variant(Integer, "sqlite"),
+                                    primary_key=True)
+    session_id: Mapped[int] = mapped_column(ForeignKey("sessions.id", ondelete="CASCADE"))
+    sensor: Mapped[str] = mapped_column(String(12))
+    ordinal: Mapped[int] = mapped_column(BigInteger)
+    n_rows: Mapped[int] = mapped_column(Integer)
+    t_first: Mapped[float] = mapped_column(Float)
+    t_last: Mapped[float] = mapped_column(Float)
+    data: Mapped[bytes] = mapped_column(LargeBinary)
+
+
+class Mark(Base):
+    """A stream's or file's mark (``npose``, ``tpose``, ``exercise:<name>``, ``end:…``)."""
+
+    __tablename__ = "marks"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    session_id: Mapped[int] = mapped_column(
+        ForeignKey("sessions.id", ondelete="CASCADE"), index=True)
+    t: Mapped[float] = mapped_column(Float)
+    label: Mapped[str] = mapped_column(String(120))
+
+
+class EstimateBlock(Base):
+    """Consecutive estimates of a session: float64 (n, len(columns)) zlib-compressed, the
+    columns named in ``Session.estimate_columns`` (t [s], angles [rad], positions [m])."""
+
+    __tablename__ = "estimate_blocks"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    session_id: Mapped[int] = mapped_column(
+        ForeignKey("sessions.id", ondelete="CASCADE"), index=True)
+    ordinal: Mapped[int] = mapped_column(Integer)
+    n_rows: Mapped[int] = mapped_column(Integer)
+    data: Mapped[bytes] = mapped_column(LargeBinary)

@@ -1,0 +1,364 @@
+"""``/ws/ingest``: one kit's connection (``spec/ingest.md``). Authenticates the device,
+takes ``hello``, starts or resumes the stream's session, then takes messages strictly in
+``seq`` order: accepted ones go to the group writer (acked once stored) and to the live
+worker; refused ones get an ``error`` naming their ``seq``."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import secrets
+import time
+from collections import deque
+from datetime import UTC, datetime
+from typing import Any
+
+from armtrack.estimator.body import SegmentLengths
+from armtrack.estimator.errors import EstimatorError
+from armtrack.estimator.pipeline import PipelineConfig
+from fastapi import APIRouter, WebSocket
+from sqlalchemy import select
+from sqlalchemy.orm import Session as DbSession
+from starlette.websockets import WebSocketDisconnect, WebSocketState
+
+from ..auth import hash_token
+from ..db import models
+from ..live.worker import LiveWorker
+from ..services import Services
+from ..store.processing import process_in_background
+from . import protocol
+from .protocol import Hello, Refused
+from .writer import MAX_PENDING_PER_STREAM, StreamState, Write
+
+log = logging.getLogger("armtrack.ingest")
+router = APIRouter()
+
+
+def find_device(db: DbSession, token: str | None) -> tuple[int, int] | None:
+    """(device id, patient id) of a valid, unrevoked device token."""
+    if not token:
+        return None
+    device = db.scalar(select(models.Device).where(
+        models.Device.token_hash == hash_token(token), models.Device.revoked_at.is_(None)))
+    return None if device is None else (device.id, device.patient_id)
+
+
+def bearer(websocket: WebSocket) -> str | None:
+    header = websocket.headers.get("authorization", "")
+    scheme, _, value = header.partition(" ")
+    if scheme.lower() == "bearer" and value.strip():
+        return value.strip()
+    return websocket.query_params.get("token")
+
+
+@router.websocket("/ws/ingest")
+async def ingest(websocket: WebSocket) -> None:
+    services: Services = websocket.app.state.services
+    found = await services.run_db(find_device, bearer(websocket))
+    await websocket.accept()
+    if found is None:
+        await websocket.close(protocol.CLOSE_BAD_TOKEN, "bad or revoked device token")
+        return
+    connection = IngestConnection(services, websocket, *found)
+    await connection.run()
+
+
+class IngestConnection:
+    def __init__(self, services: Services, websocket: WebSocket, device_id: int,
+                 patient_id: int):
+        self.services = services
+        self.settings = services.settings
+        self.websocket = websocket
+        self.device_id = device_id
+        self.patient_id = patient_id
+        self.hello: Hello | None = None
+        self.state: StreamState | None = None
+        self.worker: LiveWorker | None = None
+        self._refused: deque[float] = deque()
+        self._ack_wanted = asyncio.Event()
+        self._acked = -1
+        self._closed = False
+        self._send_lock = asyncio.Lock()
+        self.received = 0
+        self.sensor_stats: dict[str, dict[str, Any]] = {}
+
+    # -- sending ------------------------------------------------------------------------
+    async def send(self, message: dict[str, Any]) -> None:
+        if self._closed:
+            return
+        async with self._send_lock:
+            with contextlib.suppress(Exception):  # a vanished peer ends in receive()
+                await self.websocket.send_text(protocol.dumps(message))
+
+    async def close(self, code: int, reason: str) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        if self.websocket.application_state != WebSocketState.DISCONNECTED:
+            with contextlib.suppress(Exception):
+                await self.websocket.close(code, reason)
+
+    async def _ack_loop(self) -> None:
+        """Acks what is stored, as soon as it is, and at least once a second while
+        messages arrive (a duplicate is acked again)."""
+        assert self.state is not None
+        while not self._closed:
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._ack_wanted.wait(), 1.0)
+            self._ack_wanted.clear()
+            durable = self.state.durable_seq
+            if durable >= 0 and (durable > self._acked or self._resend_ack):
+                self._resend_ack = False
+                self._acked = durable
+                await self.send({"type": "ack", "seq": durable})
+
+    _resend_ack = False
+
+    async def refuse(self, error: Refused) -> None:
+        message: dict[str, Any] = {"type": "error", "reason": error.reason}
+        if error.seq is not None:
+            message["seq"] = error.seq
+        await self.send(message)
+        if error.close_code is not None:
+            await self.close(error.close_code, error.reason[:120])
+            return
+        now = time.monotonic()
+        self._refused.append(now)
+        while self._refused and self._refused[0] < now - self.settings.refused_window_s:
+            self._refused.popleft()
+        if len(self._refused) > self.settings.refused_limit:
+            await self.close(protocol.CLOSE_TOO_MANY_ERRORS,
+                             f"more than {self.settings.refused_limit} refused messages in "
+                             f"{self.settings.refused_window_s:g} s")
+
+    # -- the connection -----------------------------------------------------------------
+    async def receive(self) -> str | None:
+        """The next text (or binary, as UTF-8 JSON) message; None when the peer is gone."""
+        message = await self.websocket.receive()
+        if message["type"] == "websocket.disconnect":
+            return None
+        data = message.get("text")
+        if data is None:
+            data = message.get("bytes") or b""
+        if len(data) > self.settings.max_message_bytes:
+            await self.send({"type": "error", "reason": f"message of {len(data)} bytes is over "
+                             f"the limit of {self.settings.max_message_bytes}"})
+            await self.close(protocol.CLOSE_TOO_BIG, "message too big")
+            return None
+        return data
+
+    async def run(self) -> None:
+        ack_task = None
+        try:
+            if not await self._start():
+                return
+            ack_task = asyncio.create_task(self._ack_loop())
+            while not self._closed:
+                text = await self.receive()
+                if text is None:
+                    break
+                if not await self._handle(text):
+                    break
+        except WebSocketDisconnect:
+            pass
+        finally:
+            await self._end(ack_task)
+
+    async def _start(self) -> bool:
+        text = await self.receive()
+        if text is None:
+            return False
+        try:
+            self.hello = protocol.check_hello(protocol.parse(text))
+            ready = await self._open_stream(self.hello)
+        except Refused as error:
+            if error.close_code is None:
+                error.close_code = protocol.CLOSE_BAD_PROTOCOL
+            await self.refuse(error)
+            return False
+        await self.send(ready)
+        return True
+
+    async def _open_stream(self, hello: Hello) -> dict[str, Any]:
+        services = self.services
+        if hello.resume is None:
+            stream_id = secrets.token_hex(12)
+            session_id, height = await services.run_db(self._create_session, hello, stream_id)
+            state = StreamState(stream_id, session_id, 0, {})
+        else:
+            stream_id = hello.resume
+            old = services.connections.get(stream_id)
+            if old is not None:  # the kit reconnected before the old socket timed out
+                await old.close(1001, "replaced by a resumed connection")
+            state = services.streams.get(stream_id)
+            if state is not None:
+                await state.idle.wait()  # everything accepted before is stored first
+            found = await services.run_db(self._resume_session, hello, stream_id)
+            session_id, height, next_seq, last_t = found
+            if state is None:
+                state = StreamState(stream_id, session_id, next_seq, last_t)
+            else:
+                state.next_seq = state.durable_seq + 1
+                state.last_t = dict(state.stored_last_t)
+        state.on_durable = self._ack_wanted.set
+        state.on_storage_error = self._storage_error
+        services.streams[stream_id] = state
+        services.connections[stream_id] = self
+        self.state = state
+        try:
+            config = PipelineConfig(side=hello.side, lengths=SegmentLengths.from_height(height),
+                                    sensors=hello.sensors)
+            self.worker = LiveWorker(config, patient_id=self.patient_id, session_id=session_id,
+                                     hub=services.hub, executor=services.compute_pool,
+                                     max_rate_hz=self.settings.live_poses_hz)
+        except EstimatorError as exc:  # the data are still stored; only live view is off
+            log.warning("no live estimates for session %s: %s", session_id, exc)
+        services.hub.publish(self.patient_id, {"kind": "session", "session_id": session_id,
+                                               "status": "live"})
+        return {"type": "ready", "stream": stream_id, "session": session_id,
+                "next_seq": state.next_seq}
+
+    def _create_session(self, db: DbSession, hello: Hello, stream_id: str) -> tuple[int, float]:
+        patient = db.get(models.Patient, self.patient_id)
+        assert patient is not None
+        session = models.Session(
+            patient_id=patient.id, device_id=self.device_id, source="stream", status="live",
+            side=hello.side, height_m=patient.height_m, rate_hz=hello.rate_hz,
+            sensors={s: {"nine_axis": hello.nine_axis} for s in hello.sensors},
+            meta={"device": hello.device})
+        db.add(session)
+        db.flush()
+        db.add(models.Stream(id=stream_id, session_id=session.id, device_id=self.device_id,
+                             next_seq=0, last_t={}))
+        db.commit()
+        return session.id, patient.height_m
+
+    def _resume_session(self, db: DbSession, hello: Hello, stream_id: str
+                        ) -> tuple[int, float, int, dict[str, float]]:
+        stream = db.get(models.Stream, stream_id)
+        session = None if stream is None else db.get(models.Session, stream.session_id)
+        if session is None or session.patient_id != self.patient_id:
+            raise Refused(f"hello: no stream {stream_id!r} to resume for this device's patient")
+        if session.status == "closed":
+            raise Refused(f"hello: the session of stream {stream_id} is closed; "
+                          "start a new stream (resume null)")
+        if set(hello.sensors) != set(session.sensors) or hello.side != session.side:
+            raise Refused("hello: a resumed stream must name the same side and sensors "
+                          f"({session.side}; {', '.join(session.sensors)})")
+        session.status = "live"
+        session.ended_at = None
+        db.commit()
+        return session.id, session.height_m, stream.next_seq, dict(stream.last_t)
+
+    def _storage_error(self, reason: str) -> None:
+        asyncio.get_running_loop().create_task(self.send({"type": "error", "reason": reason}))
+
+    async def _handle(self, text: str) -> bool:
+        """One message after hello; False when the stream is over."""
+        assert self.state is not None and self.hello is not None
+        received = time.monotonic()
+        state = self.state
+        try:
+            message = protocol.parse(text)
+            kind = message["type"]
+            if kind in ("samples", "mark"):
+                seq = protocol.check_seq(message)
+                if seq < state.next_seq:  # a duplicate: dropped, acked again
+                    self._resend_ack = True
+                    self._ack_wanted.set()
+                    return True
+                if seq > state.next_seq:
+                    raise Refused(f"seq {seq} is ahead: expected {state.next_seq}", seq)
+                state.next_seq += 1
+                try:
+                    if kind == "samples":
+                        item = protocol.check_samples(message, seq, self.hello, state.last_t)
+                        state.last_t[item.sensor] = float(item.rows[-1, 0])
+                        self.received += len(item.rows)
+                        self._count(item.sensor, len(item.rows), received)
+                        self.services.writer.submit(Write(state, seq, samples=item))
+                    else:
+                        item = protocol.check_mark(message, seq)
+                        self.services.writer.submit(Write(state, seq, mark=item))
+                except Refused:
+                    self.services.writer.submit(Write(state, seq))  # the number is used up
+                    raise
+                if self.worker is not None:
+                    self.worker.feed(item, received)
+                while state.pending > MAX_PENDING_PER_STREAM and not self._closed:
+                    await asyncio.sleep(0.01)  # storage is behind: stop reading for a while
+            elif kind == "status":
+                status = protocol.check_status(message, self.hello)
+                status["received_at"] = time.time()
+                self.services.sensor_status.setdefault(self.patient_id, {})[
+                    status["sensor"]] = status
+                self.services.hub.publish(self.patient_id, {"kind": "status", **status})
+            elif kind == "bye":
+                await self._finish()
+                return False
+            elif kind == "hello":
+                raise Refused("hello was already received on this connection")
+            else:
+                raise Refused(f"unknown message type {kind!r} (expected samples, mark, "
+                              "status or bye)")
+        except Refused as error:
+            await self.refuse(error)
+        return not self._closed
+
+    def _count(self, sensor: str, n: int, now: float) -> None:
+        stats = self.sensor_stats.setdefault(sensor, {"samples": 0, "first": now})
+        stats["samples"] += n
+        stats["last"] = now
+
+    async def _finish(self) -> None:
+        """``bye``: store everything, ack it, close the session and process it."""
+        assert self.state is not None
+        await self.state.idle.wait()
+        await self.send({"type": "ack", "seq": self.state.durable_seq})
+        await self.services.run_db(_close_session, self.state.session_id)
+        self.services.in_background(process_in_background, self.services.db,
+                                    self.state.session_id, "qcf")
+        self.services.hub.publish(self.patient_id, {"kind": "session",
+                                                    "session_id": self.state.session_id,
+                                                    "status": "closed"})
+        await self.close(1000, "bye")
+
+    async def _end(self, ack_task: asyncio.Task | None) -> None:
+        self._closed = True
+        if ack_task is not None:
+            ack_task.cancel()
+        if self.worker is not None:
+            await self.worker.close()
+        state = self.state
+        if state is None:
+            return
+        if self.services.connections.get(state.stream_id) is self:
+            del self.services.connections[state.stream_id]
+            await state.idle.wait()
+            if await self.services.run_db(_interrupt_session, state.session_id):
+                self.services.hub.publish(self.patient_id, {"kind": "session",
+                                                            "session_id": state.session_id,
+                                                            "status": "interrupted"})
+            self.services.streams.pop(state.stream_id, None)
+        if self.websocket.application_state != WebSocketState.DISCONNECTED:
+            with contextlib.suppress(Exception):
+                await self.websocket.close(1000)
+
+
+def _close_session(db: DbSession, session_id: int) -> None:
+    session = db.get(models.Session, session_id)
+    if session is not None and session.status != "closed":
+        session.status = "closed"
+        session.ended_at = datetime.now(UTC)
+        db.commit()
+
+
+def _interrupt_session(db: DbSession, session_id: int) -> bool:
+    """A stream that went away without ``bye``: its session may be resumed."""
+    session = db.get(models.Session, session_id)
+    if session is not None and session.status == "live":
+        session.status = "interrupted"
+        db.commit()
+        return True
+    return False

@@ -1,0 +1,237 @@
+"""Messages of the stream protocol, version 1 (``spec/ingest.md``), checked whole: a
+message is either accepted as a whole or refused with a reason naming what is wrong.
+
+Rows are ``[t, ax, ay, az, gx, gy, gz, mx, my, mz]`` in the units of ``recording.md``
+(s, m/s², rad/s, µT); on a 6-axis sensor ``mx my mz`` are ``null``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from itertools import chain
+from typing import Any
+
+import numpy as np
+from armtrack.estimator.body import SENSOR_NAMES
+from armtrack.estimator.recording.model import LABEL_PATTERN
+from armtrack.estimator.recording.rules import LIMITS, backwards_message, beyond_range
+
+PROTOCOL_VERSION = 1
+MAX_ROWS = 1000
+ROW_WIDTH = 10
+
+#: Close codes of the spec.
+CLOSE_BAD_TOKEN = 4401
+CLOSE_BAD_PROTOCOL = 4400
+CLOSE_TOO_BIG = 1009
+CLOSE_TOO_MANY_ERRORS = 4429
+
+
+class Refused(Exception):
+    """A message refused whole. ``seq`` when it carried a valid one; ``close_code`` when
+    the error ends the connection."""
+
+    def __init__(self, reason: str, seq: int | None = None, close_code: int | None = None):
+        super().__init__(reason)
+        self.reason = reason
+        self.seq = seq
+        self.close_code = close_code
+
+
+@dataclass(frozen=True)
+class Hello:
+    device: str
+    side: str
+    sensors: tuple[str, ...]
+    rate_hz: float | None
+    nine_axis: bool
+    resume: str | None
+
+
+@dataclass(frozen=True)
+class Samples:
+    seq: int
+    sensor: str
+    rows: np.ndarray  # (n, 10) float64, NaN magnetometer on a 6-axis sensor
+
+
+@dataclass(frozen=True)
+class MarkMessage:
+    seq: int
+    t: float
+    label: str
+
+
+def _no_constants(name: str) -> float:
+    raise ValueError(f"{name} is not a number JSON allows")
+
+
+def parse(text: str | bytes) -> dict[str, Any]:
+    """A JSON object with a string ``type``; NaN and Infinity are refused."""
+    try:
+        message = json.loads(text, parse_constant=_no_constants)
+    except (ValueError, RecursionError) as exc:
+        raise Refused(f"malformed JSON: {exc}") from None
+    if not isinstance(message, dict):
+        raise Refused("a message must be a JSON object")
+    kind = message.get("type")
+    if not isinstance(kind, str):
+        raise Refused("a message needs a string field 'type'")
+    return message
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_number(value: Any) -> bool:
+    return (isinstance(value, int | float) and not isinstance(value, bool)
+            and math.isfinite(value))
+
+
+def check_hello(message: dict[str, Any]) -> Hello:
+    """The first message. A wrong ``protocol`` closes with 4400; other faults too, since
+    nothing can follow a hello the server cannot use."""
+    if message.get("type") != "hello":
+        raise Refused(f"the first message must be a hello, got {message.get('type')!r}",
+                      close_code=CLOSE_BAD_PROTOCOL)
+    if message.get("protocol") != PROTOCOL_VERSION or isinstance(message.get("protocol"), bool):
+        raise Refused(f"protocol {message.get('protocol')!r} is not supported "
+                      f"(this server speaks {PROTOCOL_VERSION})", close_code=CLOSE_BAD_PROTOCOL)
+
+    def bad(reason: str) -> Refused:
+        return Refused(f"hello: {reason}", close_code=CLOSE_BAD_PROTOCOL)
+
+    device = message.get("device")
+    if not isinstance(device, str) or not 0 < len(device) <= 200:
+        raise bad("device must be a name of 1 to 200 characters")
+    side = message.get("side")
+    if side not in ("right", "left"):
+        raise bad(f"side must be 'right' or 'left', got {side!r}")
+    sensors = message.get("sensors")
+    if (not isinstance(sensors, list) or not sensors
+            or not all(isinstance(s, str) for s in sensors)):
+        raise bad("sensors must be a non-empty list of sensor names")
+    unknown = [s for s in sensors if s not in SENSOR_NAMES]
+    if unknown:
+        raise bad(f"unknown sensor {unknown[0]!r} (expected some of {', '.join(SENSOR_NAMES)})")
+    if len(set(sensors)) != len(sensors):
+        raise bad("a sensor is named twice")
+    rate = message.get("rate_hz")
+    if rate is not None and not (_is_number(rate) and 0 < rate <= 10000):
+        raise bad(f"rate_hz must be a positive number of samples per second, got {rate!r}")
+    nine_axis = message.get("nine_axis")
+    if not isinstance(nine_axis, bool):
+        raise bad(f"nine_axis must be true or false, got {nine_axis!r}")
+    resume = message.get("resume")
+    if resume is not None and (not isinstance(resume, str) or not 0 < len(resume) <= 40):
+        raise bad("resume must be null or the stream id of an earlier connection")
+    return Hello(device, side, tuple(sensors), None if rate is None else float(rate),
+                 nine_axis, resume)
+
+
+def check_seq(message: dict[str, Any]) -> int:
+    seq = message.get("seq")
+    if not _is_int(seq) or seq < 0:
+        raise Refused(f"{message['type']}: seq must be a whole number ≥ 0, got {seq!r}")
+    return seq
+
+
+def check_samples(message: dict[str, Any], seq: int, hello: Hello,
+                  last_t: dict[str, float]) -> Samples:
+    """A ``samples`` message: known sensor, 1–1000 rows of 10 finite numbers (``null``
+    magnetometer exactly when 6-axis), within physical range, ``t`` non-decreasing within
+    the message and after the sensor's last stored sample."""
+    sensor = message.get("sensor")
+    if sensor not in hello.sensors:
+        raise Refused(f"sensor {sensor!r} was not named in hello "
+                      f"({', '.join(hello.sensors)})", seq)
+    rows = message.get("rows")
+    if not isinstance(rows, list) or not 1 <= len(rows) <= MAX_ROWS:
+        raise Refused(f"rows must be a list of 1 to {MAX_ROWS} rows", seq)
+    # C-level scans: every row a list of 10, every value a number or null
+    if set(map(type, rows)) != {list} or set(map(len, rows)) != {ROW_WIDTH}:
+        raise Refused(f"every row must be a list of {ROW_WIDTH} values "
+                      "[t, ax, ay, az, gx, gy, gz, mx, my, mz]", seq)
+    kinds = set(map(type, chain.from_iterable(rows)))
+    if not kinds <= {float, int, type(None)}:
+        odd = next(k for k in kinds if k not in (float, int, type(None)))
+        raise Refused(f"row values must be numbers (or null magnetometer), got a {odd.__name__}"
+                      if odd is not bool else "row values must be numbers, got true/false", seq)
+    try:
+        data = np.array(rows, dtype=np.float64)
+    except OverflowError:
+        raise Refused("a row value is too large for a float64", seq) from None
+    missing = np.isnan(data)  # only null can give NaN: JSON NaN was refused by parse
+    if missing[:, :7].any():
+        row, col = map(int, np.argwhere(missing[:, :7])[0])
+        raise Refused(f"row {row}: column {_COLUMNS[col]} is null", seq)
+    if hello.nine_axis:
+        if missing[:, 7:].any():
+            raise Refused(f"sensor {sensor} is 9-axis: mx my mz must be numbers", seq)
+    elif not missing[:, 7:].all():
+        raise Refused(f"sensor {sensor} is 6-axis: mx my mz must be null", seq)
+    finite = np.isfinite(data[:, :7]).all() and (not hello.nine_axis
+                                                 or np.isfinite(data[:, 7:]).all())
+    if not finite:
+        raise Refused("a row value is too large for a float64", seq)
+    for quantity, columns in (("acc", slice(1, 4)), ("gyr", slice(4, 7)), ("mag", slice(7, 10))):
+        if quantity == "mag" and not hello.nine_axis:
+            continue
+        block = data[:, columns]
+        over = beyond_range(quantity, block[:, 0], block[:, 1], block[:, 2])
+        if over.any():
+            row = int(np.argmax(over))
+            symbol, limit, unit = LIMITS[quantity]
+            value = float(np.sqrt(np.sum(block[row] ** 2)))
+            raise Refused(f"row {row}: {symbol} = {value:.6g} {unit} is beyond the physical "
+                          f"range ({symbol} ≤ {limit:g} {unit})", seq)
+    t = data[:, 0]
+    back = np.flatnonzero(np.diff(t) < 0)
+    if back.size:
+        i = int(back[0]) + 1
+        raise Refused(f"row {i}: " + backwards_message(sensor, t[i], t[i - 1]), seq)
+    previous = last_t.get(sensor)
+    if previous is not None and t[0] < previous:
+        raise Refused(backwards_message(sensor, t[0], previous)
+                      + ": a kit whose clock restarted starts a new stream", seq)
+    return Samples(seq, sensor, data)
+
+
+_COLUMNS = ("t", "ax", "ay", "az", "gx", "gy", "gz", "mx", "my", "mz")
+
+
+def check_mark(message: dict[str, Any], seq: int) -> MarkMessage:
+    t = message.get("t")
+    if not _is_number(t):
+        raise Refused(f"mark: t must be a finite number of seconds, got {t!r}", seq)
+    label = message.get("label")
+    if not isinstance(label, str) or not LABEL_PATTERN.fullmatch(label):
+        raise Refused(f"mark: label must be npose, tpose, exercise:<name> or end:<label>, "
+                      f"got {label!r}", seq)
+    return MarkMessage(seq, float(t), label)
+
+
+def check_status(message: dict[str, Any], hello: Hello) -> dict[str, Any]:
+    """A ``status`` message: what the dashboard shows of a sensor (not stored)."""
+    sensor = message.get("sensor")
+    if sensor not in hello.sensors:
+        raise Refused(f"status: sensor {sensor!r} was not named in hello")
+    status: dict[str, Any] = {"sensor": sensor}
+    battery = message.get("battery")
+    if battery is not None:
+        if not (_is_number(battery) and 0 <= battery <= 1):
+            raise Refused(f"status: battery must be a fraction 0…1, got {battery!r}")
+        status["battery"] = float(battery)
+    rssi = message.get("rssi_dbm")
+    if rssi is not None:
+        if not (_is_number(rssi) and -150 <= rssi <= 20):
+            raise Refused(f"status: rssi_dbm must be a number of dBm, got {rssi!r}")
+        status["rssi_dbm"] = float(rssi)
+    return status
+
+
+def dumps(message: dict[str, Any]) -> str:
+    return json.dumps(message, separators=(",", ":"))

@@ -1,0 +1,172 @@
+"""Group commit: messages accepted from every stream are stored together, a few times a
+second, in one transaction; only then are they acked. One commit per batch keeps SQLite's
+fsync cost per message small, and the database work runs on its own thread, never on
+the event loop."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+from sqlalchemy import insert, update
+from sqlalchemy.orm import sessionmaker
+
+from ..db import models
+from ..store.blocks import pack
+from .protocol import MarkMessage, Samples
+
+log = logging.getLogger("armtrack.ingest")
+
+#: Most accepted-but-unstored messages before a stream stops reading (back-pressure).
+MAX_PENDING_PER_STREAM = 2000
+#: Retry delay after a failed commit [s].
+RETRY_S = 0.5
+
+
+@dataclass(eq=False)
+class StreamState:
+    """What the ingest side knows of one stream: ``next_seq`` accepted in memory,
+    ``durable_seq`` stored (the ack), the last sample time per sensor."""
+
+    stream_id: str
+    session_id: int
+    next_seq: int
+    last_t: dict[str, float]
+    stored_last_t: dict[str, float] = field(default_factory=dict)
+    durable_seq: int = -1
+    pending: int = 0
+    on_durable: Callable[[], None] = lambda: None
+    on_storage_error: Callable[[str], None] = lambda reason: None
+    idle: asyncio.Event = field(default_factory=asyncio.Event)
+
+    def __post_init__(self) -> None:
+        self.durable_seq = self.next_seq - 1
+        self.stored_last_t = dict(self.last_t)
+        self.idle.set()
+
+
+@dataclass(frozen=True)
+class Write:
+    """One handled message: stored data (samples or a mark) or a refused ``seq`` that
+    only moves the stream's count on."""
+
+    stream: StreamState
+    seq: int
+    samples: Samples | None = None
+    mark: MarkMessage | None = None
+
+
+class GroupWriter:
+    """Collects writes from all streams and commits them in batches."""
+
+    def __init__(self, factory: sessionmaker, interval_s: float):
+        self._factory = factory
+        self._interval = interval_s
+        self._queue: list[Write] = []
+        self._wake = asyncio.Event()
+        self._executor = ThreadPoolExecutor(1, thread_name_prefix="armtrack-writer")
+        self._task: asyncio.Task | None = None
+        self.commits = 0
+        self.failures = 0
+
+    def start(self) -> None:
+        self._task = asyncio.create_task(self._run(), name="armtrack-group-writer")
+
+    async def stop(self) -> None:
+        """Store what is queued, then stop."""
+        if self._task is not None:
+            self._task.cancel()
+            try:
+                await self._task
+            except asyncio.CancelledError:
+                pass
+        while self._queue:
+            batch, self._queue = self._queue, []
+            try:
+                await asyncio.get_running_loop().run_in_executor(self._executor, self._commit,
+                                                                 batch)
+                self._done(batch)
+            except Exception:  # the data stay unacked: the kit resends after a restart
+                log.exception("final commit failed")
+                break
+        self._executor.shutdown(wait=True)
+
+    def submit(self, write: Write) -> None:
+        write.stream.pending += 1
+        write.stream.idle.clear()
+        self._queue.append(write)
+        self._wake.set()
+
+    async def _run(self) -> None:
+        loop = asyncio.get_running_loop()
+        while True:
+            await self._wake.wait()
+            await asyncio.sleep(self._interval)  # let a batch gather
+            self._wake.clear()
+            batch, self._queue = self._queue, []
+            if not batch:
+                continue
+            try:
+                await loop.run_in_executor(self._executor, self._commit, batch)
+            except Exception as exc:
+                self.failures += 1
+                log.warning("commit of %d messages failed: %s", len(batch), exc)
+                for stream in {w.stream for w in batch}:
+                    stream.on_storage_error(f"storage failed ({type(exc).__name__}); "
+                                            "the data stay unacked and will be retried")
+                self._queue[:0] = batch
+                await asyncio.sleep(RETRY_S)
+                self._wake.set()
+                continue
+            self.commits += 1
+            self._done(batch)
+
+    def _done(self, batch: list[Write]) -> None:
+        for write in batch:
+            stream = write.stream
+            stream.pending -= 1
+            stream.durable_seq = max(stream.durable_seq, write.seq)
+        for stream in {w.stream for w in batch}:
+            if stream.pending == 0:
+                stream.idle.set()
+            stream.on_durable()
+
+    def _commit(self, batch: list[Write]) -> None:
+        """One transaction: the blocks, the marks, each stream's position and each
+        session's sample count."""
+        blocks, marks = [], []
+        streams: dict[str, tuple[StreamState, int]] = {}
+        last_t: dict[str, dict[str, float]] = {}
+        counts: dict[int, int] = {}
+        for write in batch:
+            stream = write.stream
+            top = streams.get(stream.stream_id, (stream, -1))[1]
+            streams[stream.stream_id] = (stream, max(top, write.seq))
+            times = last_t.setdefault(stream.stream_id, dict(stream.stored_last_t))
+            if write.samples is not None:
+                rows = write.samples.rows
+                times[write.samples.sensor] = float(rows[-1, 0])
+                blocks.append({"session_id": stream.session_id, "sensor": write.samples.sensor,
+                               "ordinal": write.seq, "n_rows": len(rows),
+                               "t_first": float(rows[0, 0]), "t_last": float(rows[-1, 0]),
+                               "data": pack(rows)})
+                counts[stream.session_id] = counts.get(stream.session_id, 0) + len(rows)
+            elif write.mark is not None:
+                marks.append({"session_id": stream.session_id, "t": write.mark.t,
+                              "label": write.mark.label})
+        with self._factory() as db, db.begin():
+            if blocks:
+                db.execute(insert(models.SampleBlock), blocks)
+            if marks:
+                db.execute(insert(models.Mark), marks)
+            for stream_id, (_, top) in streams.items():
+                db.execute(update(models.Stream).where(models.Stream.id == stream_id)
+                           .values(next_seq=top + 1, last_t=last_t[stream_id]))
+            for session_id, n in counts.items():
+                db.execute(update(models.Session).where(models.Session.id == session_id)
+                           .values(samples=models.Session.samples + n))
+        for stream_id, (stream, _) in streams.items():
+            stream.stored_last_t = last_t[stream_id]

@@ -1,0 +1,63 @@
+"""Publish/subscribe of live updates per patient. A slow viewer never holds anyone back:
+each subscriber has a small queue and loses its oldest update when it is full."""
+
+from __future__ import annotations
+
+import asyncio
+from collections import defaultdict
+from typing import Any
+
+#: Updates a subscriber may fall behind before its oldest are dropped.
+QUEUE_SIZE = 64
+
+
+class Subscription:
+    def __init__(self, hub: LiveHub, patient_id: int):
+        self.hub = hub
+        self.patient_id = patient_id
+        self.queue: asyncio.Queue[dict[str, Any]] = asyncio.Queue(QUEUE_SIZE)
+        self.dropped = 0
+
+    def put(self, update: dict[str, Any]) -> None:
+        if self.queue.full():
+            self.queue.get_nowait()
+            self.dropped += 1
+        self.queue.put_nowait(update)
+
+    async def get(self) -> dict[str, Any]:
+        return await self.queue.get()
+
+    def close(self) -> None:
+        self.hub.unsubscribe(self)
+
+    def __enter__(self) -> Subscription:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class LiveHub:
+    """Updates (``{"kind": "pose" | "status" | "session", "patient_id", ...}``) by patient."""
+
+    def __init__(self) -> None:
+        self._subscribers: dict[int, set[Subscription]] = defaultdict(set)
+        self.latest: dict[int, dict[str, Any]] = {}  # last pose per patient
+
+    def subscribe(self, patient_id: int) -> Subscription:
+        subscription = Subscription(self, patient_id)
+        self._subscribers[patient_id].add(subscription)
+        return subscription
+
+    def unsubscribe(self, subscription: Subscription) -> None:
+        subscribers = self._subscribers.get(subscription.patient_id)
+        if subscribers is not None:
+            subscribers.discard(subscription)
+            if not subscribers:
+                del self._subscribers[subscription.patient_id]
+
+    def publish(self, patient_id: int, update: dict[str, Any]) -> None:
+        if update.get("kind") == "pose":
+            self.latest[patient_id] = update
+        for subscription in tuple(self._subscribers.get(patient_id, ())):
+            subscription.put(update)

@@ -1,0 +1,135 @@
+"""The live worker of one streaming session: feeds the streaming ``Pipeline`` with each
+accepted message, off the event loop (one task at a time per session, on a shared thread
+pool), and publishes the newest pose and the running range of motion.
+
+A worker that fails stops estimating and says why; the stream and its stored data go on.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from concurrent.futures import Executor
+from typing import Any
+
+import numpy as np
+from armtrack.estimator.arm.joints import REPORTED_ANGLES, SEGMENTS
+from armtrack.estimator.pipeline import Pipeline, PipelineConfig
+from armtrack.estimator.recording import Mark
+from armtrack.estimator.rotations import matrix_to_quat
+
+from ..ingest.protocol import MarkMessage, Samples
+from .hub import LiveHub
+
+log = logging.getLogger("armtrack.live")
+
+#: Seconds after the last calibration pose's end still counted as calibration.
+CALIBRATION_TAIL_S = 2.5
+
+
+class RunningRange:
+    """Per angle, the least and greatest value so far [deg], from ``start_s`` on."""
+
+    def __init__(self) -> None:
+        self.low: dict[str, float] = {}
+        self.high: dict[str, float] = {}
+        self.start_s = -np.inf
+
+    def update(self, t: np.ndarray, degrees: dict[str, np.ndarray]) -> None:
+        keep = t >= self.start_s
+        if not keep.any():
+            return
+        for name, values in degrees.items():
+            v = values[keep]
+            self.low[name] = min(self.low.get(name, np.inf), float(v.min()))
+            self.high[name] = max(self.high.get(name, -np.inf), float(v.max()))
+
+    def as_dict(self) -> dict[str, dict[str, float]]:
+        return {k: {"min": self.low[k], "max": self.high[k], "range": self.high[k] - self.low[k]}
+                for k in self.low}
+
+
+class LiveWorker:
+    def __init__(self, config: PipelineConfig, *, patient_id: int, session_id: int,
+                 hub: LiveHub, executor: Executor, max_rate_hz: float):
+        self.pipeline = Pipeline(config)
+        self.patient_id = patient_id
+        self.session_id = session_id
+        self._hub = hub
+        self._executor = executor
+        self._min_interval = 1.0 / max_rate_hz
+        self._pending: list[Samples | MarkMessage] = []
+        self._received = 0.0  # monotonic time the newest pending message arrived
+        self._wake = asyncio.Event()
+        self._pose_end = -np.inf
+        self.rom = RunningRange()
+        self.error: str | None = None
+        self.estimates = 0
+        self._last_publish = 0.0
+        self._task = asyncio.create_task(self._run(), name=f"armtrack-live-{session_id}")
+
+    def feed(self, item: Samples | MarkMessage, received: float) -> None:
+        """An accepted message; ``received`` [s, ``time.monotonic``] when it arrived."""
+        if self.error is None:
+            self._pending.append(item)
+            self._received = received
+            self._wake.set()
+
+    async def close(self) -> None:
+        self._task.cancel()
+        try:
+            await self._task
+        except asyncio.CancelledError:
+            pass
+
+    async def _run(self) -> None:
+        loop = asyncio.get_running_loop()
+        while True:
+            await self._wake.wait()
+            self._wake.clear()
+            items, self._pending = self._pending, []
+            received = self._received
+            try:
+                pose = await loop.run_in_executor(self._executor, self._process, items)
+            except Exception as exc:  # a broken stream stops its own estimates only
+                log.exception("live estimation of session %s failed", self.session_id)
+                self.error = f"live estimation stopped: {exc}"
+                self._hub.publish(self.patient_id, {"kind": "error",
+                                                    "session_id": self.session_id,
+                                                    "reason": self.error})
+                return
+            now = time.monotonic()
+            if pose is not None and now - self._last_publish >= self._min_interval:
+                self._last_publish = now
+                pose["latency_s"] = now - received  # newest sample received → published
+                self._hub.publish(self.patient_id, pose)
+
+    def _process(self, items: list[Samples | MarkMessage]) -> dict[str, Any] | None:
+        """Runs on the thread pool: feed, poll, and the newest pose (or None)."""
+        for item in items:
+            if isinstance(item, Samples):
+                rows = item.rows
+                mag = rows[:, 7:10] if not np.isnan(rows[0, 7]) else None
+                self.pipeline.feed(item.sensor, rows[:, 0], rows[:, 1:4], rows[:, 4:7], mag)
+            else:
+                self.pipeline.add_mark(Mark(item.t, item.label))
+                if item.label in ("end:npose", "end:tpose"):
+                    self._pose_end = max(self._pose_end, item.t)
+                    self.rom.start_s = self._pose_end + CALIBRATION_TAIL_S
+        estimates = self.pipeline.poll()
+        n = len(estimates)
+        if n == 0:
+            return None
+        self.estimates += n
+        degrees = estimates.degrees()
+        self.rom.update(estimates.t, degrees)
+        return {
+            "kind": "pose", "session_id": self.session_id, "t": float(estimates.t[-1]),
+            "angles_deg": {k: float(degrees[k][-1]) for k in REPORTED_ANGLES},
+            "positions_m": {k: v[-1].tolist() for k, v in estimates.positions.items()},
+            "segments_q": {s: matrix_to_quat(estimates.R_world_segment[s][-1]).tolist()
+                           for s in SEGMENTS},
+            "rom_deg": self.rom.as_dict(),
+            "estimates": self.estimates,
+        }

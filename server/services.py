@@ -1,0 +1,80 @@
+"""What one running server holds: settings, the database, the group writer, the live hub,
+the thread pools, and the open streams (for resume and for closing revoked devices)."""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any, TypeVar
+
+from sqlalchemy import update
+
+from .db import models
+from .db.engine import make_engine, make_sessionmaker
+from .db.migrate import upgrade
+from .ingest.writer import GroupWriter, StreamState
+from .live.hub import LiveHub
+from .settings import Settings
+
+T = TypeVar("T")
+
+
+class Services:
+    def __init__(self, settings: Settings):
+        self.settings = settings
+        settings.data_dir.mkdir(parents=True, exist_ok=True)
+        self.engine = make_engine(settings.resolved_database_url())
+        self.db = make_sessionmaker(self.engine)
+        self.hub = LiveHub()
+        self.writer = GroupWriter(self.db, settings.ack_interval_s)
+        #: short database reads and writes of the async side
+        self.db_pool = ThreadPoolExecutor(4, thread_name_prefix="armtrack-db")
+        #: estimation: live workers and the batch processing of closed sessions
+        self.compute_pool = ThreadPoolExecutor(settings.processing_threads,
+                                               thread_name_prefix="armtrack-compute")
+        self.streams: dict[str, StreamState] = {}
+        self.connections: dict[str, Any] = {}  # stream id → open IngestConnection
+        self.sensor_status: dict[int, dict[str, dict[str, Any]]] = {}  # patient → sensor
+        self.background: set[asyncio.Future] = set()
+
+    def migrate(self) -> None:
+        """Bring the schema to the newest version, and mark sessions left live by a
+        previous run as interrupted (their kits may resume them)."""
+        upgrade(self.engine)
+        with self.db() as db, db.begin():
+            db.execute(update(models.Session).where(models.Session.status == "live")
+                       .values(status="interrupted"))
+
+    async def start(self) -> None:
+        self.writer.start()
+
+    async def stop(self) -> None:
+        for connection in list(self.connections.values()):
+            await connection.close(1001, "server shutting down")
+        await self.writer.stop()
+        if self.background:
+            await asyncio.gather(*self.background, return_exceptions=True)
+        self.db_pool.shutdown(wait=True)
+        self.compute_pool.shutdown(wait=True)
+        self.engine.dispose()
+
+    async def run_db(self, fn: Callable[..., T], *args: Any) -> T:
+        """``fn(db, *args)`` with a database session, on the database thread pool."""
+        def call() -> T:
+            with self.db() as db:
+                return fn(db, *args)
+        return await asyncio.get_running_loop().run_in_executor(self.db_pool, call)
+
+    def in_background(self, fn: Callable[..., Any], *args: Any) -> asyncio.Future:
+        """Run ``fn(*args)`` on the compute pool without waiting; tracked until done."""
+        future = asyncio.get_running_loop().run_in_executor(self.compute_pool, fn, *args)
+        self.background.add(future)
+        future.add_done_callback(self.background.discard)
+        return future
+
+    async def revoke_device(self, device_id: int) -> None:
+        """Close every open stream of a device with 4401."""
+        for connection in list(self.connections.values()):
+            if connection.device_id == device_id:
+                await connection.close(4401, "device token revoked")

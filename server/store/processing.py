@@ -1,0 +1,94 @@
+"""Batch processing of a stored session: its recording through the estimator, the
+estimates stored as blocks with the estimator version and settings they came from.
+The same numbers as ``armtrack estimate`` on the session's exported recording."""
+
+from __future__ import annotations
+
+from importlib.metadata import PackageNotFoundError, version
+
+import numpy as np
+from armtrack.estimator.arm.joints import SEGMENTS
+from armtrack.estimator.errors import EstimatorError
+from armtrack.estimator.orientation import DEFAULT_FILTER
+from armtrack.estimator.pipeline import Estimates, estimate_recording
+from armtrack.estimator.pipeline.quality import residual_warnings
+from armtrack.estimator.rotations import matrix_to_quat
+from sqlalchemy import delete, select
+from sqlalchemy.orm import Session as DbSession
+from sqlalchemy.orm import sessionmaker
+
+from ..db import models
+from .blocks import pack, unpack_many
+from .recordings import session_recording
+
+#: Estimates per stored block.
+ESTIMATE_BLOCK_ROWS = 6000
+
+
+def estimator_version() -> str:
+    try:
+        return version("armtrack")
+    except PackageNotFoundError:  # pragma: no cover - running from a source tree
+        return "unknown"
+
+
+def estimate_table(estimates: Estimates) -> tuple[list[str], np.ndarray]:
+    """``armtrack estimate``'s columns, then each segment's orientation in the world as a
+    quaternion (``<segment>_qw … _qz``, segment to world ENU)."""
+    columns, values = estimates.table()
+    quats = [matrix_to_quat(estimates.R_world_segment[s]) if len(estimates)
+             else np.zeros((0, 4)) for s in SEGMENTS]
+    columns = columns + [f"{s}_q{c}" for s in SEGMENTS for c in "wxyz"]
+    return columns, np.column_stack([values, *quats])
+
+
+def process_session(db: DbSession, session_id: int, filter_name: str = DEFAULT_FILTER) -> None:
+    """Estimate a session from its stored samples and store the result, replacing any
+    earlier estimates (committed). A recording the estimator refuses is recorded in
+    ``processing_error``; the raw data stay."""
+    session = db.get(models.Session, session_id)
+    if session is None:
+        return
+    db.execute(delete(models.EstimateBlock).where(models.EstimateBlock.session_id == session_id))
+    try:
+        recording = session_recording(db, session)
+        estimates, calibration = estimate_recording(recording, filter_name)
+    except EstimatorError as exc:
+        session.processing_error = str(exc)
+        session.estimator = {"version": estimator_version(), "filter": filter_name}
+        db.commit()
+        return
+    columns, values = estimate_table(estimates)
+    blocks = [{"session_id": session_id, "ordinal": i, "n_rows": len(part), "data": pack(part)}
+              for i, part in enumerate(np.array_split(
+                  values, max(1, -(-len(values) // ESTIMATE_BLOCK_ROWS))))
+              if len(part)]
+    if blocks:
+        db.execute(models.EstimateBlock.__table__.insert(), blocks)
+    warnings = [w.message for w in calibration.warnings]
+    warnings += [w.message for w in residual_warnings(estimates, tuple(recording.sensors))]
+    session.calibration = {
+        "method": calibration.method,
+        "final_time_s": calibration.final_time_s,
+        "poses": [{"name": p.name, "start": p.start, "end": p.end}
+                  for p in recording.calibration],
+        "warnings": warnings,
+    }
+    session.estimator = {"version": estimator_version(), "filter": filter_name}
+    session.estimate_columns = columns
+    session.processing_error = None
+    db.commit()
+
+
+def stored_estimates(db: DbSession, session: models.Session) -> tuple[list[str], np.ndarray]:
+    """The stored estimate table of a session (columns, (n, k) values); empty if none."""
+    columns = list(session.estimate_columns or [])
+    blobs = db.scalars(select(models.EstimateBlock.data)
+                       .where(models.EstimateBlock.session_id == session.id)
+                       .order_by(models.EstimateBlock.ordinal)).all()
+    return columns, unpack_many(list(blobs), len(columns)) if columns else np.empty((0, 0))
+
+
+def process_in_background(factory: sessionmaker, session_id: int, filter_name: str) -> None:
+    with factory() as db:
+        process_session(db, session_id, filter_name)
