@@ -10,6 +10,7 @@ from fastapi import FastAPI
 
 from .api import auth_routes, patients, sessions
 from .ingest import endpoint
+from .live import endpoint as live_endpoint
 from .services import Services
 from .settings import Settings
 from .store.processing import estimator_version
@@ -37,6 +38,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(patients.router)
     app.include_router(sessions.router)
     app.include_router(endpoint.router)
+    app.include_router(live_endpoint.router)
 
     @app.get("/healthz", include_in_schema=False)
     def health() -> dict[str, str]:

@@ -14,3 +14,15 @@ def shared_dir() -> Path:
         pytest.skip(f"needs the shared data folder beside the repo ({SHARED_DIR}); "
                     "a user's clone has none, CI has it")
     return SHARED_DIR
+
+
+@pytest.fixture
+def server(tmp_path):
+    """A running armtrack server with one therapist ``alice`` (see ``server_support``)."""
+    from server_support import ServerProcess
+
+    process = ServerProcess(tmp_path / "server")
+    process.create_user("alice")
+    process.start()
+    yield process
+    process.stop()

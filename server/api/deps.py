@@ -43,7 +43,7 @@ def current_therapist(db: Db, token: Annotated[str | None, Depends(oauth2)]
         raise unauthorized()
     row = db.scalar(select(models.AccessToken).where(
         models.AccessToken.token_hash == hash_token(token)))
-    if row is None or _aware(row.expires_at) <= datetime.now(UTC):
+    if row is None or aware_utc(row.expires_at) <= datetime.now(UTC):
         raise unauthorized("the token is unknown or has expired: sign in again")
     therapist = db.get(models.Therapist, row.therapist_id)
     if therapist is None:
@@ -51,7 +51,7 @@ def current_therapist(db: Db, token: Annotated[str | None, Depends(oauth2)]
     return therapist
 
 
-def _aware(moment: datetime) -> datetime:
+def aware_utc(moment: datetime) -> datetime:
     """SQLite gives naive datetimes back; they were stored in UTC."""
     return moment if moment.tzinfo else moment.replace(tzinfo=UTC)
 
