@@ -69,6 +69,10 @@ class QcfParams:
     #: … and the weight of the current bias against them [µT²·s²]. This estimator runs
     #: only until a rest has taught the bias.
     mag_bias_prior: float = 3e4
+    #: Until a rest has taught the bias, a rest must also keep the low-passed specific
+    #: force within this angle of its direction when the stillness began [rad]: a slow
+    #: turn the loose ``rest_rate`` lets through (a trunk's sway) tilts it.
+    rest_tilt: float = float(np.deg2rad(0.5))
     #: Relative deviation of |m| from the reference that marks a disturbed field.
     mag_norm_tolerance: float = 0.05
     #: Deviation of the field's dip from the reference that marks a disturbance [rad].
@@ -97,7 +101,7 @@ class QcfParams:
                   self.mag_reaccept, self.max_dt, self.rest_min_samples, self.rest_guard,
                   self.tau_acc_rest, self.rest_rate, self.tau_bias_rest,
                   self.rest_rate_known, self.zupt_delay, self.mag_window,
-                  self.tau_bias_mag, self.mag_bias_prior]
+                  self.tau_bias_mag, self.mag_bias_prior, self.rest_tilt]
         assert len(values) == PARAM_SIZE
         return np.array(values, dtype=np.float64)
 

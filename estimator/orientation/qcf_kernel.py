@@ -23,7 +23,8 @@ the samples still waiting for the guard time · ``[37]`` their count · ``[38]``
 time · ``[39:42]`` the previous gyroscope sample · ``[42]`` the first sample's time
 · ``[43]`` whether a rest has taught the bias · ``[44:63]`` the field-turning bias
 estimator: window sums V, Y, first field, window time, information matrix and vector
-· ``[63:66]`` the previous field sample · ``[66]`` a window is open.
+· ``[63:66]`` the previous field sample · ``[66]`` a window is open · ``[67:70]`` the
+low-passed accelerometer when the current rest began.
 """
 
 from __future__ import annotations
@@ -34,15 +35,15 @@ import numpy as np
 
 from ..scalar_rotations import quat_to_rows
 
-STATE_SIZE = 67
+STATE_SIZE = 70
 
 # Indices into the parameter vector, see QcfParams.as_array.
 (P_TAU_ACC, P_TAU_MAG, P_TAU_LP, P_REST_GYR, P_REST_ACC, P_REST_TIME,
  P_KI_BIAS, P_KI_BIAS_MAG, P_BIAS_MAX, P_MAG_NORM_TOL, P_MAG_DIP_TOL, P_TAU_MAG_REF,
  P_MAG_REACCEPT, P_MAX_DT, P_REST_MIN_SAMPLES, P_REST_GUARD, P_TAU_ACC_REST,
  P_REST_RATE, P_TAU_BIAS_REST, P_REST_RATE_KNOWN, P_ZUPT_DELAY, P_MAG_WINDOW,
- P_TAU_BIAS_MAG, P_MAG_BIAS_PRIOR) = range(24)
-PARAM_SIZE = 24
+ P_TAU_BIAS_MAG, P_MAG_BIAS_PRIOR, P_REST_TILT) = range(25)
+PARAM_SIZE = 25
 
 
 def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out_rest,
@@ -82,6 +83,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     rest_min_samples = params[P_REST_MIN_SAMPLES]
     rest_guard = params[P_REST_GUARD]
     tau_acc_rest = params[P_TAU_ACC_REST]
+    cos_rest_tilt = math.cos(params[P_REST_TILT])
 
     gw, gx, gy, gz = state[0], state[1], state[2], state[3]
     cw, cx, cy, cz = state[4], state[5], state[6], state[7]
@@ -106,6 +108,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     i00, i11, i22, i01, i02, i12 = state[54], state[55], state[56], state[57], state[58], state[59]
     z0, z1, z2 = state[60], state[61], state[62]
     lmx, lmy, lmz, m_started = state[63], state[64], state[65], state[66]
+    srx, sry, srz = state[67], state[68], state[69]
 
     for i in range(t.shape[0]):
         ax, ay, az = acc[i, 0], acc[i, 1], acc[i, 2]
@@ -166,7 +169,19 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
             rate = math.sqrt((glx - bx) ** 2 + (gly - by) ** 2 + (glz - bz) ** 2)
             dev_a = math.sqrt((ax - alx) ** 2 + (ay - aly) ** 2 + (az - alz) ** 2)
             rate_limit = rest_rate if bias_known == 0.0 else rest_rate_known
-            if dev_g < rest_gyr and rate < rate_limit and dev_a < rest_acc:
+            still = dev_g < rest_gyr and rate < rate_limit and dev_a < rest_acc
+            if still and bias_known == 0.0 and still_time + dt >= rest_time_needed:
+                # Until a rest has taught the bias, the gyroscope cannot tell a slow turn
+                # (a trunk's sway) from its bias: through the rest the low-passed specific
+                # force must also keep the direction it had when the rest began.
+                if still_time < rest_time_needed:
+                    srx, sry, srz = alx, aly, alz
+                else:
+                    dot = alx * srx + aly * sry + alz * srz
+                    norms = math.sqrt((alx * alx + aly * aly + alz * alz)
+                                      * (srx * srx + sry * sry + srz * srz))
+                    still = dot >= cos_rest_tilt * norms
+            if still:
                 still_time += dt
             else:
                 still_time = 0.0
@@ -426,6 +441,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     state[54], state[55], state[56], state[57], state[58], state[59] = i00, i11, i22, i01, i02, i12
     state[60], state[61], state[62] = z0, z1, z2
     state[63], state[64], state[65], state[66] = lmx, lmy, lmz, m_started
+    state[67], state[68], state[69] = srx, sry, srz
     return -1
 
 

@@ -1,7 +1,9 @@
 """Calibration of a session from its sensors' tracks: sensor-to-segment rotations, the
 thorax's heading, and (6-axis kits) the headings that put every sensor in one world.
 
-Order: arm sensors first (two-pose, N-pose-only or default mounting); then the world
+Order: arm sensors first (two-pose, N-pose-only or default mounting; with a trunk sensor
+on a 9-axis kit, each pose's up direction is the thorax's, not gravity's, so a trunk that
+sways through the poses does not tilt the arm's axes by the sway's mean); then the world
 thorax in the N-pose from the arm (every segment's axes are the thorax's there); then the
 trunk and clavicle sensors' headings from it. On a 6-axis kit each sensor's filter has a
 heading of its own: in the N-pose all segments point the same way, which gives each
@@ -32,7 +34,8 @@ from ..calibration import (
     turn_warning,
     two_pose_R_sensor_segment,
 )
-from ..rotations import yaw_of
+from ..rotations import quat_to_matrix, yaw_of
+from .segment_kernel import segment_orientations
 from .tracks import SensorTrack
 
 ARM = ("upper_arm", "forearm", "hand")
@@ -61,6 +64,29 @@ def _up(acc: np.ndarray) -> np.ndarray:
 
 def _mean_rotation(q: np.ndarray) -> np.ndarray:
     return Rotation.from_quat(q, scalar_first=True).mean().as_matrix()
+
+
+def _unit_rows(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def _thorax_up(arm: SensorTrack, trunk: SensorTrack, start: float, end: float,
+               trunk_up: np.ndarray) -> np.ndarray:
+    """The thorax's up direction in an arm sensor's frame over ``start…end``, averaged:
+    the arm's gravity plus the trunk's momentary tilt away from its upright ``trunk_up``
+    (trunk sensor frame), carried into the arm sensor's frame through the two sensors'
+    orientations at the arm's sample times. Both directions are the accelerometers';
+    the orientations only turn the small tilt, so their errors count to second order."""
+    t, acc, _, q = arm.arrays()
+    a, b = np.searchsorted(t, start, "left"), np.searchsorted(t, end, "right")
+    t, acc, q = t[a:b], acc[a:b], q[a:b]
+    t_trunk, acc_trunk, _, q_trunk = trunk.arrays()
+    gravity_trunk = _unit_rows(np.stack([np.interp(t, t_trunk, acc_trunk[:, k])
+                                         for k in range(3)], axis=1))
+    R_trunk = segment_orientations(t_trunk, q_trunk, t, np.eye(3), 0.0)
+    tilt_world = np.einsum("nij,nj->ni", R_trunk, trunk_up - gravity_trunk)
+    tilt_arm = np.einsum("nji,nj->ni", quat_to_matrix(q), tilt_world)
+    return _up(_unit_rows(acc) + tilt_arm)
 
 
 def calibrate(tracks: Mapping[str, SensorTrack], plan: CalibrationPlan, side: Side,
@@ -92,23 +118,50 @@ def calibrate(tracks: Mapping[str, SensorTrack], plan: CalibrationPlan, side: Si
             "no calibration pose: sensors are assumed in their default mounting "
             "(spec/recording.md); angles may be off by the mounting error"))
 
+    nine_axis = all(track.nine_axis for track in tracks.values())
+    # A trunk that sways through the poses tilts the whole body with it: an arm sensor's
+    # gravity then gives its segment's axes off by the sway's mean over each pose. The
+    # trunk sensor sees the sway; its upright is the mean of its up direction over both
+    # poses and the time between (the trunk does not move between them; a sway's mean
+    # over seconds is nearer upright than over one pose), and the arm takes the thorax's
+    # up, not gravity's, carried through both sensors' orientations. Only where all
+    # sensors share a heading (9-axis): the carried direction would otherwise turn by the
+    # sensors' heading difference; and not when the trunk sensor turned like an arm
+    # between the poses (then it is not on the trunk: see the turn warnings).
+    sway_corrected = nine_axis and "trunk" in tracks and method != "default"
+    if sway_corrected and method == "two-pose":
+        sway_corrected = turn_warning("trunk", _up(windows["trunk", "npose"][0]),
+                                      _up(windows["trunk", "tpose"][0])) is None
+    if sway_corrected:
+        span = [p for p in (plan.npose, plan.tpose) if p is not None]
+        acc_trunk, _, _ = tracks["trunk"].window(min(p.start for p in span),
+                                                 max(p.end for p in span))
+        trunk_up = _up(_unit_rows(acc_trunk))
+
+    def pose_up(sensor: str, pose: str) -> np.ndarray:
+        if sway_corrected and sensor in ARM:
+            window = plan.npose if pose == "npose" else plan.tpose
+            return _thorax_up(tracks[sensor], tracks["trunk"], window.start, window.end,
+                              trunk_up)
+        return _up(windows[sensor, pose][0])
+
     R_sensor_segment: dict[str, np.ndarray] = {}
     for sensor in tracks:
         if method == "default":
             R_sensor_segment[sensor] = default_R_segment_sensor(sensor, side).T
             continue
-        up_n = _up(windows[sensor, "npose"][0])
+        up_n = pose_up(sensor, "npose")
         if sensor in ARM and method == "two-pose":
-            up_t = _up(windows[sensor, "tpose"][0])
+            up_t = pose_up(sensor, "tpose")
             R_sensor_segment[sensor] = two_pose_R_sensor_segment(up_n, up_t, side)
         else:
             R_sensor_segment[sensor] = tilt_only_R_sensor_segment(up_n, sensor, side)
-        if method == "two-pose":
-            warning = turn_warning(sensor, up_n, _up(windows[sensor, "tpose"][0]))
+        if method == "two-pose":  # how far gravity turned (not the sway-corrected up)
+            warning = turn_warning(sensor, _up(windows[sensor, "npose"][0]),
+                                   _up(windows[sensor, "tpose"][0]))
             if warning:
                 warnings.append(warning)
 
-    nine_axis = all(track.nine_axis for track in tracks.values())
     reference = next((s for s in ARM if s in tracks), next(iter(tracks)))
     heading = {sensor: 0.0 for sensor in tracks}
 
