@@ -26,3 +26,16 @@ def server(tmp_path):
     process.start()
     yield process
     process.stop()
+
+
+@pytest.fixture(scope="module")
+def module_server(tmp_path_factory):
+    """One server for a whole test module, with therapists ``alice`` and ``bob``."""
+    from server_support import ServerProcess
+
+    process = ServerProcess(tmp_path_factory.mktemp("server"))
+    process.create_user("alice")
+    process.create_user("bob")
+    process.start()
+    yield process
+    process.stop()

@@ -1,0 +1,189 @@
+"""The REST API of spec/api.md on a real server process: sign-in, every route behind
+auth, a therapist sees only their own patients, pagination, erasure; and the command
+line around the server (create-user, reprocess) and its database (migrations)."""
+
+import sqlite3
+
+import httpx
+import pytest
+from server_support import PASSWORD, armtrack
+
+
+@pytest.fixture(scope="module")
+def alice(module_server):
+    return module_server.client("alice")
+
+
+@pytest.fixture(scope="module")
+def bob(module_server):
+    return module_server.client("bob")
+
+
+def test_sign_in_refuses_a_wrong_password_and_an_unknown_user(module_server):
+    for user, password in (("alice", "wrong password"), ("nobody", PASSWORD)):
+        answer = httpx.post(module_server.url + "/api/auth/token",
+                            data={"username": user, "password": password})
+        assert answer.status_code == 401
+        assert answer.json()["detail"] == "wrong user name or password"
+
+
+def test_every_route_but_sign_in_needs_a_therapist(module_server, alice):
+    schema = httpx.get(module_server.url + "/openapi.json").json()
+    checked = 0
+    for path, methods in schema["paths"].items():
+        for method in methods:
+            url = module_server.url + path.replace("{", "").replace("}", "").replace(
+                "patient_id", "1").replace("session_id", "1").replace("device_id", "1")
+            for headers in ({}, {"Authorization": "Bearer not-a-token"}):
+                answer = httpx.request(method.upper(), url, headers=headers)
+                if path == "/api/auth/token":
+                    assert answer.status_code == 422  # no form: but no auth needed
+                    continue
+                assert answer.status_code == 401, (method, path, answer.text)
+                assert "detail" in answer.json()
+                checked += 1
+    print(f"{checked} route × credential pairs refused")
+    assert checked >= 2 * 14
+
+
+def test_a_therapist_reaches_only_their_own_patients(alice, bob):
+    patient = alice.patient("Carol")
+    device = alice.device(patient["id"])
+    assert alice.http.get(f"/api/patients/{patient['id']}").status_code == 200
+    for method, path in (("GET", f"/api/patients/{patient['id']}"),
+                         ("GET", f"/api/patients/{patient['id']}/sessions"),
+                         ("GET", f"/api/patients/{patient['id']}/devices"),
+                         ("POST", f"/api/patients/{patient['id']}/devices"),
+                         ("DELETE", f"/api/devices/{device['id']}"),
+                         ("DELETE", f"/api/patients/{patient['id']}")):
+        answer = bob.http.request(method, path, json={"name": "x"})
+        assert answer.status_code == 404, (method, path)
+        assert answer.json()["detail"] in (f"no patient {patient['id']}",
+                                          f"no device {device['id']}")
+    assert patient["id"] not in [p["id"] for p in bob.http.get("/api/patients").json()]
+    assert alice.http.get(f"/api/patients/{patient['id']}").status_code == 200
+
+
+def test_bad_patient_bodies_are_refused_with_the_field_named(alice):
+    for body, field in (({"name": "", "side": "right", "height_m": 1.7}, "name"),
+                        ({"name": "A", "side": "up", "height_m": 1.7}, "side"),
+                        ({"name": "A", "side": "left", "height_m": 7}, "height_m"),
+                        ({"name": "A", "side": "left"}, "height_m")):
+        answer = alice.http.post("/api/patients", json=body)
+        assert answer.status_code == 422
+        assert field in str(answer.json()["detail"])
+
+
+def test_lists_are_paginated_and_searchable(alice):
+    made = [alice.patient(f"Page {i:02d}")["id"] for i in range(5)]
+    first = alice.http.get("/api/patients", params={"q": "page", "limit": 2}).json()
+    rest = alice.http.get("/api/patients", params={"q": "page", "limit": 10,
+                                                   "offset": 2}).json()
+    assert [p["id"] for p in first + rest] == made
+    assert alice.http.get("/api/patients", params={"limit": 0}).status_code == 422
+
+
+def test_a_device_token_is_shown_once_and_stored_hashed(module_server, alice):
+    patient = alice.patient()
+    created = alice.device(patient["id"], "home kit")
+    assert created["token"].startswith("dev_") and len(created["token"]) > 40
+    listed = alice.http.get(f"/api/patients/{patient['id']}/devices").json()
+    assert listed and "token" not in listed[0]
+    with sqlite3.connect(module_server.data_dir / "armtrack.db") as db:
+        stored = [row[0] for row in db.execute("SELECT token_hash FROM devices")]
+    assert created["token"] not in stored and len(stored[-1]) == 64
+
+
+def test_a_device_token_uploads_only_for_its_own_patient(module_server, alice, shared_dir):
+    mine, other = alice.patient("Mine"), alice.patient("Other")
+    token = alice.device(mine["id"])["token"]
+    path = shared_dir / "data" / "recordings" / "left_reach_50hz.csv"
+    kit = httpx.Client(base_url=module_server.url, timeout=60,
+                       headers={"Authorization": f"Bearer {token}"})
+    with open(path, "rb") as f:
+        refused = kit.post("/api/recordings", data={"patient_id": other["id"]},
+                           files={"file": ("r.csv", f)})
+    assert refused.status_code == 404
+    with open(path, "rb") as f:
+        answer = kit.post("/api/recordings", files={"file": ("r.csv", f)})
+    assert answer.status_code == 201, answer.text
+    assert answer.json()["patient_id"] == mine["id"]
+    # a device token opens nothing else
+    assert kit.get(f"/api/patients/{mine['id']}").status_code == 401
+    assert kit.get(f"/api/sessions/{answer.json()['id']}/recording.csv").status_code == 401
+
+
+def count_rows(module_server, table, **where):
+    clause = " AND ".join(f"{k} = ?" for k in where) or "1"
+    with sqlite3.connect(module_server.data_dir / "armtrack.db") as db:
+        return db.execute(f"SELECT COUNT(*) FROM {table} WHERE {clause}",
+                          tuple(where.values())).fetchone()[0]
+
+
+def upload(api, patient_id, path):
+    with open(path, "rb") as f:
+        answer = api.http.post("/api/recordings", data={"patient_id": patient_id},
+                               files={"file": (path.name, f)})
+    assert answer.status_code == 201, answer.text
+    return answer.json()
+
+
+def test_erasing_a_session_and_a_patient_leaves_nothing(module_server, alice, shared_dir):
+    path = shared_dir / "data" / "recordings" / "left_reach_50hz.csv"
+    patient = alice.patient("Erase me")
+    alice.device(patient["id"])
+    first, second = (upload(alice, patient["id"], path) for _ in range(2))
+    sessions = alice.http.get(f"/api/patients/{patient['id']}/sessions").json()
+    assert [s["id"] for s in sessions] == [second["id"], first["id"]]  # newest first
+    assert count_rows(module_server, "sample_blocks", session_id=first["id"]) > 0
+
+    assert alice.http.delete(f"/api/sessions/{first['id']}").status_code == 204
+    assert alice.http.get(f"/api/sessions/{first['id']}").status_code == 404
+    for table in ("sample_blocks", "estimate_blocks", "marks"):
+        assert count_rows(module_server, table, session_id=first["id"]) == 0
+    assert count_rows(module_server, "sample_blocks", session_id=second["id"]) > 0
+
+    assert alice.http.delete(f"/api/patients/{patient['id']}").status_code == 204
+    assert alice.http.get(f"/api/patients/{patient['id']}").status_code == 404
+    for table in ("sample_blocks", "estimate_blocks", "marks"):
+        assert count_rows(module_server, table, session_id=second["id"]) == 0
+    assert count_rows(module_server, "devices", patient_id=patient["id"]) == 0
+    assert count_rows(module_server, "sessions", patient_id=patient["id"]) == 0
+
+
+def test_reprocess_recomputes_a_session_with_the_current_estimator(
+        module_server, alice, shared_dir):
+    path = shared_dir / "data" / "recordings" / "elbow_6axis.csv"
+    session = upload(alice, alice.patient()["id"], path)
+    before = alice.http.get(f"/api/sessions/{session['id']}/angles.csv").text
+    done = armtrack("reprocess", str(session["id"]), "--data-dir", str(module_server.data_dir))
+    assert done.returncode == 0, done.stderr
+    assert f"session {session['id']}: estimates from 0" in done.stdout
+    assert alice.http.get(f"/api/sessions/{session['id']}/angles.csv").text == before
+    missing = armtrack("reprocess", "999999", "--data-dir", str(module_server.data_dir))
+    assert missing.returncode == 2 and "no session 999999" in missing.stderr
+
+
+def test_create_user_refuses_a_short_password_and_a_taken_name(module_server):
+    short = armtrack("create-user", "carl", "--password", "short",
+                     "--data-dir", str(module_server.data_dir))
+    assert short.returncode == 2 and "at least 8" in short.stderr
+    taken = armtrack("create-user", "alice", "--data-dir", str(module_server.data_dir),
+                     input="another password\n")
+    assert taken.returncode == 2 and "exists already" in taken.stderr
+
+
+def test_the_migrations_make_the_models_schema(tmp_path):
+    from alembic.autogenerate import compare_metadata
+    from alembic.migration import MigrationContext
+    from armtrack.server.db.engine import make_engine
+    from armtrack.server.db.migrate import upgrade
+    from armtrack.server.db.models import Base
+
+    engine = make_engine(f"sqlite:///{tmp_path / 'm.db'}")
+    upgrade(engine)
+    with engine.connect() as connection:
+        diff = compare_metadata(MigrationContext.configure(connection), Base.metadata)
+    assert diff == []
+    with engine.connect() as connection:
+        assert connection.exec_driver_sql("PRAGMA journal_mode").scalar() == "wal"
