@@ -4,6 +4,7 @@ project's simulator), batch equal to streaming, calibration rules and warnings."
 import numpy as np
 import pytest
 from armtrack.estimator.arm import REPORTED_ANGLES
+from armtrack.estimator.errors import InvalidArgument
 from armtrack.estimator.pipeline import Pipeline, PipelineConfig, estimate_recording
 from armtrack.estimator.recording import Mark, read_recording
 from armtrack.estimator.simulation import (
@@ -326,3 +327,22 @@ def test_repetitions_counted_on_the_estimates_match_the_shared_readme(shared_dir
     got = {k: len(v) for k, v in counted.items()}
     print(f"{name}: {got}")
     assert got == REPETITIONS[name]
+
+
+def test_a_silent_sensor_can_be_dropped_so_the_others_need_not_wait():
+    sim = simulate(SimulationConfig(exercise="elbow_flexion", repetitions=2, seed=3))
+    rec = sim.recording
+    pipeline = Pipeline(PipelineConfig(side="right", lengths=rec.segment_lengths(),
+                                       sensors=("upper_arm", "forearm", "hand")),
+                        poses=rec.calibration)
+    for name in ("upper_arm", "forearm"):
+        s = rec.sensors[name]
+        pipeline.feed(name, s.t, s.acc, s.gyr, s.mag)
+    assert pipeline.silent_sensors() == ["hand"]
+    assert len(pipeline.poll()) == 0  # waiting for the hand
+    with pytest.raises(InvalidArgument, match="cannot be dropped"):
+        pipeline.drop_sensor("forearm")  # it has data
+    pipeline.drop_sensor("hand")
+    estimates = pipeline.poll()
+    assert len(estimates) > 0.9 * len(rec.sensors["upper_arm"])
+    assert np.allclose(estimates.angles["wrist_flexion"], 0.0)  # no hand: the wrist stays 0

@@ -13,7 +13,7 @@ chunks of any size and any interleaving of sensors, gives the same numbers.
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -85,6 +85,24 @@ class Pipeline:
             raise InvalidArgument(f"sensor {sensor!r} is not in this session "
                                   f"({', '.join(self._tracks)})")
         self._tracks[sensor].append(t, acc, gyr, mag)
+
+    def silent_sensors(self) -> list[str]:
+        """Sensors of the session that have not sent a sample yet."""
+        return [name for name, track in self._tracks.items() if track.first_t == np.inf]
+
+    def drop_sensor(self, sensor: str) -> None:
+        """Leave out a sensor that never sent a sample (a node that failed to start), so
+        the others need not wait for it. Refused once it has data or estimates began."""
+        track = self._tracks.get(sensor)
+        if track is None or track.first_t < np.inf or self._given:
+            raise InvalidArgument(f"sensor {sensor!r} cannot be dropped: only a sensor of "
+                                  "the session with no samples, before estimates begin")
+        if len(self._tracks) == 1:
+            raise InvalidArgument("the last sensor of a session cannot be dropped")
+        del self._tracks[sensor]
+        self.config = replace(self.config, sensors=tuple(self._tracks))
+        self._reference = self.config.reference
+        self._others = [t for n, t in self._tracks.items() if n != self._reference]
 
     def poll(self) -> Estimates:
         """Every estimate that has become available since the last call."""

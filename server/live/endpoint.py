@@ -7,6 +7,7 @@ closes with 4404 like one that does not exist."""
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 from datetime import UTC, datetime
 
@@ -52,7 +53,18 @@ async def live(websocket: WebSocket, patient: int) -> None:
     with services.hub.subscribe(patient) as subscription:
         for status in services.sensor_status.get(patient, {}).values():
             await websocket.send_text(dumps({"kind": "status", **status}))
-        with contextlib.suppress(WebSocketDisconnect, RuntimeError):
+        # the viewer sends nothing; its receive ends when it goes away
+        gone = asyncio.create_task(websocket.receive())
+        try:
             while True:
-                update = await subscription.get()
-                await websocket.send_text(dumps(update))
+                update = asyncio.create_task(subscription.get())
+                await asyncio.wait((update, gone), return_when=asyncio.FIRST_COMPLETED)
+                if gone.done():
+                    update.cancel()
+                    return
+                with contextlib.suppress(WebSocketDisconnect, RuntimeError):
+                    await websocket.send_text(dumps(update.result()))
+                    continue
+                return
+        finally:
+            gone.cancel()

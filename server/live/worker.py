@@ -26,6 +26,9 @@ log = logging.getLogger("armtrack.live")
 
 #: Seconds after the last calibration pose's end still counted as calibration.
 CALIBRATION_TAIL_S = 2.5
+#: Stream seconds after which a sensor named in hello that sent nothing is left out of
+#: the live estimates (the others would wait for it for ever).
+SILENT_SENSOR_S = 10.0
 
 
 class RunningRange:
@@ -65,7 +68,10 @@ class LiveWorker:
         self._pose_end = -np.inf
         self.rom = RunningRange()
         self.error: str | None = None
+        self.warnings: list[str] = []
+        self._dropped: set[str] = set()
         self.estimates = 0
+        self._first_t = np.inf
         self._last_publish = 0.0
         self._task = asyncio.create_task(self._run(), name=f"armtrack-live-{session_id}")
 
@@ -105,13 +111,28 @@ class LiveWorker:
                 pose["latency_s"] = now - received  # newest sample received → published
                 self._hub.publish(self.patient_id, pose)
 
+    def _drop_silent(self, t: float) -> None:
+        if t - self._first_t < SILENT_SENSOR_S or self.pipeline.calibration is not None:
+            return
+        for sensor in self.pipeline.silent_sensors():
+            self.pipeline.drop_sensor(sensor)
+            self._dropped.add(sensor)
+            message = (f"sensor {sensor} sent nothing in {SILENT_SENSOR_S:g} s: the live "
+                       "view goes on without it")
+            self.warnings.append(message)
+            log.warning("session %s: %s", self.session_id, message)
+
     def _process(self, items: list[Samples | MarkMessage]) -> dict[str, Any] | None:
         """Runs on the thread pool: feed, poll, and the newest pose (or None)."""
         for item in items:
             if isinstance(item, Samples):
                 rows = item.rows
+                if item.sensor in self._dropped:
+                    continue  # it came too late for the live view; it is stored all the same
+                self._first_t = min(self._first_t, float(rows[0, 0]))
                 mag = rows[:, 7:10] if not np.isnan(rows[0, 7]) else None
                 self.pipeline.feed(item.sensor, rows[:, 0], rows[:, 1:4], rows[:, 4:7], mag)
+                self._drop_silent(float(rows[-1, 0]))
             else:
                 self.pipeline.add_mark(Mark(item.t, item.label))
                 if item.label in ("end:npose", "end:tpose"):
@@ -132,4 +153,5 @@ class LiveWorker:
                            for s in SEGMENTS},
             "rom_deg": self.rom.as_dict(),
             "estimates": self.estimates,
+            "warnings": self.warnings,
         }

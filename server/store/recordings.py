@@ -73,6 +73,8 @@ def session_recording(db: DbSession, session: models.Session) -> Recording:
                    models.SampleBlock.sensor == name)
             .order_by(models.SampleBlock.ordinal)).all()
         rows = unpack_many(list(blobs), len(SAMPLE_COLUMNS))
+        if not len(rows):
+            continue  # named by the kit but never sent a sample
         streams[name] = SensorStream(rows[:, 0], rows[:, 1:4], rows[:, 4:7],
                                      rows[:, 7:10] if info.get("nine_axis", True) else None)
     marks = [Mark(m.t, m.label) for m in db.scalars(

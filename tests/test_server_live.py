@@ -1,0 +1,117 @@
+"""The live side of the server: a therapist's feed of a streaming patient (poses, running
+range of motion, latency), its access rules, and a kit whose sensor never starts."""
+
+import asyncio
+import json
+
+import numpy as np
+import pytest
+from armtrack.estimator.simulation import SimulationConfig, simulate
+from armtrack.server.emulator import KitEmulator
+from websockets.asyncio.client import connect
+from websockets.exceptions import ConnectionClosed
+
+
+@pytest.fixture(scope="module")
+def elbow():
+    return simulate(SimulationConfig(exercise="elbow_flexion", repetitions=3, seed=4))
+
+
+async def watch(server, token, patient_id, until, timeout=60.0):
+    """Live updates of a patient until ``until(updates)`` holds."""
+    url = f"ws://127.0.0.1:{server.port}/ws/live?patient={patient_id}"
+    updates = []
+    async with connect(url, additional_headers={"Authorization": f"Bearer {token}"}) as ws:
+        async with asyncio.timeout(timeout):
+            while not until(updates):
+                updates.append(json.loads(await ws.recv()))
+    return updates
+
+
+def test_a_therapist_watches_poses_and_range_of_motion_live(module_server, elbow):
+    api = module_server.client("alice")
+    patient = api.patient()
+    token = api.device(patient["id"])["token"]
+
+    async def scenario():
+        closed = lambda ups: any(u["kind"] == "session" and u["status"] == "closed"  # noqa: E731
+                                 for u in ups)
+        watcher = asyncio.create_task(watch(module_server, api.token, patient["id"], closed))
+        await asyncio.sleep(0.3)
+        kit = KitEmulator(elbow.recording, module_server.ws_url, token, speed=4)
+        stats = await kit.run()
+        return stats, await watcher
+
+    stats, updates = asyncio.run(scenario())
+    assert stats.acked == stats.total
+    poses = [u for u in updates if u["kind"] == "pose"]
+    assert len(poses) > 20
+    last = poses[-1]
+    assert set(last["angles_deg"]) >= {"elbow_flexion", "shoulder_flexion"}
+    assert set(last["segments_q"]) == {"thorax", "clavicle", "upper_arm", "forearm", "hand"}
+    latencies = np.array([p["latency_s"] for p in poses])
+    print(f"{len(poses)} poses, latency p50 {1000 * np.median(latencies):.1f} ms, "
+          f"p99 {1000 * np.quantile(latencies, 0.99):.1f} ms")
+    assert np.quantile(latencies, 0.99) < 0.1
+    # the running range of motion of the elbow, against the truth after calibration
+    truth = np.rad2deg(elbow.truth.angles["elbow_flexion"])
+    after = elbow.truth.t >= max(p.end for p in elbow.recording.calibration) + 2.5
+    rom = last["rom_deg"]["elbow_flexion"]
+    print(f"elbow live range {rom['min']:.1f}…{rom['max']:.1f}°, truth "
+          f"{truth[after].min():.1f}…{truth[after].max():.1f}°")
+    assert abs(rom["max"] - truth[after].max()) < 2.0
+    assert abs(rom["min"] - truth[after].min()) < 2.0
+
+
+def test_the_feed_refuses_no_token_and_other_therapists_patients(module_server):
+    alice, bob = module_server.client("alice"), module_server.client("bob")
+    patient = alice.patient()
+
+    async def close_code(headers):
+        url = f"ws://127.0.0.1:{module_server.port}/ws/live?patient={patient['id']}"
+        async with connect(url, additional_headers=headers) as ws:
+            with pytest.raises(ConnectionClosed) as closed:
+                await ws.recv()
+        return closed.value.rcvd.code
+
+    assert asyncio.run(close_code({})) == 4401
+    assert asyncio.run(close_code({"Authorization": "Bearer nonsense"})) == 4401
+    assert asyncio.run(close_code({"Authorization": f"Bearer {bob.token}"})) == 4404
+
+
+def test_a_sensor_that_never_starts_does_not_stop_the_live_view(module_server, elbow):
+    api = module_server.client("alice")
+    patient = api.patient()
+    token = api.device(patient["id"])["token"]
+    recording = elbow.recording
+
+    async def scenario():
+        def posed(ups):
+            return any(u["kind"] == "pose" for u in ups)
+        watcher = asyncio.create_task(watch(module_server, api.token, patient["id"], posed))
+        await asyncio.sleep(0.3)
+        async with connect(module_server.ws_url,
+                           additional_headers={"Authorization": f"Bearer {token}"}) as ws:
+            await ws.send(json.dumps({"type": "hello", "protocol": 1, "device": "kit",
+                                      "side": "right", "sensors": ["upper_arm", "forearm",
+                                                                   "hand"],
+                                      "rate_hz": 100, "nine_axis": True, "resume": None}))
+            assert json.loads(await ws.recv())["type"] == "ready"
+            seq = 0
+            for pose in recording.calibration:
+                for t, label in ((pose.start, pose.name), (pose.end, f"end:{pose.name}")):
+                    await ws.send(json.dumps({"type": "mark", "seq": seq, "t": t,
+                                              "label": label}))
+                    seq += 1
+            for start in range(0, 1500, 10):  # 15 s of two sensors; the hand is silent
+                for name in ("upper_arm", "forearm"):
+                    s = recording.sensors[name]
+                    rows = np.column_stack([s.t, s.acc, s.gyr, s.mag])[start:start + 10]
+                    await ws.send(json.dumps({"type": "samples", "seq": seq, "sensor": name,
+                                              "rows": rows.tolist()}))
+                    seq += 1
+            return await watcher
+
+    updates = asyncio.run(scenario())
+    pose = next(u for u in updates if u["kind"] == "pose")
+    assert any("sensor hand sent nothing" in w for w in pose["warnings"])
