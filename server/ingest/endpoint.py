@@ -80,6 +80,7 @@ class IngestConnection:
         self._acked = -1
         self._closed = False
         self._send_lock = asyncio.Lock()
+        self.ended = asyncio.Event()  # set once _end is through
         self.received = 0
         self.sensor_stats: dict[str, dict[str, Any]] = {}
 
@@ -116,10 +117,8 @@ class IngestConnection:
     _resend_ack = False
 
     async def refuse(self, error: Refused) -> None:
-        message: dict[str, Any] = {"type": "error", "reason": error.reason}
-        if error.seq is not None:
-            message["seq"] = error.seq
-        await self.send(message)
+        # always the spec's shape: ``seq`` is null when the message had none to name
+        await self.send({"type": "error", "seq": error.seq, "reason": error.reason})
         if error.close_code is not None:
             await self.close(error.close_code, error.reason[:120])
             return
@@ -142,7 +141,8 @@ class IngestConnection:
         if data is None:
             data = message.get("bytes") or b""
         if len(data) > self.settings.max_message_bytes:
-            await self.send({"type": "error", "reason": f"message of {len(data)} bytes is over "
+            await self.send({"type": "error", "seq": None,
+                             "reason": f"message of {len(data)} bytes is over "
                              f"the limit of {self.settings.max_message_bytes}"})
             await self.close(protocol.CLOSE_TOO_BIG, "message too big")
             return None
@@ -163,7 +163,10 @@ class IngestConnection:
         except WebSocketDisconnect:
             pass
         finally:
-            await self._end(ack_task)
+            try:
+                await self._end(ack_task)
+            finally:
+                self.ended.set()
 
     async def _start(self) -> bool:
         text = await self.receive()
@@ -191,6 +194,8 @@ class IngestConnection:
             old = services.connections.get(stream_id)
             if old is not None:  # the kit reconnected before the old socket timed out
                 await old.close(1001, "replaced by a resumed connection")
+                # its end (which marks the session interrupted) must not follow the resume
+                await old.ended.wait()
             state = services.streams.get(stream_id)
             if state is not None:
                 await state.idle.wait()  # everything accepted before is stored first
@@ -252,7 +257,8 @@ class IngestConnection:
         return session.id, session.height_m, stream.next_seq, dict(stream.last_t)
 
     def _storage_error(self, reason: str) -> None:
-        asyncio.get_running_loop().create_task(self.send({"type": "error", "reason": reason}))
+        error = {"type": "error", "seq": None, "reason": reason}
+        asyncio.get_running_loop().create_task(self.send(error))
 
     async def _handle(self, text: str) -> bool:
         """One message after hello; False when the stream is over."""
@@ -334,13 +340,14 @@ class IngestConnection:
         if state is None:
             return
         if self.services.connections.get(state.stream_id) is self:
-            del self.services.connections[state.stream_id]
+            # still registered until all is done, so that a resume waits for it (ended)
             await state.idle.wait()
             if await self.services.run_db(_interrupt_session, state.session_id):
                 self.services.hub.publish(self.patient_id, {"kind": "session",
                                                             "session_id": state.session_id,
                                                             "status": "interrupted"})
             self.services.streams.pop(state.stream_id, None)
+            self.services.connections.pop(state.stream_id, None)
         if self.websocket.application_state != WebSocketState.DISCONNECTED:
             with contextlib.suppress(Exception):
                 await self.websocket.close(1000)

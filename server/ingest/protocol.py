@@ -64,14 +64,24 @@ class MarkMessage:
     label: str
 
 
-def _no_constants(name: str) -> float:
-    raise ValueError(f"{name} is not a number JSON allows")
+class NotJsonNumber:
+    """What ``NaN``, ``Infinity`` or ``-Infinity`` in a message parse to. JSON has no such
+    numbers and no check takes this for one, so the message is refused whole like any
+    other with a bad value, naming its ``seq`` (the kit can drop it and go on)."""
+
+    __slots__ = ("literal",)
+
+    def __init__(self, literal: str):
+        self.literal = literal
+
+    def __repr__(self) -> str:
+        return self.literal
 
 
 def parse(text: str | bytes) -> dict[str, Any]:
-    """A JSON object with a string ``type``; NaN and Infinity are refused."""
+    """A JSON object with a string ``type``; NaN and Infinity become :class:`NotJsonNumber`."""
     try:
-        message = json.loads(text, parse_constant=_no_constants)
+        message = json.loads(text, parse_constant=NotJsonNumber)
     except (ValueError, RecursionError) as exc:
         raise Refused(f"malformed JSON: {exc}") from None
     if not isinstance(message, dict):
@@ -158,13 +168,17 @@ def check_samples(message: dict[str, Any], seq: int, hello: Hello,
     kinds = set(map(type, chain.from_iterable(rows)))
     if not kinds <= {float, int, type(None)}:
         odd = next(k for k in kinds if k not in (float, int, type(None)))
+        if odd is NotJsonNumber:
+            literal = next(v for v in chain.from_iterable(rows) if type(v) is NotJsonNumber)
+            raise Refused(f"row values must be finite numbers: {literal!r} is not a number "
+                          "JSON allows", seq)
         raise Refused(f"row values must be numbers (or null magnetometer), got a {odd.__name__}"
                       if odd is not bool else "row values must be numbers, got true/false", seq)
     try:
         data = np.array(rows, dtype=np.float64)
     except OverflowError:
         raise Refused("a row value is too large for a float64", seq) from None
-    missing = np.isnan(data)  # only null can give NaN: JSON NaN was refused by parse
+    missing = np.isnan(data)  # only null can give NaN: NotJsonNumber was refused above
     if missing[:, :7].any():
         row, col = map(int, np.argwhere(missing[:, :7])[0])
         raise Refused(f"row {row}: column {_COLUMNS[col]} is null", seq)
