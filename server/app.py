@@ -6,9 +6,10 @@ from __future__ import annotations
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
+from armtrack.web.pages import routes as pages
 from fastapi import FastAPI
 
-from .api import auth_routes, patients, sessions
+from .api import auth_routes, live_status, patients, session_summary, sessions
 from .ingest import endpoint
 from .live import endpoint as live_endpoint
 from .services import Services
@@ -39,6 +40,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(sessions.router)
     app.include_router(endpoint.router)
     app.include_router(live_endpoint.router)
+    app.include_router(live_status.router)
+    app.include_router(session_summary.router)
+    app.include_router(pages.router)
 
     @app.get("/healthz", include_in_schema=False)
     def health() -> dict[str, str]:

@@ -63,7 +63,7 @@ def _parser() -> argparse.ArgumentParser:
         "with exact IMU physics, sensor mounting, noise, gyroscope bias and optional faults; "
         "writes the recording and a truth CSV of joint angles (deg) and positions (m).",
     )
-    from .commands import create_user, estimate, orient, reprocess, serve, stream
+    from .commands import create_user, demo, estimate, orient, reprocess, serve, stream
     from .commands.simulate import add_arguments
 
     add_arguments(simulate)
@@ -87,6 +87,12 @@ def _parser() -> argparse.ArgumentParser:
         description="Runs armtrack under uvicorn. Settings come from the environment "
         "(ARMTRACK_DATABASE_URL, ARMTRACK_DATA_DIR, ARMTRACK_HOST, ARMTRACK_PORT, ...) and "
         "these flags; the database is migrated on start."))
+    demo.add_arguments(commands.add_parser(
+        "demo", help="run the server with a simulated patient streaming exercises",
+        description="Starts the server (SQLite in ./armtrack-demo), makes a demo therapist "
+        "(user demo, a password printed each run), a patient and a kit, and streams a "
+        "simulated patient (calibration poses, then exercises in a loop) through the real "
+        "protocol in real time. Prints the address and the sign-in; Ctrl-C stops."))
     create_user.add_arguments(commands.add_parser(
         "create-user", help="make a therapist account",
         description="Creates a therapist who can sign in; the password comes from "

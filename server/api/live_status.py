@@ -1,0 +1,256 @@
+"""Live status of a patient's kit, for the dashboard (read-only, polled about twice a
+second): the newest live or interrupted session, each sensor's connection (connected,
+samples per second, lost-sample rate, last seen, battery and signal from the protocol's
+``status`` messages) and the calibration in progress (which pose to hold, whether the
+kit is still enough, the verdict on each finished pose with the estimator's own words).
+
+A sensor is ``connected`` while its stream's socket is open and a sample arrived in the
+last ``STALE_S`` seconds; a closed socket shows at the next poll, a silent one after
+``STALE_S``."""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from typing import Annotated, Any
+from weakref import WeakKeyDictionary
+
+import numpy as np
+from armtrack.estimator.arm.joints import NORMAL_RANGE_DEG
+from armtrack.estimator.calibration import stillness_warning
+from armtrack.estimator.calibration.quality import STILL_ACC_STD, STILL_GYR_RMS
+from fastapi import APIRouter, Depends
+from sqlalchemy import func, select
+from sqlalchemy.orm import Session as DbSession
+
+from ..db import models
+from ..services import Services
+from ..store.blocks import SAMPLE_COLUMNS, unpack_many
+from .deps import Therapist, own_patient
+from .deps import services as get_services
+
+router = APIRouter(prefix="/api", tags=["live"])
+
+#: A sensor with an open socket but no sample for this long [s] shows as not receiving.
+STALE_S = 1.0
+#: Window of arrivals for samples per second [s].
+RATE_WINDOW_S = 3.0
+#: The newest stretch of samples judged for stillness while a pose is held [s].
+STILL_WINDOW_S = 1.0
+#: Poses the kit marks, and what the person does in each (``spec/kinematics.md``).
+POSES = {
+    "npose": "Stand tall, arm hanging by your side, elbow straight, palm facing your thigh "
+             "(thumb forward). Hold still.",
+    "tpose": "Lift the arm straight out to the side to shoulder height, elbow straight, "
+             "palm down. Hold still.",
+}
+
+# arrival counts per open connection and sensor: (monotonic time, samples so far)
+_arrivals: WeakKeyDictionary[Any, dict[str, deque[tuple[float, int]]]] = WeakKeyDictionary()
+# finished poses' verdicts: (session id, pose start) → verdict (a finished pose never changes)
+_verdicts: dict[tuple[int, float], dict[str, Any]] = {}
+# the last arrival seen per (session id, sensor) [wall-clock s], for after a stream ends
+_last_seen: dict[tuple[int, str], float] = {}
+
+
+def _rate(connection: Any, sensor: str, stats: dict[str, Any], now: float) -> float | None:
+    history = _arrivals.setdefault(connection, {}).setdefault(sensor, deque())
+    history.append((now, int(stats["samples"])))
+    while len(history) > 2 and history[0][0] < now - RATE_WINDOW_S:
+        history.popleft()
+    then, count = history[0]
+    if now - then < 0.3:  # first poll: the average since the stream began
+        span = stats.get("last", now) - stats.get("first", now)
+        return stats["samples"] / span if span > 0.5 else None
+    return (stats["samples"] - count) / (now - then)
+
+
+def block_totals(db: DbSession, session_id: int) -> dict[str, dict[str, float]]:
+    """Per sensor: stored rows and the first and last sample time [s]."""
+    rows = db.execute(
+        select(models.SampleBlock.sensor, func.sum(models.SampleBlock.n_rows),
+               func.min(models.SampleBlock.t_first), func.max(models.SampleBlock.t_last))
+        .where(models.SampleBlock.session_id == session_id)
+        .group_by(models.SampleBlock.sensor)).all()
+    return {s: {"samples": int(n), "t_first": float(a), "t_last": float(b)}
+            for s, n, a, b in rows}
+
+
+def lost_fraction(totals: dict[str, float], rate_hz: float | None) -> float | None:
+    """Share of samples missing at the nominal rate between the first and last one."""
+    if not rate_hz or totals["samples"] < 2:
+        return None
+    expected = round((totals["t_last"] - totals["t_first"]) * rate_hz) + 1
+    return max(0.0, 1.0 - totals["samples"] / expected) if expected > 0 else None
+
+
+def _samples(db: DbSession, session_id: int, start: float, end: float
+             ) -> dict[str, np.ndarray]:
+    """Stored rows of each sensor with ``start <= t <= end``."""
+    blocks = db.execute(
+        select(models.SampleBlock.sensor, models.SampleBlock.data)
+        .where(models.SampleBlock.session_id == session_id,
+               models.SampleBlock.t_last >= start, models.SampleBlock.t_first <= end)
+        .order_by(models.SampleBlock.sensor, models.SampleBlock.ordinal)).all()
+    by_sensor: dict[str, list[bytes]] = {}
+    for sensor, data in blocks:
+        by_sensor.setdefault(sensor, []).append(data)
+    out = {}
+    for sensor, blobs in by_sensor.items():
+        rows = unpack_many(blobs, len(SAMPLE_COLUMNS))
+        out[sensor] = rows[(rows[:, 0] >= start) & (rows[:, 0] <= end)]
+    return out
+
+
+def _stillness(rows: dict[str, np.ndarray]) -> dict[str, Any]:
+    """How still each sensor is: rotation rms [rad/s] and acceleration spread [m/s²]."""
+    sensors = {}
+    for sensor, r in rows.items():
+        if len(r) < 2:
+            continue
+        gyr, acc = r[:, 4:7], r[:, 1:4]
+        gyr_rms = float(np.sqrt(np.mean(np.sum((gyr - gyr.mean(0)) ** 2, axis=1))))
+        acc_std = float(np.sqrt(np.mean(np.sum((acc - acc.mean(0)) ** 2, axis=1))))
+        sensors[sensor] = {"rotation_rms": gyr_rms, "acceleration_std": acc_std,
+                           "still": gyr_rms <= STILL_GYR_RMS and acc_std <= STILL_ACC_STD}
+    return {"still": bool(sensors) and all(s["still"] for s in sensors.values()),
+            "sensors": sensors}
+
+
+def _verdict(db: DbSession, session_id: int, name: str, start: float, end: float
+             ) -> dict[str, Any]:
+    key = (session_id, start)
+    if key not in _verdicts:
+        rows = _samples(db, session_id, start, end)
+        warnings = [w.message for sensor, r in rows.items()
+                    if (w := stillness_warning(name, sensor, r[:, 4:7], r[:, 1:4]))]
+        if not rows:
+            warnings.append(f"no samples arrived during the {name}")
+        _verdicts[key] = {"still": not warnings, "warnings": warnings}
+        if len(_verdicts) > 10000:
+            _verdicts.clear()
+    return _verdicts[key]
+
+
+def calibration_progress(db: DbSession, session_id: int, now_t: float | None
+                         ) -> dict[str, Any]:
+    """The session's calibration poses so far: each with its verdict, and the one held
+    now (``holding``) with how long and how still."""
+    marks = db.execute(select(models.Mark.t, models.Mark.label)
+                       .where(models.Mark.session_id == session_id)
+                       .order_by(models.Mark.t, models.Mark.id)).all()
+    poses: list[dict[str, Any]] = []
+    open_: dict[str, dict[str, Any]] = {}
+    exercise = None
+    for t, label in marks:
+        if label in POSES:
+            pose = {"name": label, "start": t, "end": None}
+            poses.append(pose)
+            open_[label] = pose
+        elif label.startswith("end:") and label[4:] in open_:
+            open_.pop(label[4:])["end"] = t
+        elif label.startswith("exercise:"):
+            exercise = label.split(":", 1)[1]
+        elif label.startswith("end:exercise:"):
+            exercise = None
+    holding = None
+    for pose in poses:
+        if pose["end"] is not None:
+            pose.update(_verdict(db, session_id, pose["name"], pose["start"], pose["end"]))
+        else:
+            pose["held_s"] = max(0.0, (now_t or pose["start"]) - pose["start"])
+            if now_t is not None:
+                window = _samples(db, session_id, max(pose["start"], now_t - STILL_WINDOW_S),
+                                  now_t)
+                pose.update(_stillness(window))
+            holding = pose
+    return {"poses": poses, "holding": holding, "instructions": POSES, "exercise": exercise,
+            "stream_time_s": now_t}
+
+
+def _snapshot(svc: Services, patient_id: int) -> dict[int, dict[str, Any]]:
+    """On the event loop: the patient's open streams by session id, each sensor's arrival
+    figures (monotonic clock turned into wall-clock time)."""
+    now_mono, now_wall = time.monotonic(), time.time()
+    out: dict[int, dict[str, Any]] = {}
+    for connection in list(svc.connections.values()):
+        if connection.patient_id != patient_id or connection.state is None:
+            continue
+        sensors = {}
+        for name, stats in list(connection.sensor_stats.items()):
+            receiving = now_mono - stats["last"] <= STALE_S
+            sensors[name] = {
+                "last_seen": now_wall - (now_mono - stats["last"]),
+                "receiving": receiving,
+                "samples_per_s": _rate(connection, name, stats, now_mono) if receiving else 0.0,
+            }
+        out[connection.state.session_id] = sensors
+        for name, figures in sensors.items():
+            _last_seen[(connection.state.session_id, name)] = figures["last_seen"]
+    if len(_last_seen) > 10000:
+        _last_seen.clear()
+    return out
+
+
+def live_status(svc: Services, db: DbSession, patient_id: int,
+                streams: dict[int, dict[str, Any]]) -> dict[str, Any]:
+    session = db.scalar(select(models.Session)
+                        .where(models.Session.patient_id == patient_id)
+                        .order_by(models.Session.started_at.desc(), models.Session.id.desc())
+                        .limit(1))
+    if session is None or session.status == "closed":
+        return {"patient_id": patient_id, "session": None, "sensors": [], "connected": False,
+                "calibration": None, "estimating": False, "server_time": time.time()}
+    now_wall = time.time()
+    open_stream = streams.get(session.id)
+    totals = block_totals(db, session.id)
+    status = svc.sensor_status.get(patient_id, {})
+    sensors = []
+    now_t = None
+    for name in session.sensors:
+        arrivals = (open_stream or {}).get(name)
+        last_seen = arrivals["last_seen"] if arrivals else _last_seen.get((session.id, name))
+        sensor_status = status.get(name, {})
+        sensors.append({
+            "sensor": name,
+            "connected": bool(arrivals and arrivals["receiving"]),
+            "socket_open": open_stream is not None,
+            "samples_per_s": (arrivals["samples_per_s"] if arrivals
+                              else 0.0 if open_stream is not None else None),
+            "lost_fraction": (lost_fraction(totals[name], session.rate_hz)
+                              if name in totals else None),
+            "samples": totals.get(name, {}).get("samples", 0),
+            "last_seen": last_seen,
+            "seconds_since": None if last_seen is None else max(0.0, now_wall - last_seen),
+            "battery": sensor_status.get("battery"),
+            "rssi_dbm": sensor_status.get("rssi_dbm"),
+        })
+        if name in totals:
+            now_t = max(now_t or -np.inf, totals[name]["t_last"])
+    latest = svc.hub.latest.get(patient_id)
+    return {
+        "patient_id": patient_id,
+        "session": {"id": session.id, "status": session.status,
+                    "started_at": session.started_at.isoformat(),
+                    "device": (session.meta or {}).get("device"), "rate_hz": session.rate_hz},
+        "connected": open_stream is not None,
+        "sensors": sensors,
+        "calibration": calibration_progress(db, session.id, now_t),
+        "estimating": bool(latest and latest.get("session_id") == session.id),
+        "normal_ranges": NORMAL_RANGE_DEG,
+        "server_time": now_wall,
+    }
+
+
+@router.get("/patients/{patient_id}/live")
+async def get_live_status(patient_id: int, therapist: Therapist,
+                          svc: Annotated[Services, Depends(get_services)]) -> dict[str, Any]:
+    """The patient's newest live (or interrupted) session: per-sensor connection, samples
+    per second, lost-sample rate, last seen, battery and signal; the calibration poses so
+    far and the one being held. ``session`` is null when nothing is streaming."""
+    streams = _snapshot(svc, patient_id)
+
+    def read(db: DbSession) -> dict[str, Any]:
+        own_patient(db, therapist, patient_id)
+        return live_status(svc, db, patient_id, streams)
+    return await svc.run_db(read)

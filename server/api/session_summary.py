@@ -1,0 +1,158 @@
+"""Session summaries for the dashboard (read-only): the exercise marks, the duration, the
+range of motion of the angles that moved against normal values (calibration poses left
+out), a one-line ROM headline and the data quality (lost samples per sensor, calibration
+warnings). Computed from the stored samples and estimates; kept in memory per session
+until its data or estimates change."""
+
+from __future__ import annotations
+
+from typing import Annotated, Any
+
+import numpy as np
+from armtrack.estimator.arm.joints import REPORTED_ANGLES
+from armtrack.estimator.errors import EstimatorError
+from armtrack.estimator.metrics.rom import range_of_motion_table
+from fastapi import APIRouter, Query
+from sqlalchemy import select
+from sqlalchemy.orm import Session as DbSession
+
+from ..db import models
+from ..store.processing import stored_estimates
+from .deps import Db, Therapist, own_patient, own_session
+from .live_status import block_totals, lost_fraction
+
+router = APIRouter(prefix="/api", tags=["sessions"])
+
+#: Seconds after a calibration pose still left out of the range of motion (the arm
+#: returns from the T-pose), as the live view does.
+POSE_TAIL_S = 2.5
+#: Lost-sample share above which the data quality is ``fair``, and ``poor``.
+LOST_FAIR, LOST_POOR = 0.01, 0.05
+
+_cache: dict[int, tuple[tuple, dict[str, Any]]] = {}
+
+
+def _marks(db: DbSession, session_id: int) -> list[tuple[float, str]]:
+    return [(float(t), label) for t, label in db.execute(
+        select(models.Mark.t, models.Mark.label).where(models.Mark.session_id == session_id)
+        .order_by(models.Mark.t, models.Mark.id)).all()]
+
+
+def _periods(marks: list[tuple[float, str]], end_t: float | None
+             ) -> tuple[list[dict[str, Any]], list[tuple[float, float]]]:
+    """Exercises (name, start, end) and calibration pose windows from the marks."""
+    exercises: list[dict[str, Any]] = []
+    poses: list[tuple[float, float]] = []
+    open_: dict[str, float] = {}
+    for t, label in marks:
+        if label.startswith("end:"):
+            begun = label[4:]
+            if begun in open_:
+                start = open_.pop(begun)
+                if begun.startswith("exercise:"):
+                    exercises.append({"name": begun[9:], "start": start, "end": t})
+                else:
+                    poses.append((start, t))
+        else:
+            open_[label] = t
+    for label, start in open_.items():  # still open (live, or the kit never ended it)
+        if label.startswith("exercise:"):
+            exercises.append({"name": label[9:], "start": start, "end": end_t})
+        elif end_t is not None:
+            poses.append((start, end_t))
+    exercises.sort(key=lambda e: e["start"])
+    return exercises, poses
+
+
+def _rom(db: DbSession, session: models.Session, poses: list[tuple[float, float]]
+         ) -> dict[str, dict[str, Any]]:
+    columns, values = stored_estimates(db, session)
+    if not columns or not len(values):
+        return {}
+    t = values[:, columns.index("t")]
+    # stored in degrees (``armtrack estimate``'s columns); the metrics take radians
+    angles = {name: np.deg2rad(values[:, columns.index(name)]) for name in REPORTED_ANGLES
+              if name in columns}
+    exclude = [(a, b + POSE_TAIL_S) for a, b in poses] or None
+    try:
+        table = range_of_motion_table(angles, t, exclude=exclude)
+    except EstimatorError:
+        return {}
+    return {name: {**rom.to_report(), "moved": rom.moved} for name, rom in table.items()}
+
+
+def headline(rom: dict[str, dict[str, Any]]) -> str | None:
+    """The largest range of motion in words: ``elbow flexion 0–118° (79% of normal)``."""
+    rated = [(v["percent_of_normal"] or 0.0, v["range"], k) for k, v in rom.items()]
+    if not rated:
+        return None
+    _, _, name = max(rated, key=lambda r: (r[1], r[0]))
+    entry = rom[name]
+    text = f"{name.replace('_', ' ')} {round(entry['min']) + 0}° to {round(entry['max']) + 0}°"
+    if entry["percent_of_normal"] is not None:
+        text += f" ({entry['percent_of_normal']:.0f}% of normal)"
+    return text
+
+
+def summarise(db: DbSession, session: models.Session) -> dict[str, Any]:
+    key = (session.samples, session.status, len(session.estimate_columns or []),
+           session.processing_error, repr(session.calibration))
+    cached = _cache.get(session.id)
+    if cached is not None and cached[0] == key and session.status == "closed":
+        return cached[1]
+    totals = block_totals(db, session.id)
+    end_t = max((v["t_last"] for v in totals.values()), default=None)
+    start_t = min((v["t_first"] for v in totals.values()), default=None)
+    exercises, poses = _periods(_marks(db, session.id), end_t)
+    rom = _rom(db, session, poses) if session.estimate_columns else {}
+    sensors = {name: {"samples": v["samples"],
+                      "lost_fraction": lost_fraction(v, session.rate_hz)}
+               for name, v in totals.items()}
+    lost = [s["lost_fraction"] for s in sensors.values() if s["lost_fraction"] is not None]
+    worst = max(lost, default=None)
+    warnings = list((session.calibration or {}).get("warnings", []))
+    missing = [s for s in session.sensors if s not in totals]
+    if session.processing_error or missing or (worst is not None and worst > LOST_POOR):
+        grade = "poor"
+    elif warnings or (worst is not None and worst > LOST_FAIR):
+        grade = "fair"
+    else:
+        grade = "good"
+    summary = {
+        "id": session.id, "patient_id": session.patient_id, "status": session.status,
+        "source": session.source, "started_at": session.started_at.isoformat(),
+        "ended_at": session.ended_at.isoformat() if session.ended_at else None,
+        "duration_s": (end_t - start_t) if end_t is not None and start_t is not None else None,
+        "exercises": exercises,
+        "calibration_poses": [{"start": a, "end": b} for a, b in poses],
+        "rom": rom, "headline": headline(rom), "processed": bool(session.estimate_columns),
+        "processing_error": session.processing_error,
+        "quality": {"grade": grade, "worst_lost_fraction": worst, "sensors": sensors,
+                    "missing_sensors": missing, "calibration_warnings": warnings,
+                    "calibration_method": (session.calibration or {}).get("method")},
+    }
+    if session.status == "closed":
+        _cache[session.id] = (key, summary)
+        if len(_cache) > 2000:
+            _cache.clear()
+    return summary
+
+
+@router.get("/sessions/{session_id}/summary")
+def get_summary(session_id: int, db: Db, therapist: Therapist) -> dict[str, Any]:
+    """Exercises, duration [s], range of motion [deg] against normal values (AAOS) of the
+    angles that moved, calibration poses excluded, a ROM headline and the data quality."""
+    return summarise(db, own_session(db, therapist, session_id))
+
+
+@router.get("/patients/{patient_id}/summaries")
+def list_summaries(patient_id: int, db: Db, therapist: Therapist,
+                   limit: Annotated[int, Query(ge=1, le=200)] = 50,
+                   offset: Annotated[int, Query(ge=0)] = 0) -> list[dict[str, Any]]:
+    """The summaries of a patient's sessions, newest first."""
+    own_patient(db, therapist, patient_id)
+    sessions = db.scalars(select(models.Session).where(models.Session.patient_id == patient_id)
+                          .order_by(models.Session.started_at.desc(), models.Session.id.desc())
+                          .limit(limit).offset(offset))
+    return [summarise(db, s) for s in sessions]
+

@@ -1,0 +1,274 @@
+"""The dashboard pages in a real browser: Debian's headless ``chromium`` driven by
+Playwright, against a real server (``armtrack serve``) fed by the kit emulator at real
+pace. Signs in, opens the live session of an emulated patient and sees the angles change
+and a lost connection shown within 2 s, replays a stored session, and saves screenshots
+(their folder is printed; ``ARMTRACK_SCREENSHOTS`` chooses it). A test fails when the 3D
+view (the viser page in the session page's iframe) does not draw its canvas.
+
+Skips with the reason when chromium or Playwright is absent (CI installs both)."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import dataclasses
+import os
+import re
+import shutil
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+CHROMIUM = os.environ.get("ARMTRACK_CHROMIUM") or shutil.which("chromium") or "/usr/bin/chromium"
+ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+        "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+#: How long the 3D view may take to draw its canvas [s].
+VIEWER_TIMEOUT_S = 30
+
+if not Path(CHROMIUM).is_file():
+    pytest.skip(f"needs Debian's chromium at {CHROMIUM} (apt-get install -y chromium; "
+                ".ci/run installs it)", allow_module_level=True)
+sync_api = pytest.importorskip("playwright.sync_api",
+                               reason="needs Playwright: pip install -e '.[test]'")
+
+pytestmark = pytest.mark.slow
+
+
+def _exercise(name: str, seed: int = 0):
+    """A simulated session: calibration poses, then ``name``, marked as an exercise."""
+    from armtrack.estimator.recording import Mark
+    from armtrack.estimator.simulation import SimulationConfig, simulate
+    from armtrack.estimator.simulation.scenarios import EXERCISE_START_S
+
+    recording = simulate(SimulationConfig(exercise=name, seed=seed)).recording
+    end = min(float(s.t[-1]) for s in recording.sensors.values()) - 1.0
+    return dataclasses.replace(recording, marks=(Mark(EXERCISE_START_S - 0.5, f"exercise:{name}"),
+                                                 Mark(end, f"end:exercise:{name}")))
+
+
+class KitThread:
+    """A ``KitEmulator`` streaming at real pace on its own event loop and thread;
+    ``cut()`` drops it without ``bye``, as a kit whose link died."""
+
+    def __init__(self, recording, url: str, token: str):
+        from armtrack.server.emulator import KitEmulator
+
+        self.kit = KitEmulator(recording, url, token, device="browser-test kit", speed=1.0)
+        self.loop = asyncio.new_event_loop()
+        self.task: asyncio.Task | None = None
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        asyncio.set_event_loop(self.loop)
+        self.task = self.loop.create_task(self.kit.run())
+        with contextlib.suppress(BaseException):
+            self.loop.run_until_complete(self.task)
+
+    def cut(self) -> None:
+        def abort() -> None:
+            assert self.task is not None
+            self.task.cancel()
+        self.loop.call_soon_threadsafe(abort)
+        self.thread.join(15)
+
+
+@pytest.fixture(scope="module")
+def shots(tmp_path_factory) -> Path:
+    folder = Path(os.environ.get("ARMTRACK_SCREENSHOTS")
+                  or tmp_path_factory.mktemp("screenshots"))
+    folder.mkdir(parents=True, exist_ok=True)
+    print(f"\nscreenshots: {folder}")
+    return folder
+
+
+@pytest.fixture(scope="module")
+def browser_context():
+    with sync_api.sync_playwright() as playwright:
+        profile = tempfile.mkdtemp(prefix="armtrack-chromium-")
+        context = playwright.chromium.launch_persistent_context(
+            profile, executable_path=CHROMIUM, args=ARGS, headless=True,
+            viewport={"width": 1400, "height": 900})
+        try:
+            yield context
+        finally:
+            context.close()
+            shutil.rmtree(profile, ignore_errors=True)
+
+
+@pytest.fixture
+def page(browser_context):
+    page = browser_context.new_page()
+    page.set_default_timeout(20_000)
+    yield page
+    page.close()
+
+
+def sign_in(page, base: str, name: str = "alice") -> None:
+    from server_support import PASSWORD
+
+    page.goto(base + "/")
+    page.wait_for_url(re.compile(r".*/signin.*"))
+    page.fill("#username", name)
+    page.fill("#password", "wrong password")
+    page.click("#submit")
+    sync_api.expect(page.locator(".error")).to_contain_text("wrong user name or password")
+    page.fill("#password", PASSWORD)
+    page.click("#submit")
+    page.wait_for_url(re.compile(r".*/patients$"))
+
+
+def expect_viewer_canvas(page, shots: Path, name: str) -> None:
+    """The 3D view loaded: its iframe holds a viser page that drew a canvas."""
+    frame = page.locator("#viewer-frame")
+    try:
+        sync_api.expect(frame).to_be_attached(timeout=10_000)
+        canvas = page.frame_locator("#viewer-frame").locator("canvas").first
+        sync_api.expect(canvas).to_be_visible(timeout=VIEWER_TIMEOUT_S * 1000)
+    except AssertionError:
+        page.screenshot(path=str(shots / f"{name}-no-3d-view.png"), full_page=True)
+        reason = page.locator("#viewer").inner_text()
+        pytest.fail(f"the 3D view did not load on the {name} page: {reason.strip()!r}")
+
+
+def test_patients_page_search_add_and_device_token(module_server, page, shots):
+    api = module_server.client("alice")
+    api.patient("Grace Hopper", side="left", height_m=1.62)
+    sign_in(page, module_server.url)
+    page.fill("#new-name", "Ada Lovelace")
+    page.select_option("#new-side", "right")
+    page.fill("#new-height", "1.68")
+    page.click("text=Add patient")
+    page.wait_for_url(re.compile(r".*/patients/\d+$"))
+    sync_api.expect(page.locator("h1")).to_have_text("Ada Lovelace")
+    page.fill("#device-name", "home kit")
+    page.click("text=Add kit and show its token")
+    token = page.locator("#token-value")
+    sync_api.expect(token).to_contain_text("dev_")
+    sync_api.expect(page.locator("#copy-token")).to_be_visible()
+    sync_api.expect(page.locator("#devices tbody tr")).to_have_count(1)
+    page.screenshot(path=str(shots / "patient-new-kit.png"), full_page=True)
+    page.once("dialog", lambda dialog: dialog.accept())
+    page.click("#devices button.danger")
+    sync_api.expect(page.locator("#devices tbody tr")).to_contain_text("revoked")
+
+    page.goto(module_server.url + "/patients")
+    sync_api.expect(page.locator("#patients tbody")).to_contain_text("Ada Lovelace")
+    page.fill("#search", "grace")
+    sync_api.expect(page.locator("#patients tbody tr")).to_have_count(1)
+    sync_api.expect(page.locator("#patients tbody")).to_contain_text("Grace Hopper")
+    page.fill("#search", "")
+    sync_api.expect(page.locator("#patients tbody")).to_contain_text("Ada Lovelace")
+    page.screenshot(path=str(shots / "patients.png"), full_page=True)
+    assert "not a diagnostic device" in page.locator("#disclaimer").inner_text()
+
+
+def test_live_session_angles_change_and_lost_connection_shows(module_server, page, shots):
+    api = module_server.client("alice")
+    patient = api.patient("Live Patient")
+    device = api.device(patient["id"])
+    kit = KitThread(_exercise("elbow_flexion"), module_server.ws_url, device["token"])
+    try:
+        sign_in(page, module_server.url)
+        page.goto(f"{module_server.url}/patients/{patient['id']}")
+        open_live = page.locator("text=Open the live view")
+        sync_api.expect(open_live).to_be_visible()
+        sync_api.expect(page.locator("#sensor-table tbody tr")).to_have_count(3)
+        page.screenshot(path=str(shots / "patient-live.png"), full_page=True)
+        open_live.click()
+        page.wait_for_url(re.compile(r".*/sessions/\d+$"))
+
+        # calibration guidance: which pose to hold, then calibrated
+        box = page.locator("#calibration-box")
+        sync_api.expect(box).to_be_visible()
+        seen_phases = set()
+        deadline = time.monotonic() + 60  # the poses end 8 s into the stream
+        shot_hold = False
+        while time.monotonic() < deadline:
+            phase = box.get_attribute("data-phase") or ""
+            seen_phases.add(phase)
+            if phase.startswith("hold:") and not shot_hold:
+                sync_api.expect(box).to_contain_text("Hold the")
+                page.screenshot(path=str(shots / "live-calibrating.png"), full_page=True)
+                page.click("#show-patient")
+                page.screenshot(path=str(shots / "live-patient-view.png"))
+                page.click("#close-patient-view")
+                shot_hold = True
+            if phase == "done":
+                break
+            time.sleep(0.2)
+        assert "done" in seen_phases, f"calibration never finished on the page: {seen_phases}"
+        assert any(p.startswith("hold:") for p in seen_phases), seen_phases
+        sync_api.expect(box).to_contain_text("Calibrated")
+
+        # the angles change on the page as the patient flexes the elbow
+        now = page.locator('#angles-table tr[data-angle="elbow_flexion"] td.now')
+        values = set()
+        deadline = time.monotonic() + 25
+        while time.monotonic() < deadline and len(values) < 6:
+            values.add(now.inner_text())
+            time.sleep(0.25)
+        values.discard("—")
+        assert len(values) >= 6, f"the elbow angle did not change on the page: {values}"
+        sync_api.expect(page.locator("#sensor-table tbody")).to_contain_text("Connected")
+        assert "not a diagnostic device" in page.locator("#notice").inner_text()
+        page.screenshot(path=str(shots / "live-exercise.png"), full_page=True)
+        expect_viewer_canvas(page, shots, "live")
+
+        # the kit's link dies: shown within 2 s
+        kit.cut()
+        cut = time.monotonic()
+        sync_api.expect(page.locator("#sensor-table tbody tr").first).to_contain_text(
+            "Connection lost", timeout=2_000)
+        shown = time.monotonic() - cut
+        print(f"lost connection shown after {shown:.2f} s")
+        assert shown <= 2.0
+        sync_api.expect(page.locator("#calibration-box")).to_contain_text("interrupted")
+        sync_api.expect(page.locator("#sensor-table tbody tr").first).not_to_contain_text("never")
+        page.screenshot(path=str(shots / "live-connection-lost.png"), full_page=True)
+    finally:
+        kit.cut()
+
+
+def test_replay_of_a_stored_session(module_server, page, shots):
+    from armtrack.estimator.recording import format_recording
+
+    api = module_server.client("alice")
+    patient = api.patient("Replay Patient")
+    answer = api.http.post("/api/recordings", data={"patient_id": str(patient["id"])},
+                           files={"file": ("abduction.csv",
+                                           format_recording(_exercise("shoulder_abduction")))})
+    answer.raise_for_status()
+    session = answer.json()
+    assert session["processed"], session
+    # the pages' read-only routes are behind the therapist's sign-in and ownership
+    import httpx
+
+    for path in (f"/api/patients/{patient['id']}/live", f"/api/sessions/{session['id']}/summary",
+                 f"/api/patients/{patient['id']}/summaries"):
+        assert httpx.get(module_server.url + path).status_code == 401, path
+        assert module_server.client("bob").http.get(path).status_code == 404, path
+    sign_in(page, module_server.url)
+    page.goto(f"{module_server.url}/patients/{patient['id']}")
+    row = page.locator(f'#sessions tbody tr[data-session="{session["id"]}"]')
+    sync_api.expect(row).to_contain_text("Shoulder abduction")
+    sync_api.expect(row).to_contain_text("shoulder abduction")
+    sync_api.expect(row).to_contain_text("Good data")
+    page.screenshot(path=str(shots / "patient-sessions.png"), full_page=True)
+    row.click()
+    page.wait_for_url(re.compile(rf".*/sessions/{session['id']}$"))
+    rom = page.locator('#rom-table tr[data-angle="shoulder_abduction"]')
+    sync_api.expect(rom).to_be_visible()
+    sync_api.expect(page.locator("#headline")).to_contain_text("shoulder abduction")
+    sync_api.expect(page.locator("#exports")).to_contain_text("recording.csv")
+    sync_api.expect(page.locator("#exports")).to_contain_text("angles.csv")
+    with page.expect_download() as download:
+        page.click('[data-export$="angles.csv"]')
+    assert download.value.suggested_filename == "angles.csv"
+    page.screenshot(path=str(shots / "replay.png"), full_page=True)
+    expect_viewer_canvas(page, shots, "replay")
+    page.wait_for_timeout(2000)
+    page.screenshot(path=str(shots / "replay-3d.png"), full_page=True)

@@ -1,0 +1,56 @@
+"""Serves the dashboard pages and their static files. The pages themselves hold no data:
+their JavaScript signs in through ``/api/auth/token``, keeps the bearer token in
+``sessionStorage`` and reads everything from the REST API, so these routes need no
+authentication (and are left out of the OpenAPI document)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from fastapi import APIRouter, HTTPException
+from fastapi.responses import FileResponse, RedirectResponse
+
+STATIC = Path(__file__).resolve().parent / "static"
+TYPES = {".css": "text/css", ".js": "text/javascript", ".svg": "image/svg+xml",
+         ".html": "text/html", ".png": "image/png", ".ico": "image/x-icon"}
+
+router = APIRouter(include_in_schema=False)
+
+
+def _page(name: str) -> FileResponse:
+    return FileResponse(STATIC / name, media_type="text/html",
+                        headers={"Cache-Control": "no-cache"})
+
+
+@router.get("/")
+def home() -> RedirectResponse:
+    return RedirectResponse("/patients")
+
+
+@router.get("/signin")
+def signin() -> FileResponse:
+    return _page("signin.html")
+
+
+@router.get("/patients")
+def patients() -> FileResponse:
+    return _page("patients.html")
+
+
+@router.get("/patients/{patient_id}")
+def patient(patient_id: int) -> FileResponse:
+    return _page("patient.html")
+
+
+@router.get("/sessions/{session_id}")
+def session(session_id: int) -> FileResponse:
+    return _page("session.html")
+
+
+@router.get("/assets/{name}")
+def asset(name: str) -> FileResponse:
+    path = STATIC / name
+    if "/" in name or name.startswith(".") or path.suffix not in TYPES or not path.is_file():
+        raise HTTPException(404, f"no asset {name}")
+    return FileResponse(path, media_type=TYPES[path.suffix],
+                        headers={"Cache-Control": "no-cache"})

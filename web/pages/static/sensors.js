@@ -1,0 +1,30 @@
+// The live sensor table, shared by the patient page and the live session page.
+"use strict";
+
+const SENSOR_LABELS = { upper_arm: "Upper arm", forearm: "Forearm", hand: "Hand",
+  trunk: "Trunk (sternum)", clavicle: "Clavicle" };
+
+function sensorTable(live) {
+  const rows = live.sensors.map((s) => {
+    let state, dot, cls;
+    if (s.connected) { state = "Connected"; dot = "on"; cls = "conn-on"; }
+    else if (s.socket_open) { state = "No data"; dot = "stale"; cls = "conn-stale"; }
+    else { state = "Connection lost"; dot = "off"; cls = "conn-off"; }
+    const battery = s.battery === null || s.battery === undefined ? "—"
+      : Math.round(s.battery * 100) + " %" + (s.battery < 0.2 ? " (low)" : "");
+    return el("tr", { class: cls, dataset: { sensor: s.sensor } },
+      el("td", {}, SENSOR_LABELS[s.sensor] || s.sensor),
+      el("td", { class: "conn" }, el("span", { class: "dot " + dot }), state),
+      el("td", { class: "num rate" }, s.samples_per_s === null || s.samples_per_s === undefined ? "—" : Math.round(s.samples_per_s)),
+      el("td", { class: "num" }, fmtPercent(s.lost_fraction)),
+      el("td", { class: "num seen" }, fmtAgo(s.seconds_since)),
+      el("td", { class: "num" }, battery),
+      el("td", { class: "num" }, s.rssi_dbm === null || s.rssi_dbm === undefined ? "—" : s.rssi_dbm + " dBm"));
+  });
+  return el("table", { id: "sensor-table" },
+    el("thead", {}, el("tr", {}, el("th", {}, "Sensor"), el("th", {}, "Connection"),
+      el("th", { class: "num" }, "Samples/s"), el("th", { class: "num" }, "Lost"),
+      el("th", { class: "num" }, "Last seen"), el("th", { class: "num" }, "Battery"),
+      el("th", { class: "num" }, "Signal"))),
+    el("tbody", {}, rows));
+}

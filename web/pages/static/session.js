@@ -1,0 +1,366 @@
+// The session page: the 3D view (live or replay) beside the session's numbers.
+// Live: angles from /ws/live, sensors and calibration from GET /api/patients/{id}/live.
+// Finished: the range of motion, calibration, quality and exports from the summary.
+"use strict";
+
+const sessionId = Number(location.pathname.split("/")[2]);
+const POSE_NAMES = { npose: "N-pose", tpose: "T-pose" };
+frame([{ text: "Patients", href: "/patients" }, { text: "…", id: "crumb-patient" },
+  { text: "Session " + sessionId }]);
+
+let session = null;
+let patient = null;
+let normals = {};
+let viewerMode = null;
+
+// ---------------------------------------------------------------- the 3D view
+async function openViewer(mode) {
+  viewerMode = mode;
+  const box = document.getElementById("viewer");
+  document.getElementById("viewer-title").textContent =
+    mode === "live" ? "Live 3D arm" : "Replay";
+  clear(box, el("div", { class: "placeholder" }, "Opening the 3D view…"));
+  try {
+    const grant = await api("/api/viewer", { method: "POST", body: {
+      patient_id: session.patient_id, session_id: mode === "live" ? null : session.id } });
+    clear(box, el("iframe", { src: grant.url, id: "viewer-frame", title: "3D view of the arm",
+      allow: "fullscreen" }));
+  } catch (error) {
+    clear(box, el("div", { class: "placeholder", id: "viewer-error" },
+      "The 3D view is not available: " + error.message));
+  }
+}
+document.getElementById("reload-viewer").addEventListener("click", () => openViewer(viewerMode));
+
+// ---------------------------------------------------------------- live
+let lastPose = null;
+let poseDirty = false;
+let liveStatus = null;
+let socket = null;
+let ended = false;
+
+function liveAnglesCard() {
+  const card = document.getElementById("angles-card");
+  clear(card,
+    el("div", { class: "row", style: "justify-content:space-between;align-items:center" },
+      el("h2", { style: "margin:0" }, "Joint angles now"),
+      el("span", { class: "muted small", id: "pose-age" }, "waiting for the first estimate…")),
+    el("table", { id: "angles-table", style: "margin-top:6px" },
+      el("thead", {}, el("tr", {}, el("th", {}, "Angle"), el("th", { class: "num" }, "Now"),
+        el("th", {}, "Range so far vs normal"), el("th", { class: "num" }, "% normal"))),
+      el("tbody", {}, ANGLES.map((name) => el("tr", { dataset: { angle: name } },
+        el("td", { class: "name" }, ANGLE_LABELS[name]),
+        el("td", { class: "now" }, "—"), el("td", { class: "bar" }), el("td", { class: "num pct" }, "")))),
+    ),
+    el("div", { class: "legend" }, el("span", {}, el("i", { style: "background:#d6dde5" }), "normal range (AAOS)"),
+      el("span", {}, el("i", { style: "background:var(--accent)" }), "range so far"),
+      el("span", {}, el("i", { style: "background:#e8590c;width:4px" }), "now"),
+      el("span", {}, "calibration poses are not counted")));
+}
+
+function renderPose() {
+  if (!poseDirty || !lastPose) return;
+  poseDirty = false;
+  const pose = lastPose;
+  for (const name of ANGLES) {
+    const row = document.querySelector(`#angles-table tr[data-angle="${name}"]`);
+    if (!row) continue;
+    const now = pose.angles_deg[name];
+    row.querySelector(".now").textContent = now === null || now === undefined ? "—" : Math.round(now) + "°";
+    const rom = (pose.rom_deg || {})[name];
+    const normal = normals[name];
+    const bar = row.querySelector(".bar");
+    const pct = row.querySelector(".pct");
+    if (rom) {
+      const b = romBar(rom.min, rom.max, normal ? normal[0] : null, normal ? normal[1] : null);
+      if (now !== null && now !== undefined) {
+        const lo = Math.min(normal ? normal[0] : rom.min, rom.min) - 10;
+        const hi = Math.max(normal ? normal[1] : rom.max, rom.max) + 10;
+        b.append(el("div", { class: "now", style: `left:${Math.min(100, Math.max(0, (now - lo) / (hi - lo) * 100))}%` }));
+      }
+      clear(bar, b);
+      const p = normal ? rom.range / (normal[1] - normal[0]) * 100 : null;
+      pct.textContent = p === null ? "" : Math.round(p) + " %";
+      pct.className = "num pct " + percentClass(p);
+      row.classList.toggle("moving", rom.range >= 10);
+      row.classList.toggle("faint", rom.range < 10);
+    }
+  }
+  document.getElementById("pose-age").textContent =
+    `stream time ${pose.t.toFixed(1)} s · delay ${Math.round((pose.latency_s || 0) * 1000)} ms`;
+}
+setInterval(renderPose, 100);
+
+function connectLive() {
+  const scheme = location.protocol === "https:" ? "wss:" : "ws:";
+  socket = new WebSocket(`${scheme}//${location.host}/ws/live?patient=${session.patient_id}&token=${encodeURIComponent(token())}`);
+  socket.onmessage = (event) => {
+    const update = JSON.parse(event.data);
+    if (update.kind === "pose" && update.session_id === session.id) {
+      lastPose = update;
+      poseDirty = true;
+    } else if (update.kind === "session" && update.session_id === session.id) {
+      session.status = update.status;
+      setStatus();
+      if (update.status === "closed") finishLive();
+    } else if (update.kind === "error") {
+      showError(document.getElementById("angles-card"), update.reason);
+    }
+  };
+  socket.onclose = () => { if (!ended) setTimeout(connectLive, 1000); };
+}
+
+async function pollLive() {
+  try {
+    liveStatus = await api(`/api/patients/${session.patient_id}/live`);
+  } catch (_) { return; }
+  normals = liveStatus.normal_ranges || normals;
+  if (liveStatus.session && liveStatus.session.id === session.id) {
+    if (liveStatus.session.status !== session.status) { session.status = liveStatus.session.status; setStatus(); }
+    document.getElementById("sensors-card").hidden = false;
+    clear(document.getElementById("sensors"), sensorTable(liveStatus));
+    renderCalibration(liveStatus);
+  } else if (!liveStatus.session || liveStatus.session.id !== session.id) {
+    // a newer session, or this one was closed
+    const fresh = await api(`/api/sessions/${session.id}`);
+    if (fresh.status === "closed") finishLive();
+  }
+}
+
+// ---------------------------------------------------------------- calibration guidance
+let spokenPhase = null;
+let speak = false;
+
+function calibrationState(live) {
+  const cal = live.calibration || { poses: [], holding: null, instructions: {} };
+  const estimating = live.estimating || (lastPose && lastPose.session_id === session.id);
+  const warnings = [];
+  for (const p of cal.poses) for (const w of p.warnings || []) warnings.push(w);
+  for (const w of (lastPose && lastPose.warnings) || []) warnings.push(w);
+  if (cal.holding) {
+    const p = cal.holding;
+    const name = POSE_NAMES[p.name];
+    let still;
+    if (p.still === undefined) still = null;
+    else still = p.still;
+    return { phase: "hold:" + p.name, kind: "holding", icon: p.name === "npose" ? "N" : "T",
+      title: `Hold the ${name}`, how: cal.instructions[p.name], still,
+      stillText: still === null ? "Checking…" : still ? `Still ✓ — keep holding (${p.held_s.toFixed(0)} s)`
+        : "Moving — please hold still", poses: cal.poses, warnings };
+  }
+  if (session.status !== "live") {
+    return { phase: "interrupted", kind: "warn", icon: "‖", title: "The stream is interrupted",
+      how: "The kit may reconnect and resume; the data so far are stored.", poses: cal.poses, warnings };
+  }
+  if (estimating) {
+    return { phase: "done", kind: warnings.length ? "warn" : "done", icon: warnings.length ? "!" : "✓",
+      title: warnings.length ? "Calibrated, with warnings — the angles may be less accurate"
+        : "Calibrated — live angles are running",
+      how: cal.poses.length ? null : "No calibration pose was made: the default sensor mounting is used.",
+      poses: cal.poses, warnings, patientTitle: "Well done", patientHow: "You can start the exercise." };
+  }
+  if (cal.poses.length) {
+    const last = cal.poses[cal.poses.length - 1];
+    const next = last.name === "npose" ? "T-pose" : null;
+    return { phase: "between:" + last.name, kind: "waiting", icon: "…",
+      title: `${POSE_NAMES[last.name]} done${last.still ? " ✓" : " — it was not still"}`
+        + (next ? `. Next: the ${next}` : ". Calibrating…"),
+      how: next ? "Relax the arm and wait for the kit's signal for the T-pose." : "The live angles start in a moment.",
+      patientTitle: last.still ? "Good — relax" : "Relax", poses: cal.poses, warnings };
+  }
+  return { phase: "waiting", kind: "waiting", icon: "…", title: "Waiting for calibration",
+    how: "The kit starts with the N-pose: stand tall, arm hanging by the side, palm facing the thigh.",
+    poses: cal.poses, warnings };
+}
+
+let calibrationParts = null;
+
+function calibrationShell() {
+  const parts = {
+    icon: el("div", { class: "icon" }), title: el("div", { class: "title" }),
+    how: el("div", { class: "how" }), still: el("div", { class: "still" }),
+    steps: el("div", { class: "steps" }), warnings: el("ul", { class: "warnings", id: "calibration-warnings" }),
+  };
+  parts.box = el("div", { class: "calib", id: "calibration-box" }, parts.icon,
+    el("div", { class: "what" }, parts.title, parts.how, parts.still, parts.steps, parts.warnings),
+    el("div", { style: "display:flex;flex-direction:column;gap:6px" },
+      el("button", { class: "secondary", id: "show-patient", onclick: () => openPatientView() }, "Show to patient"),
+      el("label", { style: "flex-direction:row;align-items:center;gap:6px;font-size:13px" },
+        el("input", { type: "checkbox", id: "speak", onchange: (e) => { speak = e.target.checked; } }),
+        "Read aloud")));
+  clear(document.getElementById("calibration"), parts.box);
+  return parts;
+}
+
+function renderCalibration(live) {
+  const s = calibrationState(live);
+  const parts = calibrationParts || (calibrationParts = calibrationShell());
+  parts.box.className = `calib ${s.kind}${s.still === false ? " moving" : ""}`;
+  parts.box.dataset.phase = s.phase;
+  parts.icon.textContent = s.icon;
+  parts.title.textContent = s.title;
+  parts.how.textContent = s.how || "";
+  parts.how.hidden = !s.how;
+  parts.still.textContent = s.stillText || "";
+  parts.still.hidden = !s.stillText;
+  parts.still.style.color = s.still === false ? "var(--warn)" : "var(--good)";
+  clear(parts.steps, ["npose", "tpose"].map((name) => {
+    const p = [...s.poses].reverse().find((q) => q.name === name);
+    if (!p) return el("span", { class: "step" }, POSE_NAMES[name] + ": not yet");
+    if (p.end === null) return el("span", { class: "step now" }, POSE_NAMES[name] + ": holding now");
+    return el("span", { class: "step " + (p.still ? "ok" : "bad") },
+      POSE_NAMES[name] + (p.still ? ": still ✓" : ": moved ✗"));
+  }));
+  clear(parts.warnings, s.warnings.map((w) => el("li", {}, w)));
+  parts.warnings.hidden = !s.warnings.length;
+  // the patient's large view
+  document.getElementById("pv-title").textContent = s.patientTitle || s.title;
+  document.getElementById("pv-how").textContent = s.patientHow || s.how || "";
+  const pvStill = document.getElementById("pv-still");
+  pvStill.textContent = s.kind === "holding" ? (s.still === false ? "Hold still…" : s.still ? "Still ✓" : "") : "";
+  pvStill.className = "still " + (s.still === false ? "no" : "ok");
+  if (s.phase !== spokenPhase) {
+    spokenPhase = s.phase;
+    if (speak && window.speechSynthesis) {
+      speechSynthesis.cancel();
+      speechSynthesis.speak(new SpeechSynthesisUtterance(
+        (s.patientTitle || s.title) + ". " + (s.patientHow || s.how || "")));
+    }
+  }
+}
+
+function openPatientView() { document.getElementById("patient-view").classList.add("open"); }
+function closePatientView() { document.getElementById("patient-view").classList.remove("open"); }
+document.getElementById("close-patient-view").addEventListener("click", closePatientView);
+document.addEventListener("keydown", (e) => { if (e.key === "Escape") closePatientView(); });
+
+async function finishLive() {
+  if (ended) return;
+  ended = true;
+  calibrationParts = null;
+  if (socket) socket.close();
+  clear(document.getElementById("calibration"), el("div", { class: "calib done", id: "calibration-box" },
+    el("div", { class: "icon" }, "✓"), el("div", { class: "what" },
+      el("div", { class: "title" }, "The session has ended"),
+      el("div", { class: "how" }, "Estimating the whole session; the replay opens when it is ready."))));
+  for (let i = 0; i < 600; i++) {
+    const fresh = await api(`/api/sessions/${session.id}`);
+    if (fresh.processed || fresh.processing_error) { location.reload(); return; }
+    await new Promise((r) => setTimeout(r, 1000));
+  }
+}
+
+// ---------------------------------------------------------------- replay / details
+function download(path, filename) {
+  return el("button", { class: "secondary", onclick: async (event) => {
+    const button = event.currentTarget;
+    button.disabled = true;
+    try {
+      const answer = await fetch(path, { headers: { Authorization: "Bearer " + token() } });
+      if (!answer.ok) throw new Error((await answer.json()).detail);
+      const url = URL.createObjectURL(await answer.blob());
+      const a = el("a", { href: url, download: filename });
+      document.body.append(a); a.click(); a.remove();
+      setTimeout(() => URL.revokeObjectURL(url), 10000);
+    } catch (error) { showError(document.getElementById("details-card"), error); }
+    button.disabled = false;
+  }, dataset: { export: path } }, "⬇ " + filename);
+}
+
+function romTable(summary) {
+  const names = ANGLES.filter((n) => summary.rom[n]);
+  if (!names.length) {
+    return el("p", { class: "muted" }, summary.processed ? "No joint moved more than 10° outside the calibration poses."
+      : summary.processing_error ? "Not estimated: " + summary.processing_error : "Estimating the session…");
+  }
+  return [el("table", { id: "rom-table" },
+    el("thead", {}, el("tr", {}, el("th", {}, "Angle"), el("th", { class: "num" }, "Min"),
+      el("th", { class: "num" }, "Max"), el("th", { class: "num" }, "Range"), el("th", {}, "vs normal"),
+      el("th", { class: "num" }, "Normal"), el("th", { class: "num" }, "% normal"))),
+    el("tbody", {}, names.map((n) => {
+      const r = summary.rom[n];
+      return el("tr", { dataset: { angle: n } }, el("td", { class: "name" }, ANGLE_LABELS[n]),
+        el("td", { class: "num" }, (Math.round(r.min) || 0) + "°"), el("td", { class: "num" }, (Math.round(r.max) || 0) + "°"),
+        el("td", { class: "num" }, el("b", {}, r.range.toFixed(0) + "°")),
+        el("td", { style: "width:28%" }, romBar(r.min, r.max, r.normal_min, r.normal_max)),
+        el("td", { class: "num muted nowrap" }, r.normal_min === null ? "—" : `${r.normal_min}…${r.normal_max}°`),
+        el("td", { class: "num " + percentClass(r.percent_of_normal) },
+          r.percent_of_normal === null ? "—" : Math.round(r.percent_of_normal) + " %"));
+    }))),
+  el("div", { class: "legend" }, el("span", {}, el("i", { style: "background:#d6dde5" }), "normal range (AAOS)"),
+    el("span", {}, el("i", { style: "background:var(--accent)" }), "this session"),
+    el("span", {}, "calibration poses are not counted"))];
+}
+
+async function showReplay() {
+  const summary = await api(`/api/sessions/${session.id}/summary`);
+  document.getElementById("facts").replaceChildren(
+    fmtDate(summary.started_at), " · ", fmtDuration(summary.duration_s), " · ",
+    session.source === "upload" ? "uploaded recording" : "streamed by " + (session.metadata.device || "a kit"),
+    " · ", qualityBadge(summary.quality));
+  clear(document.getElementById("angles-card"),
+    el("h2", {}, "Range of motion"),
+    summary.headline ? el("p", { style: "margin:0 0 10px;font-size:16px" }, "Largest: ", el("b", { id: "headline" }, summary.headline)) : null,
+    romTable(summary));
+  const q = summary.quality;
+  const card = document.getElementById("details-card");
+  card.hidden = false;
+  clear(card,
+    el("h2", {}, "Exercises"),
+    summary.exercises.length ? el("div", { id: "exercises" }, summary.exercises.map((e) => el("span", { class: "chip" },
+      `${exerciseLabel(e.name)} · ${e.start.toFixed(0)}–${e.end === null ? "…" : e.end.toFixed(0)} s`)))
+      : el("p", { class: "muted" }, "No exercise was marked in this session."),
+    el("h3", {}, "Calibration"),
+    el("p", { style: "margin:4px 0" }, summary.calibration_poses.length
+      ? `${summary.calibration_poses.length} pose(s)` + (q.calibration_method ? ` · method: ${q.calibration_method}` : "")
+      : "No calibration pose: the default sensor mounting was used."),
+    q.calibration_warnings.length ? el("ul", { class: "warnings", id: "calibration-warnings" },
+      q.calibration_warnings.map((w) => el("li", {}, w))) : el("p", { class: "muted", style: "margin:4px 0" }, "No calibration warning."),
+    el("h3", {}, "Data quality"),
+    el("table", {}, el("tbody", {}, Object.entries(q.sensors).map(([name, s]) => el("tr", {},
+      el("td", {}, SENSOR_LABELS[name] || name), el("td", { class: "num" }, s.samples.toLocaleString() + " samples"),
+      el("td", { class: "num" }, fmtPercent(s.lost_fraction) + " lost"))))),
+    el("h3", {}, "Exports"),
+    el("div", { class: "row", id: "exports" },
+      download(`/api/sessions/${session.id}/recording.csv`, "recording.csv"),
+      summary.processed ? download(`/api/sessions/${session.id}/angles.csv`, "angles.csv") : null));
+  // report exports, where this server has them
+  if (summary.processed) {
+    try {
+      const paths = (await (await fetch("/openapi.json")).json()).paths || {};
+      for (const kind of ["report.pdf", "report.csv"]) {
+        if (paths["/api/sessions/{session_id}/" + kind])
+          document.getElementById("exports").append(download(`/api/sessions/${session.id}/${kind}`, kind));
+      }
+    } catch (_) { /* no OpenAPI document: the raw exports are enough */ }
+  }
+}
+
+// ---------------------------------------------------------------- start
+function setStatus() {
+  const actions = document.getElementById("actions");
+  clear(actions, statusBadge(session.status));
+}
+
+async function start() {
+  session = await api(`/api/sessions/${sessionId}`);
+  patient = await api(`/api/patients/${session.patient_id}`);
+  const crumb = document.getElementById("crumb-patient");
+  clear(crumb, el("a", { href: "/patients/" + patient.id }, patient.name));
+  document.getElementById("title").textContent = `${patient.name} — ${session.status === "closed" ? "session" : "live session"} ${session.id}`;
+  document.title = `${patient.name} · session ${session.id} · armtrack`;
+  setStatus();
+  if (session.status === "closed") {
+    openViewer("replay");
+    await showReplay();
+  } else {
+    document.getElementById("facts").textContent =
+      `started ${fmtDate(session.started_at)} · ${session.sensors.length} sensors · ${patient.side} arm`;
+    liveAnglesCard();
+    openViewer("live");
+    connectLive();
+    await pollLive();
+    setInterval(() => { if (!ended) pollLive(); }, 500);
+  }
+}
+start().catch((e) => showError(document.querySelector("main"), e));
