@@ -7,6 +7,7 @@ from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
 from armtrack.web.pages import routes as pages
+from armtrack.web.viewer import routes as viewer_routes
 from fastapi import FastAPI
 
 from .api import auth_routes, live_status, patients, session_summary, sessions
@@ -40,6 +41,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(sessions.router)
     app.include_router(endpoint.router)
     app.include_router(live_endpoint.router)
+    app.include_router(viewer_routes.router)
     app.include_router(live_status.router)
     app.include_router(session_summary.router)
     app.include_router(pages.router)

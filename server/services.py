@@ -1,5 +1,6 @@
 """What one running server holds: settings, the database, the group writer, the live hub,
-the thread pools, and the open streams (for resume and for closing revoked devices)."""
+the 3D viewer, the thread pools, and the open streams (for resume and for closing revoked
+devices)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, TypeVar
 
+from armtrack.web.viewer.host import ViewerHost
 from sqlalchemy import update
 
 from .db import models
@@ -27,6 +29,8 @@ class Services:
         self.engine = make_engine(settings.resolved_database_url())
         self.db = make_sessionmaker(self.engine)
         self.hub = LiveHub()
+        #: the loopback viser server and its one-time viewer grants (web/viewer)
+        self.viewer = ViewerHost(self, settings.viewer_port, settings.viewer_grant_s)
         self.writer = GroupWriter(self.db, settings.ack_interval_s)
         #: short database reads and writes of the async side
         self.db_pool = ThreadPoolExecutor(4, thread_name_prefix="armtrack-db")
@@ -48,8 +52,10 @@ class Services:
 
     async def start(self) -> None:
         self.writer.start()
+        await self.viewer.start()
 
     async def stop(self) -> None:
+        await self.viewer.stop()
         for connection in list(self.connections.values()):
             await connection.close(1001, "server shutting down")
         await self.writer.stop()

@@ -31,6 +31,10 @@ class Settings(BaseSettings):
     refused_window_s: float = Field(10.0, gt=0)
     processing_threads: int = Field(2, ge=1, description="threads for estimation work")
     live_poses_hz: float = Field(30.0, gt=0, description="most live poses published per second")
+    viewer_port: int = Field(0, ge=0, le=65535,
+                             description="loopback port of the 3D viewer (viser); 0: any free one")
+    viewer_grant_s: float = Field(60.0, gt=0, le=3600,
+                                  description="lifetime of a one-time viewer address [s]")
 
     def resolved_database_url(self) -> str:
         """The database URL, the default SQLite file made absolute."""

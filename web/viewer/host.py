@@ -1,0 +1,198 @@
+"""The app's one viser server, bound to the loopback, and who each of its clients is.
+
+A client arrives through the proxy (``routes``) with ``?ticket=`` in its WebSocket URL.
+Before anything is sent to it, the gate takes the ticket (``GrantBook.take_ticket``); a
+client without a valid ticket is closed with 4403 and gets nothing. A client with one gets
+its own scene for the grant's patient, live or a stored session, once viser counts it
+connected (after its first camera message); its driver runs on the app's event loop until
+it leaves.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import threading
+from concurrent.futures import Future
+from typing import Any
+from urllib.parse import parse_qs, urlsplit
+
+import viser
+from armtrack.server.db import models
+
+from .grants import GRANT_TTL_S, Grant, GrantBook
+from .live import LiveDriver
+from .replay import ReplayDriver, load_session
+from .view import ClientView
+
+log = logging.getLogger("armtrack.viewer")
+
+#: Close code for a viewer without a valid grant.
+CLOSE_NO_GRANT = 4403
+
+
+class ViewerError(RuntimeError):
+    """The viewer cannot do what was asked (also: viser's internals are not as expected)."""
+
+
+def client_connection(server: viser.ViserServer, client_id: int) -> Any:
+    """The raw ``websockets`` connection of a viser client. viser has no public API for it;
+    this reads its internals (viser 1.1: ``_websock_server._live_connections``)."""
+    try:
+        return server._websock_server._live_connections[client_id]
+    except (AttributeError, KeyError) as exc:
+        raise ViewerError(
+            f"cannot find viser client {client_id}'s connection: viser {viser.__version__}'s "
+            "internals differ from 1.1's (_websock_server._live_connections)") from exc
+
+
+def request_path(server: viser.ViserServer, client_id: int) -> str:
+    """The request path and query of a viser client's WebSocket handshake."""
+    try:
+        return str(client_connection(server, client_id).request.path)
+    except AttributeError as exc:
+        raise ViewerError(f"viser client {client_id}'s connection has no request path "
+                          f"(viser {viser.__version__})") from exc
+
+
+def on_websocket_open(server: viser.ViserServer, callback) -> None:
+    """Run ``callback(connection)`` (async, on viser's loop) when a WebSocket opens, before
+    viser sends it anything (viser 1.1's ``_websock_server.on_client_connect``)."""
+    try:
+        server._websock_server.on_client_connect(callback)
+    except AttributeError as exc:
+        raise ViewerError(f"viser {viser.__version__} has no _websock_server to gate "
+                          "connections on") from exc
+
+
+class ViewerHost:
+    """One ``ViserServer`` on 127.0.0.1:``port`` (0: any free port) for the app whose
+    ``services`` (database, live hub) it draws from; grants last ``grant_s`` [s]."""
+
+    def __init__(self, services: Any, port: int = 0, grant_s: float = GRANT_TTL_S):
+        self.services = services
+        self.requested_port = port
+        self.grants = GrantBook(grant_s)
+        self.server: viser.ViserServer | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._pending: dict[int, Grant] = {}  # client id → grant, from the gate to connect
+        self._drivers: dict[int, Future] = {}
+        self._lock = threading.Lock()
+
+    @property
+    def port(self) -> int:
+        if self.server is None:
+            raise ViewerError("the viewer is not started")
+        return self.server.get_port()
+
+    def upstream_url(self, ticket: str) -> str:
+        """Where the proxy connects for a claimed grant's ``ticket``."""
+        return f"ws://127.0.0.1:{self.port}/?ticket={ticket}"
+
+    async def start(self) -> None:
+        self._loop = asyncio.get_running_loop()
+        await self._loop.run_in_executor(None, self._start_server)
+
+    def _start_server(self) -> None:
+        server = viser.ViserServer(host="127.0.0.1", port=self.requested_port, verbose=False)
+        self.server = server
+        on_websocket_open(server, self._gate)
+        server.on_client_connect(self._connect)
+        server.on_client_disconnect(self._disconnect)
+        log.info("viewer on 127.0.0.1:%s", server.get_port())
+
+    async def stop(self) -> None:
+        with self._lock:
+            drivers, self._drivers = list(self._drivers.values()), {}
+        for future in drivers:
+            future.cancel()
+        if self.server is not None:
+            await asyncio.get_running_loop().run_in_executor(None, self.server.stop)
+            self.server = None
+
+    async def _gate(self, connection) -> None:
+        """On viser's loop, before viser sends the client anything."""
+        assert self.server is not None
+        client_id = connection.client_id
+        try:
+            query = parse_qs(urlsplit(request_path(self.server, client_id)).query)
+            tickets = query.get("ticket", [])
+            grant = self.grants.take_ticket(tickets[0]) if len(tickets) == 1 else None
+        except ViewerError:
+            log.exception("viewer gate")
+            grant = None
+        if grant is None:
+            await client_connection(self.server, client_id).close(CLOSE_NO_GRANT,
+                                                                  "no valid viewer grant")
+            return
+        with self._lock:
+            self._pending[client_id] = grant
+
+    def _connect(self, client: viser.ClientHandle) -> None:
+        """On viser's thread pool, when the client counts as connected."""
+        with self._lock:
+            grant = self._pending.pop(client.client_id, None)
+        if grant is None:
+            self._close(client.client_id, "no valid viewer grant")
+            return
+        try:
+            driver = self._build(client, grant)
+        except Exception:
+            log.exception("viewer of patient %s", grant.patient_id)
+            self._close(client.client_id, "the viewer failed")
+            return
+        if driver is None:
+            return
+        assert self._loop is not None and self.server is not None
+        future = asyncio.run_coroutine_threadsafe(driver.run(), self._loop)
+        future.add_done_callback(_log_failure)
+        with self._lock:
+            self._drivers[client.client_id] = future
+        if client.client_id not in self.server.get_clients():  # it left meanwhile
+            self._disconnect(client)
+
+    def _disconnect(self, client: viser.ClientHandle) -> None:
+        with self._lock:
+            self._pending.pop(client.client_id, None)
+            future = self._drivers.pop(client.client_id, None)
+        if future is not None:
+            future.cancel()
+
+    def _close(self, client_id: int, reason: str) -> None:
+        assert self.server is not None
+        try:
+            connection = client_connection(self.server, client_id)
+        except ViewerError:
+            return  # already gone
+        asyncio.run_coroutine_threadsafe(connection.close(CLOSE_NO_GRANT, reason),
+                                         self.server.get_event_loop())
+
+    def _build(self, client: viser.ClientHandle, grant: Grant) -> LiveDriver | ReplayDriver | None:
+        """The client's view and its driver (on viser's thread pool: may read the database)."""
+        services = self.services
+        with services.db() as db:
+            patient = db.get(models.Patient, grant.patient_id)
+            if patient is None or patient.therapist_id != grant.therapist_id:
+                raise ViewerError(f"patient {grant.patient_id} is not the grant's therapist's")
+            if grant.live:
+                view = ClientView(client, heading=f"{patient.name} · live",
+                                  height_m=patient.height_m, side=patient.side)
+                return LiveDriver(view, services.hub, patient.id,
+                                  dict(services.sensor_status.get(patient.id, {})))
+            session = db.get(models.Session, grant.session_id)
+            if session is None or session.patient_id != patient.id:
+                raise ViewerError(f"session {grant.session_id} is not patient {patient.id}'s")
+            view = ClientView(client, heading=f"{patient.name} · session {session.id}",
+                              height_m=session.height_m or patient.height_m, side=session.side)
+            data = load_session(db, session.id)
+        if data is None:
+            view.panels.show_status([f"Replay · session {session.id} has no estimates yet"
+                                     + (f": {session.processing_error}"
+                                        if session.processing_error else "")])
+            return None
+        return ReplayDriver(view, data)
+
+
+def _log_failure(future: Future) -> None:
+    if not future.cancelled() and future.exception() is not None:
+        log.error("viewer driver failed", exc_info=future.exception())

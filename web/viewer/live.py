@@ -1,0 +1,107 @@
+"""The live driver of one viewer: the patient's updates from the server's ``LiveHub`` drawn
+as they come (the hub publishes poses at most ``live_poses_hz``, 30 Hz by default)."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections import deque
+from typing import Any
+
+import numpy as np
+
+from .panels import PLOT_COLOURS, PLOT_WINDOW_S, ROM_ANGLES, exercise_angle
+from .pose import Pose
+from .repetitions import RunningRepetitions
+from .view import ClientView
+
+
+class LiveDriver:
+    """Feeds ``view`` with the updates of ``patient_id`` from ``hub``; ``sensor_status``:
+    the server's last ``status`` per sensor of that patient."""
+
+    def __init__(self, view: ClientView, hub, patient_id: int,
+                 sensor_status: dict[str, dict[str, Any]] | None = None):
+        self.view = view
+        self.hub = hub
+        self.patient_id = patient_id
+        self.sensors: dict[str, dict[str, Any]] = dict(sensor_status or {})
+        self.session: str = "no live session yet"
+        self.repetitions = RunningRepetitions(ROM_ANGLES)
+        self._plot_t: deque[float] = deque()
+        self._plot: dict[str, deque[float]] = {k: deque() for k in PLOT_COLOURS}
+        self._pose: Pose | None = None
+        self._update: dict[str, Any] = {}
+
+    async def run(self) -> None:
+        """Until cancelled."""
+        with self.hub.subscribe(self.patient_id) as subscription:
+            latest = self.hub.latest.get(self.patient_id)
+            if latest is not None:
+                await asyncio.to_thread(self.handle, latest)
+            else:
+                await asyncio.to_thread(self._status)
+            while True:
+                update = await subscription.get()
+                await asyncio.to_thread(self.handle, update)
+
+    def handle(self, update: dict[str, Any]) -> None:
+        """One hub update (runs on a worker thread, never on the event loop)."""
+        kind = update.get("kind")
+        if kind == "pose":
+            pose = Pose.from_update(update)
+            self._pose, self._update = pose, update
+            self.session = f"session {update.get('session_id')}: live"
+            self.view.show(pose)
+            self._panels(pose)
+        elif kind == "status":
+            self.sensors[str(update.get("sensor"))] = update
+        elif kind == "session":
+            self.session = f"session {update.get('session_id')}: {update.get('status')}"
+        elif kind == "error":
+            self.session = f"session {update.get('session_id')}: {update.get('reason')}"
+        if kind != "pose" or self.view.due("status", 0.5):
+            self._status()
+
+    def _panels(self, pose: Pose) -> None:
+        if pose.rom_deg:  # after calibration: count repetitions
+            self.repetitions.add(pose.t, pose.angles_deg)
+        self._plot_t.append(pose.t)
+        for k, values in self._plot.items():
+            values.append(pose.angles_deg.get(k, np.nan))
+        while self._plot_t and self._plot_t[0] < pose.t - PLOT_WINDOW_S:
+            self._plot_t.popleft()
+            for values in self._plot.values():
+                values.popleft()
+        panels = self.view.panels
+        if self.view.due("plot", 0.1):
+            panels.show_plot(np.fromiter(self._plot_t, float),
+                             {k: np.fromiter(v, float) for k, v in self._plot.items()})
+        if self.view.due("tables", 0.5):
+            panels.show_rom(pose.rom_deg, pose.angles_deg)
+            name = exercise_angle(None, pose.rom_deg)
+            panels.show_repetitions(name, self.repetitions.counts.get(name, 0) if name else 0)
+
+    def _status(self) -> None:
+        lines = [f"Live · {self.session}"]
+        if self._pose is not None:
+            latency = self._update.get("latency_s")
+            lines.append(f"t = {self._pose.t:.1f} s"
+                         + (f" · latency {1000 * latency:.0f} ms" if latency is not None else ""))
+            if not self._pose.rom_deg:
+                lines.append("calibrating: hold the pose still")
+        now = time.time()
+        for name, s in sorted(self.sensors.items()):
+            parts = [name]
+            if s.get("battery") is not None:
+                parts.append(f"battery {100 * float(s['battery']):.0f} %"
+                             if float(s["battery"]) <= 1 else f"battery {s['battery']} %")
+            if s.get("received_at") is not None:
+                try:
+                    parts.append(f"seen {max(0.0, now - float(s['received_at'])):.0f} s ago")
+                except (TypeError, ValueError):
+                    pass
+            lines.append(" · ".join(parts))
+        for warning in self._update.get("warnings") or []:
+            lines.append(f"⚠ {warning}")
+        self.view.panels.show_status(lines)

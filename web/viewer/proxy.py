@@ -1,0 +1,61 @@
+"""A WebSocket proxy from the app to the loopback viser server: the subprotocol the browser
+asked for (``viser-v<version>``) is kept, frames pass both ways unchanged (binary stays
+binary), and either side closing closes the other with the same code."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+
+from fastapi import WebSocket
+from starlette.websockets import WebSocketDisconnect
+from websockets.asyncio.client import connect
+from websockets.exceptions import ConnectionClosed, InvalidHandshake
+from websockets.typing import Subprotocol
+
+#: Close code when the viewer server cannot be reached.
+CLOSE_UPSTREAM_DOWN = 1011
+
+
+async def proxy(websocket: WebSocket, upstream_url: str) -> None:
+    """Join the (not yet accepted) ``websocket`` to ``upstream_url`` until either ends."""
+    requested = [Subprotocol(p) for p in websocket.scope.get("subprotocols", [])
+                 if p.startswith("viser-v")]
+    try:
+        upstream = await connect(upstream_url, subprotocols=requested or None, max_size=None,
+                                 compression=None, open_timeout=10)
+    except (OSError, InvalidHandshake, TimeoutError):
+        await websocket.close(CLOSE_UPSTREAM_DOWN)
+        return
+    await websocket.accept(subprotocol=upstream.subprotocol)
+
+    async def down() -> None:  # viser → browser
+        with contextlib.suppress(ConnectionClosed):
+            async for message in upstream:
+                if isinstance(message, bytes):
+                    await websocket.send_bytes(message)
+                else:
+                    await websocket.send_text(message)
+
+    async def up() -> None:  # browser → viser
+        with contextlib.suppress(ConnectionClosed, WebSocketDisconnect):
+            while True:
+                message = await websocket.receive()
+                if message["type"] == "websocket.disconnect":
+                    return
+                if message.get("bytes") is not None:
+                    await upstream.send(message["bytes"])
+                elif message.get("text") is not None:
+                    await upstream.send(message["text"])
+
+    tasks = [asyncio.create_task(down()), asyncio.create_task(up())]
+    try:
+        await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        for task in tasks:
+            task.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+        await upstream.close()
+        code = upstream.close_code if upstream.close_code not in (None, 1005, 1006) else 1000
+        with contextlib.suppress(RuntimeError, WebSocketDisconnect):
+            await websocket.close(code, upstream.close_reason or "")

@@ -1,0 +1,145 @@
+"""Range of motion in the scene: per active joint angle, the arc its limb has swept so far,
+coloured against the AAOS normal range, and a label with the current angle.
+
+An arc is the path of one point of the angle's distal segment when that angle alone runs
+through its range (the others held at their current values), by the chain of
+``spec/kinematics.md``. Arcs live in the thorax frame [m]; angles are in degrees.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from armtrack.estimator.arm.forward import forward_kinematics
+from armtrack.estimator.arm.joints import NORMAL_RANGE_DEG
+from armtrack.estimator.body import SegmentLengths
+
+from .pose import Pose, chain_angles_rad
+
+#: An angle whose range so far is at least this is active and gets its arc [deg].
+ACTIVE_RANGE_DEG = 10.0
+#: Beyond the normal range by up to this, an arc is amber; further, red [deg].
+AMBER_BEYOND_DEG = 10.0
+#: Pieces per arc.
+ARC_PIECES = 48
+
+GREEN = (46, 170, 80)
+AMBER = (245, 166, 35)
+RED = (214, 48, 49)
+
+_DOWN = np.array([0.0, -1.0, 0.0])  # a segment's distal axis
+_FRONT = np.array([1.0, 0.0, 0.0])  # its anterior axis (for axial rotations)
+
+
+@dataclass(frozen=True)
+class ArcSpec:
+    """Which point sweeps: ``radius · R_thorax_<segment> · axis`` about the joint point
+    ``centre``; ``radius`` as a fraction of the ``scale`` segment's length."""
+
+    segment: str
+    axis: np.ndarray
+    centre: str
+    radius: float
+    scale: str
+
+
+ARCS: dict[str, ArcSpec] = {
+    "shoulder_flexion": ArcSpec("upper_arm", _DOWN, "shoulder", 0.60, "upper_arm"),
+    "shoulder_abduction": ArcSpec("upper_arm", _DOWN, "shoulder", 0.45, "upper_arm"),
+    "shoulder_rotation": ArcSpec("upper_arm", _FRONT, "elbow", 0.45, "forearm"),
+    "elbow_flexion": ArcSpec("forearm", _DOWN, "elbow", 0.55, "forearm"),
+    "forearm_pronation": ArcSpec("hand", _FRONT, "wrist", 0.55, "hand"),
+    "wrist_flexion": ArcSpec("hand", _DOWN, "wrist", 0.75, "hand"),
+    "wrist_deviation": ArcSpec("hand", _DOWN, "wrist", 0.60, "hand"),
+}
+
+
+def band_colour(angle_deg: np.ndarray, name: str) -> np.ndarray:
+    """RGB (..., 3) uint8: green inside ``NORMAL_RANGE_DEG[name]``, amber up to
+    ``AMBER_BEYOND_DEG`` beyond it, red further."""
+    lo, hi = NORMAL_RANGE_DEG[name]
+    beyond = np.maximum(lo - np.asarray(angle_deg), np.asarray(angle_deg) - hi)
+    out = np.empty((*np.shape(angle_deg), 3), dtype=np.uint8)
+    out[...] = GREEN
+    out[beyond > 0] = AMBER
+    out[beyond > AMBER_BEYOND_DEG] = RED
+    return out
+
+
+def arc_points(name: str, pose: Pose, lengths: SegmentLengths, lo_deg: float, hi_deg: float,
+               pieces: int = ARC_PIECES) -> tuple[np.ndarray, np.ndarray]:
+    """The arc of ``name`` from ``lo_deg`` to ``hi_deg``: points (pieces + 1, 3) [m, thorax
+    frame] and their angles (pieces + 1,) [deg]."""
+    spec = ARCS[name]
+    theta = np.linspace(lo_deg, hi_deg, pieces + 1)
+    angles: dict[str, Any] = chain_angles_rad(pose.angles_deg)
+    angles[name] = np.radians(theta)
+    side = "right" if pose.side_sign > 0 else "left"
+    arm = forward_kinematics(angles, side, lengths)  # type: ignore[arg-type]
+    radius = spec.radius * getattr(lengths, spec.scale)
+    directions = np.asarray(arm.R_thorax[spec.segment]) @ spec.axis
+    return pose.p_thorax[spec.centre] + radius * directions, theta
+
+
+def current_point(name: str, pose: Pose, lengths: SegmentLengths) -> np.ndarray:
+    """Where the arc's point is now (3,) [m, thorax frame], from the measured segment."""
+    spec = ARCS[name]
+    radius = spec.radius * getattr(lengths, spec.scale)
+    return pose.p_thorax[spec.centre] + radius * (pose.R_thorax[spec.segment] @ spec.axis)
+
+
+def active(pose: Pose) -> list[str]:
+    """The angles with an arc: a range so far of at least ``ACTIVE_RANGE_DEG``."""
+    return [k for k in ARCS if k in pose.rom_deg
+            and pose.rom_deg[k][1] - pose.rom_deg[k][0] >= ACTIVE_RANGE_DEG]
+
+
+def pretty(name: str) -> str:
+    return name.replace("_", " ")
+
+
+def degrees(value: float) -> str:
+    """An angle [deg] for people: whole degrees, no "-0"."""
+    return f"{round(value) + 0}°" if math.isfinite(value) else "–"
+
+
+class RomArcs:
+    """The arcs and labels of one viewer's scene, under ``<root>/rom``; nodes made once."""
+
+    def __init__(self, scene, root: str):
+        self._arcs = {}
+        self._labels = {}
+        blank = np.zeros((ARC_PIECES, 2, 3), dtype=np.float32)
+        for name in ARCS:
+            self._arcs[name] = scene.add_line_segments(
+                f"{root}/rom/{name}", blank, np.zeros((ARC_PIECES, 2, 3), dtype=np.uint8),
+                thickness=0.018, visible=False)
+            self._labels[name] = scene.add_label(
+                f"{root}/rom/{name}/label", pretty(name), visible=False,
+                font_screen_scale=0.8, anchor="bottom-left")
+        self.enabled = True
+
+    def update(self, pose: Pose, lengths: SegmentLengths) -> None:
+        """Show the active angles' arcs for ``pose``; hide the others."""
+        shown = set(active(pose)) if self.enabled else set()
+        for name, arc in self._arcs.items():
+            label = self._labels[name]
+            if name not in shown:
+                arc.visible = False
+                label.visible = False
+                continue
+            lo, hi = pose.rom_deg[name]
+            points, theta = arc_points(name, pose, lengths, lo, hi)
+            middle = (theta[:-1] + theta[1:]) / 2
+            colours = band_colour(middle, name)
+            arc.points = np.stack([points[:-1], points[1:]], axis=1).astype(np.float32)
+            arc.colors = np.repeat(colours[:, None, :], 2, axis=1)
+            arc.visible = True
+            value = pose.angles_deg.get(name, math.nan)
+            label.position = current_point(name, pose, lengths)
+            label.text = (f"{pretty(name)} {degrees(value)}  ({round(lo)}…{degrees(hi)})"
+                          if math.isfinite(value) else pretty(name))
+            label.visible = True

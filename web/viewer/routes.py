@@ -1,0 +1,92 @@
+"""The viewer's routes on the app.
+
+* ``POST /api/viewer`` (therapist's bearer token), body ``{"patient_id": int,
+  "session_id": int | null}`` — a one-time grant to view the patient live (``null``) or a
+  stored session of theirs: ``{"url": "/viewer/<grant>/", "expires_in": 60}`` [s]
+  (``ARMTRACK_VIEWER_GRANT_S``).
+  Another therapist's patient or session is 404.
+* ``GET /viewer/<grant>/`` — viser's client page, for a known, unexpired, unused grant;
+  else 404.
+* ``WebSocket /viewer/<grant>`` — the page's connection: it uses the grant up and is
+  proxied to the loopback viser server; without a valid grant the handshake is refused
+  (HTTP 403).
+"""
+
+from __future__ import annotations
+
+import gzip
+from functools import cache
+from pathlib import Path
+
+import viser
+from armtrack.server.api.deps import Db, Therapist, own_patient, own_session
+from fastapi import APIRouter, HTTPException, Request, WebSocket, status
+from fastapi.responses import Response
+from pydantic import BaseModel, Field
+
+from .proxy import proxy
+
+router = APIRouter(tags=["viewer"])
+
+#: Close code of a refused viewer WebSocket (sent as HTTP 403 before the handshake).
+CLOSE_NO_GRANT = 4404
+
+
+class ViewerRequest(BaseModel):
+    patient_id: int = Field(description="the patient to view")
+    session_id: int | None = Field(
+        None, description="a stored session of the patient to replay; null: the live view")
+
+
+class ViewerGrantOut(BaseModel):
+    url: str = Field(description="the viewer page; open it within expires_in seconds, once")
+    expires_in: int = Field(description="seconds the grant stays good [s]")
+
+
+@cache
+def client_page() -> tuple[bytes, bytes]:
+    """viser's client page (one self-contained file), plain and gzipped."""
+    page = (Path(viser.__file__).parent / "client" / "build" / "index.html").read_bytes()
+    return page, gzip.compress(page, 6)
+
+
+@router.post("/api/viewer", response_model=ViewerGrantOut)
+def create_viewer(body: ViewerRequest, db: Db, therapist: Therapist,
+                  request: Request) -> ViewerGrantOut:
+    """A one-time, short-lived address of a 3D view of one of your patients: live, or a
+    replay of one of their stored sessions."""
+    own_patient(db, therapist, body.patient_id)
+    if body.session_id is not None:
+        session = own_session(db, therapist, body.session_id)
+        if session.patient_id != body.patient_id:
+            raise HTTPException(status.HTTP_404_NOT_FOUND,
+                                f"no session {body.session_id} of patient {body.patient_id}")
+    grants = request.app.state.services.viewer.grants
+    grant = grants.issue(therapist_id=therapist.id, patient_id=body.patient_id,
+                         session_id=body.session_id)
+    return ViewerGrantOut(url=f"/viewer/{grant.id}/", expires_in=round(grants.ttl_s))
+
+
+@router.get("/viewer/{grant_id}/", include_in_schema=False)
+def viewer_page(grant_id: str, request: Request) -> Response:
+    if request.app.state.services.viewer.grants.page(grant_id) is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND,
+                            "no such viewer: it was used or has expired; ask for a new one")
+    plain, packed = client_page()
+    zipped = "gzip" in request.headers.get("accept-encoding", "")
+    headers = {"Cache-Control": "no-store", "Referrer-Policy": "no-referrer",
+               "X-Frame-Options": "SAMEORIGIN", "Vary": "Accept-Encoding"}
+    if zipped:
+        headers["Content-Encoding"] = "gzip"
+    return Response(packed if zipped else plain, media_type="text/html; charset=utf-8",
+                    headers=headers)
+
+
+@router.websocket("/viewer/{grant_id}")
+async def viewer_socket(websocket: WebSocket, grant_id: str) -> None:
+    host = websocket.app.state.services.viewer
+    grant = host.grants.claim(grant_id)
+    if grant is None:
+        await websocket.close(CLOSE_NO_GRANT)  # before accepting: the handshake is refused
+        return
+    await proxy(websocket, host.upstream_url(grant.ticket))
