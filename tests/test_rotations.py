@@ -91,3 +91,14 @@ def test_bad_input_is_named():
         tait_bryan_angles(np.eye(3), "zxz")
     with pytest.raises(InvalidShape, match=r"\(\.\.\., 3, 3\)"):
         tait_bryan_angles(np.eye(4), "zxy")
+
+
+def test_the_scalar_matrix_to_quaternion_agrees_with_the_array_one():
+    from armtrack.estimator.scalar_rotations import quat_from_rows
+
+    rng = np.random.default_rng(5)
+    q = rng.normal(size=(2000, 4))
+    q[:4] = np.eye(4)  # the pivots' edge cases: identity and half turns about each axis
+    R = quat_to_matrix(q)
+    scalar = np.array([quat_from_rows(*m.ravel().tolist()) for m in R])
+    assert np.abs(scalar - matrix_to_quat(R)).max() < 1e-14

@@ -50,7 +50,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"armtrack: serving on http://{settings.host}:{settings.port} "
           f"(database {settings.resolved_database_url()})", flush=True)
     config = uvicorn.Config(create_app(settings), host=settings.host, port=settings.port,
-                            ws_max_size=settings.max_message_bytes, log_level="info")
+                            ws_max_size=settings.max_message_bytes, log_level="info",
+                            # kit frames are small JSON: compressing them costs more CPU
+                            # than it saves bandwidth on a LAN or Wi-Fi
+                            ws_per_message_deflate=False)
     server = uvicorn.Server(config)  # its logging is set up here, so the filter stays
     for name in ("uvicorn.access", "uvicorn.error"):
         logging.getLogger(name).addFilter(RedactTokens())

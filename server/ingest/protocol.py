@@ -178,21 +178,54 @@ def check_samples(message: dict[str, Any], seq: int, hello: Hello,
         data = np.array(rows, dtype=np.float64)
     except OverflowError:
         raise Refused("a row value is too large for a float64", seq) from None
+    if not _plausible(data, hello.nine_axis):
+        _explain(data, sensor, seq, hello.nine_axis)  # raises, naming the first fault
+    t = data[:, 0]
+    previous = last_t.get(sensor)
+    if previous is not None and t[0] < previous:
+        raise Refused(backwards_message(sensor, t[0], previous)
+                      + ": a kit whose clock restarted starts a new stream", seq)
+    return Samples(seq, sensor, data)
+
+
+_COLUMNS = ("t", "ax", "ay", "az", "gx", "gy", "gz", "mx", "my", "mz")
+#: Largest norm of acc, gyr, mag, in the order of a row.
+_NORM_LIMITS = np.array([LIMITS[q][1] for q in ("acc", "gyr", "mag")])
+
+
+def _plausible(data: np.ndarray, nine_axis: bool) -> bool:
+    """Every rule of a samples message's rows, in a few whole-array operations (the hot
+    path: most messages are fine). The same float64 operations as the recording reader's
+    range check, so a boundary value is judged alike."""
+    if nine_axis:
+        if not np.isfinite(data).all():
+            return False
+    elif not (np.isfinite(data[:, :7]).all() and np.isnan(data[:, 7:]).all()):
+        return False
+    squares = data[:, 1:] * data[:, 1:]
+    norms = np.sqrt(squares[:, 0::3] + squares[:, 1::3] + squares[:, 2::3])  # (n, 3)
+    if (norms > _NORM_LIMITS).any():  # a 6-axis NaN norm compares False
+        return False
+    return not (data[1:, 0] < data[:-1, 0]).any()
+
+
+def _explain(data: np.ndarray, sensor: str, seq: int, nine_axis: bool) -> None:
+    """Raise the refusal that names the first fault of rows ``_plausible`` refused."""
     missing = np.isnan(data)  # only null can give NaN: NotJsonNumber was refused above
     if missing[:, :7].any():
         row, col = map(int, np.argwhere(missing[:, :7])[0])
         raise Refused(f"row {row}: column {_COLUMNS[col]} is null", seq)
-    if hello.nine_axis:
+    if nine_axis:
         if missing[:, 7:].any():
             raise Refused(f"sensor {sensor} is 9-axis: mx my mz must be numbers", seq)
     elif not missing[:, 7:].all():
         raise Refused(f"sensor {sensor} is 6-axis: mx my mz must be null", seq)
-    finite = np.isfinite(data[:, :7]).all() and (not hello.nine_axis
+    finite = np.isfinite(data[:, :7]).all() and (not nine_axis
                                                  or np.isfinite(data[:, 7:]).all())
     if not finite:
         raise Refused("a row value is too large for a float64", seq)
     for quantity, columns in (("acc", slice(1, 4)), ("gyr", slice(4, 7)), ("mag", slice(7, 10))):
-        if quantity == "mag" and not hello.nine_axis:
+        if quantity == "mag" and not nine_axis:
             continue
         block = data[:, columns]
         over = beyond_range(quantity, block[:, 0], block[:, 1], block[:, 2])
@@ -207,14 +240,7 @@ def check_samples(message: dict[str, Any], seq: int, hello: Hello,
     if back.size:
         i = int(back[0]) + 1
         raise Refused(f"row {i}: " + backwards_message(sensor, t[i], t[i - 1]), seq)
-    previous = last_t.get(sensor)
-    if previous is not None and t[0] < previous:
-        raise Refused(backwards_message(sensor, t[0], previous)
-                      + ": a kit whose clock restarted starts a new stream", seq)
-    return Samples(seq, sensor, data)
-
-
-_COLUMNS = ("t", "ax", "ay", "az", "gx", "gy", "gz", "mx", "my", "mz")
+    raise AssertionError("_explain found nothing wrong with rows _plausible refused")
 
 
 def check_mark(message: dict[str, Any], seq: int) -> MarkMessage:

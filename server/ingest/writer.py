@@ -11,8 +11,7 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
-from sqlalchemy import insert, update
-from sqlalchemy.orm import sessionmaker
+from sqlalchemy import Engine, bindparam, insert, update
 
 from ..db import models
 from ..store.blocks import pack
@@ -24,6 +23,15 @@ log = logging.getLogger("armtrack.ingest")
 MAX_PENDING_PER_STREAM = 2000
 #: Retry delay after a failed commit [s].
 RETRY_S = 0.5
+
+_STREAMS = models.Stream.__table__
+_SESSIONS = models.Session.__table__
+_INSERT_BLOCKS = insert(models.SampleBlock.__table__)
+_INSERT_MARKS = insert(models.Mark.__table__)
+_UPDATE_STREAM = (update(_STREAMS).where(_STREAMS.c.id == bindparam("stream"))
+                  .values(next_seq=bindparam("next_seq"), last_t=bindparam("last_t")))
+_ADD_SAMPLES = (update(_SESSIONS).where(_SESSIONS.c.id == bindparam("session"))
+                .values(samples=_SESSIONS.c.samples + bindparam("n")))
 
 
 @dataclass(eq=False)
@@ -62,8 +70,8 @@ class Write:
 class GroupWriter:
     """Collects writes from all streams and commits them in batches."""
 
-    def __init__(self, factory: sessionmaker, interval_s: float):
-        self._factory = factory
+    def __init__(self, engine: Engine, interval_s: float):
+        self._engine = engine
         self._interval = interval_s
         self._queue: list[Write] = []
         self._wake = asyncio.Event()
@@ -157,16 +165,17 @@ class GroupWriter:
             elif write.mark is not None:
                 marks.append({"session_id": stream.session_id, "t": write.mark.t,
                               "label": write.mark.label})
-        with self._factory() as db, db.begin():
+        # Core statements, each executed once over many parameter sets (no ORM per row)
+        with self._engine.begin() as connection:
             if blocks:
-                db.execute(insert(models.SampleBlock), blocks)
+                connection.execute(_INSERT_BLOCKS, blocks)
             if marks:
-                db.execute(insert(models.Mark), marks)
-            for stream_id, (_, top) in streams.items():
-                db.execute(update(models.Stream).where(models.Stream.id == stream_id)
-                           .values(next_seq=top + 1, last_t=last_t[stream_id]))
-            for session_id, n in counts.items():
-                db.execute(update(models.Session).where(models.Session.id == session_id)
-                           .values(samples=models.Session.samples + n))
+                connection.execute(_INSERT_MARKS, marks)
+            connection.execute(_UPDATE_STREAM, [
+                {"stream": stream_id, "next_seq": top + 1, "last_t": last_t[stream_id]}
+                for stream_id, (_, top) in streams.items()])
+            if counts:
+                connection.execute(_ADD_SAMPLES, [{"session": session_id, "n": n}
+                                                  for session_id, n in counts.items()])
         for stream_id, (stream, _) in streams.items():
             stream.stored_last_t = last_t[stream_id]

@@ -17,7 +17,7 @@ import numpy as np
 from armtrack.estimator.arm.joints import REPORTED_ANGLES, SEGMENTS
 from armtrack.estimator.pipeline import Pipeline, PipelineConfig
 from armtrack.estimator.recording import Mark
-from armtrack.estimator.rotations import matrix_to_quat
+from armtrack.estimator.scalar_rotations import quat_from_rows
 
 from ..ingest.protocol import MarkMessage, Samples
 from .hub import LiveHub
@@ -32,25 +32,27 @@ SILENT_SENSOR_S = 10.0
 
 
 class RunningRange:
-    """Per angle, the least and greatest value so far [deg], from ``start_s`` on."""
+    """Per angle (``REPORTED_ANGLES``), the least and greatest value so far [deg], from
+    ``start_s`` on."""
 
     def __init__(self) -> None:
-        self.low: dict[str, float] = {}
-        self.high: dict[str, float] = {}
+        self.low = np.full(len(REPORTED_ANGLES), np.inf)
+        self.high = np.full(len(REPORTED_ANGLES), -np.inf)
         self.start_s = -np.inf
 
-    def update(self, t: np.ndarray, degrees: dict[str, np.ndarray]) -> None:
+    def update(self, t: np.ndarray, degrees: np.ndarray) -> None:
+        """``degrees`` (len(REPORTED_ANGLES), n) at times ``t`` (n,)."""
         keep = t >= self.start_s
-        if not keep.any():
-            return
-        for name, values in degrees.items():
-            v = values[keep]
-            self.low[name] = min(self.low.get(name, np.inf), float(v.min()))
-            self.high[name] = max(self.high.get(name, -np.inf), float(v.max()))
+        if keep.all():
+            np.fmin(self.low, degrees.min(axis=1), out=self.low)  # a NaN chunk changes nothing
+            np.fmax(self.high, degrees.max(axis=1), out=self.high)
+        elif keep.any():
+            self.update(t[keep], degrees[:, keep])
 
     def as_dict(self) -> dict[str, dict[str, float]]:
-        return {k: {"min": self.low[k], "max": self.high[k], "range": self.high[k] - self.low[k]}
-                for k in self.low}
+        return {k: {"min": lo, "max": hi, "range": hi - lo}
+                for k, lo, hi in zip(REPORTED_ANGLES, self.low.tolist(), self.high.tolist(),
+                                     strict=True) if lo <= hi}
 
 
 class LiveWorker:
@@ -143,13 +145,15 @@ class LiveWorker:
         if n == 0:
             return None
         self.estimates += n
-        degrees = estimates.degrees()
+        degrees = np.rad2deg(np.stack([estimates.angles[k] for k in REPORTED_ANGLES]))
         self.rom.update(estimates.t, degrees)
+        if time.monotonic() - self._last_publish < self._min_interval:
+            return None  # published recently enough: the range of motion is kept all the same
         return {
             "kind": "pose", "session_id": self.session_id, "t": float(estimates.t[-1]),
-            "angles_deg": {k: float(degrees[k][-1]) for k in REPORTED_ANGLES},
+            "angles_deg": dict(zip(REPORTED_ANGLES, degrees[:, -1].tolist(), strict=True)),
             "positions_m": {k: v[-1].tolist() for k, v in estimates.positions.items()},
-            "segments_q": {s: matrix_to_quat(estimates.R_world_segment[s][-1]).tolist()
+            "segments_q": {s: quat_from_rows(*estimates.R_world_segment[s][-1].ravel().tolist())
                            for s in SEGMENTS},
             "rom_deg": self.rom.as_dict(),
             "estimates": self.estimates,
