@@ -31,7 +31,7 @@ class Services:
         self.hub = LiveHub()
         #: the loopback viser server and its one-time viewer grants (web/viewer)
         self.viewer = ViewerHost(self, settings.viewer_port, settings.viewer_grant_s)
-        self.writer = GroupWriter(self.db, settings.ack_interval_s)
+        self.writer = GroupWriter(self.engine, settings.ack_interval_s)
         #: short database reads and writes of the async side
         self.db_pool = ThreadPoolExecutor(4, thread_name_prefix="armtrack-db")
         #: estimation: live workers and the batch processing of closed sessions

@@ -25,7 +25,7 @@ class Settings(BaseSettings):
     port: int = Field(8000, ge=0, le=65535)
     access_token_hours: float = Field(12.0, gt=0, description="lifetime of a sign-in [h]")
     max_message_bytes: int = Field(1 << 20, gt=0, description="largest ingest message [B]")
-    ack_interval_s: float = Field(0.05, gt=0, le=1.0,
+    ack_interval_s: float = Field(0.1, gt=0, le=1.0,
                                   description="longest wait to group commits before acking [s]")
     refused_limit: int = Field(50, gt=0, description="refused messages per window before 4429")
     refused_window_s: float = Field(10.0, gt=0)
