@@ -10,7 +10,7 @@ from armtrack.web.pages import routes as pages
 from armtrack.web.viewer import routes as viewer_routes
 from fastapi import FastAPI
 
-from .api import auth_routes, live_status, patients, session_summary, sessions
+from .api import auth_routes, live_status, patients, reports, session_summary, sessions
 from .ingest import endpoint
 from .live import endpoint as live_endpoint
 from .services import Services
@@ -39,6 +39,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(auth_routes.router)
     app.include_router(patients.router)
     app.include_router(sessions.router)
+    app.include_router(reports.router)
     app.include_router(endpoint.router)
     app.include_router(live_endpoint.router)
     app.include_router(viewer_routes.router)

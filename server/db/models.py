@@ -21,6 +21,7 @@ from sqlalchemy import (
     Integer,
     LargeBinary,
     String,
+    UniqueConstraint,
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 
@@ -177,3 +178,21 @@ class EstimateBlock(Base):
     ordinal: Mapped[int] = mapped_column(Integer)
     n_rows: Mapped[int] = mapped_column(Integer)
     data: Mapped[bytes] = mapped_column(LargeBinary)
+
+
+class PatientTarget(Base):
+    """A therapist's prescription for one patient: the range one joint angle should reach
+    [deg] (``spec/kinematics.md`` names and signs). One row per patient and angle."""
+
+    __tablename__ = "patient_targets"
+    __table_args__ = (UniqueConstraint("patient_id", "angle",
+                                       name="uq_patient_targets_patient_angle"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    patient_id: Mapped[int] = mapped_column(
+        ForeignKey("patients.id", ondelete="CASCADE"), index=True)
+    angle: Mapped[str] = mapped_column(String(40))
+    min_deg: Mapped[float] = mapped_column(Float)
+    max_deg: Mapped[float] = mapped_column(Float)
+    note: Mapped[str | None] = mapped_column(String(500))
+    updated_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)

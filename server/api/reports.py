@@ -1,0 +1,179 @@
+"""Session reports and exports (JSON, CSV, PDF, OpenSim ``.mot`` / ``.sto``, FHIR R4), a
+patient's progress across sessions, and the therapist's targets per joint
+(``armtrack.server.reports``)."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, HTTPException, Path, status
+from fastapi.responses import JSONResponse, Response
+from sqlalchemy import select
+from sqlalchemy.orm import Session as DbSession
+
+from ..db import models
+from ..reports import content, fhir, opensim, pdf
+from ..reports import csv as report_csv
+from ..reports import progress as progress_mod
+from ..reports.content import AngleName, NoEstimates, SessionReport, TargetOut
+from ..reports.targets import TargetIn, delete_target, patient_targets, set_target
+from .deps import Db, Therapist, own_patient, own_session
+
+router = APIRouter(prefix="/api", tags=["reports"], responses={
+    401: {"description": "not signed in: a valid bearer token is required"},
+    404: {"description": "no such session or patient of this therapist's"}})
+
+#: Row ids fit a 32-bit integer on every database the server runs on.
+Id = Annotated[int, Path(ge=1, le=2**31 - 1)]
+
+CSV = {200: {"content": {"text/csv": {}}, "description": "CSV"}}
+TEXT = {200: {"content": {"text/plain": {}}, "description": "text"}}
+CONFLICT = {409: {"description": "the session has no estimates yet"}}
+
+
+def _report(db: DbSession, therapist: models.Therapist, session_id: int
+            ) -> tuple[models.Session, SessionReport]:
+    session = own_session(db, therapist, session_id)
+    try:
+        return session, content.session_report(db, session,
+                                               patient_targets(db, session.patient_id))
+    except NoEstimates as exc:
+        raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from None
+
+
+def _data(db: DbSession, therapist: models.Therapist, session_id: int) -> content.SessionData:
+    session = own_session(db, therapist, session_id)
+    try:
+        return content.load_session(db, session)
+    except NoEstimates as exc:
+        raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from None
+
+
+def _attachment(body: str | bytes, media_type: str, filename: str) -> Response:
+    return Response(body, media_type=media_type,
+                    headers={"Content-Disposition": f'attachment; filename="{filename}"'})
+
+
+@router.get("/sessions/{session_id}/report", response_model=SessionReport,
+            responses=CONFLICT)
+def get_report(session_id: Id, db: Db, therapist: Therapist) -> SessionReport:
+    """The session's report: range of motion per angle that moved (calibration poses
+    excluded) against normal values and the patient's targets, exercises with repetitions,
+    movement times, peak velocities, smoothness and consistency, and data quality."""
+    return _report(db, therapist, session_id)[1]
+
+
+@router.get("/sessions/{session_id}/report.csv", response_class=Response,
+            responses={**CSV, **CONFLICT})
+def get_report_csv(session_id: Id, db: Db, therapist: Therapist) -> Response:
+    """The report's summary as CSV: one row per angle, for the session and per exercise.
+    (Per-sample angles: ``/api/sessions/{id}/angles.csv``.)"""
+    _, report = _report(db, therapist, session_id)
+    return _attachment(report_csv.report_csv(report), "text/csv",
+                       f"session-{session_id}-report.csv")
+
+
+@router.get("/sessions/{session_id}/report.pdf", response_class=Response,
+            responses={200: {"content": {"application/pdf": {}}, "description": "PDF"},
+                       **CONFLICT})
+def get_report_pdf(session_id: Id, db: Db, therapist: Therapist) -> Response:
+    """The report as a PDF a therapist can file (two or three pages)."""
+    session = own_session(db, therapist, session_id)
+    try:
+        data = content.load_session(db, session)
+    except NoEstimates as exc:
+        raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from None
+    report = content.session_report(db, session, patient_targets(db, session.patient_id),
+                                    data)
+    return _attachment(pdf.report_pdf(report, data), "application/pdf",
+                       f"session-{session_id}-report.pdf")
+
+
+@router.get("/sessions/{session_id}/report.mot", response_class=Response,
+            responses={**TEXT, **CONFLICT})
+def get_report_mot(session_id: Id, db: Db, therapist: Therapist) -> Response:
+    """Joint angles as an OpenSim motion file with the Rajagopal model's coordinates
+    (``arm_flex_r``, ``arm_add_r`` positive in adduction, ``arm_rot_r``,
+    ``elbow_flex_r``, ``pro_sup_r``, ``wrist_flex_r``, ``wrist_dev_r``; ``_l`` on the
+    left), in degrees."""
+    data = _data(db, therapist, session_id)
+    return _attachment(opensim.mot(data, f"armtrack session {session_id}"), "text/plain",
+                       f"session-{session_id}.mot")
+
+
+@router.get("/sessions/{session_id}/report.sto", response_class=Response,
+            responses={**TEXT, **CONFLICT})
+def get_report_sto(session_id: Id, db: Db, therapist: Therapist) -> Response:
+    """Segment orientations as an OpenSense quaternion table (``<body>_imu`` columns)."""
+    data = _data(db, therapist, session_id)
+    return _attachment(opensim.sto(data), "text/plain", f"session-{session_id}.sto")
+
+
+@router.get("/sessions/{session_id}/report.fhir.json", response_class=JSONResponse,
+            responses={200: {"content": {"application/fhir+json": {"schema": {
+                "type": "object", "description": "a FHIR R4 Bundle"}}},
+                "description": "FHIR R4 Bundle"}, **CONFLICT})
+def get_report_fhir(session_id: Id, db: Db, therapist: Therapist) -> JSONResponse:
+    """The ranges of motion as FHIR R4 Observations (SNOMED CT 364564000) grouped in a
+    DiagnosticReport, in a collection Bundle."""
+    _, report = _report(db, therapist, session_id)
+    return JSONResponse(fhir.fhir_bundle(report), media_type="application/fhir+json",
+                        headers={"Content-Disposition":
+                                 f'attachment; filename="session-{session_id}.fhir.json"'})
+
+
+def _progress(db: DbSession, therapist: models.Therapist, patient_id: int
+              ) -> progress_mod.Progress:
+    patient = own_patient(db, therapist, patient_id)
+    targets = patient_targets(db, patient_id)
+    sessions = list(db.scalars(select(models.Session)
+                               .where(models.Session.patient_id == patient_id)
+                               .order_by(models.Session.started_at, models.Session.id)))
+    reports = {}
+    for session in sessions:
+        try:
+            reports[session.id] = content.session_report(db, session, targets)
+        except NoEstimates:
+            continue
+    return progress_mod.progress(patient, sessions, reports,
+                                 [content.target_out(t) for t in targets.values()])
+
+
+@router.get("/patients/{patient_id}/progress", response_model=progress_mod.Progress)
+def get_progress(patient_id: Id, db: Db, therapist: Therapist) -> progress_mod.Progress:
+    """The report's metrics for each of the patient's sessions, oldest first, against the
+    patient's targets, and per angle the trend (change and slope per week of the range)."""
+    return _progress(db, therapist, patient_id)
+
+
+@router.get("/patients/{patient_id}/progress.csv", response_class=Response, responses=CSV)
+def get_progress_csv(patient_id: Id, db: Db, therapist: Therapist) -> Response:
+    """Progress as CSV: one row per session and angle."""
+    return _attachment(progress_mod.progress_csv(_progress(db, therapist, patient_id)),
+                       "text/csv", f"patient-{patient_id}-progress.csv")
+
+
+@router.get("/patients/{patient_id}/targets", response_model=list[TargetOut])
+def get_targets(patient_id: Id, db: Db, therapist: Therapist) -> list[TargetOut]:
+    """The patient's target range per angle [deg]."""
+    own_patient(db, therapist, patient_id)
+    return [content.target_out(t) for t in patient_targets(db, patient_id).values()]
+
+
+@router.put("/patients/{patient_id}/targets/{angle}", response_model=TargetOut)
+def put_target(patient_id: Id, angle: AngleName, body: TargetIn, db: Db,
+               therapist: Therapist) -> TargetOut:
+    """Set (or replace) the patient's target range for one angle [deg], in the signs of
+    ``spec/kinematics.md``."""
+    own_patient(db, therapist, patient_id)
+    return content.target_out(set_target(db, patient_id, angle, body))
+
+
+@router.delete("/patients/{patient_id}/targets/{angle}",
+               status_code=status.HTTP_204_NO_CONTENT)
+def remove_target(patient_id: Id, angle: AngleName, db: Db, therapist: Therapist) -> None:
+    """Remove the patient's target for one angle."""
+    own_patient(db, therapist, patient_id)
+    if not delete_target(db, patient_id, angle):
+        raise HTTPException(status.HTTP_404_NOT_FOUND,
+                            f"patient {patient_id} has no target for {angle}")

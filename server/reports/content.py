@@ -1,0 +1,515 @@
+"""A session's report as a typed structure (pydantic models, so the OpenAPI document
+carries its schema) and how it is computed from the stored session.
+
+Units: angles [deg], times [s] on the session's clock, angular velocities [deg/s],
+percentages [%], smoothness and coefficients of variation dimensionless.
+
+* **Samples.** The stored estimates (``stored_estimates``). The calibration poses are not
+  exercise: from the first estimate to ``CALIBRATION_TAIL_S`` after the end of the last
+  pose is left out (as ``armtrack estimate`` does); with no pose, nothing is left out.
+* **``rom``** (``spec/api.md``): per angle of ``REPORTED_ANGLES`` that moved
+  (``estimator.metrics.rom``: robust extremes whose tails hold 0.1 s of samples each, moved
+  when the range is ≥ 10°): min, max, range, AAOS normal range and percentage of it, the
+  seed paper's Table 2 range and percentage, and the patient's target (``targets``).
+* **``exercises``.** From ``exercise:<name>`` marks (each mark to its ``end:`` mark, or to
+  the next exercise, or to the end); without marks, *detected*: the repetitions of every
+  moved angle, grouped by their leading angle and in time (``detected_groups``).
+  Per exercise and angle: repetitions (one excursion from rest and
+  back, ``estimator.metrics.repetitions``), movement time, peak angular velocity, SPARC
+  and LDLJ of each whole repetition, consistency (CV of amplitude and movement time per
+  direction).
+* **``quality``** (``quality.py``): sensors, sample rates, lost samples, magnetometer
+  disturbances, the calibration used, warnings.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+from collections import OrderedDict
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from typing import Literal
+
+import numpy as np
+from armtrack.estimator.arm.joints import REPORTED_ANGLES
+from armtrack.estimator.errors import EstimatorError
+from armtrack.estimator.metrics import (
+    RangeOfMotion,
+    Repetition,
+    consistency,
+    detect_repetitions,
+    range_of_motion_table,
+    repetition_smoothness,
+)
+from armtrack.estimator.recording import Recording
+from pydantic import BaseModel, Field
+from sqlalchemy.orm import Session as DbSession
+
+from ..commands.estimate import CALIBRATION_TAIL_S
+from ..db import models
+from ..store.processing import stored_estimates
+from ..store.recordings import session_recording
+
+#: The angle names of ``spec/kinematics.md`` and ``shoulder_elevation``.
+AngleName = Literal[REPORTED_ANGLES]  # type: ignore[valid-type]
+
+#: Movements with the same leading angle closer than this are one detected exercise [s].
+GROUP_GAP_S = 8.0
+
+
+class NoEstimates(Exception):
+    """The session has no stored estimates (live, being processed, or refused)."""
+
+
+def utc(moment: datetime | None) -> datetime | None:
+    """SQLite gives naive datetimes back; they were stored in UTC."""
+    if moment is None:
+        return None
+    return moment if moment.tzinfo else moment.replace(tzinfo=UTC)
+
+
+def finite(x: float | None, digits: int = 3) -> float | None:
+    """A JSON-safe float: rounded, ``None`` for NaN / infinity / ``None``."""
+    if x is None:
+        return None
+    x = float(x)
+    return round(x, digits) if np.isfinite(x) else None
+
+
+# --- the report's structure ---------------------------------------------------------
+
+class RomEntry(BaseModel):
+    """One angle's range of motion [deg] against normal values and the patient's target."""
+
+    min: float = Field(description="robust minimum [deg]")
+    max: float = Field(description="robust maximum [deg]")
+    range: float = Field(description="max − min [deg]")
+    normal_min: float | None = Field(description="AAOS normal minimum [deg]")
+    normal_max: float | None = Field(description="AAOS normal maximum [deg]")
+    percent_of_normal: float | None = Field(
+        description="range ÷ (normal_max − normal_min) × 100 [%]")
+    paper_min: float | None = Field(description="seed paper's Table 2 minimum [deg]")
+    paper_max: float | None = Field(description="seed paper's Table 2 maximum [deg]")
+    percent_of_paper: float | None = Field(description="range ÷ paper range × 100 [%]")
+    target_min: float | None = Field(None, description="the patient's target minimum [deg]")
+    target_max: float | None = Field(None, description="the patient's target maximum [deg]")
+    percent_of_target: float | None = Field(
+        None, description="range ÷ (target_max − target_min) × 100 [%]")
+    target_reached: bool | None = Field(
+        None, description="min ≤ target_min and max ≥ target_max")
+    samples: int = Field(description="estimates the range was taken from")
+
+
+class RepetitionOut(BaseModel):
+    """One repetition: one excursion from rest and back."""
+
+    start_s: float
+    peak_s: float
+    end_s: float
+    direction: Literal[1, -1] = Field(
+        description="+1 towards the angle's positive side (flexion, abduction, pronation…)")
+    amplitude_deg: float
+    movement_time_s: float
+    peak_velocity_deg_s: float
+    sparc: float | None = Field(description="spectral arc length of the whole repetition")
+    ldlj: float | None = Field(description="log dimensionless jerk of the whole repetition")
+
+
+class ConsistencyOut(BaseModel):
+    """Coefficients of variation across the repetitions of one direction [-]."""
+
+    direction: Literal[1, -1]
+    repetitions: int
+    amplitude_cv: float | None
+    movement_time_cv: float | None
+
+
+class AngleExercise(BaseModel):
+    """The repetitions of one angle within one exercise."""
+
+    angle: AngleName
+    repetitions: int
+    mean_amplitude_deg: float | None
+    mean_movement_time_s: float | None
+    peak_velocity_deg_s: float | None = Field(description="largest of the repetitions")
+    median_sparc: float | None
+    median_ldlj: float | None
+    consistency: list[ConsistencyOut]
+    details: list[RepetitionOut]
+
+
+class Exercise(BaseModel):
+    """One exercise: a marked period, or repetitions detected close together in time."""
+
+    name: str
+    source: Literal["marks", "detected"]
+    start_s: float
+    end_s: float
+    rom: dict[AngleName, RomEntry]
+    angles: list[AngleExercise]
+
+
+class Window(BaseModel):
+    start_s: float
+    end_s: float
+
+
+class PoseOut(BaseModel):
+    name: str
+    start_s: float
+    end_s: float
+
+
+class SensorQuality(BaseModel):
+    name: str
+    nine_axis: bool
+    samples: int
+    rate_hz: float | None = Field(description="median sample rate [Hz]")
+    duration_s: float
+    lost_samples: int = Field(description="missing samples, from gaps in the time stamps")
+    lost_percent: float
+    magnetic_disturbances: list[Window] = Field(
+        description="periods where the field strength left the sensor's usual value")
+    magnetic_disturbance_s: float
+
+
+class CalibrationQuality(BaseModel):
+    method: str | None = Field(description="two-pose, n-pose or default")
+    default_mounting: bool = Field(description="no pose found: the default mounting is used")
+    final_time_s: float | None
+    poses: list[PoseOut]
+    excluded: Window | None = Field(description="left out of every metric (the poses)")
+
+
+class Quality(BaseModel):
+    sensors: list[SensorQuality]
+    estimates: int
+    estimate_rate_hz: float | None
+    estimate_gaps: list[Window] = Field(description="gaps of more than 0.25 s in estimates")
+    calibration: CalibrationQuality
+    estimator: dict[str, str]
+    warnings: list[str]
+
+
+class TargetOut(BaseModel):
+    angle: AngleName
+    min_deg: float
+    max_deg: float
+    note: str | None
+    updated_at: datetime
+
+
+class SessionInfo(BaseModel):
+    session_id: int
+    patient_id: int
+    patient_name: str
+    side: Literal["right", "left"]
+    height_m: float | None
+    status: str
+    source: str
+    started_at: datetime
+    ended_at: datetime | None
+    kit: str | None = Field(description="the device (sensor kit) that sent the session")
+    sensors: list[str]
+    duration_s: float
+
+
+class SessionReport(BaseModel):
+    """A session's report (``spec/api.md``)."""
+
+    session: SessionInfo
+    rom: dict[AngleName, RomEntry] = Field(
+        description="the angles that moved, calibration poses excluded")
+    exercises: list[Exercise]
+    quality: Quality
+    targets: list[TargetOut]
+
+
+# --- computing it ------------------------------------------------------------------
+
+@dataclass
+class SessionData:
+    """What a report is made of: the stored session, its estimates and its recording."""
+
+    session: models.Session
+    patient: models.Patient
+    kit: str | None
+    t: np.ndarray
+    #: name → (N,) [deg]
+    angles: dict[str, np.ndarray]
+    #: segment → (N, 4) w, x, y, z (segment → world ENU)
+    quats: dict[str, np.ndarray]
+    recording: Recording
+    exclude: list[tuple[float, float]] = field(default_factory=list)
+
+    @property
+    def angles_rad(self) -> dict[str, np.ndarray]:
+        return {k: np.deg2rad(v) for k, v in self.angles.items()}
+
+
+def load_session(db: DbSession, session: models.Session) -> SessionData:
+    """The session's estimates and raw data; raises NoEstimates when none are stored."""
+    columns, values = stored_estimates(db, session)
+    if not columns:
+        raise NoEstimates(f"session {session.id} has no estimates yet"
+                          + (f": {session.processing_error}" if session.processing_error
+                             else " (it is live or being processed)"))
+    patient = db.get(models.Patient, session.patient_id)
+    device = db.get(models.Device, session.device_id) if session.device_id else None
+    index = {c: i for i, c in enumerate(columns)}
+    t = values[:, index["t"]]
+    angles = {k: values[:, index[k]] for k in REPORTED_ANGLES if k in index}
+    quats = {c[:-3]: values[:, index[c]:index[c] + 4] for c in columns if c.endswith("_qw")}
+    recording = session_recording(db, session)
+    poses = (session.calibration or {}).get("poses") or []
+    exclude = ([(float(t[0]) if len(t) else 0.0,
+                 max(float(p["end"]) for p in poses) + CALIBRATION_TAIL_S)] if poses else [])
+    return SessionData(session=session, patient=patient, kit=device.name if device else None,
+                       t=t, angles=angles, quats=quats, recording=recording, exclude=exclude)
+
+
+def rom_entry(rom: RangeOfMotion, target: models.PatientTarget | None) -> RomEntry:
+    entry = RomEntry(
+        min=finite(rom.min_deg), max=finite(rom.max_deg), range=finite(rom.range_deg),
+        normal_min=rom.normal_min_deg, normal_max=rom.normal_max_deg,
+        percent_of_normal=finite(rom.percent_of_normal, 1),
+        paper_min=rom.paper_min_deg, paper_max=rom.paper_max_deg,
+        percent_of_paper=finite(rom.percent_of_paper, 1), samples=rom.samples)
+    return apply_target(entry, target)
+
+
+def apply_target(entry: RomEntry, target: models.PatientTarget | None) -> RomEntry:
+    if target is None:
+        return entry
+    return entry.model_copy(update={
+        "target_min": target.min_deg, "target_max": target.max_deg,
+        "percent_of_target": finite(entry.range / (target.max_deg - target.min_deg) * 100, 1),
+        "target_reached": bool(entry.min <= target.min_deg and entry.max >= target.max_deg)})
+
+
+def rom_table(data: SessionData, include: Sequence[tuple[float, float]] | None,
+              targets: Mapping[str, models.PatientTarget]) -> dict[str, RomEntry]:
+    if not len(data.t):
+        return {}
+    try:
+        table = range_of_motion_table(data.angles_rad, data.t, include=include,
+                                      exclude=data.exclude or None)
+    except EstimatorError:  # no sample left in the windows
+        return {}
+    return {name: rom_entry(rom, targets.get(name)) for name, rom in table.items()}
+
+
+def exercise_windows(data: SessionData) -> list[tuple[str, float, float]]:
+    """``(name, start_s, end_s)`` of the ``exercise:`` marks."""
+    end_of_data = float(data.t[-1]) if len(data.t) else 0.0
+    marks = sorted(data.recording.marks, key=lambda m: m.t)
+    out = []
+    for i, mark in enumerate(marks):
+        if not mark.label.startswith("exercise:"):
+            continue
+        end = end_of_data
+        for later in marks[i + 1:]:
+            if later.label == f"end:{mark.label}" or later.label.startswith("exercise:"):
+                end = later.t
+                break
+        if end > mark.t:
+            out.append((mark.label.removeprefix("exercise:"), mark.t, end))
+    return out
+
+
+def repetitions_out(angle_rad: np.ndarray, t: np.ndarray,
+                    reps: Sequence[Repetition]) -> list[RepetitionOut]:
+    out = []
+    for rep in reps:
+        try:
+            (smooth,) = repetition_smoothness(angle_rad, t, [rep])
+            sparc, ldlj = smooth.sparc, smooth.ldlj
+        except EstimatorError:
+            sparc = ldlj = None
+        out.append(RepetitionOut(
+            start_s=finite(rep.start_s), peak_s=finite(rep.peak_s), end_s=finite(rep.end_s),
+            direction=rep.direction, amplitude_deg=finite(rep.amplitude_deg, 2),
+            movement_time_s=finite(rep.movement_time_s),
+            peak_velocity_deg_s=finite(rep.peak_velocity_deg_s, 1),
+            sparc=finite(sparc), ldlj=finite(ldlj)))
+    return out
+
+
+def angle_exercise(name: str, angle_rad: np.ndarray, t: np.ndarray,
+                   reps: Sequence[Repetition]) -> AngleExercise:
+    details = repetitions_out(angle_rad, t, reps)
+
+    def mean(values: list[float | None]) -> float | None:
+        values = [v for v in values if v is not None]
+        return finite(float(np.mean(values))) if values else None
+
+    def median(values: list[float | None]) -> float | None:
+        values = [v for v in values if v is not None]
+        return finite(float(np.median(values))) if values else None
+
+    cons = []
+    for direction in (1, -1):
+        c = consistency(reps, direction)
+        if c.repetitions:
+            cons.append(ConsistencyOut(direction=direction, repetitions=c.repetitions,
+                                       amplitude_cv=finite(c.amplitude_cv, 4),
+                                       movement_time_cv=finite(c.movement_time_cv, 4)))
+    return AngleExercise(
+        angle=name, repetitions=len(details),
+        mean_amplitude_deg=mean([d.amplitude_deg for d in details]),
+        mean_movement_time_s=mean([d.movement_time_s for d in details]),
+        peak_velocity_deg_s=max((d.peak_velocity_deg_s for d in details), default=None),
+        median_sparc=median([d.sparc for d in details]),
+        median_ldlj=median([d.ldlj for d in details]),
+        consistency=cons, details=details)
+
+
+def detected_name(angles: Sequence[str]) -> str:
+    """The exercise's name from the angles that repeated: the shoulder's elevation is left
+    out when a shoulder angle names the movement."""
+    shown = [a for a in angles if a != "shoulder_elevation"
+             or not {"shoulder_flexion", "shoulder_abduction"} & set(angles)]
+    return " + ".join(shown)
+
+
+def exercises(data: SessionData, moved: Sequence[str],
+              targets: Mapping[str, models.PatientTarget]) -> list[Exercise]:
+    if not len(data.t):
+        return []
+    rad = data.angles_rad
+    exclude = data.exclude or None
+    marked = exercise_windows(data)
+    out: list[Exercise] = []
+    if marked:
+        for name, start, end in marked:
+            rom = rom_table(data, [(start, end)], targets)
+            angles = []
+            for angle in rom:
+                reps = detect_repetitions(rad[angle], data.t, include=[(start, end)],
+                                          exclude=exclude)
+                if reps:
+                    angles.append(angle_exercise(angle, rad[angle], data.t, reps))
+            out.append(Exercise(name=name, source="marks", start_s=finite(start),
+                                end_s=finite(end), rom=rom, angles=angles))
+        return out
+    # detected: every moved angle's repetitions, grouped in time
+    found = {a: detect_repetitions(rad[a], data.t, exclude=exclude) for a in moved}
+    for a, b in detected_groups(found):
+        angles = []
+        for angle in moved:
+            reps = [r for r in found[angle] if a <= r.start_s and r.end_s <= b]
+            if reps:
+                angles.append(angle_exercise(angle, rad[angle], data.t, reps))
+        rom = rom_table(data, [(a, b + 1e-6)], targets)
+        out.append(Exercise(name=detected_name([x.angle for x in angles]), source="detected",
+                            start_s=finite(a), end_s=finite(b), rom=rom, angles=angles))
+    return out
+
+
+def detected_groups(found: Mapping[str, Sequence[Repetition]]) -> list[tuple[float, float]]:
+    """Time spans ``(start_s, end_s)`` of detected exercises. Repetitions of any angles
+    that overlap in time are one movement (a reach moves shoulder and elbow together); its
+    *leading* angle is the one with the largest amplitude (the shoulder's elevation only
+    when nothing else moved). Consecutive movements with the same leading angle, less than
+    ``GROUP_GAP_S`` apart, are one exercise; a new leading angle or a longer pause starts
+    the next."""
+    reps = sorted(((r.start_s, r.end_s, r.amplitude, angle) for angle, rs in found.items()
+                   for r in rs), key=lambda x: x[0])
+    movements: list[list] = []  # [start, end, {angle: amplitude}]
+    for a, b, amplitude, angle in reps:
+        if movements and a < movements[-1][1]:
+            m = movements[-1]
+            m[1] = max(m[1], b)
+            m[2][angle] = max(m[2].get(angle, 0.0), amplitude)
+        else:
+            movements.append([a, b, {angle: amplitude}])
+
+    def leading(amplitudes: dict[str, float]) -> str:
+        others = {k: v for k, v in amplitudes.items() if k != "shoulder_elevation"}
+        chosen = others or amplitudes
+        return max(chosen, key=chosen.get)
+
+    groups: list[list] = []  # [start, end, leading angle]
+    for a, b, amplitudes in movements:
+        lead = leading(amplitudes)
+        if groups and groups[-1][2] == lead and a - groups[-1][1] < GROUP_GAP_S:
+            groups[-1][1] = max(groups[-1][1], b)
+        else:
+            groups.append([a, b, lead])
+    return [(a, b) for a, b, _ in groups]
+
+
+def target_out(target: models.PatientTarget) -> TargetOut:
+    return TargetOut(angle=target.angle, min_deg=target.min_deg, max_deg=target.max_deg,
+                     note=target.note, updated_at=utc(target.updated_at))
+
+
+def session_info(data: SessionData) -> SessionInfo:
+    s = data.session
+    return SessionInfo(
+        session_id=s.id, patient_id=s.patient_id, patient_name=data.patient.name,
+        side=s.side, height_m=s.height_m, status=s.status, source=s.source,
+        started_at=utc(s.started_at), ended_at=utc(s.ended_at), kit=data.kit,
+        sensors=list(s.sensors),
+        duration_s=finite(float(data.t[-1] - data.t[0]) if len(data.t) > 1 else 0.0, 2))
+
+
+def build_report(data: SessionData, targets: Mapping[str, models.PatientTarget]
+                 ) -> SessionReport:
+    """The report of a loaded session, against the patient's ``targets`` (angle → row)."""
+    from .quality import quality
+
+    rom = rom_table(data, None, targets)
+    return SessionReport(
+        session=session_info(data), rom=rom, exercises=exercises(data, list(rom), targets),
+        quality=quality(data), targets=[target_out(t) for t in targets.values()])
+
+
+def with_targets(report: SessionReport, targets: Mapping[str, models.PatientTarget]
+                 ) -> SessionReport:
+    """The report against ``targets`` (angle → row) instead of those it was made with."""
+    def table(rom: Mapping[str, RomEntry]) -> dict[str, RomEntry]:
+        cleared = {"target_min": None, "target_max": None, "percent_of_target": None,
+                   "target_reached": None}
+        return {k: apply_target(v.model_copy(update=cleared), targets.get(k))
+                for k, v in rom.items()}
+
+    return report.model_copy(update={
+        "rom": table(report.rom),
+        "exercises": [e.model_copy(update={"rom": table(e.rom)}) for e in report.exercises],
+        "targets": [target_out(t) for t in targets.values()]})
+
+
+#: Reports of recent sessions without targets, by what identifies their estimates.
+_CACHE: OrderedDict[tuple, SessionReport] = OrderedDict()
+_CACHE_SIZE = 64
+_CACHE_LOCK = threading.Lock()
+
+
+def _cache_key(session: models.Session) -> tuple:
+    return (session.id, session.started_at.isoformat(), session.samples, session.status,
+            json.dumps(session.calibration, sort_keys=True, default=str),
+            json.dumps(session.estimator, sort_keys=True, default=str),
+            len(session.estimate_columns or ()))
+
+
+def session_report(db: DbSession, session: models.Session,
+                   targets: Mapping[str, models.PatientTarget],
+                   data: SessionData | None = None) -> SessionReport:
+    """The session's report against ``targets`` (from ``data`` when loaded already);
+    raises NoEstimates. The computed report is kept for the next request while the
+    session's estimates stay the same."""
+    key = _cache_key(session)
+    with _CACHE_LOCK:
+        base = _CACHE.get(key)
+        if base is not None:
+            _CACHE.move_to_end(key)
+    if base is None:
+        base = build_report(data or load_session(db, session), {})
+        with _CACHE_LOCK:
+            _CACHE[key] = base
+            while len(_CACHE) > _CACHE_SIZE:
+                _CACHE.popitem(last=False)
+    return with_targets(base, targets)

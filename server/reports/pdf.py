@@ -1,0 +1,292 @@
+"""The report as a PDF a therapist can file, drawn with matplotlib (object API, no pyplot
+state, so requests may draw at once in threads). A4 portrait, three pages:
+
+1. header (patient, date, side, kit, calibration), the range-of-motion table against
+   AAOS normal values and the patient's targets, and bars: normal range (grey), the
+   session's range (blue), the target (black frame);
+2. the joint angles that moved over time, the calibration part shaded, exercises as
+   coloured bands with their names, each repetition's peak marked;
+3. repetitions and smoothness per exercise and angle, and data quality (sensors, rates,
+   lost samples, magnetometer disturbances, calibration, warnings).
+"""
+
+from __future__ import annotations
+
+import io
+from datetime import UTC
+
+import numpy as np
+from matplotlib.backends.backend_pdf import PdfPages
+from matplotlib.figure import Figure
+
+from .content import SessionData, SessionReport
+
+A4 = (8.27, 11.69)
+#: Rows of the repetitions table that fit on page 3.
+MAX_EXERCISE_ROWS = 24
+#: Points drawn per curve at most.
+MAX_POINTS = 6000
+DISCLAIMER = "armtrack supports therapy; it is not a diagnostic device."
+LABELS = {
+    "clavicle_protraction": "Clavicle protraction", "clavicle_elevation": "Clavicle elevation",
+    "shoulder_flexion": "Shoulder flexion", "shoulder_abduction": "Shoulder abduction",
+    "shoulder_rotation": "Shoulder int. rotation", "elbow_flexion": "Elbow flexion",
+    "forearm_pronation": "Forearm pronation", "wrist_flexion": "Wrist flexion",
+    "wrist_deviation": "Wrist ulnar deviation", "shoulder_elevation": "Shoulder elevation",
+}
+COLOURS = ["#4C72B0", "#DD8452", "#55A868", "#C44E52", "#8172B3", "#937860", "#DA8BC3"]
+
+
+def _fmt(x: float | None, spec: str = ".0f", suffix: str = "") -> str:
+    if x is None:
+        return "–"
+    text = f"{x:{spec}}"
+    if text.startswith("-") and float(text) == 0:
+        text = text[1:]  # no "-0"
+    return text + suffix
+
+
+def _page(title: str, report: SessionReport, page: int, pages: int) -> Figure:
+    fig = Figure(figsize=A4)
+    s = report.session
+    fig.text(0.06, 0.965, title, fontsize=15, weight="bold")
+    fig.text(0.94, 0.965, f"{s.patient_name} · session {s.session_id}", ha="right",
+             fontsize=9, color="#444")
+    fig.text(0.06, 0.02, DISCLAIMER, fontsize=7, color="#666")
+    fig.text(0.94, 0.02, f"page {page} of {pages}", ha="right", fontsize=7, color="#666")
+    return fig
+
+
+def _header(fig: Figure, report: SessionReport) -> None:
+    s, q = report.session, report.quality
+    started = s.started_at if s.started_at.tzinfo else s.started_at.replace(tzinfo=UTC)
+    cal = q.calibration
+    poses = ", ".join(f"{p.name} {p.start_s:.1f}–{p.end_s:.1f} s" for p in cal.poses) or "none"
+    lines = [
+        ("Patient", f"{s.patient_name} (id {s.patient_id})"
+                    + (f", height {s.height_m:.2f} m" if s.height_m else "")),
+        ("Date", started.strftime("%Y-%m-%d %H:%M UTC") + f", {s.duration_s / 60:.1f} min"),
+        ("Side", f"{s.side} arm"),
+        ("Kit", f"{s.kit or '(uploaded file)'} · sensors: {', '.join(s.sensors)}"),
+        ("Calibration", f"{cal.method or '–'}"
+                        + (" (default mounting)" if cal.default_mounting else "")
+                        + f"; poses: {poses}"),
+        ("Estimator", ", ".join(f"{k} {v}" for k, v in q.estimator.items()) or "–"),
+    ]
+    y = 0.925
+    for key, value in lines:
+        fig.text(0.06, y, key, fontsize=9, weight="bold")
+        fig.text(0.22, y, value, fontsize=9)
+        y -= 0.022
+
+
+#: Height of a table row on the page [figure fraction].
+ROW = 0.024
+TABLE_TOP = 0.76
+
+
+def _rom_table(fig: Figure, report: SessionReport, repetitions: dict[str, int]) -> float:
+    """Draws the table below ``TABLE_TOP``; returns where it ends."""
+    height = ROW * (len(report.rom) + 1) + 0.03
+    ax = fig.add_axes((0.06, TABLE_TOP - height, 0.88, height))
+    ax.axis("off")
+    ax.set_title("Range of motion (degrees; calibration poses excluded)", loc="left",
+                 fontsize=11, weight="bold")
+    if not report.rom:
+        ax.text(0, 0.5, "No joint moved more than 10° outside the calibration.", fontsize=9)
+        return TABLE_TOP - height
+    header = ["Angle", "Min", "Max", "Range", "Normal (AAOS)", "% normal", "Target",
+              "% target", "Reps"]
+    rows = []
+    for angle, r in report.rom.items():
+        target = (f"{r.target_min:.0f} … {r.target_max:.0f}" if r.target_min is not None
+                  else "–")
+        reached = "" if r.target_reached is None else (" ✓" if r.target_reached else " ✗")
+        rows.append([LABELS.get(angle, angle), _fmt(r.min), _fmt(r.max), _fmt(r.range),
+                     f"{r.normal_min:.0f} … {r.normal_max:.0f}" if r.normal_min is not None
+                     else "–", _fmt(r.percent_of_normal, ".0f", "%"), target,
+                     _fmt(r.percent_of_target, ".0f", "%") + reached,
+                     str(repetitions.get(angle, 0))])
+    table = ax.table(cellText=rows, colLabels=header, cellLoc="center",
+                     colWidths=[0.22, 0.07, 0.07, 0.08, 0.15, 0.1, 0.13, 0.11, 0.07],
+                     bbox=(0, 0, 1, 1 - 0.03 / height))
+    table.auto_set_font_size(False)
+    table.set_fontsize(8)
+    for (row, col), cell in table.get_celld().items():
+        cell.set_edgecolor("#bbb")
+        if row == 0:
+            cell.set_facecolor("#e8eef7")
+            cell.set_text_props(weight="bold")
+        elif col == 0:
+            cell.set_text_props(ha="left")
+    return TABLE_TOP - height
+
+
+def _rom_bars(fig: Figure, report: SessionReport, top: float) -> None:
+    height = min(top - 0.1, 0.09 * max(1, len(report.rom)) + 0.08)
+    ax = fig.add_axes((0.25, top - 0.05 - height, 0.68, height))
+    fig.text(0.06, top - 0.025, "Session range against normal and target", fontsize=11,
+             weight="bold")
+    names = list(report.rom)
+    if not names:
+        ax.axis("off")
+        return
+    y = np.arange(len(names))[::-1]
+    for yi, angle in zip(y, names, strict=True):
+        r = report.rom[angle]
+        if r.normal_min is not None:
+            ax.barh(yi, r.normal_max - r.normal_min, left=r.normal_min, height=0.7,
+                    color="#dddddd", label="normal (AAOS)" if yi == y[0] else None)
+        ax.barh(yi, r.range, left=r.min, height=0.4, color="#4C72B0",
+                label="this session" if yi == y[0] else None)
+        if r.target_min is not None:
+            ax.barh(yi, r.target_max - r.target_min, left=r.target_min, height=0.6,
+                    fill=False, edgecolor="black", linewidth=1.2, linestyle="--",
+                    label="target" if yi == y[0] else None)
+        label = _fmt(r.percent_of_normal, ".0f", "% of normal")
+        ax.text(max(r.max, r.normal_max or r.max) + 4, yi, label, va="center", fontsize=7)
+    ax.set_yticks(y, [LABELS.get(n, n) for n in names], fontsize=8)
+    ax.set_xlim(-110, 230)
+    ax.axvline(0, color="#888", linewidth=0.6)
+    ax.set_xlabel("angle [deg] (kinematics contract signs: flexion, abduction, internal "
+                  "rotation, pronation, ulnar deviation +)", fontsize=7)
+    ax.tick_params(axis="x", labelsize=8)
+    ax.grid(axis="x", color="#eee")
+    ax.legend(fontsize=7, loc="lower left", bbox_to_anchor=(0, 1.0), ncol=3, frameon=False)
+
+
+def _angles_page(fig: Figure, report: SessionReport, data: SessionData) -> None:
+    names = list(report.rom) or ["elbow_flexion"]
+    t = data.t
+    stride = max(1, int(np.ceil(t.size / MAX_POINTS)))
+    n = len(names)
+    top, bottom = 0.92, 0.07
+    height = (top - bottom) / n
+    excluded = report.quality.calibration.excluded
+    peaks: dict[str, list[tuple[float, float]]] = {}
+    for exercise in report.exercises:
+        for a in exercise.angles:
+            for d in a.details:
+                peaks.setdefault(a.angle, []).append((d.peak_s, d.direction))
+    for i, angle in enumerate(names):
+        ax = fig.add_axes((0.1, top - (i + 1) * height + 0.012, 0.85, height - 0.03))
+        values = data.angles[angle]
+        ax.plot(t[::stride], values[::stride], color="#1f3b66", linewidth=0.7)
+        if excluded is not None:
+            ax.axvspan(excluded.start_s, excluded.end_s, color="#cccccc", alpha=0.5,
+                       linewidth=0)
+        for k, exercise in enumerate(report.exercises):
+            ax.axvspan(exercise.start_s, exercise.end_s, color=COLOURS[k % len(COLOURS)],
+                       alpha=0.12, linewidth=0)
+            if i == 0:
+                ax.text(0.5 * (exercise.start_s + exercise.end_s), 1.02, exercise.name,
+                        transform=ax.get_xaxis_transform(), ha="center", fontsize=6,
+                        color=COLOURS[k % len(COLOURS)], clip_on=True)
+        if peaks.get(angle):
+            pt = np.array([p for p, _ in peaks[angle]])
+            ax.plot(pt, np.interp(pt, t, values), "v", color="#C44E52", markersize=3)
+        rom = report.rom.get(angle)
+        if rom is not None and rom.target_min is not None:
+            for v in (rom.target_min, rom.target_max):
+                ax.axhline(v, color="black", linestyle="--", linewidth=0.6)
+        ax.set_ylabel(f"{LABELS.get(angle, angle)}\n[deg]", fontsize=7)
+        ax.tick_params(labelsize=7)
+        ax.grid(color="#eee")
+        if i < n - 1:
+            ax.tick_params(labelbottom=False)
+        else:
+            ax.set_xlabel("time [s] (grey: calibration, not counted; bands: exercises; "
+                          "▼ repetition peaks)", fontsize=7)
+        ax.set_xlim(float(t[0]) if t.size else 0, float(t[-1]) if t.size else 1)
+
+
+def _details_page(fig: Figure, report: SessionReport) -> None:
+    fig.text(0.06, 0.92, "Repetitions and smoothness", fontsize=11, weight="bold")
+    header = ["Exercise", "Angle", "Reps", "Amplitude", "Move time", "Peak vel.",
+              "SPARC", "LDLJ", "CV ampl.", "CV time"]
+    rows = []
+    for k, exercise in enumerate(report.exercises, 1):
+        name = f"{k}. " + exercise.name.replace("shoulder_", "sh. ").replace("_", " ")
+        name = name if len(name) <= 40 else name[:39] + "…"
+        for a in exercise.angles:
+            main = max(a.consistency, key=lambda c: c.repetitions, default=None)
+            rows.append([name, LABELS.get(a.angle, a.angle), str(a.repetitions),
+                         _fmt(a.mean_amplitude_deg, ".0f", "°"),
+                         _fmt(a.mean_movement_time_s, ".2f", " s"),
+                         _fmt(a.peak_velocity_deg_s, ".0f", "°/s"),
+                         _fmt(a.median_sparc, ".2f"), _fmt(a.median_ldlj, ".1f"),
+                         _fmt(main.amplitude_cv * 100 if main and main.amplitude_cv
+                              is not None else None, ".0f", "%"),
+                         _fmt(main.movement_time_cv * 100 if main and main.movement_time_cv
+                              is not None else None, ".0f", "%")])
+    note = ("Means over the repetitions; SPARC and LDLJ: medians (closer to 0 is smoother); "
+            "CV: coefficient of variation of the direction with most repetitions.")
+    if len(rows) > MAX_EXERCISE_ROWS:
+        note = (f"First {MAX_EXERCISE_ROWS} of {len(rows)} rows (all in report.csv). "
+                + note)
+        rows = rows[:MAX_EXERCISE_ROWS]
+    height = ROW * (max(1, len(rows)) + 1)
+    bottom = 0.9 - height
+    ax = fig.add_axes((0.04, bottom, 0.92, height))
+    ax.axis("off")
+    if rows:
+        table = ax.table(cellText=rows, colLabels=header, cellLoc="center",
+                         colWidths=[0.27, 0.15, 0.05, 0.08, 0.08, 0.08, 0.06, 0.06, 0.07,
+                                    0.07], bbox=(0, 0, 1, 1))
+        table.auto_set_font_size(False)
+        table.set_fontsize(6.5)
+        for (row, _), cell in table.get_celld().items():
+            cell.set_edgecolor("#bbb")
+            if row == 0:
+                cell.set_facecolor("#e8eef7")
+                cell.set_text_props(weight="bold")
+    else:
+        ax.text(0, 0.5, "No repetitions found.", fontsize=9)
+    fig.text(0.06, bottom - 0.02, note, fontsize=7, color="#444")
+
+    q = report.quality
+    y = bottom - 0.07
+    fig.text(0.06, y, "Data quality", fontsize=11, weight="bold")
+    lines = []
+    for sensor in q.sensors:
+        lines.append(
+            f"{sensor.name}: {'9' if sensor.nine_axis else '6'}-axis, {sensor.samples} samples"
+            f" at {_fmt(sensor.rate_hz, '.0f', ' Hz')} over {sensor.duration_s:.0f} s, "
+            f"{sensor.lost_samples} lost ({sensor.lost_percent:.1f}%)"
+            + (f", magnetic disturbance {sensor.magnetic_disturbance_s:.1f} s in "
+               f"{len(sensor.magnetic_disturbances)} period(s)" if sensor.nine_axis else ""))
+    cal = q.calibration
+    lines.append(f"Estimates: {q.estimates} at {_fmt(q.estimate_rate_hz, '.0f', ' Hz')}, "
+                 f"{len(q.estimate_gaps)} gap(s) > 0.25 s")
+    lines.append(f"Calibration: {cal.method or '–'}"
+                 + (" — no pose found, default sensor mounting assumed"
+                    if cal.default_mounting else "")
+                 + (f"; excluded from metrics {cal.excluded.start_s:.1f}–"
+                    f"{cal.excluded.end_s:.1f} s" if cal.excluded else ""))
+    lines += [f"Warning: {w}" for w in q.warnings] or ["No warnings."]
+    y -= 0.03
+    for line in lines[: max(1, int((y - 0.05) / 0.018))]:
+        fig.text(0.07, y, line, fontsize=8, wrap=True)
+        y -= 0.018
+
+
+def report_pdf(report: SessionReport, data: SessionData) -> bytes:
+    """The report as PDF bytes."""
+    repetitions: dict[str, int] = {}
+    for exercise in report.exercises:
+        for a in exercise.angles:
+            repetitions[a.angle] = repetitions.get(a.angle, 0) + a.repetitions
+    out = io.BytesIO()
+    with PdfPages(out, metadata={"Title": f"armtrack session {report.session.session_id}",
+                                 "Creator": "armtrack"}) as pages:
+        first = _page("Session report", report, 1, 3)
+        _header(first, report)
+        _rom_bars(first, report, _rom_table(first, report, repetitions))
+        pages.savefig(first)
+        second = _page("Joint angles over time", report, 2, 3)
+        _angles_page(second, report, data)
+        pages.savefig(second)
+        third = _page("Repetitions, smoothness and data quality", report, 3, 3)
+        _details_page(third, report)
+        pages.savefig(third)
+    return out.getvalue()

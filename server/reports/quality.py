@@ -1,0 +1,106 @@
+"""Data quality of a session: sensors, sample rates, lost samples, magnetometer
+disturbances, the calibration used and the warnings.
+
+* **Lost samples** per sensor, from its time stamps: with ``dt`` the median interval,
+  a gap of ``g`` seconds holds ``round(g / dt) − 1`` missing samples (jitter of a fraction
+  of ``dt`` counts nothing).
+* **Magnetometer disturbance** (9-axis sensors): the field strength ``|m|`` against its
+  median over the session; a sample is disturbed when it is more than
+  ``MAG_TOLERANCE`` (15%) off (the Earth's field is 25–65 µT and steady; iron or a motor
+  nearby changes its strength). Runs shorter than ``MAG_MIN_S`` are noise; runs closer
+  than ``MAG_MERGE_S`` are one period. The heading of a 9-axis estimate is doubtful in
+  those periods.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from armtrack.estimator.metrics.timebase import runs
+
+from .content import (
+    CalibrationQuality,
+    PoseOut,
+    Quality,
+    SensorQuality,
+    SessionData,
+    Window,
+    finite,
+)
+
+#: Relative deviation of |m| from its median that counts as a disturbance [-].
+MAG_TOLERANCE = 0.15
+#: Shorter disturbed runs are ignored [s].
+MAG_MIN_S = 0.2
+#: Disturbed runs closer than this are merged [s].
+MAG_MERGE_S = 0.5
+#: Estimates further apart than this make a gap [s].
+ESTIMATE_GAP_S = 0.25
+
+
+def lost_samples(t: np.ndarray) -> tuple[int, float | None]:
+    """Missing samples of a sensor's time stamps ``t`` [s] (N,), and its median rate [Hz]."""
+    if t.size < 2:
+        return 0, None
+    dt = np.diff(t)
+    step = float(np.median(dt))
+    if step <= 0:
+        return 0, None
+    return int(np.sum(np.maximum(np.round(dt / step) - 1, 0))), 1.0 / step
+
+
+def magnetic_disturbances(t: np.ndarray, mag: np.ndarray) -> list[tuple[float, float]]:
+    """Periods ``(start_s, end_s)`` where ``|mag|`` (N, 3) [µT] is off its median."""
+    strength = np.linalg.norm(mag, axis=1)
+    ok = np.isfinite(strength)
+    if not np.any(ok):
+        return []
+    usual = float(np.median(strength[ok]))
+    if usual <= 0:
+        return []
+    off = ok & (np.abs(strength - usual) > MAG_TOLERANCE * usual)
+    periods: list[list[float]] = []
+    for a, b in zip(*runs(off), strict=True):
+        start, end = float(t[a]), float(t[b - 1])
+        if periods and start - periods[-1][1] < MAG_MERGE_S:
+            periods[-1][1] = end
+        else:
+            periods.append([start, end])
+    return [(a, b) for a, b in periods if b - a >= MAG_MIN_S]
+
+
+def quality(data: SessionData) -> Quality:
+    session = data.session
+    sensors = []
+    for name, stream in data.recording.sensors.items():
+        lost, rate = lost_samples(stream.t)
+        duration = float(stream.t[-1] - stream.t[0]) if len(stream.t) > 1 else 0.0
+        disturbed = (magnetic_disturbances(stream.t, stream.mag)
+                     if stream.mag is not None else [])
+        sensors.append(SensorQuality(
+            name=name, nine_axis=stream.mag is not None, samples=len(stream.t),
+            rate_hz=finite(rate, 2), duration_s=finite(duration, 2), lost_samples=lost,
+            lost_percent=finite(100.0 * lost / max(1, lost + len(stream.t)), 2),
+            magnetic_disturbances=[Window(start_s=finite(a), end_s=finite(b))
+                                   for a, b in disturbed],
+            magnetic_disturbance_s=finite(sum(b - a for a, b in disturbed), 2)))
+    calibration = session.calibration or {}
+    poses = [PoseOut(name=p["name"], start_s=finite(p["start"]), end_s=finite(p["end"]))
+             for p in calibration.get("poses") or []]
+    t = data.t
+    gaps = []
+    if t.size > 1:
+        jumps = np.flatnonzero(np.diff(t) > ESTIMATE_GAP_S)
+        gaps = [Window(start_s=finite(t[i]), end_s=finite(t[i + 1])) for i in jumps]
+    excluded = (Window(start_s=finite(data.exclude[0][0]), end_s=finite(data.exclude[0][1]))
+                if data.exclude else None)
+    return Quality(
+        sensors=sensors, estimates=int(t.size),
+        estimate_rate_hz=finite(1.0 / float(np.median(np.diff(t))), 2) if t.size > 1 else None,
+        estimate_gaps=gaps,
+        calibration=CalibrationQuality(
+            method=calibration.get("method"),
+            default_mounting=calibration.get("method") == "default",
+            final_time_s=finite(calibration.get("final_time_s")), poses=poses,
+            excluded=excluded),
+        estimator={str(k): str(v) for k, v in (session.estimator or {}).items()},
+        warnings=list(calibration.get("warnings") or []))
