@@ -132,6 +132,8 @@ def _rom_bars(fig: Figure, report: SessionReport, top: float) -> None:
         ax.axis("off")
         return
     y = np.arange(len(names))[::-1]
+    ax.set_axisbelow(True)
+    target_labelled = False
     for yi, angle in zip(y, names, strict=True):
         r = report.rom[angle]
         if r.normal_min is not None:
@@ -142,7 +144,8 @@ def _rom_bars(fig: Figure, report: SessionReport, top: float) -> None:
         if r.target_min is not None:
             ax.barh(yi, r.target_max - r.target_min, left=r.target_min, height=0.6,
                     fill=False, edgecolor="black", linewidth=1.2, linestyle="--",
-                    label="target" if yi == y[0] else None)
+                    label=None if target_labelled else "target")
+            target_labelled = True
         label = _fmt(r.percent_of_normal, ".0f", "% of normal")
         ax.text(max(r.max, r.normal_max or r.max) + 4, yi, label, va="center", fontsize=7)
     ax.set_yticks(y, [LABELS.get(n, n) for n in names], fontsize=8)
