@@ -53,18 +53,19 @@ async def live(websocket: WebSocket, patient: int) -> None:
     with services.hub.subscribe(patient) as subscription:
         for status in services.sensor_status.get(patient, {}).values():
             await websocket.send_text(dumps({"kind": "status", **status}))
-        # the viewer sends nothing; its receive ends when it goes away
-        gone = asyncio.create_task(websocket.receive())
+        # the viewer sends nothing: its receive returns when it goes away, and then a
+        # None in the queue ends the loop (one await per update, no task per update)
+        async def watch_gone() -> None:
+            with contextlib.suppress(Exception):
+                await websocket.receive()
+            subscription.put(None)
+
+        gone = asyncio.create_task(watch_gone())
         try:
-            while True:
-                update = asyncio.create_task(subscription.get())
-                await asyncio.wait((update, gone), return_when=asyncio.FIRST_COMPLETED)
-                if gone.done():
-                    update.cancel()
+            while (update := await subscription.get()) is not None:
+                try:
+                    await websocket.send_text(dumps(update))
+                except (WebSocketDisconnect, RuntimeError):
                     return
-                with contextlib.suppress(WebSocketDisconnect, RuntimeError):
-                    await websocket.send_text(dumps(update.result()))
-                    continue
-                return
         finally:
             gone.cancel()

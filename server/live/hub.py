@@ -15,16 +15,17 @@ class Subscription:
     def __init__(self, hub: LiveHub, patient_id: int):
         self.hub = hub
         self.patient_id = patient_id
-        self.queue: asyncio.Queue[dict[str, Any]] = asyncio.Queue(QUEUE_SIZE)
+        self.queue: asyncio.Queue[dict[str, Any] | None] = asyncio.Queue(QUEUE_SIZE)
         self.dropped = 0
 
-    def put(self, update: dict[str, Any]) -> None:
+    def put(self, update: dict[str, Any] | None) -> None:
         if self.queue.full():
             self.queue.get_nowait()
             self.dropped += 1
         self.queue.put_nowait(update)
 
-    async def get(self) -> dict[str, Any]:
+    async def get(self) -> dict[str, Any] | None:
+        """The next update; None once the subscriber's side put an end to it."""
         return await self.queue.get()
 
     def close(self) -> None:

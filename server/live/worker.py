@@ -39,20 +39,27 @@ class RunningRange:
         self.low = np.full(len(REPORTED_ANGLES), np.inf)
         self.high = np.full(len(REPORTED_ANGLES), -np.inf)
         self.start_s = -np.inf
+        self._as_dict: dict[str, dict[str, float]] | None = {}
 
     def update(self, t: np.ndarray, degrees: np.ndarray) -> None:
         """``degrees`` (len(REPORTED_ANGLES), n) at times ``t`` (n,)."""
         keep = t >= self.start_s
-        if keep.all():
-            np.fmin(self.low, degrees.min(axis=1), out=self.low)  # a NaN chunk changes nothing
-            np.fmax(self.high, degrees.max(axis=1), out=self.high)
-        elif keep.any():
-            self.update(t[keep], degrees[:, keep])
+        if not keep.all():
+            if not keep.any():
+                return
+            t, degrees = t[keep], degrees[:, keep]
+        low = np.fmin(self.low, degrees.min(axis=1))  # a NaN chunk changes nothing
+        high = np.fmax(self.high, degrees.max(axis=1))
+        if (low != self.low).any() or (high != self.high).any():
+            self.low, self.high = low, high
+            self._as_dict = None  # rebuilt when asked
 
     def as_dict(self) -> dict[str, dict[str, float]]:
-        return {k: {"min": lo, "max": hi, "range": hi - lo}
-                for k, lo, hi in zip(REPORTED_ANGLES, self.low.tolist(), self.high.tolist(),
-                                     strict=True) if lo <= hi}
+        if self._as_dict is None:
+            self._as_dict = {k: {"min": lo, "max": hi, "range": hi - lo}
+                             for k, lo, hi in zip(REPORTED_ANGLES, self.low.tolist(),
+                                                  self.high.tolist(), strict=True) if lo <= hi}
+        return self._as_dict
 
 
 class LiveWorker:
