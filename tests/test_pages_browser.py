@@ -272,3 +272,36 @@ def test_replay_of_a_stored_session(module_server, page, shots):
     expect_viewer_canvas(page, shots, "replay")
     page.wait_for_timeout(2000)
     page.screenshot(path=str(shots / "replay-3d.png"), full_page=True)
+
+
+def test_the_3d_view_reconnects_after_the_server_restarts(server, page, shots):
+    """A viewer grant works once: when the view's connection drops (here the server is
+    killed and started again on the same database), the session page notices, says so and
+    loads the view again with a new grant."""
+    from armtrack.estimator.recording import format_recording
+
+    api = server.client("alice")
+    patient = api.patient("Restart Patient")
+    answer = api.http.post("/api/recordings", data={"patient_id": str(patient["id"])},
+                           files={"file": ("flexion.csv",
+                                           format_recording(_exercise("elbow_flexion")))})
+    answer.raise_for_status()
+    session = answer.json()
+    sign_in(page, server.url)
+    page.goto(f"{server.url}/sessions/{session['id']}")
+    expect_viewer_canvas(page, shots, "before-restart")
+    frame = page.locator("#viewer-frame")
+    first = frame.get_attribute("src")
+    note = page.locator("#viewer-note")
+    sync_api.expect(note).to_be_hidden()
+
+    server.kill()
+    sync_api.expect(note).to_contain_text("3D view reconnecting", timeout=10_000)
+    page.screenshot(path=str(shots / "viewer-reconnecting.png"), full_page=True)
+    server.start()
+    sync_api.expect(frame).not_to_have_attribute("src", first, timeout=30_000)
+    expect_viewer_canvas(page, shots, "after-restart")
+    sync_api.expect(note).to_be_hidden(timeout=15_000)
+    play = page.frame_locator("#viewer-frame").get_by_role("button", name="Play")
+    sync_api.expect(play).to_be_visible(timeout=VIEWER_TIMEOUT_S * 1000)
+    page.screenshot(path=str(shots / "viewer-reconnected.png"), full_page=True)

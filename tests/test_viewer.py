@@ -20,10 +20,10 @@ from armtrack.estimator.rotations import matrix_to_quat, quat_to_matrix
 from armtrack.estimator.simulation import SimulationConfig, simulate
 from armtrack.server.emulator import KitEmulator
 from armtrack.web.viewer.geometry import z_to
-from armtrack.web.viewer.grants import GrantBook
-from armtrack.web.viewer.host import CLOSE_NO_GRANT, ViewerHost
+from armtrack.web.viewer.grants import CLOSED, OPEN, WAITING, GrantBook
+from armtrack.web.viewer.host import CLOSE_NO_GRANT, ViewerHost, quiet_viser_server, stop_quietly
 from armtrack.web.viewer.pose import Pose
-from armtrack.web.viewer.rom import AMBER, GREEN, RED, arc_points, band_colour
+from armtrack.web.viewer.rom import AMBER, ARC_PIECES, GREEN, RED, arc_points, band_colour
 from armtrack.web.viewer.view import ClientView
 from viser import _messages
 from websockets.asyncio.client import connect
@@ -105,6 +105,28 @@ def test_grants_are_one_time_and_expire():
     assert book.page(late.id) is None and book.claim(late.id) is None
 
 
+def test_a_grant_tells_whether_its_viewer_is_still_connected():
+    book = GrantBook(ttl_s=0.2)
+    grant = book.issue(therapist_id=1, patient_id=2, session_id=None)
+    assert book.state(grant.id) == (grant, WAITING)
+    book.claim(grant.id)
+    assert book.state(grant.id) == (grant, OPEN)
+    book.close(grant.id)
+    assert book.state(grant.id) == (grant, CLOSED)  # the page asks for a new grant
+    assert book.state("nonsense") is None  # unknown, e.g. after a restart: also a new one
+    unused = book.issue(therapist_id=1, patient_id=2, session_id=None)
+    time.sleep(0.25)
+    assert book.state(unused.id) == (unused, CLOSED)
+
+
+def test_the_viser_server_prints_nothing(capsys):
+    server = quiet_viser_server()
+    assert server.get_port() > 0
+    stop_quietly(server)
+    captured = capsys.readouterr()
+    assert captured.out == "" and "viser" not in captured.err
+
+
 def test_z_to_turns_z_onto_the_direction():
     rng = np.random.default_rng(1)
     for d in [*rng.normal(size=(200, 3)), np.array([0, 0, -1.0]), np.array([0, 0, 2.0])]:
@@ -181,6 +203,22 @@ def test_a_client_scene_is_built_once_and_moved_in_place():
     assert view.arcs._arcs["elbow_flexion"].visible
     assert not view.arcs._arcs["shoulder_flexion"].visible
     assert "elbow flexion 120°" in view.arcs._labels["elbow_flexion"].text
+    # the arc: a line of fixed width on screen and a translucent fan, green within normal
+    assert view.arcs._arcs["elbow_flexion"].thickness_units == "screen"
+    green, amber, red = view.arcs._fans["elbow_flexion"]
+    assert green.visible and not amber.visible and not red.visible
+    assert len(green.faces) == ARC_PIECES and 0 < green.opacity < 1
+    # embedded beside the page's own angles: a small control panel, minimised when live
+    theme = [m for m in messages if m["type"] == "ThemeConfigurationMessage"][-1]
+    assert theme["control_width"] == "small" and not theme["show_logo"]
+    assert any(m["type"] == "GuiSetPanelCollapsedMessage" and m["collapsed"]
+               for m in messages)
+    # the camera frames the arm: near, looking at the upper arm, from the measured side
+    camera = view.client.camera
+    target = np.asarray(camera.look_at)
+    shoulder = view.arm.notch_world(pose) + pose.R_world["thorax"] @ pose.p_thorax["shoulder"]
+    assert np.linalg.norm(np.asarray(camera.position) - target) < 2.0
+    assert np.linalg.norm(target - shoulder) < 0.4
 
 
 def test_the_gate_closes_a_viewer_without_a_ticket_before_sending_anything():

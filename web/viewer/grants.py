@@ -7,6 +7,10 @@ while the grant is unused; the grant is *used* when the page's WebSocket (``/vie
 claims it. Claiming mints a ticket, a second secret that only the proxy knows, which the
 proxy hands to viser in its upstream URL (``?ticket=``); viser takes the ticket once to
 learn whose scene to build. Neither a grant nor a ticket works twice.
+
+Since a grant works once, a viewer whose WebSocket closed (the server restarted, the
+network dropped) cannot come back: its page asks for the grant's ``state`` and, once the
+grant is ``closed`` or unknown, gets a new grant.
 """
 
 from __future__ import annotations
@@ -20,6 +24,11 @@ from dataclasses import dataclass
 GRANT_TTL_S = 60.0
 #: Seconds between the proxy claiming a grant and viser taking its ticket.
 TICKET_TTL_S = 15.0
+#: Seconds a closed viewer's grant still tells that it is closed (then it is unknown).
+CLOSED_KEPT_S = 120.0
+
+#: A grant's state: its page may still connect; its WebSocket is open; it is over.
+WAITING, OPEN, CLOSED = "waiting", "open", "closed"
 
 
 @dataclass
@@ -35,6 +44,7 @@ class Grant:
     used: bool = False
     ticket: str | None = None
     ticket_expires_at: float = 0.0
+    closed_at: float | None = None
 
     @property
     def live(self) -> bool:
@@ -49,6 +59,7 @@ class GrantBook:
         self.ticket_ttl_s = ticket_ttl_s
         self._grants: dict[str, Grant] = {}
         self._tickets: dict[str, Grant] = {}
+        self._claimed: dict[str, Grant] = {}  # grant id → used grant, open or lately closed
         self._lock = threading.Lock()
 
     def issue(self, *, therapist_id: int, patient_id: int, session_id: int | None) -> Grant:
@@ -81,7 +92,29 @@ class GrantBook:
             grant.ticket = secrets.token_urlsafe(24)
             grant.ticket_expires_at = now + self.ticket_ttl_s
             self._tickets[grant.ticket] = grant
+            self._claimed[grant.id] = grant
             return grant
+
+    def close(self, grant_id: str) -> None:
+        """The claimed grant's WebSocket has closed."""
+        with self._lock:
+            grant = self._claimed.get(grant_id)
+            if grant is not None and grant.closed_at is None:
+                grant.closed_at = time.monotonic()
+
+    def state(self, grant_id: str) -> tuple[Grant, str] | None:
+        """The grant and its state (``WAITING``: unused and unexpired; ``OPEN``: its
+        WebSocket is open; ``CLOSED``: it closed, or the grant expired unused), or None if
+        the grant is unknown (never issued, or long over)."""
+        now = time.monotonic()
+        with self._lock:
+            grant = self._claimed.get(grant_id)
+            if grant is not None:
+                return grant, OPEN if grant.closed_at is None else CLOSED
+            grant = self._grants.get(grant_id)
+            if grant is None:
+                return None
+            return grant, WAITING if grant.expires_at > now else CLOSED
 
     def take_ticket(self, ticket: str) -> Grant | None:
         """The grant of a ticket (once), or None if unknown or expired."""
@@ -92,7 +125,11 @@ class GrantBook:
             return grant
 
     def _prune(self, now: float) -> None:
-        for key in [k for k, g in self._grants.items() if g.expires_at <= now]:
+        for key in [k for k, g in self._grants.items()
+                    if g.expires_at + CLOSED_KEPT_S <= now]:
             del self._grants[key]
+        for key in [k for k, g in self._claimed.items()
+                    if g.closed_at is not None and g.closed_at + CLOSED_KEPT_S <= now]:
+            del self._claimed[key]
         for key in [k for k, g in self._tickets.items() if g.ticket_expires_at <= now]:
             del self._tickets[key]

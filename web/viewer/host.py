@@ -11,6 +11,8 @@ it leaves.
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import io
 import logging
 import threading
 from concurrent.futures import Future
@@ -65,6 +67,31 @@ def on_websocket_open(server: viser.ViserServer, callback) -> None:
                           "connections on") from exc
 
 
+@contextlib.contextmanager
+def _viser_prints_to_log():
+    """viser 1.1 prints its banner and "Server stopped" with ``rich.print`` whatever
+    ``verbose`` says (``verbose=False`` only quiets its per-connection lines): send what it
+    prints meanwhile to the debug log instead of the server's stdout."""
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        yield
+    for line in printed.getvalue().splitlines():
+        if line.strip():
+            log.debug("viser: %s", line.rstrip())
+
+
+def quiet_viser_server(port: int = 0) -> viser.ViserServer:
+    """A ``ViserServer`` on 127.0.0.1:``port`` (0: any free one) that prints nothing."""
+    with _viser_prints_to_log():
+        return viser.ViserServer(host="127.0.0.1", port=port, verbose=False)
+
+
+def stop_quietly(server: viser.ViserServer) -> None:
+    """Stop ``server`` without its "Server stopped" line on stdout."""
+    with _viser_prints_to_log():
+        server.stop()
+
+
 class ViewerHost:
     """One ``ViserServer`` on 127.0.0.1:``port`` (0: any free port) for the app whose
     ``services`` (database, live hub) it draws from; grants last ``grant_s`` [s]."""
@@ -94,7 +121,7 @@ class ViewerHost:
         await self._loop.run_in_executor(None, self._start_server)
 
     def _start_server(self) -> None:
-        server = viser.ViserServer(host="127.0.0.1", port=self.requested_port, verbose=False)
+        server = quiet_viser_server(self.requested_port)
         self.server = server
         on_websocket_open(server, self._gate)
         server.on_client_connect(self._connect)
@@ -107,7 +134,7 @@ class ViewerHost:
         for future in drivers:
             future.cancel()
         if self.server is not None:
-            await asyncio.get_running_loop().run_in_executor(None, self.server.stop)
+            await asyncio.get_running_loop().run_in_executor(None, stop_quietly, self.server)
             self.server = None
 
     async def _gate(self, connection) -> None:
@@ -176,14 +203,15 @@ class ViewerHost:
                 raise ViewerError(f"patient {grant.patient_id} is not the grant's therapist's")
             if grant.live:
                 view = ClientView(client, heading=f"{patient.name} · live",
-                                  height_m=patient.height_m, side=patient.side)
+                                  height_m=patient.height_m, side=patient.side, live=True)
                 return LiveDriver(view, services.hub, patient.id,
                                   dict(services.sensor_status.get(patient.id, {})))
             session = db.get(models.Session, grant.session_id)
             if session is None or session.patient_id != patient.id:
                 raise ViewerError(f"session {grant.session_id} is not patient {patient.id}'s")
             view = ClientView(client, heading=f"{patient.name} · session {session.id}",
-                              height_m=session.height_m or patient.height_m, side=session.side)
+                              height_m=session.height_m or patient.height_m, side=session.side,
+                              live=False)
             data = load_session(db, session.id)
         if data is None:
             view.panels.show_status([f"Replay · session {session.id} has no estimates yet"

@@ -32,16 +32,26 @@ DISCLAIMER = "*armtrack supports therapy; it is not a diagnostic device.*"
 
 
 class Panels:
-    """The panels; ``gui`` is the viewer's ``client.gui``."""
+    """The panels; ``gui`` is the viewer's ``client.gui``.
 
-    def __init__(self, gui, heading: str):
+    The viewer is mostly seen embedded in the session page (an iframe of about 640×480 px)
+    beside the page's own angles and status, so the control panel is small and floats at
+    the top right: live (``live``), it starts minimised to its title bar; in a replay it
+    starts open on the replay controls, the other folders closed."""
+
+    def __init__(self, gui, heading: str, *, live: bool = True):
         self.gui = gui
-        gui.configure_theme(control_width="large", show_logo=False, dark_mode=False)
+        gui.configure_theme(control_width="small", show_logo=False, show_share_button=False,
+                            dark_mode=False)
+        main = gui.main_panel
+        main.float(x=-8, y=8)
+        if live:
+            main.minimize()
         self.status = gui.add_markdown(f"**{heading}**\n\nwaiting for data…\n\n{DISCLAIMER}")
         self.heading = heading
         self.replay_folder = gui.add_folder("Replay", expand_by_default=True)
         self.replay_folder.visible = False
-        with gui.add_folder("Joint angles [deg]"):
+        with gui.add_folder("Joint angles [deg]", expand_by_default=False):
             series = [{"label": "t [s]"}] + [
                 {"label": pretty(k), "stroke": PLOT_COLOURS[k], "width": 1.5}
                 for k in PLOT_COLOURS]
@@ -50,9 +60,9 @@ class Panels:
                 data=empty, series=tuple(series), aspect=1.3,
                 scales={"x": {"time": False}, "y": {"auto": True}},
                 legend={"show": True, "live": False})
-        with gui.add_folder("Range of motion (AAOS normal)"):
+        with gui.add_folder("Range of motion (AAOS normal)", expand_by_default=False):
             self.rom = gui.add_markdown("no movement yet")
-        with gui.add_folder("Repetitions"):
+        with gui.add_folder("Repetitions", expand_by_default=live):
             self.repetitions = gui.add_markdown("—")
         with gui.add_folder("View", expand_by_default=False):
             self.sensor_frames = gui.add_checkbox("Sensor frames", initial_value=False)

@@ -25,10 +25,15 @@ ACTIVE_RANGE_DEG = 10.0
 AMBER_BEYOND_DEG = 10.0
 #: Pieces per arc.
 ARC_PIECES = 48
+#: Width of an arc's line [screen pixels]: the same however far the camera is.
+ARC_LINE_PX = 5.0
+#: Opacity of the fan between an arc and its joint.
+FAN_OPACITY = 0.35
 
-GREEN = (46, 170, 80)
-AMBER = (245, 166, 35)
-RED = (214, 48, 49)
+GREEN = (30, 160, 60)
+AMBER = (245, 150, 0)
+RED = (214, 40, 40)
+BANDS = (GREEN, AMBER, RED)
 
 _DOWN = np.array([0.0, -1.0, 0.0])  # a segment's distal axis
 _FRONT = np.array([1.0, 0.0, 0.0])  # its anterior axis (for axial rotations)
@@ -60,13 +65,15 @@ ARCS: dict[str, ArcSpec] = {
 def band_colour(angle_deg: np.ndarray, name: str) -> np.ndarray:
     """RGB (..., 3) uint8: green inside ``NORMAL_RANGE_DEG[name]``, amber up to
     ``AMBER_BEYOND_DEG`` beyond it, red further."""
+    return np.asarray(BANDS, dtype=np.uint8)[band_index(angle_deg, name)]
+
+
+def band_index(angle_deg: np.ndarray, name: str) -> np.ndarray:
+    """Per angle the index into ``BANDS``: 0 (green) inside ``NORMAL_RANGE_DEG[name]``, 1
+    (amber) up to ``AMBER_BEYOND_DEG`` beyond it, 2 (red) further."""
     lo, hi = NORMAL_RANGE_DEG[name]
     beyond = np.maximum(lo - np.asarray(angle_deg), np.asarray(angle_deg) - hi)
-    out = np.empty((*np.shape(angle_deg), 3), dtype=np.uint8)
-    out[...] = GREEN
-    out[beyond > 0] = AMBER
-    out[beyond > AMBER_BEYOND_DEG] = RED
-    return out
+    return (beyond > 0).astype(np.intp) + (beyond > AMBER_BEYOND_DEG)
 
 
 def arc_points(name: str, pose: Pose, lengths: SegmentLengths, lo_deg: float, hi_deg: float,
@@ -107,16 +114,29 @@ def degrees(value: float) -> str:
 
 
 class RomArcs:
-    """The arcs and labels of one viewer's scene, under ``<root>/rom``; nodes made once."""
+    """The arcs and labels of one viewer's scene, under ``<root>/rom``; nodes made once.
+
+    Each active angle shows a line along its arc (``ARC_LINE_PX`` wide on screen, coloured
+    piece by piece) and a translucent fan from its joint to the arc, one fan per colour
+    band so a range beyond normal stands out in amber or red."""
 
     def __init__(self, scene, root: str):
         self._arcs = {}
+        self._fans: dict[str, list[Any]] = {}
         self._labels = {}
         blank = np.zeros((ARC_PIECES, 2, 3), dtype=np.float32)
+        fan_vertices = np.zeros((ARC_PIECES + 2, 3), dtype=np.float32)
+        fan_faces = np.array([[0, 1, 2]], dtype=np.uint32)
         for name in ARCS:
             self._arcs[name] = scene.add_line_segments(
                 f"{root}/rom/{name}", blank, np.zeros((ARC_PIECES, 2, 3), dtype=np.uint8),
-                thickness=0.018, visible=False)
+                thickness=ARC_LINE_PX, thickness_units="screen", visible=False)
+            self._fans[name] = [
+                scene.add_mesh_simple(f"{root}/rom/{name}/fan{i}", fan_vertices, fan_faces,
+                                      color=colour, opacity=FAN_OPACITY, side="double",
+                                      flat_shading=True, cast_shadow=False,
+                                      receive_shadow=False, visible=False)
+                for i, colour in enumerate(BANDS)]
             self._labels[name] = scene.add_label(
                 f"{root}/rom/{name}/label", pretty(name), visible=False,
                 font_screen_scale=0.8, anchor="bottom-left")
@@ -130,16 +150,36 @@ class RomArcs:
             if name not in shown:
                 arc.visible = False
                 label.visible = False
+                for fan in self._fans[name]:
+                    fan.visible = False
                 continue
             lo, hi = pose.rom_deg[name]
             points, theta = arc_points(name, pose, lengths, lo, hi)
             middle = (theta[:-1] + theta[1:]) / 2
-            colours = band_colour(middle, name)
+            bands = band_index(middle, name)
+            colours = np.asarray(BANDS, dtype=np.uint8)[bands]
             arc.points = np.stack([points[:-1], points[1:]], axis=1).astype(np.float32)
             arc.colors = np.repeat(colours[:, None, :], 2, axis=1)
             arc.visible = True
+            self._show_fans(name, pose.p_thorax[ARCS[name].centre], points, bands)
             value = pose.angles_deg.get(name, math.nan)
             label.position = current_point(name, pose, lengths)
-            label.text = (f"{pretty(name)} {degrees(value)}  ({round(lo)}…{degrees(hi)})"
+            label.text = (f"{pretty(name)} {degrees(value)}  ({degrees(lo)}…{degrees(hi)})"
                           if math.isfinite(value) else pretty(name))
             label.visible = True
+
+    def _show_fans(self, name: str, centre: np.ndarray, points: np.ndarray,
+                   bands: np.ndarray) -> None:
+        """The fans of ``name``: triangles from the joint ``centre`` to each piece of the
+        arc ``points`` (pieces + 1, 3), in the fan of the piece's colour band."""
+        vertices = np.vstack([centre[None, :], points]).astype(np.float32)
+        pieces = np.arange(len(points) - 1, dtype=np.uint32)
+        triangles = np.stack([np.zeros_like(pieces), pieces + 1, pieces + 2], axis=1)
+        for i, fan in enumerate(self._fans[name]):
+            mine = triangles[bands == i]
+            if len(mine) == 0:
+                fan.visible = False
+                continue
+            fan.vertices = vertices
+            fan.faces = mine
+            fan.visible = True

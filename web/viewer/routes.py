@@ -2,9 +2,12 @@
 
 * ``POST /api/viewer`` (therapist's bearer token), body ``{"patient_id": int,
   "session_id": int | null}`` — a one-time grant to view the patient live (``null``) or a
-  stored session of theirs: ``{"url": "/viewer/<grant>/", "expires_in": 60}`` [s]
-  (``ARMTRACK_VIEWER_GRANT_S``).
+  stored session of theirs: ``{"url": "/viewer/<grant>/", "expires_in": 60,
+  "state_url": "/api/viewer/<grant>"}`` [s] (``ARMTRACK_VIEWER_GRANT_S``).
   Another therapist's patient or session is 404.
+* ``GET /api/viewer/<grant>`` (the grant's therapist) — ``{"state": "waiting" | "open" |
+  "closed"}``: whether the viewer's WebSocket is still to come, open, or over (then the
+  page asks for a new grant); 404 once the grant is unknown (also after a restart).
 * ``GET /viewer/<grant>/`` — viser's client page, for a known, unexpired, unused grant;
   else 404.
 * ``WebSocket /viewer/<grant>`` — the page's connection: it uses the grant up and is
@@ -17,6 +20,7 @@ from __future__ import annotations
 import gzip
 from functools import cache
 from pathlib import Path
+from typing import Literal
 
 import viser
 from armtrack.server.api.deps import Db, Therapist, own_patient, own_session
@@ -41,6 +45,13 @@ class ViewerRequest(BaseModel):
 class ViewerGrantOut(BaseModel):
     url: str = Field(description="the viewer page; open it within expires_in seconds, once")
     expires_in: int = Field(description="seconds the grant stays good [s]")
+    state_url: str = Field(description="where to ask whether the viewer is still connected")
+
+
+class ViewerStateOut(BaseModel):
+    state: Literal["waiting", "open", "closed"] = Field(
+        description="waiting: the viewer page has not connected yet; open: it is connected; "
+                    "closed: its connection is over (ask for a new grant)")
 
 
 @cache
@@ -64,7 +75,18 @@ def create_viewer(body: ViewerRequest, db: Db, therapist: Therapist,
     grants = request.app.state.services.viewer.grants
     grant = grants.issue(therapist_id=therapist.id, patient_id=body.patient_id,
                          session_id=body.session_id)
-    return ViewerGrantOut(url=f"/viewer/{grant.id}/", expires_in=round(grants.ttl_s))
+    return ViewerGrantOut(url=f"/viewer/{grant.id}/", expires_in=round(grants.ttl_s),
+                          state_url=f"/api/viewer/{grant.id}")
+
+
+@router.get("/api/viewer/{grant_id}", response_model=ViewerStateOut)
+def viewer_state(grant_id: str, therapist: Therapist, request: Request) -> ViewerStateOut:
+    """Whether one of your viewers is still connected: its page reloads the view with a
+    new grant once it is closed (404: unknown, e.g. after a restart of the server)."""
+    known = request.app.state.services.viewer.grants.state(grant_id)
+    if known is None or known[0].therapist_id != therapist.id:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, "no such viewer")
+    return ViewerStateOut(state=known[1])
 
 
 @router.get("/viewer/{grant_id}/", include_in_schema=False)
@@ -89,4 +111,7 @@ async def viewer_socket(websocket: WebSocket, grant_id: str) -> None:
     if grant is None:
         await websocket.close(CLOSE_NO_GRANT)  # before accepting: the handshake is refused
         return
-    await proxy(websocket, host.upstream_url(grant.ticket))
+    try:
+        await proxy(websocket, host.upstream_url(grant.ticket))
+    finally:
+        host.grants.close(grant.id)

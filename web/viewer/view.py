@@ -16,13 +16,22 @@ from .rom import RomArcs
 
 #: Default body height [m] when the patient's is unknown or implausible.
 DEFAULT_HEIGHT_M = 1.70
+#: The camera: its distance from the target [m], its turn from the subject's front toward
+#: the measured arm [deg], how far the target is below the shoulder [m] and how far the
+#: camera is above the target [m].
+CAMERA_DISTANCE_M = 1.3
+CAMERA_TURN_DEG = 60.0
+CAMERA_DROP_M = 0.22
+CAMERA_RISE_M = 0.25
 
 
 class ClientView:
     """The view of one viser ``client``: ``heading`` titles the panels; ``height_m`` [m]
-    and ``side`` (``"right"`` | ``"left"``) shape the figure until poses come."""
+    and ``side`` (``"right"`` | ``"left"``) shape the figure until poses come; ``live``:
+    a live view (else a replay, whose controls stay in reach)."""
 
-    def __init__(self, client, *, heading: str, height_m: float | None, side: str):
+    def __init__(self, client, *, heading: str, height_m: float | None, side: str,
+                 live: bool = True):
         lo, hi = HEIGHT_RANGE_M
         height = height_m if height_m is not None and lo <= height_m <= hi else DEFAULT_HEIGHT_M
         self.client = client
@@ -32,7 +41,7 @@ class ClientView:
         self._last: Pose | None = None
         self._due: dict[str, float] = {}
         with client.atomic():
-            self.panels = Panels(client.gui, heading)
+            self.panels = Panels(client.gui, heading, live=live)
             self.arm = ArmView(client.scene, height, self.lengths,
                                1.0 if self.side == "right" else -1.0)
             self.arcs = RomArcs(client.scene, ROOT)
@@ -71,16 +80,22 @@ class ClientView:
             self.place_camera(pose)
 
     def place_camera(self, pose: Pose) -> None:
-        """Look at the chest from 2.4 m away, 55° from the front toward the measured arm (so
-        both sagittal and frontal arcs show)."""
+        """Frame the measured arm: look at a point below its shoulder (where the arm and
+        its arcs are, whether it hangs or is raised) from ``CAMERA_DISTANCE_M`` away,
+        ``CAMERA_TURN_DEG`` from the front toward the measured arm's side and a little
+        above, so the arm fills the middle of a small embedded view and both sagittal and
+        frontal arcs show, clear of the trunk."""
         R = pose.R_world["thorax"]
         forward = heading(R)
         right = np.cross(forward, [0.0, 0.0, 1.0])  # the subject's right on the floor
-        turn = np.radians(55.0)
+        turn = np.radians(CAMERA_TURN_DEG)
         toward = np.cos(turn) * forward + pose.side_sign * np.sin(turn) * right
-        target = self.arm.notch_world(pose) - np.array([0.0, 0.0, 0.25])
+        notch = self.arm.notch_world(pose)
+        shoulder = notch + R @ pose.p_thorax["shoulder"]
+        target = shoulder - np.array([0.0, 0.0, CAMERA_DROP_M]) + 0.05 * forward
         camera = self.client.camera
         with self.client.atomic():
             camera.up_direction = (0.0, 0.0, 1.0)
-            camera.position = target + 2.4 * toward + np.array([0.0, 0.0, 0.35])
+            camera.position = target + CAMERA_DISTANCE_M * toward + np.array(
+                [0.0, 0.0, CAMERA_RISE_M])
             camera.look_at = target

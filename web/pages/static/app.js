@@ -129,12 +129,23 @@ function statusBadge(status) {
   return el("span", { class: "badge s-" + status }, labels[status] || status);
 }
 
+// An angle [deg] for people: whole degrees, never "-0°"; "—" when unknown.
+function deg(value) {
+  if (value === null || value === undefined || !Number.isFinite(value)) return "—";
+  return String(Math.round(value) + 0) + "°";  // + 0 turns -0 into 0
+}
+
+// Text from the server with "-0" (a rounded small negative number) written as "0".
+function noNegativeZero(text) {
+  return String(text).replace(/(^|[^\d.])-0(?![\d.])/g, (_, before) => before + "0");
+}
+
 // A bar: the normal range as a grey band, the measured range as a coloured bar.
 function romBar(min, max, normalMin, normalMax) {
   const lo = Math.min(normalMin ?? min, min) - 10;
   const hi = Math.max(normalMax ?? max, max) + 10;
   const x = (v) => ((v - lo) / (hi - lo)) * 100;
-  const bar = el("div", { class: "rombar", title: `measured ${min.toFixed(0)}° to ${max.toFixed(0)}°`
+  const bar = el("div", { class: "rombar", title: `measured ${deg(min)} to ${deg(max)}`
     + (normalMin !== null && normalMin !== undefined ? `; normal ${normalMin}° to ${normalMax}°` : "") });
   if (normalMin !== null && normalMin !== undefined)
     bar.append(el("div", { class: "normal", style: `left:${x(normalMin)}%;width:${x(normalMax) - x(normalMin)}%` }));

@@ -11,24 +11,90 @@ frame([{ text: "Patients", href: "/patients" }, { text: "…", id: "crumb-patien
 let session = null;
 let patient = null;
 let normals = {};
-let viewerMode = null;
 
 // ---------------------------------------------------------------- the 3D view
-async function openViewer(mode) {
+// A viewer grant works once, so a view whose connection closed (the server restarted,
+// the network dropped) cannot come back by itself. Every VIEWER_CHECK_MS the page asks the
+// grant's state; once it is closed or unknown, the view reloads with a new grant, and
+// "3D view reconnecting…" shows over it meanwhile (also while the server is unreachable).
+const VIEWER_CHECK_MS = 2000;
+const VIEWER_RETRY_MAX_MS = 30000;
+let viewerMode = null;
+let viewerGrant = null;
+let viewerTimer = null;
+let viewerRetries = 0;
+
+function viewerNote(text) {
+  const note = document.getElementById("viewer-note");
+  note.textContent = text || "";
+  note.hidden = !text;
+}
+
+function viewerCheckLater(ms) {
+  clearTimeout(viewerTimer);
+  viewerTimer = setTimeout(checkViewer, ms);
+}
+
+function retryDelay() {
+  return Math.min(VIEWER_CHECK_MS * 2 ** Math.max(viewerRetries - 1, 0), VIEWER_RETRY_MAX_MS);
+}
+
+async function openViewer(mode, reconnecting = false) {
   viewerMode = mode;
+  clearTimeout(viewerTimer);
   const box = document.getElementById("viewer");
   document.getElementById("viewer-title").textContent =
     mode === "live" ? "Live 3D arm" : "Replay";
-  clear(box, el("div", { class: "placeholder" }, "Opening the 3D view…"));
+  if (!reconnecting) {
+    viewerRetries = 0;
+    viewerNote(null);
+    clear(box, el("div", { class: "placeholder" }, "Opening the 3D view…"));
+  }
+  let grant;
   try {
-    const grant = await api("/api/viewer", { method: "POST", body: {
+    grant = await api("/api/viewer", { method: "POST", body: {
       patient_id: session.patient_id, session_id: mode === "live" ? null : session.id } });
-    clear(box, el("iframe", { src: grant.url, id: "viewer-frame", title: "3D view of the arm",
-      allow: "fullscreen" }));
   } catch (error) {
+    if (reconnecting) {  // the server may be restarting: try again later
+      viewerRetries += 1;
+      viewerTimer = setTimeout(() => openViewer(mode, true), retryDelay());
+      return;
+    }
+    viewerGrant = null;
     clear(box, el("div", { class: "placeholder", id: "viewer-error" },
       "The 3D view is not available: " + error.message));
+    return;
   }
+  viewerGrant = grant;
+  clear(box, el("iframe", { src: grant.url, id: "viewer-frame", title: "3D view of the arm",
+    allow: "fullscreen" }));
+  viewerCheckLater(VIEWER_CHECK_MS);
+}
+
+async function checkViewer() {
+  const grant = viewerGrant;
+  if (!grant) return;
+  let state;
+  try {
+    state = (await api(grant.state_url)).state;
+  } catch (error) {
+    state = error.status === 404 ? "closed" : "unknown";  // unknown: no answer
+  }
+  if (grant !== viewerGrant) return;  // replaced meanwhile
+  if (state === "closed") {  // over, or unknown to the server: a new grant
+    viewerNote("3D view reconnecting…");
+    viewerRetries += 1;
+    viewerTimer = setTimeout(() => openViewer(viewerMode, true),
+      viewerRetries > 1 ? retryDelay() : 0);
+    return;
+  }
+  if (state === "open") {
+    viewerRetries = 0;
+    viewerNote(null);
+  } else if (state === "unknown") {
+    viewerNote("3D view reconnecting…");
+  }
+  viewerCheckLater(VIEWER_CHECK_MS);
 }
 document.getElementById("reload-viewer").addEventListener("click", () => openViewer(viewerMode));
 
@@ -66,7 +132,7 @@ function renderPose() {
     const row = document.querySelector(`#angles-table tr[data-angle="${name}"]`);
     if (!row) continue;
     const now = pose.angles_deg[name];
-    row.querySelector(".now").textContent = now === null || now === undefined ? "—" : Math.round(now) + "°";
+    row.querySelector(".now").textContent = deg(now);
     const rom = (pose.rom_deg || {})[name];
     const normal = normals[name];
     const bar = row.querySelector(".bar");
@@ -280,8 +346,8 @@ function romTable(summary) {
     el("tbody", {}, names.map((n) => {
       const r = summary.rom[n];
       return el("tr", { dataset: { angle: n } }, el("td", { class: "name" }, ANGLE_LABELS[n]),
-        el("td", { class: "num" }, (Math.round(r.min) || 0) + "°"), el("td", { class: "num" }, (Math.round(r.max) || 0) + "°"),
-        el("td", { class: "num" }, el("b", {}, r.range.toFixed(0) + "°")),
+        el("td", { class: "num" }, deg(r.min)), el("td", { class: "num" }, deg(r.max)),
+        el("td", { class: "num" }, el("b", {}, deg(r.range))),
         el("td", { style: "width:28%" }, romBar(r.min, r.max, r.normal_min, r.normal_max)),
         el("td", { class: "num muted nowrap" }, r.normal_min === null ? "—" : `${r.normal_min}…${r.normal_max}°`),
         el("td", { class: "num " + percentClass(r.percent_of_normal) },
@@ -300,7 +366,7 @@ async function showReplay() {
     " · ", qualityBadge(summary.quality));
   clear(document.getElementById("angles-card"),
     el("h2", {}, "Range of motion"),
-    summary.headline ? el("p", { style: "margin:0 0 10px;font-size:16px" }, "Largest: ", el("b", { id: "headline" }, summary.headline)) : null,
+    summary.headline ? el("p", { style: "margin:0 0 10px;font-size:16px" }, "Largest: ", el("b", { id: "headline" }, noNegativeZero(summary.headline))) : null,
     romTable(summary));
   const q = summary.quality;
   const card = document.getElementById("details-card");
