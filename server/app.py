@@ -3,19 +3,49 @@ and starts the group writer; on stop it stores what is queued."""
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
+import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
 from armtrack.web.pages import routes as pages
 from armtrack.web.viewer import routes as viewer_routes
 from fastapi import FastAPI
+from fastapi.middleware.cors import CORSMiddleware
 
-from .api import auth_routes, live_status, patients, reports, session_summary, sessions
+from .api import (
+    admin,
+    auth_routes,
+    lifecycle,
+    live_status,
+    patients,
+    reports,
+    session_summary,
+    sessions,
+)
+from .api.erase import erase_expired
+from .audit import AuditMiddleware
 from .ingest import endpoint
 from .live import endpoint as live_endpoint
+from .security import BodyLimit, SecurityHeaders
 from .services import Services
 from .settings import Settings
 from .store.processing import estimator_version
+
+log = logging.getLogger("armtrack.retention")
+
+
+async def retention_loop(services: Services) -> None:
+    """Erase closed sessions past ``ARMTRACK_RETENTION_DAYS`` now and then (audited)."""
+    settings = services.settings
+    assert settings.retention_days is not None
+    while True:
+        try:
+            await services.run_db(erase_expired, settings.retention_days)
+        except Exception:  # a failed round is tried again at the next one
+            log.exception("retention: erasing expired sessions failed")
+        await asyncio.sleep(settings.retention_check_s)
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -27,9 +57,15 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         services.migrate()
         app.state.services = services
         await services.start()
+        retention = (asyncio.create_task(retention_loop(services))
+                     if settings.retention_days else None)
         try:
             yield
         finally:
+            if retention is not None:
+                retention.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await retention
             await services.stop()
 
     app = FastAPI(title="armtrack", version=estimator_version(), lifespan=lifespan,
@@ -46,6 +82,17 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(live_status.router)
     app.include_router(session_summary.router)
     app.include_router(pages.router)
+    app.include_router(admin.router)
+    app.include_router(lifecycle.router)
+
+    # outermost last: headers on every answer, then body limits, CORS, the audit log
+    app.add_middleware(AuditMiddleware)
+    if settings.cors_origin_list():
+        app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origin_list(),
+                           allow_methods=["GET", "POST", "PUT", "DELETE"],
+                           allow_headers=["Authorization", "Content-Type"])
+    app.add_middleware(BodyLimit, settings=settings)
+    app.add_middleware(SecurityHeaders, settings=settings)
 
     @app.get("/healthz", include_in_schema=False)
     def health() -> dict[str, str]:

@@ -5,6 +5,7 @@ devices)."""
 from __future__ import annotations
 
 import asyncio
+import contextvars
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, TypeVar
@@ -70,7 +71,10 @@ class Services:
         def call() -> T:
             with self.db() as db:
                 return fn(db, *args)
-        return await asyncio.get_running_loop().run_in_executor(self.db_pool, call)
+        # in the caller's context: what ``fn`` notes for the audit log reaches the request
+        context = contextvars.copy_context()
+        return await asyncio.get_running_loop().run_in_executor(self.db_pool, context.run,
+                                                                call)
 
     def in_background(self, fn: Callable[..., Any], *args: Any) -> asyncio.Future:
         """Run ``fn(*args)`` on the compute pool without waiting; tracked until done."""

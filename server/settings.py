@@ -36,6 +36,34 @@ class Settings(BaseSettings):
     viewer_grant_s: float = Field(60.0, gt=0, le=3600,
                                   description="lifetime of a one-time viewer address [s]")
 
+    # -- security (README "Security") ----------------------------------------------------
+    demo_mode: bool = Field(False, description="set by `armtrack demo`: the demo account "
+                            "(user demo) signs in only in demo mode")
+    tls_cert: Path | None = Field(None, description="TLS certificate (PEM) for uvicorn")
+    tls_key: Path | None = Field(None, description="TLS private key (PEM) for uvicorn")
+    behind_proxy: bool = Field(False, description="a reverse proxy in front terminates TLS: "
+                               "a non-loopback host without ARMTRACK_TLS_CERT is allowed")
+    cors_origins: str = Field("", description="comma-separated origins allowed to call the "
+                              "API from a browser (CORS); empty: none (closed)")
+    max_upload_bytes: int = Field(200 << 20, gt=0,
+                                  description="largest recording upload [B] (else 413)")
+    max_body_bytes: int = Field(1 << 20, gt=0,
+                                description="largest body of any other request [B] (else 413)")
+    login_max_failures: int = Field(10, gt=0, description="failed sign-ins per user name and "
+                                    "per client address within the window before 429")
+    login_window_s: float = Field(300.0, gt=0, description="window of failed sign-ins [s]")
+    reset_token_hours: float = Field(24.0, gt=0,
+                                     description="lifetime of an admin-issued reset token [h]")
+    retention_days: float | None = Field(None, gt=0, description="erase closed sessions "
+                                         "this long after they ended; unset: keep them")
+    retention_check_s: float = Field(3600.0, gt=0,
+                                     description="how often the retention task runs [s]")
+    audit_repeat_s: float = Field(60.0, ge=0, description="a repeated view of the same data "
+                                  "by the same person within this time is logged once [s]")
+
+    def cors_origin_list(self) -> list[str]:
+        return [o.strip() for o in self.cors_origins.split(",") if o.strip()]
+
     def resolved_database_url(self) -> str:
         """The database URL, the default SQLite file made absolute."""
         if self.database_url:

@@ -1,33 +1,84 @@
-"""Signing in: the OAuth2 password flow gives a therapist an opaque bearer token."""
+"""Signing in: the OAuth2 password flow gives a therapist an opaque bearer token. Failed
+sign-ins are rate-limited per user name and per client address (429 with
+``Retry-After``); a disabled account and, outside demo mode, the demo account cannot sign
+in. A therapist changes their password (old and new); an admin-issued one-time reset
+token sets a new one."""
 
 from __future__ import annotations
 
 from datetime import UTC, datetime, timedelta
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, HTTPException, status
+from fastapi import APIRouter, Depends, HTTPException, Request, status
 from fastapi.security import OAuth2PasswordRequestForm
+from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy import delete, select
 
-from ..auth import new_token, verify_password
+from ..auth import hash_password, hash_token, new_token, verify_password
 from ..db import models
+from ..security import LoginLimiter, login_keys
 from ..services import Services
-from .deps import Db, services
+from .deps import DEMO_USER, Db, Therapist, aware_utc, oauth2, services, unauthorized
 from .schemas import TokenOut
 
 router = APIRouter(prefix="/api/auth", tags=["auth"])
 
+MIN_PASSWORD = 8
+WRONG = "wrong user name or password"
 
-@router.post("/token", response_model=TokenOut)
+
+class PasswordChange(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    old_password: str = Field(max_length=1000)
+    new_password: str = Field(min_length=MIN_PASSWORD, max_length=1000)
+
+
+class PasswordReset(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    new_password: str = Field(min_length=MIN_PASSWORD, max_length=1000)
+
+
+def limiter(request: Request) -> LoginLimiter:
+    state = request.app.state
+    if not hasattr(state, "login_limiter"):
+        settings = state.services.settings
+        state.login_limiter = LoginLimiter(settings.login_max_failures, settings.login_window_s)
+    return state.login_limiter
+
+
+def _too_many(wait: int) -> HTTPException:
+    return HTTPException(status.HTTP_429_TOO_MANY_REQUESTS,
+                         f"too many failed sign-ins: try again in {wait} s",
+                         headers={"Retry-After": str(wait)})
+
+
+def _client(request: Request) -> str | None:
+    return request.client.host if request.client else None
+
+
+@router.post("/token", response_model=TokenOut, responses={
+    401: {"description": WRONG}, 403: {"description": "the account is disabled"},
+    429: {"description": "too many failed sign-ins (see Retry-After)"}})
 def sign_in(db: Db, form: Annotated[OAuth2PasswordRequestForm, Depends()],
-            svc: Annotated[Services, Depends(services)]) -> TokenOut:
+            svc: Annotated[Services, Depends(services)], request: Request) -> TokenOut:
     """A bearer token for a therapist's user name and password."""
+    keys = login_keys(form.username, _client(request))
+    limits = limiter(request)
+    if (wait := limits.retry_after(keys)) is not None:
+        raise _too_many(wait)
     therapist = db.scalar(select(models.Therapist)
                           .where(models.Therapist.username == form.username))
+    if therapist is not None and therapist.username == DEMO_USER and not svc.settings.demo_mode:
+        therapist = None  # the demo's account exists for `armtrack demo` only
     if not verify_password(form.password, therapist.password_hash if therapist else None):
-        raise HTTPException(status.HTTP_401_UNAUTHORIZED, "wrong user name or password",
+        limits.failed(keys)
+        raise HTTPException(status.HTTP_401_UNAUTHORIZED, WRONG,
                             headers={"WWW-Authenticate": "Bearer"})
     assert therapist is not None
+    if therapist.disabled_at is not None:
+        raise HTTPException(status.HTTP_403_FORBIDDEN,
+                            "this account is disabled: ask your clinic's admin")
+    limits.succeeded(keys[0])
     now = datetime.now(UTC)
     lifetime = timedelta(hours=svc.settings.access_token_hours)
     token, digest = new_token("at_")
@@ -37,3 +88,50 @@ def sign_in(db: Db, form: Annotated[OAuth2PasswordRequestForm, Depends()],
                               expires_at=now + lifetime))
     db.commit()
     return TokenOut(access_token=token, expires_in=int(lifetime.total_seconds()))
+
+
+@router.post("/password", status_code=status.HTTP_204_NO_CONTENT, responses={
+    400: {"description": "the old password is wrong"},
+    429: {"description": "too many wrong old passwords"}})
+def change_password(body: PasswordChange, db: Db, therapist: Therapist, request: Request,
+                    token: Annotated[str | None, Depends(oauth2)]) -> None:
+    """Change your password (the old one, then the new one, at least 8 characters). Your
+    other sign-ins end; this one stays."""
+    keys = login_keys(therapist.username, _client(request))
+    limits = limiter(request)
+    if (wait := limits.retry_after(keys)) is not None:
+        raise _too_many(wait)
+    if not verify_password(body.old_password, therapist.password_hash):
+        limits.failed(keys)
+        raise HTTPException(status.HTTP_400_BAD_REQUEST, "the old password is wrong")
+    therapist.password_hash = hash_password(body.new_password)
+    db.execute(delete(models.AccessToken).where(
+        models.AccessToken.therapist_id == therapist.id,
+        models.AccessToken.token_hash != hash_token(token or "")))
+    db.commit()
+
+
+def reset_grant(db: Db, token: Annotated[str | None, Depends(oauth2)]
+                ) -> models.PasswordReset:
+    """The valid, unused reset of the bearer reset token."""
+    row = db.scalar(select(models.PasswordReset).where(
+        models.PasswordReset.token_hash == hash_token(token))) if token else None
+    if row is None or row.used_at is not None \
+            or aware_utc(row.expires_at) <= datetime.now(UTC):
+        raise unauthorized("the reset token is unknown, used or expired: ask your admin")
+    return row
+
+
+@router.post("/reset", status_code=status.HTTP_204_NO_CONTENT, responses={
+    401: {"description": "the reset token is missing, unknown, used or expired"}})
+def reset_password(body: PasswordReset, db: Db,
+                   row: Annotated[models.PasswordReset, Depends(reset_grant)]) -> None:
+    """Set a new password with the one-time reset token a clinic admin issued, given as
+    the bearer token (``Authorization: Bearer rt_…``). Every sign-in of the account ends."""
+    therapist = db.get(models.Therapist, row.therapist_id)
+    assert therapist is not None
+    therapist.password_hash = hash_password(body.new_password)
+    row.used_at = datetime.now(UTC)
+    db.execute(delete(models.AccessToken).where(
+        models.AccessToken.therapist_id == therapist.id))
+    db.commit()

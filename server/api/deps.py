@@ -12,6 +12,7 @@ from fastapi.security import OAuth2PasswordBearer
 from sqlalchemy import select
 from sqlalchemy.orm import Session as DbSession
 
+from .. import audit
 from ..auth import hash_token
 from ..db import models
 from ..services import Services
@@ -37,17 +38,35 @@ def unauthorized(detail: str = "sign in first: a valid bearer token is required"
                          headers={"WWW-Authenticate": "Bearer"})
 
 
-def current_therapist(db: Db, token: Annotated[str | None, Depends(oauth2)]
-                      ) -> models.Therapist:
+def therapist_of_token(db: DbSession, token: str | None, demo_mode: bool
+                       ) -> models.Therapist | None:
+    """The therapist of a valid access token: known, unexpired, the account enabled (and
+    the demo account only in demo mode); else None."""
     if not token:
-        raise unauthorized()
+        return None
     row = db.scalar(select(models.AccessToken).where(
         models.AccessToken.token_hash == hash_token(token)))
     if row is None or aware_utc(row.expires_at) <= datetime.now(UTC):
-        raise unauthorized("the token is unknown or has expired: sign in again")
+        return None
     therapist = db.get(models.Therapist, row.therapist_id)
-    if therapist is None:
+    if therapist is None or therapist.disabled_at is not None \
+            or (therapist.username == DEMO_USER and not demo_mode):
+        return None
+    return therapist
+
+
+#: The account ``armtrack demo`` makes; it signs in only in demo mode.
+DEMO_USER = "demo"
+
+
+def current_therapist(db: Db, token: Annotated[str | None, Depends(oauth2)],
+                      request: Request) -> models.Therapist:
+    if not token:
         raise unauthorized()
+    therapist = therapist_of_token(db, token, request.app.state.services.settings.demo_mode)
+    if therapist is None:
+        raise unauthorized("the token is unknown or has expired: sign in again")
+    audit.note(therapist_id=therapist.id)
     return therapist
 
 
@@ -57,6 +76,15 @@ def aware_utc(moment: datetime) -> datetime:
 
 
 Therapist = Annotated[models.Therapist, Depends(current_therapist)]
+
+
+def current_admin(therapist: Therapist) -> models.Therapist:
+    if not therapist.is_admin:
+        raise HTTPException(status.HTTP_403_FORBIDDEN, "only a clinic admin may do this")
+    return therapist
+
+
+Admin = Annotated[models.Therapist, Depends(current_admin)]
 
 
 class Page:
@@ -72,6 +100,7 @@ def own_patient(db: DbSession, therapist: models.Therapist, patient_id: int) -> 
     patient = db.get(models.Patient, patient_id)
     if patient is None or patient.therapist_id != therapist.id:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"no patient {patient_id}")
+    audit.note(patient_id=patient.id)
     return patient
 
 
@@ -80,6 +109,7 @@ def own_session(db: DbSession, therapist: models.Therapist, session_id: int) -> 
     if session is not None:
         patient = db.get(models.Patient, session.patient_id)
         if patient is not None and patient.therapist_id == therapist.id:
+            audit.note(patient_id=patient.id, session_id=session.id)
             return session
     raise HTTPException(status.HTTP_404_NOT_FOUND, f"no session {session_id}")
 
@@ -89,5 +119,6 @@ def own_device(db: DbSession, therapist: models.Therapist, device_id: int) -> mo
     if device is not None:
         patient = db.get(models.Patient, device.patient_id)
         if patient is not None and patient.therapist_id == therapist.id:
+            audit.note(patient_id=patient.id)
             return device
     raise HTTPException(status.HTTP_404_NOT_FOUND, f"no device {device_id}")

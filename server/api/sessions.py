@@ -9,11 +9,12 @@ from typing import Annotated
 
 from armtrack.estimator.errors import EstimatorError
 from armtrack.estimator.recording import format_recording, parse_recording
-from fastapi import APIRouter, Depends, Form, HTTPException, UploadFile, status
+from fastapi import APIRouter, Depends, Form, HTTPException, Request, UploadFile, status
 from fastapi.responses import Response
 from sqlalchemy import select
 from sqlalchemy.orm import Session as DbSession
 
+from .. import audit
 from ..auth import hash_token
 from ..commands.output import write_angles_csv
 from ..db import models
@@ -103,15 +104,16 @@ async def delete_session(session_id: int, therapist: Therapist,
     await svc.run_db(erase_session, session_id)
 
 
-def uploader(db: Db, token: Annotated[str | None, Depends(oauth2)]
+def uploader(db: Db, token: Annotated[str | None, Depends(oauth2)], request: Request
              ) -> models.Therapist | models.Device:
     """A therapist, or a device uploading for its own patient."""
     if token:
         device = db.scalar(select(models.Device).where(
             models.Device.token_hash == hash_token(token), models.Device.revoked_at.is_(None)))
         if device is not None:
+            audit.note(device_id=device.id)
             return device
-    return current_therapist(db, token)
+    return current_therapist(db, token, request)
 
 
 @router.post("/recordings", response_model=SessionOut, status_code=status.HTTP_201_CREATED)
@@ -140,6 +142,7 @@ def upload_recording(db: Db, who: Annotated[models.Therapist | models.Device,
                             f"{file.filename or 'file'}: {exc}") from None
     session = add_recording(db, patient, recording, device_id)
     db.commit()
+    audit.note(patient_id=patient.id, session_id=session.id)
     process_session(db, session.id)
     db.refresh(session)
     return session_out(session)

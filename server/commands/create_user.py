@@ -1,5 +1,7 @@
 """``armtrack create-user NAME``: a therapist account (password from ``--password`` or
-standard input), in the database the settings point at (migrated first)."""
+standard input), in the database the settings point at (migrated first). ``--admin``
+makes a clinic admin; ``--disable`` disables an existing account (its tokens stop
+working)."""
 
 from __future__ import annotations
 
@@ -16,6 +18,10 @@ MIN_PASSWORD = 8
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("name", help="the therapist's user name")
     parser.add_argument("--password", help="the password (default: read from standard input)")
+    parser.add_argument("--admin", action="store_true",
+                        help="a clinic admin (manages therapists, reassigns patients)")
+    parser.add_argument("--disable", action="store_true",
+                        help="disable the existing account NAME instead (no password asked)")
     add_server_arguments(parser)
 
 
@@ -25,6 +31,8 @@ def run(args: argparse.Namespace) -> int:
     from armtrack.server.services import Services
     from sqlalchemy import select
 
+    if args.disable:
+        return _disable(args)
     password = args.password
     if password is None:
         password = (getpass.getpass("password: ") if sys.stdin.isatty()
@@ -41,9 +49,36 @@ def run(args: argparse.Namespace) -> int:
                 print(f"armtrack create-user: user {args.name!r} exists already",
                       file=sys.stderr)
                 return 2
-            db.add(models.Therapist(username=args.name, password_hash=hash_password(password)))
+            db.add(models.Therapist(username=args.name, password_hash=hash_password(password),
+                                    is_admin=args.admin))
             db.commit()
     finally:
         services.engine.dispose()
-    print(f"created therapist {args.name!r}")
+    print(f"created {'clinic admin' if args.admin else 'therapist'} {args.name!r}")
+    return 0
+
+
+def _disable(args: argparse.Namespace) -> int:
+    from datetime import UTC, datetime
+
+    from armtrack.server.db import models
+    from armtrack.server.services import Services
+    from sqlalchemy import delete, select
+
+    services = Services(settings_from(args))
+    try:
+        services.migrate()
+        with services.db() as db:
+            therapist = db.scalar(select(models.Therapist)
+                                  .where(models.Therapist.username == args.name))
+            if therapist is None:
+                print(f"armtrack create-user: no user {args.name!r}", file=sys.stderr)
+                return 2
+            therapist.disabled_at = therapist.disabled_at or datetime.now(UTC)
+            db.execute(delete(models.AccessToken)
+                       .where(models.AccessToken.therapist_id == therapist.id))
+            db.commit()
+    finally:
+        services.engine.dispose()
+    print(f"disabled {args.name!r}")
     return 0

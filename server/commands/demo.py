@@ -49,7 +49,8 @@ def _settings(args: argparse.Namespace):
     from armtrack.server.settings import Settings
 
     given: dict = {"data_dir": args.data_dir or Path(os.environ.get("ARMTRACK_DATA_DIR",
-                                                                    "armtrack-demo"))}
+                                                                    "armtrack-demo")),
+                   "demo_mode": True}  # the demo account signs in only in demo mode
     if args.host:
         given["host"] = args.host
     if args.port is not None:

@@ -41,15 +41,48 @@ def settings_from(args: argparse.Namespace):
     return Settings(**given)
 
 
+def demo_account_present(settings) -> bool:
+    """Whether the database holds an enabled demo account (``armtrack demo``'s)."""
+    from armtrack.server.api.deps import DEMO_USER
+    from armtrack.server.db import models
+    from armtrack.server.db.engine import make_engine, make_sessionmaker
+    from armtrack.server.db.migrate import upgrade
+    from sqlalchemy import select
+
+    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    engine = make_engine(settings.resolved_database_url())
+    try:
+        upgrade(engine)
+        with make_sessionmaker(engine)() as db:
+            return db.scalar(select(models.Therapist.id).where(
+                models.Therapist.username == DEMO_USER,
+                models.Therapist.disabled_at.is_(None))) is not None
+    finally:
+        engine.dispose()
+
+
 def run(args: argparse.Namespace) -> int:
+    import sys
+
     import uvicorn
     from armtrack.server.app import create_app
+    from armtrack.server.security import unsafe_settings
 
     settings = settings_from(args)
+    problems = unsafe_settings(settings, demo_account=not settings.demo_mode
+                               and demo_account_present(settings))
+    if problems:
+        for problem in problems:
+            print(f"armtrack serve: refusing to start: {problem}", file=sys.stderr)
+        return 2
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
-    print(f"armtrack: serving on http://{settings.host}:{settings.port} "
+    scheme = "https" if settings.tls_cert else "http"
+    print(f"armtrack: serving on {scheme}://{settings.host}:{settings.port} "
           f"(database {settings.resolved_database_url()})", flush=True)
+    tls = ({"ssl_certfile": str(settings.tls_cert), "ssl_keyfile": str(settings.tls_key)}
+           if settings.tls_cert else {})
     config = uvicorn.Config(create_app(settings), host=settings.host, port=settings.port,
+                            **tls,
                             ws_max_size=settings.max_message_bytes, log_level="info",
                             # kit frames are small JSON: compressing them costs more CPU
                             # than it saves bandwidth on a LAN or Wi-Fi

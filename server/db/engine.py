@@ -1,5 +1,6 @@
 """Database engines and sessions. SQLite (the default) runs in WAL mode with foreign keys
-on and full fsync, so an acked sample survives a crash; any other SQLAlchemy URL
+on and full fsync, so an acked sample survives a crash, and ``secure_delete`` (an erased
+patient's data is overwritten in the file); any other SQLAlchemy URL
 (PostgreSQL) is used as it is."""
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ def make_engine(url: str) -> Engine:
         cursor.execute("PRAGMA synchronous=FULL")
         cursor.execute("PRAGMA foreign_keys=ON")
         cursor.execute("PRAGMA busy_timeout=30000")
+        cursor.execute("PRAGMA secure_delete=ON")  # erased data is overwritten, not left
         cursor.close()
 
     return engine

@@ -9,14 +9,12 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from datetime import UTC, datetime
 
 from fastapi import APIRouter, WebSocket
-from sqlalchemy import select
 from starlette.websockets import WebSocketDisconnect
 
-from ..api.deps import aware_utc
-from ..auth import hash_token
+from .. import audit
+from ..api.deps import therapist_of_token
 from ..db import models
 from ..ingest.endpoint import bearer
 from ..ingest.protocol import CLOSE_BAD_TOKEN, dumps
@@ -25,24 +23,26 @@ router = APIRouter()
 CLOSE_NOT_FOUND = 4404
 
 
-def _therapist_patient(db, token: str | None, patient_id: int) -> str | None:
+def _therapist_patient(db, token: str | None, patient_id: int, demo_mode: bool = False,
+                       client: str | None = None) -> str | None:
     """None when the token's therapist may watch the patient, else why not."""
-    if not token:
-        return "token"
-    row = db.scalar(select(models.AccessToken).where(
-        models.AccessToken.token_hash == hash_token(token)))
-    if row is None or aware_utc(row.expires_at) <= datetime.now(UTC):
+    therapist = therapist_of_token(db, token, demo_mode)
+    if therapist is None:  # unknown, expired, disabled (or the demo's, outside demo mode)
         return "token"
     patient = db.get(models.Patient, patient_id)
-    if patient is None or patient.therapist_id != row.therapist_id:
+    if patient is None or patient.therapist_id != therapist.id:
         return "patient"
+    audit.record(db, action="viewed_live", route=f"WS /ws/live?patient={patient_id}",
+                 therapist_id=therapist.id, patient_id=patient_id, client=client)
     return None
 
 
 @router.websocket("/ws/live")
 async def live(websocket: WebSocket, patient: int) -> None:
     services = websocket.app.state.services
-    refusal = await services.run_db(_therapist_patient, bearer(websocket), patient)
+    client = websocket.client.host if websocket.client else None
+    refusal = await services.run_db(_therapist_patient, bearer(websocket), patient,
+                                    services.settings.demo_mode, client)
     await websocket.accept()
     if refusal == "token":
         await websocket.close(CLOSE_BAD_TOKEN, "sign in first")

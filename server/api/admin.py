@@ -1,0 +1,166 @@
+"""A clinic admin's routes: therapists (list, create, disable, enable, one-time password
+reset) and patients' assignment to a covering therapist. An admin manages accounts; they
+read no patient's data through these routes (the patient list gives ids, names and
+therapists only, and is audited)."""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime, timedelta
+from typing import Annotated
+
+from fastapi import APIRouter, Depends, HTTPException, status
+from pydantic import BaseModel, ConfigDict, Field
+from sqlalchemy import delete, func, select
+from sqlalchemy.orm import Session as DbSession
+
+from .. import audit
+from ..auth import hash_password, new_token
+from ..db import models
+from ..services import Services
+from .auth_routes import MIN_PASSWORD
+from .deps import Admin, Db, Page, services
+
+router = APIRouter(prefix="/api/admin", tags=["admin"], responses={
+    401: {"description": "not signed in"},
+    403: {"description": "only a clinic admin may do this"}})
+
+
+class TherapistOut(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+    id: int
+    username: str
+    is_admin: bool
+    disabled_at: datetime | None
+    created_at: datetime
+    patients: int = 0
+
+
+class TherapistIn(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    username: str = Field(min_length=1, max_length=128, pattern=r"^[^\s]+$")
+    password: str = Field(min_length=MIN_PASSWORD, max_length=1000)
+    is_admin: bool = False
+
+
+class ResetOut(BaseModel):
+    reset_token: str = Field(description="one-time; give it to the therapist, it is shown once")
+    expires_in: int = Field(description="seconds the token stays good [s]")
+
+
+class Reassign(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    therapist_id: int = Field(description="the covering therapist")
+
+
+class AdminPatientOut(BaseModel):
+    id: int
+    name: str
+    therapist_id: int
+
+
+def _therapist(db: DbSession, therapist_id: int) -> models.Therapist:
+    therapist = db.get(models.Therapist, therapist_id)
+    if therapist is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"no therapist {therapist_id}")
+    return therapist
+
+
+def _out(db: DbSession, therapist: models.Therapist) -> TherapistOut:
+    count = db.scalar(select(func.count()).select_from(models.Patient)
+                      .where(models.Patient.therapist_id == therapist.id)) or 0
+    return TherapistOut.model_validate(therapist).model_copy(update={"patients": count})
+
+
+@router.get("/therapists", response_model=list[TherapistOut])
+def list_therapists(db: Db, admin: Admin, page: Annotated[Page, Depends()]
+                    ) -> list[TherapistOut]:
+    """Every therapist and admin of the clinic, with their number of patients."""
+    rows = db.scalars(select(models.Therapist).order_by(models.Therapist.username)
+                      .limit(page.limit).offset(page.offset))
+    return [_out(db, t) for t in rows]
+
+
+@router.post("/therapists", response_model=TherapistOut, status_code=status.HTTP_201_CREATED)
+def create_therapist(body: TherapistIn, db: Db, admin: Admin) -> TherapistOut:
+    """A new therapist (or admin) account."""
+    if db.scalar(select(models.Therapist).where(models.Therapist.username == body.username)):
+        raise HTTPException(status.HTTP_409_CONFLICT, f"user {body.username!r} exists already")
+    therapist = models.Therapist(username=body.username, is_admin=body.is_admin,
+                                 password_hash=hash_password(body.password))
+    db.add(therapist)
+    db.commit()
+    return _out(db, therapist)
+
+
+@router.post("/therapists/{therapist_id}/disable", response_model=TherapistOut)
+async def disable_therapist(therapist_id: int, admin: Admin,
+                            svc: Annotated[Services, Depends(services)]) -> TherapistOut:
+    """Disable an account: it cannot sign in and its tokens stop working at once. Its
+    patients stay; reassign them to a covering therapist."""
+    if therapist_id == admin.id:
+        raise HTTPException(status.HTTP_409_CONFLICT, "an admin cannot disable themselves")
+
+    def work(db: DbSession) -> TherapistOut:
+        therapist = _therapist(db, therapist_id)
+        if therapist.disabled_at is None:
+            therapist.disabled_at = datetime.now(UTC)
+        db.execute(delete(models.AccessToken)
+                   .where(models.AccessToken.therapist_id == therapist_id))
+        db.commit()
+        return _out(db, therapist)
+
+    return await svc.run_db(work)
+
+
+@router.post("/therapists/{therapist_id}/enable", response_model=TherapistOut)
+def enable_therapist(therapist_id: int, db: Db, admin: Admin) -> TherapistOut:
+    """Enable a disabled account again (it signs in afresh)."""
+    therapist = _therapist(db, therapist_id)
+    therapist.disabled_at = None
+    db.commit()
+    return _out(db, therapist)
+
+
+@router.post("/therapists/{therapist_id}/reset", response_model=ResetOut)
+def issue_reset(therapist_id: int, db: Db, admin: Admin,
+                svc: Annotated[Services, Depends(services)]) -> ResetOut:
+    """A one-time reset token for a therapist who forgot their password (used with
+    ``POST /api/auth/reset``; earlier unused ones stop working)."""
+    _therapist(db, therapist_id)
+    db.execute(delete(models.PasswordReset).where(
+        models.PasswordReset.therapist_id == therapist_id,
+        models.PasswordReset.used_at.is_(None)))
+    token, digest = new_token("rt_")
+    lifetime = timedelta(hours=svc.settings.reset_token_hours)
+    db.add(models.PasswordReset(therapist_id=therapist_id, token_hash=digest,
+                                issued_by=admin.id, expires_at=datetime.now(UTC) + lifetime))
+    db.commit()
+    return ResetOut(reset_token=token, expires_in=int(lifetime.total_seconds()))
+
+
+@router.get("/patients", response_model=list[AdminPatientOut])
+def list_all_patients(db: Db, admin: Admin, page: Annotated[Page, Depends()],
+                      therapist_id: int | None = None) -> list[AdminPatientOut]:
+    """Every patient's id, name and therapist (to reassign them); no clinical data."""
+    query = select(models.Patient)
+    if therapist_id is not None:
+        query = query.where(models.Patient.therapist_id == therapist_id)
+    rows = db.scalars(query.order_by(models.Patient.id).limit(page.limit).offset(page.offset))
+    return [AdminPatientOut(id=p.id, name=p.name, therapist_id=p.therapist_id) for p in rows]
+
+
+@router.post("/patients/{patient_id}/reassign", response_model=AdminPatientOut)
+def reassign_patient(patient_id: int, body: Reassign, db: Db, admin: Admin
+                     ) -> AdminPatientOut:
+    """Give a patient (with their sessions and kits) to a covering therapist."""
+    patient = db.get(models.Patient, patient_id)
+    if patient is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"no patient {patient_id}")
+    target = _therapist(db, body.therapist_id)
+    if target.disabled_at is not None:
+        raise HTTPException(status.HTTP_409_CONFLICT,
+                            f"therapist {target.id} is disabled: choose an active one")
+    patient.therapist_id = target.id
+    db.commit()
+    audit.note(patient_id=patient.id)
+    return AdminPatientOut(id=patient.id, name=patient.name, therapist_id=patient.therapist_id)

@@ -1,0 +1,153 @@
+"""The patient's data lifecycle and its trace: everything held about a patient as one
+zip archive, and the audit log (``GET /api/audit``: an admin sees every entry, a
+therapist their own actions; JSON pages or CSV)."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import zipfile
+from datetime import datetime
+from typing import Annotated, Literal
+
+from armtrack.estimator.recording import format_recording
+from fastapi import APIRouter, Depends, Query
+from fastapi.responses import Response
+from pydantic import BaseModel, ConfigDict
+from sqlalchemy import Select, select
+from sqlalchemy.orm import Session as DbSession
+
+from ..commands.output import write_angles_csv
+from ..db import models
+from ..reports import content
+from ..reports.content import NoEstimates
+from ..reports.targets import patient_targets
+from ..store.processing import stored_estimates
+from ..store.recordings import session_recording
+from .deps import Db, Page, Therapist, own_patient
+from .schemas import DeviceOut, PatientOut
+from .sessions import ANGLE_COLUMNS_END, session_out
+
+router = APIRouter(prefix="/api", tags=["lifecycle"], responses={
+    401: {"description": "not signed in: a valid bearer token is required"}})
+
+
+class AuditOut(BaseModel):
+    model_config = ConfigDict(from_attributes=True)
+    id: int
+    at: datetime
+    therapist_id: int | None
+    device_id: int | None
+    action: str
+    patient_id: int | None
+    session_id: int | None
+    route: str
+    client: str | None
+
+
+AUDIT_FIELDS = list(AuditOut.model_fields)
+
+
+def _json(value: object) -> str:
+    return json.dumps(value, indent=2, default=str, ensure_ascii=False)
+
+
+def _entries(patient_id: int) -> Select:
+    return (select(models.AuditEntry).where(models.AuditEntry.patient_id == patient_id)
+            .order_by(models.AuditEntry.id))
+
+
+def patient_archive(db: DbSession, patient: models.Patient) -> bytes:
+    """patient.json, devices.json (no tokens), targets.json, sessions.json, and per
+    session ``sessions/<id>/recording.csv``, ``angles.csv`` and ``report.json`` (when
+    estimated), and audit.json: every logged access to the patient's data."""
+    out = io.BytesIO()
+    with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as archive:
+        archive.writestr("patient.json", PatientOut.model_validate(patient).model_dump_json(
+            indent=2))
+        devices = db.scalars(select(models.Device).where(models.Device.patient_id == patient.id)
+                             .order_by(models.Device.id))
+        archive.writestr("devices.json", _json(
+            [DeviceOut.model_validate(d).model_dump(mode="json") for d in devices]))
+        targets = patient_targets(db, patient.id)
+        archive.writestr("targets.json", _json(
+            [content.target_out(t).model_dump(mode="json") for t in targets.values()]))
+        sessions = list(db.scalars(select(models.Session)
+                                   .where(models.Session.patient_id == patient.id)
+                                   .order_by(models.Session.started_at, models.Session.id)))
+        archive.writestr("sessions.json", _json(
+            [session_out(s).model_dump(mode="json") for s in sessions]))
+        for session in sessions:
+            folder = f"sessions/{session.id}/"
+            archive.writestr(folder + "recording.csv",
+                             format_recording(session_recording(db, session)))
+            columns, values = stored_estimates(db, session)
+            if columns:
+                width = columns.index(ANGLE_COLUMNS_END) + 1
+                text = io.StringIO()
+                write_angles_csv(text, columns[:width], values[:, :width])
+                archive.writestr(folder + "angles.csv", text.getvalue())
+                try:
+                    report = content.session_report(db, session, targets)
+                    archive.writestr(folder + "report.json", report.model_dump_json(indent=2))
+                except NoEstimates:
+                    pass
+        archive.writestr("audit.json", _json(
+            [AuditOut.model_validate(e).model_dump(mode="json")
+             for e in db.scalars(_entries(patient.id))]))
+    return out.getvalue()
+
+
+@router.get("/patients/{patient_id}/export", response_class=Response, responses={
+    200: {"content": {"application/zip": {}}, "description": "a zip archive"},
+    404: {"description": "no such patient of this therapist's"}})
+def export_patient(patient_id: int, db: Db, therapist: Therapist) -> Response:
+    """Everything held about the patient, as one zip archive: the patient, their kits
+    (without tokens), targets and sessions as JSON, each session's raw data
+    (``recording.csv``), angles (``angles.csv``) and report (``report.json``), and the
+    audit log's entries about them."""
+    patient = own_patient(db, therapist, patient_id)
+    return Response(patient_archive(db, patient), media_type="application/zip", headers={
+        "Content-Disposition": f'attachment; filename="patient-{patient_id}.zip"'})
+
+
+def _audit_query(therapist: models.Therapist, patient_id: int | None,
+                 therapist_id: int | None, action: str | None) -> Select:
+    query = select(models.AuditEntry)
+    if not therapist.is_admin:
+        query = query.where(models.AuditEntry.therapist_id == therapist.id)
+    elif therapist_id is not None:
+        query = query.where(models.AuditEntry.therapist_id == therapist_id)
+    if patient_id is not None:
+        query = query.where(models.AuditEntry.patient_id == patient_id)
+    if action:
+        query = query.where(models.AuditEntry.action == action)
+    return query.order_by(models.AuditEntry.id.desc())
+
+
+@router.get("/audit", response_model=list[AuditOut])
+def list_audit(db: Db, therapist: Therapist, page: Annotated[Page, Depends()],
+               patient_id: int | None = None, therapist_id: int | None = None,
+               action: str | None = None,
+               format: Annotated[Literal["json", "csv"], Query()] = "json",
+               ) -> list[models.AuditEntry] | Response:
+    """The audit log, newest first: who (a therapist or a device) viewed, exported,
+    uploaded, erased … which patient's data, when, through which route, from which
+    address. A clinic admin sees every entry (``therapist_id`` filters), a therapist their
+    own actions. ``format=csv``: the matching entries as CSV (up to ``limit``)."""
+    rows = list(db.scalars(_audit_query(therapist, patient_id, therapist_id, action)
+                           .limit(page.limit).offset(page.offset)))
+    if format == "json":
+        return rows
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(AUDIT_FIELDS)
+    for row in rows:
+        writer.writerow([_csv_value(getattr(row, name)) for name in AUDIT_FIELDS])
+    return Response(out.getvalue(), media_type="text/csv",
+                    headers={"Content-Disposition": 'attachment; filename="audit.csv"'})
+
+
+def _csv_value(value: object) -> object:
+    return value.isoformat() if isinstance(value, datetime) else ("" if value is None else value)

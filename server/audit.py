@@ -1,0 +1,131 @@
+"""The audit log: who (a therapist or a device) did what (viewed, exported, erased, …)
+with which patient's data, through which route, when and from which address.
+
+Routes need not write it themselves: ``AuditMiddleware`` gives each API request a note
+(a dict in a context variable) that the dependencies fill in — ``current_therapist`` the
+actor, ``own_patient`` / ``own_session`` the patient and session reached — and writes one
+entry once the route has answered with success. A route that reached no patient's data
+writes nothing (sign-in, admin's therapist management); a refused request writes nothing.
+A repeated view of the same thing by the same actor within ``ARMTRACK_AUDIT_REPEAT_S`` is
+logged once (the dashboard polls its live status twice a second). Erasures by the
+retention task and views of the live feed are written with ``record``."""
+
+from __future__ import annotations
+
+import contextvars
+import time
+from datetime import UTC, datetime
+from typing import Any
+
+from sqlalchemy.orm import Session as DbSession
+
+from .db import models
+
+_note: contextvars.ContextVar[dict[str, Any] | None] = contextvars.ContextVar(
+    "armtrack_audit", default=None)
+
+#: Routes whose success is a read of patient data although they name no patient.
+LISTS = {("GET", "/api/patients"), ("GET", "/api/admin/patients")}
+#: Export forms: a GET of one of these is ``exported``, not ``viewed``.
+EXPORT_ENDINGS = (".csv", ".pdf", ".mot", ".sto", ".fhir.json", "/export")
+#: Routes about the audit log itself or about accounts: never logged as data access.
+NOT_LOGGED = ("/api/audit", "/api/auth/")
+
+
+def note(**values: Any) -> None:
+    """Add to the current request's audit note (no-op outside a request)."""
+    current = _note.get()
+    if current is not None:
+        current.update({k: v for k, v in values.items() if v is not None})
+
+
+def action_of(method: str, route: str) -> str:
+    if method == "DELETE" and route in ("/api/patients/{patient_id}",
+                                        "/api/sessions/{session_id}"):
+        return "erased"
+    if method == "GET":
+        if route in ("/api/patients", "/api/admin/patients"):
+            return "listed"
+        return "exported" if route.endswith(EXPORT_ENDINGS) else "viewed"
+    if route == "/api/recordings":
+        return "uploaded"
+    if route == "/api/viewer":
+        return "viewed_3d"
+    if route == "/api/admin/patients/{patient_id}/reassign":
+        return "reassigned"
+    if route == "/api/devices/{device_id}":
+        return "revoked_device"
+    if route == "/api/patients/{patient_id}/devices":
+        return "issued_device"
+    return "changed"
+
+
+def record(db: DbSession, *, action: str, route: str, therapist_id: int | None = None,
+           device_id: int | None = None, patient_id: int | None = None,
+           session_id: int | None = None, client: str | None = None,
+           commit: bool = True) -> None:
+    db.add(models.AuditEntry(at=datetime.now(UTC), therapist_id=therapist_id,
+                             device_id=device_id, action=action, patient_id=patient_id,
+                             session_id=session_id, route=route[:300],
+                             client=(client or None) and client[:64]))
+    if commit:
+        db.commit()
+
+
+class AuditMiddleware:
+    """Pure ASGI: one note per API request, written after a successful answer."""
+
+    def __init__(self, app: Any):
+        self.app = app
+        self._recent: dict[tuple, float] = {}
+
+    async def __call__(self, scope: dict, receive: Any, send: Any) -> None:
+        if scope["type"] != "http" or not scope["path"].startswith("/api/") \
+                or scope["path"].startswith(NOT_LOGGED):
+            await self.app(scope, receive, send)
+            return
+        current: dict[str, Any] = {}
+        token = _note.set(current)
+        status = [500]
+
+        async def send_status(message: dict) -> None:
+            if message["type"] == "http.response.start":
+                status[0] = message["status"]
+            await send(message)
+
+        try:
+            await self.app(scope, receive, send_status)
+        finally:
+            _note.reset(token)
+        if status[0] >= 400 or not (current.get("therapist_id") or current.get("device_id")):
+            return
+        route_obj = scope.get("route")
+        template = getattr(route_obj, "path", scope["path"])
+        method = scope["method"]
+        if "patient_id" not in current and (method, template) not in LISTS:
+            return
+        action = action_of(method, template)
+        if action in ("viewed", "listed") and not self._first_recently(scope, current, action):
+            return
+        client = scope.get("client")
+        services = scope["app"].state.services
+        await services.run_db(lambda db: record(
+            db, action=action, route=f"{method} {scope['path']}",
+            therapist_id=current.get("therapist_id"), device_id=current.get("device_id"),
+            patient_id=current.get("patient_id"), session_id=current.get("session_id"),
+            client=client[0] if client else None))
+
+    def _first_recently(self, scope: dict, current: dict, action: str) -> bool:
+        window = scope["app"].state.services.settings.audit_repeat_s
+        if window <= 0:
+            return True
+        key = (current.get("therapist_id"), current.get("device_id"), action,
+               scope["method"], scope["path"], scope.get("query_string", b""))
+        now = time.monotonic()
+        if len(self._recent) > 10_000:
+            self._recent = {k: t for k, t in self._recent.items() if now - t < window}
+        last = self._recent.get(key)
+        if last is not None and now - last < window:
+            return False
+        self._recent[key] = now
+        return True
