@@ -17,7 +17,7 @@ from .db import models
 from .db.engine import make_engine, make_sessionmaker
 from .db.migrate import upgrade
 from .ingest.writer import GroupWriter, StreamState
-from .live.hub import LiveHub
+from .live.broker import make_hub
 from .settings import Settings
 
 T = TypeVar("T")
@@ -29,7 +29,7 @@ class Services:
         settings.data_dir.mkdir(parents=True, exist_ok=True)
         self.engine = make_engine(settings.resolved_database_url())
         self.db = make_sessionmaker(self.engine)
-        self.hub = LiveHub()
+        self.hub = make_hub(settings.broker_url)  # in-process, or through the broker
         #: the loopback viser server and its one-time viewer grants (web/viewer)
         self.viewer = ViewerHost(self, settings.viewer_port, settings.viewer_grant_s)
         self.writer = GroupWriter(self.engine, settings.ack_interval_s)
@@ -52,6 +52,7 @@ class Services:
                        .values(status="interrupted"))
 
     async def start(self) -> None:
+        await self.hub.start()
         self.writer.start()
         await self.viewer.start()
 
@@ -60,6 +61,7 @@ class Services:
         for connection in list(self.connections.values()):
             await connection.close(1001, "server shutting down")
         await self.writer.stop()
+        await self.hub.stop()
         if self.background:
             await asyncio.gather(*self.background, return_exceptions=True)
         self.db_pool.shutdown(wait=True)

@@ -31,6 +31,9 @@ class Settings(BaseSettings):
     refused_window_s: float = Field(10.0, gt=0)
     processing_threads: int = Field(2, ge=1, description="threads for estimation work")
     live_poses_hz: float = Field(30.0, gt=0, description="most live poses published per second")
+    broker_url: str | None = Field(
+        None, description="Redis URL of the live broker shared by several server instances "
+        "(README \"Scaling out\"); unset: live updates stay in this process")
     viewer_port: int = Field(0, ge=0, le=65535,
                              description="loopback port of the 3D viewer (viser); 0: any free one")
     viewer_grant_s: float = Field(60.0, gt=0, le=3600,

@@ -44,6 +44,28 @@ class ServerProcess:
         return f"http://127.0.0.1:{self.port}"
 
     @property
+    def database_url(self) -> str:
+        """The server's SQLAlchemy URL (``ARMTRACK_DATABASE_URL``, else its SQLite file)."""
+        return (self.env.get("ARMTRACK_DATABASE_URL")
+                or f"sqlite:///{(self.data_dir / 'armtrack.db').resolve()}")
+
+    def sql(self, statement: str, **params) -> list[tuple]:
+        """Rows of one SQL statement on the server's database (any backend)."""
+        from sqlalchemy import create_engine, text
+
+        engine = create_engine(self.database_url)
+        try:
+            with engine.begin() as connection:
+                result = connection.execute(text(statement), params)
+                return [tuple(row) for row in result] if result.returns_rows else []
+        finally:
+            engine.dispose()
+
+    def armtrack(self, *args: str, **kwargs) -> subprocess.CompletedProcess:
+        """``armtrack ARGS --data-dir DATA_DIR`` with the server's environment."""
+        return armtrack(*args, "--data-dir", str(self.data_dir), env=self.env, **kwargs)
+
+    @property
     def ws_url(self) -> str:
         return f"ws://127.0.0.1:{self.port}/ws/ingest"
 
@@ -81,8 +103,7 @@ class ServerProcess:
                 self.kill()
 
     def create_user(self, name: str, password: str = PASSWORD) -> None:
-        done = armtrack("create-user", name, "--password", password,
-                        "--data-dir", str(self.data_dir))
+        done = self.armtrack("create-user", name, "--password", password)
         assert done.returncode == 0, done.stderr
 
     def client(self, name: str, password: str = PASSWORD) -> Api:

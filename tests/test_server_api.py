@@ -1,12 +1,13 @@
 """The REST API of spec/api.md on a real server process: sign-in, every route behind
 auth, a therapist sees only their own patients, pagination, erasure; and the command
-line around the server (create-user, reprocess) and its database (migrations)."""
-
-import sqlite3
+line around the server (create-user, reprocess) and its database (migrations). On SQLite
+and, when the tests have one (``ARMTRACK_TEST_POSTGRES_URL``), on PostgreSQL."""
 
 import httpx
 import pytest
-from server_support import PASSWORD, armtrack
+from server_support import PASSWORD
+
+pytestmark = pytest.mark.both_databases
 
 
 @pytest.fixture(scope="module")
@@ -89,8 +90,7 @@ def test_a_device_token_is_shown_once_and_stored_hashed(module_server, alice):
     assert created["token"].startswith("dev_") and len(created["token"]) > 40
     listed = alice.http.get(f"/api/patients/{patient['id']}/devices").json()
     assert listed and "token" not in listed[0]
-    with sqlite3.connect(module_server.data_dir / "armtrack.db") as db:
-        stored = [row[0] for row in db.execute("SELECT token_hash FROM devices")]
+    stored = [row[0] for row in module_server.sql("SELECT token_hash FROM devices ORDER BY id")]
     assert created["token"] not in stored and len(stored[-1]) == 64
 
 
@@ -114,10 +114,8 @@ def test_a_device_token_uploads_only_for_its_own_patient(module_server, alice, s
 
 
 def count_rows(module_server, table, **where):
-    clause = " AND ".join(f"{k} = ?" for k in where) or "1"
-    with sqlite3.connect(module_server.data_dir / "armtrack.db") as db:
-        return db.execute(f"SELECT COUNT(*) FROM {table} WHERE {clause}",
-                          tuple(where.values())).fetchone()[0]
+    clause = " AND ".join(f"{k} = :{k}" for k in where) or "1 = 1"
+    return module_server.sql(f"SELECT COUNT(*) FROM {table} WHERE {clause}", **where)[0][0]
 
 
 def upload(api, patient_id, path):
@@ -156,20 +154,18 @@ def test_reprocess_recomputes_a_session_with_the_current_estimator(
     path = shared_dir / "data" / "recordings" / "elbow_6axis.csv"
     session = upload(alice, alice.patient()["id"], path)
     before = alice.http.get(f"/api/sessions/{session['id']}/angles.csv").text
-    done = armtrack("reprocess", str(session["id"]), "--data-dir", str(module_server.data_dir))
+    done = module_server.armtrack("reprocess", str(session["id"]))
     assert done.returncode == 0, done.stderr
     assert f"session {session['id']}: estimates from 0" in done.stdout
     assert alice.http.get(f"/api/sessions/{session['id']}/angles.csv").text == before
-    missing = armtrack("reprocess", "999999", "--data-dir", str(module_server.data_dir))
+    missing = module_server.armtrack("reprocess", "999999")
     assert missing.returncode == 2 and "no session 999999" in missing.stderr
 
 
 def test_create_user_refuses_a_short_password_and_a_taken_name(module_server):
-    short = armtrack("create-user", "carl", "--password", "short",
-                     "--data-dir", str(module_server.data_dir))
+    short = module_server.armtrack("create-user", "carl", "--password", "short")
     assert short.returncode == 2 and "at least 8" in short.stderr
-    taken = armtrack("create-user", "alice", "--data-dir", str(module_server.data_dir),
-                     input="another password\n")
+    taken = module_server.armtrack("create-user", "alice", input="another password\n")
     assert taken.returncode == 2 and "exists already" in taken.stderr
 
 

@@ -1,5 +1,6 @@
 """End to end: a real server process, the kit emulator streaming the shared recordings
-over the ingest protocol, the data read back over REST."""
+over the ingest protocol, the data read back over REST. On SQLite and, when the tests
+have one (``ARMTRACK_TEST_POSTGRES_URL``), on PostgreSQL."""
 
 import asyncio
 
@@ -8,6 +9,8 @@ import pytest
 from armtrack.estimator.recording import parse_recording, read_recording
 from armtrack.server.cli import main as armtrack_main
 from armtrack.server.emulator import KitEmulator
+
+pytestmark = pytest.mark.both_databases
 
 SHARED = ["elbow_flexion", "shoulder_abduction", "shoulder_flexion", "wrist_flexion",
           "pronation", "left_reach_50hz", "elbow_6axis", "elbow_6axis_long", "trunk_reach",

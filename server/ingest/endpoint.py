@@ -208,6 +208,7 @@ class IngestConnection:
                 state.last_t = dict(state.stored_last_t)
         state.on_durable = self._ack_wanted.set
         state.on_storage_error = self._storage_error
+        state.on_fenced = self._fenced
         services.streams[stream_id] = state
         services.connections[stream_id] = self
         self.state = state
@@ -255,6 +256,12 @@ class IngestConnection:
         session.ended_at = None
         db.commit()
         return session.id, session.height_m, stream.next_seq, dict(stream.last_t)
+
+    def _fenced(self) -> None:
+        """Another instance stores this stream now (``writer``'s "Fencing"): this
+        connection ends without marking the session interrupted; the kit resumes."""
+        asyncio.get_running_loop().create_task(
+            self.close(1013, "the stream goes on on another server: resume"))
 
     def _storage_error(self, reason: str) -> None:
         error = {"type": "error", "seq": None, "reason": reason}
@@ -342,7 +349,9 @@ class IngestConnection:
         if self.services.connections.get(state.stream_id) is self:
             # still registered until all is done, so that a resume waits for it (ended)
             await state.idle.wait()
-            if await self.services.run_db(_interrupt_session, state.session_id):
+            if not state.fenced and await self.services.run_db(
+                    _interrupt_session, state.session_id, state.stream_id,
+                    state.durable_seq + 1):
                 self.services.hub.publish(self.patient_id, {"kind": "session",
                                                             "session_id": state.session_id,
                                                             "status": "interrupted"})
@@ -361,8 +370,14 @@ def _close_session(db: DbSession, session_id: int) -> None:
         db.commit()
 
 
-def _interrupt_session(db: DbSession, session_id: int) -> bool:
-    """A stream that went away without ``bye``: its session may be resumed."""
+def _interrupt_session(db: DbSession, session_id: int, stream_id: str | None = None,
+                       next_seq: int | None = None) -> bool:
+    """A stream that went away without ``bye``: its session may be resumed. Not when the
+    stream has gone on elsewhere (stored past ``next_seq``: resumed on another instance)."""
+    if stream_id is not None:
+        stream = db.get(models.Stream, stream_id)
+        if stream is not None and stream.next_seq != next_seq:
+            return False
     session = db.get(models.Session, session_id)
     if session is not None and session.status == "live":
         session.status = "interrupted"

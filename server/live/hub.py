@@ -1,5 +1,8 @@
 """Publish/subscribe of live updates per patient. A slow viewer never holds anyone back:
-each subscriber has a small queue and loses its oldest update when it is full."""
+each subscriber has a small queue and loses its oldest update when it is full.
+
+This hub is in-process: one server instance. Several instances share theirs through a
+broker (``broker.RedisHub``, when ``ARMTRACK_BROKER_URL`` is set)."""
 
 from __future__ import annotations
 
@@ -44,6 +47,12 @@ class LiveHub:
     def __init__(self) -> None:
         self._subscribers: dict[int, set[Subscription]] = defaultdict(set)
         self.latest: dict[int, dict[str, Any]] = {}  # last pose per patient
+
+    async def start(self) -> None:
+        """Nothing to start in one process (a broker-backed hub connects here)."""
+
+    async def stop(self) -> None:
+        """Nothing to stop in one process."""
 
     def subscribe(self, patient_id: int) -> Subscription:
         subscription = Subscription(self, patient_id)
