@@ -190,7 +190,8 @@ def test_a_stream_moves_to_another_instance_without_loss_and_is_watched_across(
 
         async def run():
             stop, ready = asyncio.Event(), asyncio.Event()
-            viewer = asyncio.create_task(_watch(b.url.replace("http", "ws", 1), api_b.token, poses, stop, ready))
+            b_ws = b.url.replace("http", "ws", 1)
+            viewer = asyncio.create_task(_watch(b_ws, api_b.token, poses, stop, ready))
             await asyncio.wait_for(ready.wait(), 10)
             await asyncio.sleep(0.3)  # B subscribes to the patient's channel
             try:
