@@ -5,6 +5,7 @@ database."""
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import socket
@@ -144,3 +145,125 @@ class Api:
                 return session
             time.sleep(0.1)
         raise TimeoutError(f"session {session_id} was not processed in {timeout} s")
+
+
+# -- fast restarts: servers forked from a process that has imported the server ---------------
+
+_ZYGOTE = r"""
+import json, os, signal, sys
+import armtrack.server.app  # noqa: F401  (the slow imports, done once)
+import armtrack.server.commands.serve  # noqa: F401
+from armtrack.server.cli import main
+signal.signal(signal.SIGCHLD, signal.SIG_IGN)  # children are reaped by the kernel
+exec(sys.argv[1])  # a preamble (test hooks), run before any fork
+for line in sys.stdin:
+    order = json.loads(line)
+    pid = os.fork()
+    if pid == 0:
+        signal.signal(signal.SIGCHLD, signal.SIG_DFL)
+        os.setsid()
+        fd = os.open(order["log"], os.O_WRONLY | os.O_CREAT | os.O_APPEND)
+        os.dup2(fd, 1)
+        os.dup2(fd, 2)
+        os.environ.update(order["env"])
+        code = 1
+        try:
+            code = main(order["argv"]) or 0
+        finally:
+            os._exit(code)
+    print(pid, flush=True)
+"""
+
+
+class _Forked:
+    """A forked server's pid with the part of ``Popen`` that ``ServerProcess`` uses."""
+
+    def __init__(self, pid: int):
+        self.pid = pid
+        self.returncode: int | None = None
+
+    def poll(self) -> int | None:
+        if self.returncode is None:
+            try:
+                state = Path(f"/proc/{self.pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+            except OSError:
+                state = "X"
+            if state in ("X", "Z"):
+                self.returncode = -9
+        return self.returncode
+
+    def send_signal(self, sig: int) -> None:
+        try:
+            os.kill(self.pid, sig)
+        except ProcessLookupError:
+            pass
+
+    def terminate(self) -> None:
+        self.send_signal(signal.SIGTERM)
+
+    def wait(self, timeout: float | None = None) -> int:
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while self.poll() is None:
+            if deadline is not None and time.monotonic() > deadline:
+                raise subprocess.TimeoutExpired("armtrack serve", timeout)
+            time.sleep(0.01)
+        return self.returncode  # type: ignore[return-value]
+
+
+class Zygote:
+    """A process that has imported the server and forks ``armtrack`` commands from it
+    (their own ``main``): a server starts in about a second instead of several.
+    ``preamble``: Python run once before any fork (e.g. a test hook on the engine)."""
+
+    def __init__(self, preamble: str = "", env: dict[str, str] | None = None):
+        self.process = subprocess.Popen([sys.executable, "-c", _ZYGOTE, preamble],
+                                        stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                        text=True, env={**os.environ, **(env or {})})
+
+    def fork(self, argv: list[str], log: Path, env: dict[str, str] | None = None) -> _Forked:
+        order = {"argv": argv, "log": str(log), "env": env or {}}
+        assert self.process.stdin is not None and self.process.stdout is not None
+        self.process.stdin.write(json.dumps(order) + "\n")
+        self.process.stdin.flush()
+        line = self.process.stdout.readline()
+        if not line:
+            raise RuntimeError("the zygote died")
+        return _Forked(int(line))
+
+    def close(self) -> None:
+        if self.process.poll() is None:
+            self.process.kill()
+            self.process.wait()
+
+
+class ZygoteServerProcess(ServerProcess):
+    """A ``ServerProcess`` forked from a :class:`Zygote`: the child runs ``armtrack
+    serve``'s own ``main``, and ``kill()`` is a real SIGKILL of it. For tests that restart
+    a server many times. ``env``: settings of this server (``ARMTRACK_…``)."""
+
+    def __init__(self, data_dir: Path, zygote: Zygote, env: dict[str, str] | None = None):
+        super().__init__(data_dir, env)
+        self.zygote = zygote
+        self.extra_env = env or {}
+
+    def create_user(self, name: str, password: str = PASSWORD) -> None:
+        self.data_dir.mkdir(parents=True, exist_ok=True)
+        child = self.zygote.fork(["create-user", name, "--password", password,
+                                  "--data-dir", str(self.data_dir)], self.log, self.extra_env)
+        child.wait(60)
+
+    def start(self, timeout: float = 60.0) -> ZygoteServerProcess:
+        self.data_dir.mkdir(parents=True, exist_ok=True)
+        self.process = self.zygote.fork(  # type: ignore[assignment]
+            ["serve", "--port", str(self.port), "--data-dir", str(self.data_dir)],
+            self.log, self.extra_env)
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if self.process.poll() is not None:
+                raise RuntimeError(f"server exited: {self.log.read_text()[-2000:]}")
+            try:
+                if httpx.get(self.url + "/healthz", timeout=1).status_code == 200:
+                    return self
+            except httpx.HTTPError:
+                time.sleep(0.02)
+        raise RuntimeError(f"server did not start: {self.log.read_text()[-2000:]}")

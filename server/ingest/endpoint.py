@@ -1,7 +1,21 @@
 """``/ws/ingest``: one kit's connection (``spec/ingest.md``). Authenticates the device,
 takes ``hello``, starts or resumes the stream's session, then takes messages strictly in
 ``seq`` order: accepted ones go to the group writer (acked once stored) and to the live
-worker; refused ones get an ``error`` naming their ``seq``."""
+worker; refused ones get an ``error`` naming their ``seq``.
+
+Extension, a new stream in the same session (the spec is silent on it): a kit whose clock
+jumped backwards gets its samples refused (``t goes backwards … starts a new stream in
+this session``); it cannot resume its stream, whose times must go on. It says ``hello``
+with ``"resume": null`` and ``"session": <id>`` (the session of its ``ready``), with the
+same side and sensors. The server closes any connection still open on that session, and
+answers ``ready`` with a new ``stream``, the same ``session``, ``next_seq`` 0 and
+``"t_offset": <s>``: the new stream's times are stored shifted by ``t_offset`` (a float64
+addition), so that its clock's 0 falls one sample period after the session's last stored
+time (sample or mark); marks too. A restarted clock thus continues the session; a clock
+that did not restart leaves a gap, reported in the session's data quality. The new
+stream's blocks are ordered after the session's earlier ones; the earlier streams can no
+longer be resumed (their clock is behind). A closed session cannot be continued.
+"""
 
 from __future__ import annotations
 
@@ -18,7 +32,7 @@ from armtrack.estimator.body import SegmentLengths
 from armtrack.estimator.errors import EstimatorError
 from armtrack.estimator.pipeline import PipelineConfig
 from fastapi import APIRouter, WebSocket
-from sqlalchemy import select
+from sqlalchemy import func, select
 from sqlalchemy.orm import Session as DbSession
 from starlette.websockets import WebSocketDisconnect, WebSocketState
 
@@ -29,7 +43,13 @@ from ..services import Services
 from ..store.processing import process_in_background
 from . import protocol
 from .protocol import Hello, Refused
-from .writer import MAX_PENDING_PER_STREAM, StreamState, Write
+from .writer import (
+    MAX_PENDING_PER_STREAM,
+    ORDINAL_BASE_KEY,
+    T_OFFSET_KEY,
+    StreamState,
+    Write,
+)
 
 log = logging.getLogger("armtrack.ingest")
 router = APIRouter()
@@ -185,7 +205,19 @@ class IngestConnection:
 
     async def _open_stream(self, hello: Hello) -> dict[str, Any]:
         services = self.services
-        if hello.resume is None:
+        extra: dict[str, Any] = {}
+        if hello.resume is None and hello.session is not None:
+            # a new stream in the session: any connection still open on it ends first
+            for old in list(services.connections.values()):
+                if old.state is not None and old.state.session_id == hello.session:
+                    await old.close(1001, "replaced by a new stream of its session")
+                    await old.ended.wait()
+            stream_id = secrets.token_hex(12)
+            session_id, height, last_t = await services.run_db(
+                self._continue_session, hello, stream_id)
+            state = StreamState(stream_id, session_id, 0, last_t)
+            extra["t_offset"] = state.t_offset
+        elif hello.resume is None:
             stream_id = secrets.token_hex(12)
             session_id, height = await services.run_db(self._create_session, hello, stream_id)
             state = StreamState(stream_id, session_id, 0, {})
@@ -223,7 +255,7 @@ class IngestConnection:
         services.hub.publish(self.patient_id, {"kind": "session", "session_id": session_id,
                                                "status": "live"})
         return {"type": "ready", "stream": stream_id, "session": session_id,
-                "next_seq": state.next_seq}
+                "next_seq": state.next_seq, **extra}
 
     def _create_session(self, db: DbSession, hello: Hello, stream_id: str) -> tuple[int, float]:
         patient = db.get(models.Patient, self.patient_id)
@@ -240,6 +272,41 @@ class IngestConnection:
         db.commit()
         return session.id, patient.height_m
 
+    def _continue_session(self, db: DbSession, hello: Hello, stream_id: str
+                          ) -> tuple[int, float, dict[str, Any]]:
+        """A new stream in session ``hello.session`` (the extension above): its last
+        sample time per sensor, clock offset and first block ordinal."""
+        session = db.get(models.Session, hello.session)
+        if session is None or session.patient_id != self.patient_id:
+            raise Refused(f"hello: no session {hello.session} to continue for this device's "
+                          "patient")
+        if session.status == "closed":
+            raise Refused(f"hello: session {session.id} is closed; start a new session "
+                          "(resume null, no session)")
+        if set(hello.sensors) != set(session.sensors) or hello.side != session.side:
+            raise Refused("hello: a stream continuing a session must name the same side and "
+                          f"sensors ({session.side}; {', '.join(session.sensors)})")
+        blocks = models.SampleBlock
+        ends = dict(db.execute(
+            select(blocks.sensor, func.max(blocks.t_last))
+            .where(blocks.session_id == session.id).group_by(blocks.sensor)).all())
+        top = db.scalar(select(func.max(blocks.ordinal)).where(blocks.session_id == session.id))
+        last_mark = db.scalar(select(func.max(models.Mark.t))
+                              .where(models.Mark.session_id == session.id))
+        latest = [float(t) for t in [*ends.values(), last_mark] if t is not None]
+        rate = hello.rate_hz or session.rate_hz or 100.0
+        last_t: dict[str, Any] = {name: float(t) for name, t in ends.items()}
+        last_t[T_OFFSET_KEY] = max(latest) + 1.0 / rate if latest else 0.0
+        last_t[ORDINAL_BASE_KEY] = 0 if top is None else int(top) + 1
+        for earlier in session.streams:  # their clock is behind: no resume any more
+            earlier.last_t = {**earlier.last_t, "~continued_by": stream_id}
+        db.add(models.Stream(id=stream_id, session_id=session.id, device_id=self.device_id,
+                             next_seq=0, last_t=last_t))
+        session.status = "live"
+        session.ended_at = None
+        db.commit()
+        return session.id, session.height_m, last_t
+
     def _resume_session(self, db: DbSession, hello: Hello, stream_id: str
                         ) -> tuple[int, float, int, dict[str, float]]:
         stream = db.get(models.Stream, stream_id)
@@ -249,6 +316,9 @@ class IngestConnection:
         if session.status == "closed":
             raise Refused(f"hello: the session of stream {stream_id} is closed; "
                           "start a new stream (resume null)")
+        if "~continued_by" in (stream.last_t or {}):
+            raise Refused(f"hello: session {session.id} goes on in a newer stream; "
+                          f"continue it with resume null and session {session.id}")
         if set(hello.sensors) != set(session.sensors) or hello.side != session.side:
             raise Refused("hello: a resumed stream must name the same side and sensors "
                           f"({session.side}; {', '.join(session.sensors)})")
@@ -286,13 +356,14 @@ class IngestConnection:
                 state.next_seq += 1
                 try:
                     if kind == "samples":
-                        item = protocol.check_samples(message, seq, self.hello, state.last_t)
+                        item = protocol.check_samples(message, seq, self.hello, state.last_t,
+                                                     state.t_offset)
                         state.last_t[item.sensor] = float(item.rows[-1, 0])
                         self.received += len(item.rows)
                         self._count(item.sensor, len(item.rows), received)
                         self.services.writer.submit(Write(state, seq, samples=item))
                     else:
-                        item = protocol.check_mark(message, seq)
+                        item = protocol.check_mark(message, seq, state.t_offset)
                         self.services.writer.submit(Write(state, seq, mark=item))
                 except Refused:
                     self.services.writer.submit(Write(state, seq))  # the number is used up

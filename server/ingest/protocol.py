@@ -3,6 +3,11 @@ message is either accepted as a whole or refused with a reason naming what is wr
 
 Rows are ``[t, ax, ay, az, gx, gy, gz, mx, my, mz]`` in the units of ``recording.md``
 (s, m/s², rad/s, µT); on a 6-axis sensor ``mx my mz`` are ``null``.
+
+Extension (the spec is silent on it): ``hello`` may carry ``"session": <id>`` with
+``"resume": null`` to start a *new stream in the same session*, for a kit whose clock
+jumped backwards (its samples are refused: ``t goes backwards``) or that lost its stream
+id. See :mod:`armtrack.server.ingest.endpoint`.
 """
 
 from __future__ import annotations
@@ -49,6 +54,8 @@ class Hello:
     rate_hz: float | None
     nine_axis: bool
     resume: str | None
+    #: extension: continue this (interrupted or live) session of the patient in a new stream
+    session: int | None = None
 
 
 @dataclass(frozen=True)
@@ -147,8 +154,14 @@ def check_hello(message: dict[str, Any]) -> Hello:
     resume = message.get("resume")
     if resume is not None and (not isinstance(resume, str) or not 0 < len(resume) <= 40):
         raise bad("resume must be null or the stream id of an earlier connection")
+    session = message.get("session")
+    if session is not None and not (_is_int(session) and 0 < session < 2**63):
+        raise bad(f"session must be null or the id of a session to continue, got {session!r}")
+    if session is not None and resume is not None:
+        raise bad("give resume (the same stream) or session (a new stream in that "
+                  "session), not both")
     return Hello(device, side, tuple(sensors), None if rate is None else float(rate),
-                 nine_axis, resume)
+                 nine_axis, resume, session)
 
 
 def check_seq(message: dict[str, Any]) -> int:
@@ -159,10 +172,11 @@ def check_seq(message: dict[str, Any]) -> int:
 
 
 def check_samples(message: dict[str, Any], seq: int, hello: Hello,
-                  last_t: dict[str, float]) -> Samples:
+                  last_t: dict[str, float], t_offset: float = 0.0) -> Samples:
     """A ``samples`` message: known sensor, 1–1000 rows of 10 finite numbers (``null``
     magnetometer exactly when 6-axis), within physical range, ``t`` non-decreasing within
-    the message and after the sensor's last stored sample."""
+    the message and after the sensor's last stored sample. ``t_offset`` [s] is added to
+    ``t`` first (a stream continuing a session on a restarted clock; 0 otherwise)."""
     sensor = message.get("sensor")
     if sensor not in hello.sensors:
         raise Refused(f"sensor {sensor!r} was not named in hello "
@@ -187,13 +201,17 @@ def check_samples(message: dict[str, Any], seq: int, hello: Hello,
         data = np.array(rows, dtype=np.float64)
     except OverflowError:
         raise Refused("a row value is too large for a float64", seq) from None
+    if t_offset:
+        data[:, 0] += t_offset
     if not _plausible(data, hello.nine_axis):
         _explain(data, sensor, seq, hello.nine_axis)  # raises, naming the first fault
     t = data[:, 0]
     previous = last_t.get(sensor)
     if previous is not None and t[0] < previous:
         raise Refused(backwards_message(sensor, t[0], previous)
-                      + ": a kit whose clock restarted starts a new stream", seq)
+                      + ": the clock went back; a kit whose clock restarted starts a new "
+                      "stream in this session (hello with resume null and session = its id)",
+                      seq)
     return Samples(seq, sensor, data)
 
 
@@ -252,7 +270,7 @@ def _explain(data: np.ndarray, sensor: str, seq: int, nine_axis: bool) -> None:
     raise AssertionError("_explain found nothing wrong with rows _plausible refused")
 
 
-def check_mark(message: dict[str, Any], seq: int) -> MarkMessage:
+def check_mark(message: dict[str, Any], seq: int, t_offset: float = 0.0) -> MarkMessage:
     t = message.get("t")
     if not _is_number(t):
         raise Refused(f"mark: t must be a finite number of seconds, got {t!r}", seq)
@@ -260,7 +278,10 @@ def check_mark(message: dict[str, Any], seq: int) -> MarkMessage:
     if not isinstance(label, str) or not LABEL_PATTERN.fullmatch(label):
         raise Refused(f"mark: label must be npose, tpose, exercise:<name> or end:<label>, "
                       f"got {label!r}", seq)
-    return MarkMessage(seq, float(t), label)
+    t = float(t) + t_offset if t_offset else float(t)
+    if not math.isfinite(t):
+        raise Refused("mark: t is too large", seq)
+    return MarkMessage(seq, t, label)
 
 
 def check_status(message: dict[str, Any], hello: Hello) -> dict[str, Any]:

@@ -32,6 +32,10 @@ log = logging.getLogger("armtrack.ingest")
 MAX_PENDING_PER_STREAM = 2000
 #: Retry delay after a failed commit [s].
 RETRY_S = 0.5
+#: Keys of a stream's stored ``last_t`` that are not sensors: a stream continuing a session
+#: (hello ``session``) keeps its clock offset [s] and the first block ordinal it uses.
+T_OFFSET_KEY = "~t_offset"
+ORDINAL_BASE_KEY = "~ordinal_base"
 
 _STREAMS = models.Stream.__table__
 _SESSIONS = models.Session.__table__
@@ -52,7 +56,9 @@ _COPY_TYPES = ["int4", "varchar", "int8", "int4", "float8", "float8", "bytea"]
 @dataclass(eq=False)
 class StreamState:
     """What the ingest side knows of one stream: ``next_seq`` accepted in memory,
-    ``durable_seq`` stored (the ack), the last sample time per sensor."""
+    ``durable_seq`` stored (the ack), the last sample time per sensor (and, for a stream
+    continuing a session, its clock offset and first block ordinal, under
+    :data:`T_OFFSET_KEY` and :data:`ORDINAL_BASE_KEY`)."""
 
     stream_id: str
     session_id: int
@@ -67,10 +73,14 @@ class StreamState:
     on_fenced: Callable[[], None] = lambda: None
     fenced: bool = False
     idle: asyncio.Event = field(default_factory=asyncio.Event)
+    t_offset: float = 0.0
+    ordinal_base: int = 0
 
     def __post_init__(self) -> None:
         self.durable_seq = self.next_seq - 1
         self.stored_last_t = dict(self.last_t)
+        self.t_offset = float(self.last_t.get(T_OFFSET_KEY, 0.0))
+        self.ordinal_base = int(self.last_t.get(ORDINAL_BASE_KEY, 0))
         self.idle.set()
 
 
@@ -197,7 +207,8 @@ class GroupWriter:
                 rows = write.samples.rows
                 times[write.samples.sensor] = float(rows[-1, 0])
                 blocks.append({"session_id": stream.session_id, "sensor": write.samples.sensor,
-                               "ordinal": write.seq, "n_rows": len(rows),
+                               "ordinal": stream.ordinal_base + write.seq,
+                               "n_rows": len(rows),
                                "t_first": float(rows[0, 0]), "t_last": float(rows[-1, 0]),
                                "data": pack(rows)})
                 counts[stream.session_id] = counts.get(stream.session_id, 0) + len(rows)

@@ -170,6 +170,10 @@ class SensorQuality(BaseModel):
     duration_s: float
     lost_samples: int = Field(description="missing samples, from gaps in the time stamps")
     lost_percent: float
+    gaps: list[Window] = Field(
+        default_factory=list,
+        description="time-stamp gaps over GAP_STEPS sample periods: data lost, a stalled "
+                    "sensor, or a clock that jumped forward")
     magnetic_disturbances: list[Window] = Field(
         description="periods where the field strength left the sensor's usual value")
     magnetic_disturbance_s: float

@@ -4,6 +4,9 @@ disturbances, the calibration used and the warnings.
 * **Lost samples** per sensor, from its time stamps: with ``dt`` the median interval,
   a gap of ``g`` seconds holds ``round(g / dt) − 1`` missing samples (jitter of a fraction
   of ``dt`` counts nothing).
+* **Gaps** per sensor: intervals between time stamps over ``GAP_STEPS`` median intervals
+  (data lost in bulk, a sensor that stalled, or a clock that jumped forward), each with
+  its start and end, and a warning naming them.
 * **Magnetometer disturbance** (9-axis sensors): the field strength ``|m|`` against its
   median over the session; a sample is disturbed when it is more than
   ``MAG_TOLERANCE`` (15%) off (the Earth's field is 25–65 µT and steady; iron or a motor
@@ -33,6 +36,8 @@ MAG_TOLERANCE = 0.15
 MAG_MIN_S = 0.2
 #: Disturbed runs closer than this are merged [s].
 MAG_MERGE_S = 0.5
+#: A sensor's time stamps further apart than this many median intervals make a gap [-].
+GAP_STEPS = 5
 #: Estimates further apart than this make a gap [s].
 ESTIMATE_GAP_S = 0.25
 
@@ -46,6 +51,18 @@ def lost_samples(t: np.ndarray) -> tuple[int, float | None]:
     if step <= 0:
         return 0, None
     return int(np.sum(np.maximum(np.round(dt / step) - 1, 0))), 1.0 / step
+
+
+def time_gaps(t: np.ndarray) -> list[tuple[float, float]]:
+    """Gaps ``(start_s, end_s)`` of a sensor's time stamps ``t`` [s] (N,): intervals over
+    ``GAP_STEPS`` times the median one."""
+    if t.size < 2:
+        return []
+    dt = np.diff(t)
+    step = float(np.median(dt))
+    if step <= 0:
+        return []
+    return [(float(t[i]), float(t[i + 1])) for i in np.flatnonzero(dt > GAP_STEPS * step)]
 
 
 def magnetic_disturbances(t: np.ndarray, mag: np.ndarray) -> list[tuple[float, float]]:
@@ -71,8 +88,15 @@ def magnetic_disturbances(t: np.ndarray, mag: np.ndarray) -> list[tuple[float, f
 def quality(data: SessionData) -> Quality:
     session = data.session
     sensors = []
+    warnings = []
     for name, stream in data.recording.sensors.items():
         lost, rate = lost_samples(stream.t)
+        gaps_s = time_gaps(stream.t)
+        if gaps_s:
+            longest = max(gaps_s, key=lambda g: g[1] - g[0])
+            warnings.append(f"sensor {name}: {len(gaps_s)} gap(s) in its time stamps, the "
+                            f"longest {longest[1] - longest[0]:.2f} s from {longest[0]:.2f} s "
+                            "(data lost, a stalled sensor or a clock that jumped forward)")
         duration = float(stream.t[-1] - stream.t[0]) if len(stream.t) > 1 else 0.0
         disturbed = (magnetic_disturbances(stream.t, stream.mag)
                      if stream.mag is not None else [])
@@ -80,6 +104,7 @@ def quality(data: SessionData) -> Quality:
             name=name, nine_axis=stream.mag is not None, samples=len(stream.t),
             rate_hz=finite(rate, 2), duration_s=finite(duration, 2), lost_samples=lost,
             lost_percent=finite(100.0 * lost / max(1, lost + len(stream.t)), 2),
+            gaps=[Window(start_s=finite(a), end_s=finite(b)) for a, b in gaps_s],
             magnetic_disturbances=[Window(start_s=finite(a), end_s=finite(b))
                                    for a, b in disturbed],
             magnetic_disturbance_s=finite(sum(b - a for a, b in disturbed), 2)))
@@ -103,4 +128,4 @@ def quality(data: SessionData) -> Quality:
             final_time_s=finite(calibration.get("final_time_s")), poses=poses,
             excluded=excluded),
         estimator={str(k): str(v) for k, v in (session.estimator or {}).items()},
-        warnings=list(calibration.get("warnings") or []))
+        warnings=list(calibration.get("warnings") or []) + warnings)
