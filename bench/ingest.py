@@ -43,6 +43,16 @@ script and py-spy) to the other, so that the client does not take the server's c
 writer, the database and compute pools) on its CPU. Other work on the machine shows in
 the numbers; the load average is printed with every run.
 
+``--instances N`` (default 1) runs N server instances as one clinic network would
+(README "Scaling out"): one PostgreSQL database (a fresh database per run on
+``--database-url``, default ``ARMTRACK_TEST_POSTGRES_URL``: ``eval "$(.ci/postgres
+start)"``), one ``redis-server`` broker that this script starts on a free loopback port,
+kit i streaming into instance i mod N and its viewer watching from instance i+1 mod N, so
+every pose crosses the broker. The server CPU is then the sum over the instances; pin
+nothing on a 2-core box (``--no-pin``): the instances, PostgreSQL, Redis and the client
+share its two cores. ``--database-url`` with one instance measures one instance on
+PostgreSQL (no broker).
+
 ``--profile`` samples the server with py-spy (``pip install py-spy``) through the steady
 window of each run and prints where its CPU time goes (own and inclusive time per
 function, % of samples). Results are appended to ``bench/results/ingest.csv`` (one row a
@@ -152,6 +162,66 @@ class Sampler(threading.Thread):
         return 100.0 * (c1 - c0) / (t1 - t0), max(s[2] for s in inside)
 
 
+class Samplers:
+    """Several servers' samplers as one: CPU % summed, RSS of the largest."""
+
+    def __init__(self, samplers: list[Sampler]):
+        self.samplers = samplers
+
+    def start(self) -> None:
+        for s in self.samplers:
+            s.start()
+
+    def stop(self) -> None:
+        for s in self.samplers:
+            if s.is_alive():
+                s.stop()
+
+    def is_alive(self) -> bool:
+        return any(s.is_alive() for s in self.samplers)
+
+    @property
+    def hwm(self) -> int:
+        return max(s.hwm for s in self.samplers)
+
+    def window(self, start: float, end: float) -> tuple[float, int]:
+        parts = [s.window(start, end) for s in self.samplers]
+        return sum(p[0] for p in parts), max(p[1] for p in parts)
+
+
+def fresh_database(url: str) -> str:
+    """A new PostgreSQL database on the server of ``url``; its URL."""
+    import secrets
+
+    from sqlalchemy import create_engine, text
+    from sqlalchemy.engine import make_url
+
+    name = f"armtrack_bench_{secrets.token_hex(6)}"
+    engine = create_engine(url, isolation_level="AUTOCOMMIT")
+    with engine.connect() as connection:
+        connection.execute(text(f"CREATE DATABASE {name}"))
+    engine.dispose()
+    return make_url(url).set(database=name).render_as_string(hide_password=False)
+
+
+def start_broker(data_dir: Path) -> tuple[subprocess.Popen, str]:
+    """``redis-server`` on a free loopback port (no persistence); the process and URL."""
+    import socket
+
+    port = free_port()
+    process = subprocess.Popen(["redis-server", "--port", str(port), "--bind", "127.0.0.1",
+                                "--save", "", "--appendonly", "no", "--dir", str(data_dir)],
+                               stdout=subprocess.DEVNULL)
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        with socket.socket() as s:
+            if s.connect_ex(("127.0.0.1", port)) == 0:
+                return process, f"redis://127.0.0.1:{port}/0"
+        time.sleep(0.05)
+    process.kill()
+    raise RuntimeError("redis-server did not start")
+
+
 def code_version() -> str:
     def git(*args: str) -> str:
         try:
@@ -258,9 +328,12 @@ async def client_main(config: dict) -> dict:
     recording = read_recording(config["recording"])
     plan = make_cached_plan(recording, config["rows_per_message"])
     ingest_url, live_url = config["ingest_url"], config["live_url"]
+    # several instances: kit i into instance i mod N, its viewer on instance i+1 mod N
+    ingest_urls, live_urls = config.get("ingest_urls", [ingest_url]), config.get(
+        "live_urls", [live_url])
 
-    def kit_for(token: str, speed: float, device: str) -> KitEmulator:
-        kit = KitEmulator(recording, ingest_url, token, device=device,
+    def kit_for(token: str, speed: float, device: str, url: str = ingest_url) -> KitEmulator:
+        kit = KitEmulator(recording, url, token, device=device,
                           rows_per_message=config["rows_per_message"], speed=speed,
                           ack_timeout_s=30.0, open_timeout_s=60.0)
         kit.plan = plan  # the shared, pre-encoded plan (same messages, same times)
@@ -280,8 +353,9 @@ async def client_main(config: dict) -> dict:
 
     patients = config["patients"]
     n = len(patients)
-    kits = [kit_for(p["token"], config["speed"], f"bench-kit-{p['patient_id']}")
-            for p in patients]
+    kits = [kit_for(p["token"], config["speed"], f"bench-kit-{p['patient_id']}",
+                    ingest_urls[i % len(ingest_urls)])
+            for i, p in enumerate(patients)]
     latencies, ages, received = array("d"), array("d"), array("d")
     viewers = [ViewerStats() for _ in patients]
     kit_errors: list[str] = [""] * n
@@ -291,7 +365,8 @@ async def client_main(config: dict) -> dict:
     # viewers first, all connected before the first kit starts
     viewer_ready = [asyncio.Event() for _ in patients]
     viewer_tasks = [asyncio.create_task(viewer(
-        f"{live_url}?patient={p['patient_id']}", config["therapist_token"], viewer_ready[i],
+        f"{live_urls[(i + 1) % len(live_urls)]}?patient={p['patient_id']}",
+        config["therapist_token"], viewer_ready[i],
         kit_done[i], kits[i], plan, latencies, ages, received, viewers[i],
         config["deflate"]))
         for i, p in enumerate(patients)]
@@ -512,15 +587,26 @@ def run_one(n: int, args: argparse.Namespace, recording_path: Path, tmp: Path) -
     run = Run(n)
     data_dir = tmp / f"server-{n}-{time.monotonic_ns()}"
     data_dir.mkdir()
+    env = {f"ARMTRACK_{k.upper()}": str(v) for k, v in args.server_env}
+    broker = None
+    if args.database_url:
+        env["ARMTRACK_DATABASE_URL"] = fresh_database(args.database_url)
+    if args.instances > 1:
+        broker, env["ARMTRACK_BROKER_URL"] = start_broker(data_dir)
     done = subprocess.run([sys.executable, "-m", "armtrack.server.cli", "create-user",
                            THERAPIST, "--password", PASSWORD, "--data-dir", str(data_dir)],
-                          capture_output=True, text=True)
+                          capture_output=True, text=True, env={**os.environ, **env})
     if done.returncode != 0:
         raise RuntimeError(f"create-user failed: {done.stderr}")
-    port = free_port()
-    env = {f"ARMTRACK_{k.upper()}": str(v) for k, v in args.server_env}
-    server = start_server(data_dir, port, args.server_cpu, env)
-    sampler = Sampler(server.pid)
+    ports, servers = [], []
+    for k in range(args.instances):
+        instance_dir = data_dir / f"instance-{k}"
+        instance_dir.mkdir()
+        ports.append(free_port())
+        servers.append(start_server(instance_dir, ports[-1], args.server_cpu, env))
+    server = servers[0]
+    port = ports[0]
+    sampler = Samplers([Sampler(s.pid) for s in servers])
     base = f"http://127.0.0.1:{port}"
     profiler = None
     try:
@@ -550,6 +636,8 @@ def run_one(n: int, args: argparse.Namespace, recording_path: Path, tmp: Path) -
             "live_url": f"ws://127.0.0.1:{port}/ws/live", "therapist_token": token,
             "patients": patients, "warmup": warmup, "speed": 1.0,
             "stagger_s": args.stagger, "deflate": not args.no_deflate,
+            "ingest_urls": [f"ws://127.0.0.1:{p}/ws/ingest" for p in ports],
+            "live_urls": [f"ws://127.0.0.1:{p}/ws/live" for p in ports],
         }
         config_path = data_dir / "client.json"
         output_path = data_dir / "client-result.json"
@@ -595,7 +683,10 @@ def run_one(n: int, args: argparse.Namespace, recording_path: Path, tmp: Path) -
             stored += answer.json()["samples"]
         sampler.stop()
     finally:
-        stop_server(server)
+        for s in servers:
+            stop_server(s)
+        if broker is not None:
+            stop_server(broker)
         if sampler.is_alive():
             sampler.stop()
 
@@ -800,9 +891,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--profile-top", type=int, default=15)
     parser.add_argument("--keep-profiles", action="store_true",
                         help="copy py-spy's collapsed stacks to bench/results/")
+    parser.add_argument("--instances", type=int, default=1,
+                        help="server instances on one PostgreSQL and one broker")
+    parser.add_argument("--database-url", default=None,
+                        help="PostgreSQL server URL (a fresh database per run); default for "
+                        "--instances > 1: ARMTRACK_TEST_POSTGRES_URL")
     parser.add_argument("--fresh-csv", action="store_true",
                         help="rewrite bench/results/ingest.csv instead of appending")
     args = parser.parse_args(argv)
+    if args.instances > 1 and not args.database_url:
+        args.database_url = os.environ.get("ARMTRACK_TEST_POSTGRES_URL")
+        if not args.database_url:
+            parser.error("--instances > 1 needs PostgreSQL: --database-url or "
+                         "ARMTRACK_TEST_POSTGRES_URL (eval \"$(.ci/postgres start)\")")
 
     raise_fd_limit()
     allowed = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
@@ -822,6 +923,9 @@ def main(argv: list[str] | None = None) -> int:
           f"(1/5/15 min; other work on the machine shows in the numbers)")
     print(f"server: commit {version}")
     settings = " ".join(f"ARMTRACK_{k.upper()}={v}" for k, v in args.server_env) or "defaults"
+    if args.instances > 1 or args.database_url:
+        settings += (f"; {args.instances} instance(s) on PostgreSQL"
+                     + (" + Redis broker" if args.instances > 1 else ""))
     settings += "; clients without deflate" if args.no_deflate else "; permessage-deflate on"
     print(f"server settings: {settings}")
 
