@@ -19,6 +19,7 @@ from ..db import models
 from ..services import Services
 from .auth_routes import MIN_PASSWORD
 from .deps import Admin, Db, Page, services
+from .schemas import MAX_ID, Id, QueryId
 
 router = APIRouter(prefix="/api/admin", tags=["admin"], responses={
     401: {"description": "not signed in"},
@@ -49,7 +50,7 @@ class ResetOut(BaseModel):
 
 class Reassign(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    therapist_id: int = Field(description="the covering therapist")
+    therapist_id: int = Field(ge=1, le=MAX_ID, description="the covering therapist")
 
 
 class AdminPatientOut(BaseModel):
@@ -93,7 +94,7 @@ def create_therapist(body: TherapistIn, db: Db, admin: Admin) -> TherapistOut:
 
 
 @router.post("/therapists/{therapist_id}/disable", response_model=TherapistOut)
-async def disable_therapist(therapist_id: int, admin: Admin,
+async def disable_therapist(therapist_id: Id, admin: Admin,
                             svc: Annotated[Services, Depends(services)]) -> TherapistOut:
     """Disable an account: it cannot sign in and its tokens stop working at once. Its
     patients stay; reassign them to a covering therapist."""
@@ -113,7 +114,7 @@ async def disable_therapist(therapist_id: int, admin: Admin,
 
 
 @router.post("/therapists/{therapist_id}/enable", response_model=TherapistOut)
-def enable_therapist(therapist_id: int, db: Db, admin: Admin) -> TherapistOut:
+def enable_therapist(therapist_id: Id, db: Db, admin: Admin) -> TherapistOut:
     """Enable a disabled account again (it signs in afresh)."""
     therapist = _therapist(db, therapist_id)
     therapist.disabled_at = None
@@ -122,7 +123,7 @@ def enable_therapist(therapist_id: int, db: Db, admin: Admin) -> TherapistOut:
 
 
 @router.post("/therapists/{therapist_id}/reset", response_model=ResetOut)
-def issue_reset(therapist_id: int, db: Db, admin: Admin,
+def issue_reset(therapist_id: Id, db: Db, admin: Admin,
                 svc: Annotated[Services, Depends(services)]) -> ResetOut:
     """A one-time reset token for a therapist who forgot their password (used with
     ``POST /api/auth/reset``; earlier unused ones stop working)."""
@@ -140,7 +141,7 @@ def issue_reset(therapist_id: int, db: Db, admin: Admin,
 
 @router.get("/patients", response_model=list[AdminPatientOut])
 def list_all_patients(db: Db, admin: Admin, page: Annotated[Page, Depends()],
-                      therapist_id: int | None = None) -> list[AdminPatientOut]:
+                      therapist_id: QueryId = None) -> list[AdminPatientOut]:
     """Every patient's id, name and therapist (to reassign them); no clinical data."""
     query = select(models.Patient)
     if therapist_id is not None:
@@ -150,7 +151,7 @@ def list_all_patients(db: Db, admin: Admin, page: Annotated[Page, Depends()],
 
 
 @router.post("/patients/{patient_id}/reassign", response_model=AdminPatientOut)
-def reassign_patient(patient_id: int, body: Reassign, db: Db, admin: Admin
+def reassign_patient(patient_id: Id, body: Reassign, db: Db, admin: Admin
                      ) -> AdminPatientOut:
     """Give a patient (with their sessions and kits) to a covering therapist."""
     patient = db.get(models.Patient, patient_id)

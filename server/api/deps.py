@@ -91,7 +91,7 @@ class Page:
     """``?limit=&offset=`` of a list."""
 
     def __init__(self, limit: Annotated[int, Query(ge=1, le=1000)] = 100,
-                 offset: Annotated[int, Query(ge=0)] = 0):
+                 offset: Annotated[int, Query(ge=0, le=2**31 - 1)] = 0):
         self.limit = limit
         self.offset = offset
 

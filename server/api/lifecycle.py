@@ -26,7 +26,7 @@ from ..reports.targets import patient_targets
 from ..store.processing import stored_estimates
 from ..store.recordings import session_recording
 from .deps import Db, Page, Therapist, own_patient
-from .schemas import DeviceOut, PatientOut
+from .schemas import DeviceOut, Id, PatientOut, QueryId
 from .sessions import ANGLE_COLUMNS_END, session_out
 
 router = APIRouter(prefix="/api", tags=["lifecycle"], responses={
@@ -102,7 +102,7 @@ def patient_archive(db: DbSession, patient: models.Patient) -> bytes:
 @router.get("/patients/{patient_id}/export", response_class=Response, responses={
     200: {"content": {"application/zip": {}}, "description": "a zip archive"},
     404: {"description": "no such patient of this therapist's"}})
-def export_patient(patient_id: int, db: Db, therapist: Therapist) -> Response:
+def export_patient(patient_id: Id, db: Db, therapist: Therapist) -> Response:
     """Everything held about the patient, as one zip archive: the patient, their kits
     (without tokens), targets and sessions as JSON, each session's raw data
     (``recording.csv``), angles (``angles.csv``) and report (``report.json``), and the
@@ -128,7 +128,7 @@ def _audit_query(therapist: models.Therapist, patient_id: int | None,
 
 @router.get("/audit", response_model=list[AuditOut])
 def list_audit(db: Db, therapist: Therapist, page: Annotated[Page, Depends()],
-               patient_id: int | None = None, therapist_id: int | None = None,
+               patient_id: QueryId = None, therapist_id: QueryId = None,
                action: str | None = None,
                format: Annotated[Literal["json", "csv"], Query()] = "json",
                ) -> list[models.AuditEntry] | Response:

@@ -28,6 +28,7 @@ from ..services import Services
 from ..store.blocks import SAMPLE_COLUMNS, unpack_many
 from .deps import Therapist, own_patient
 from .deps import services as get_services
+from .schemas import Id
 
 router = APIRouter(prefix="/api", tags=["live"])
 
@@ -243,7 +244,7 @@ def live_status(svc: Services, db: DbSession, patient_id: int,
 
 
 @router.get("/patients/{patient_id}/live")
-async def get_live_status(patient_id: int, therapist: Therapist,
+async def get_live_status(patient_id: Id, therapist: Therapist,
                           svc: Annotated[Services, Depends(get_services)]) -> dict[str, Any]:
     """The patient's newest live (or interrupted) session: per-sensor connection, samples
     per second, lost-sample rate, last seen, battery and signal; the calibration poses so

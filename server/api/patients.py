@@ -13,7 +13,7 @@ from ..db import models
 from ..services import Services
 from .deps import Db, Page, Therapist, own_device, own_patient, services
 from .erase import erase_patient
-from .schemas import DeviceCreated, DeviceIn, DeviceOut, PatientIn, PatientOut
+from .schemas import DeviceCreated, DeviceIn, DeviceOut, Id, PatientIn, PatientOut
 
 router = APIRouter(prefix="/api", tags=["patients"])
 
@@ -38,12 +38,12 @@ def list_patients(db: Db, therapist: Therapist, page: Annotated[Page, Depends()]
 
 
 @router.get("/patients/{patient_id}", response_model=PatientOut)
-def get_patient(patient_id: int, db: Db, therapist: Therapist) -> models.Patient:
+def get_patient(patient_id: Id, db: Db, therapist: Therapist) -> models.Patient:
     return own_patient(db, therapist, patient_id)
 
 
 @router.delete("/patients/{patient_id}", status_code=status.HTTP_204_NO_CONTENT)
-async def delete_patient(patient_id: int, therapist: Therapist,
+async def delete_patient(patient_id: Id, therapist: Therapist,
                          svc: Annotated[Services, Depends(services)]) -> None:
     """Erase the patient with all their sessions, data and devices."""
     device_ids = await svc.run_db(_patient_devices, therapist, patient_id)
@@ -60,7 +60,7 @@ def _patient_devices(db, therapist, patient_id: int) -> list[int]:
 
 @router.post("/patients/{patient_id}/devices", response_model=DeviceCreated,
              status_code=status.HTTP_201_CREATED)
-def create_device(patient_id: int, body: DeviceIn, db: Db, therapist: Therapist) -> dict:
+def create_device(patient_id: Id, body: DeviceIn, db: Db, therapist: Therapist) -> dict:
     """A new sensor kit for the patient; its token is in this answer only."""
     own_patient(db, therapist, patient_id)
     token, digest = new_token("dev_")
@@ -71,7 +71,7 @@ def create_device(patient_id: int, body: DeviceIn, db: Db, therapist: Therapist)
 
 
 @router.get("/patients/{patient_id}/devices", response_model=list[DeviceOut])
-def list_devices(patient_id: int, db: Db, therapist: Therapist,
+def list_devices(patient_id: Id, db: Db, therapist: Therapist,
                  page: Annotated[Page, Depends()]) -> list[models.Device]:
     own_patient(db, therapist, patient_id)
     return list(db.scalars(select(models.Device).where(models.Device.patient_id == patient_id)
@@ -79,7 +79,7 @@ def list_devices(patient_id: int, db: Db, therapist: Therapist,
 
 
 @router.delete("/devices/{device_id}", status_code=status.HTTP_204_NO_CONTENT)
-async def revoke_device(device_id: int, therapist: Therapist,
+async def revoke_device(device_id: Id, therapist: Therapist,
                         svc: Annotated[Services, Depends(services)]) -> None:
     """Revoke a device: its token stops working at once; open streams close with 4401."""
     await svc.run_db(_revoke, therapist, device_id)

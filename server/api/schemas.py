@@ -3,10 +3,18 @@
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from armtrack.estimator.body import HEIGHT_RANGE_M
+from fastapi import Path, Query
 from pydantic import BaseModel, ConfigDict, Field
+
+#: Row ids fit a 32-bit integer on every database the server runs on; a path or query id
+#: beyond that is refused (422) before it reaches the database (SQLite raised
+#: OverflowError on it: a 500).
+MAX_ID = 2**31 - 1
+Id = Annotated[int, Path(ge=1, le=MAX_ID)]
+QueryId = Annotated[int | None, Query(ge=1, le=MAX_ID)]
 
 
 class TokenOut(BaseModel):

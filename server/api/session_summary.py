@@ -20,6 +20,7 @@ from ..db import models
 from ..store.processing import stored_estimates
 from .deps import Db, Therapist, own_patient, own_session
 from .live_status import block_totals, lost_fraction
+from .schemas import Id
 
 router = APIRouter(prefix="/api", tags=["sessions"])
 
@@ -139,16 +140,16 @@ def summarise(db: DbSession, session: models.Session) -> dict[str, Any]:
 
 
 @router.get("/sessions/{session_id}/summary")
-def get_summary(session_id: int, db: Db, therapist: Therapist) -> dict[str, Any]:
+def get_summary(session_id: Id, db: Db, therapist: Therapist) -> dict[str, Any]:
     """Exercises, duration [s], range of motion [deg] against normal values (AAOS) of the
     angles that moved, calibration poses excluded, a ROM headline and the data quality."""
     return summarise(db, own_session(db, therapist, session_id))
 
 
 @router.get("/patients/{patient_id}/summaries")
-def list_summaries(patient_id: int, db: Db, therapist: Therapist,
+def list_summaries(patient_id: Id, db: Db, therapist: Therapist,
                    limit: Annotated[int, Query(ge=1, le=200)] = 50,
-                   offset: Annotated[int, Query(ge=0)] = 0) -> list[dict[str, Any]]:
+                   offset: Annotated[int, Query(ge=0, le=2**31 - 1)] = 0) -> list[dict[str, Any]]:
     """The summaries of a patient's sessions, newest first."""
     own_patient(db, therapist, patient_id)
     sessions = db.scalars(select(models.Session).where(models.Session.patient_id == patient_id)

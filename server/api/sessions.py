@@ -24,7 +24,7 @@ from ..store.recordings import add_recording, session_recording
 from .deps import Db, Page, Therapist, current_therapist, oauth2, own_patient, own_session
 from .deps import services as get_services
 from .erase import erase_session
-from .schemas import SessionOut
+from .schemas import MAX_ID, Id, SessionOut
 
 router = APIRouter(prefix="/api", tags=["sessions"])
 
@@ -44,7 +44,7 @@ def session_out(session: models.Session) -> SessionOut:
 
 
 @router.get("/patients/{patient_id}/sessions", response_model=list[SessionOut])
-def list_sessions(patient_id: int, db: Db, therapist: Therapist,
+def list_sessions(patient_id: Id, db: Db, therapist: Therapist,
                   page: Annotated[Page, Depends()]) -> list[SessionOut]:
     """A patient's sessions, newest first."""
     own_patient(db, therapist, patient_id)
@@ -55,12 +55,12 @@ def list_sessions(patient_id: int, db: Db, therapist: Therapist,
 
 
 @router.get("/sessions/{session_id}", response_model=SessionOut)
-def get_session(session_id: int, db: Db, therapist: Therapist) -> SessionOut:
+def get_session(session_id: Id, db: Db, therapist: Therapist) -> SessionOut:
     return session_out(own_session(db, therapist, session_id))
 
 
 @router.post("/sessions/{session_id}/close", response_model=SessionOut)
-async def close_session(session_id: int, therapist: Therapist,
+async def close_session(session_id: Id, therapist: Therapist,
                         svc: Annotated[Services, Depends(get_services)]) -> SessionOut:
     """Close a live or interrupted session (a live stream is ended) and estimate it."""
     session = await svc.run_db(lambda db: own_session(db, therapist, session_id))
@@ -92,7 +92,7 @@ async def _run_compute(svc: Services, session_id: int) -> None:
 
 
 @router.delete("/sessions/{session_id}", status_code=status.HTTP_204_NO_CONTENT)
-async def delete_session(session_id: int, therapist: Therapist,
+async def delete_session(session_id: Id, therapist: Therapist,
                          svc: Annotated[Services, Depends(get_services)]) -> None:
     """Erase the session and all its data (an open stream of it is closed first)."""
     await svc.run_db(lambda db: own_session(db, therapist, session_id))
@@ -119,7 +119,8 @@ def uploader(db: Db, token: Annotated[str | None, Depends(oauth2)], request: Req
 @router.post("/recordings", response_model=SessionOut, status_code=status.HTTP_201_CREATED)
 def upload_recording(db: Db, who: Annotated[models.Therapist | models.Device,
                                             Depends(uploader)],
-                     file: UploadFile, patient_id: Annotated[int | None, Form()] = None,
+                     file: UploadFile,
+                     patient_id: Annotated[int | None, Form(ge=1, le=MAX_ID)] = None,
                      ) -> SessionOut:
     """A recording file (``spec/recording.md``) recorded offline: stored as a new closed
     session and estimated. With a device token the patient is the device's own."""
@@ -150,7 +151,7 @@ def upload_recording(db: Db, who: Annotated[models.Therapist | models.Device,
 
 @router.get("/sessions/{session_id}/recording.csv", response_class=Response,
             responses={200: {"content": {"text/csv": {}}}})
-def export_recording(session_id: int, db: Db, therapist: Therapist) -> Response:
+def export_recording(session_id: Id, db: Db, therapist: Therapist) -> Response:
     """The session's raw data as a recording file; it reads back to the stored numbers."""
     session = own_session(db, therapist, session_id)
     data = format_recording(session_recording(db, session))
@@ -160,7 +161,7 @@ def export_recording(session_id: int, db: Db, therapist: Therapist) -> Response:
 
 @router.get("/sessions/{session_id}/angles.csv", response_class=Response,
             responses={200: {"content": {"text/csv": {}}}})
-def export_angles(session_id: int, db: Db, therapist: Therapist) -> Response:
+def export_angles(session_id: Id, db: Db, therapist: Therapist) -> Response:
     """Per-sample joint angles [deg] and positions [m], as ``armtrack estimate`` writes."""
     session = own_session(db, therapist, session_id)
     columns, values = stored_estimates(db, session)

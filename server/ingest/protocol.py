@@ -155,7 +155,7 @@ def check_hello(message: dict[str, Any]) -> Hello:
     if resume is not None and (not isinstance(resume, str) or not 0 < len(resume) <= 40):
         raise bad("resume must be null or the stream id of an earlier connection")
     session = message.get("session")
-    if session is not None and not (_is_int(session) and 0 < session < 2**63):
+    if session is not None and not (_is_int(session) and 0 < session < 2**31):
         raise bad(f"session must be null or the id of a session to continue, got {session!r}")
     if session is not None and resume is not None:
         raise bad("give resume (the same stream) or session (a new stream in that "

@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+from typing import Annotated
 
-from fastapi import APIRouter, WebSocket
+from fastapi import APIRouter, Query, WebSocket
 from starlette.websockets import WebSocketDisconnect
 
 from .. import audit
@@ -38,7 +39,8 @@ def _therapist_patient(db, token: str | None, patient_id: int, demo_mode: bool =
 
 
 @router.websocket("/ws/live")
-async def live(websocket: WebSocket, patient: int) -> None:
+async def live(websocket: WebSocket,
+               patient: Annotated[int, Query(ge=1, le=2**31 - 1)]) -> None:
     services = websocket.app.state.services
     client = websocket.client.host if websocket.client else None
     refusal = await services.run_db(_therapist_patient, bearer(websocket), patient,

@@ -37,9 +37,11 @@ CLOSE_NO_GRANT = 4404
 
 
 class ViewerRequest(BaseModel):
-    patient_id: int = Field(description="the patient to view")
+    # ids beyond 32 bits made SQLite raise OverflowError (a 500): refused with 422
+    patient_id: int = Field(ge=1, le=2**31 - 1, description="the patient to view")
     session_id: int | None = Field(
-        None, description="a stored session of the patient to replay; null: the live view")
+        None, ge=1, le=2**31 - 1,
+        description="a stored session of the patient to replay; null: the live view")
 
 
 class ViewerGrantOut(BaseModel):
