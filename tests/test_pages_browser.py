@@ -296,7 +296,9 @@ def test_the_3d_view_reconnects_after_the_server_restarts(server, page, shots):
     sync_api.expect(note).to_be_hidden()
 
     server.kill()
-    sync_api.expect(note).to_contain_text("3D view reconnecting", timeout=10_000)
+    # the page asks every 2 s; a software-rendered WebGL page retrying its socket can starve
+    # the page's timers on a busy 2-core CI box, so allow the note some tens of seconds
+    sync_api.expect(note).to_contain_text("3D view reconnecting", timeout=40_000)
     page.screenshot(path=str(shots / "viewer-reconnecting.png"), full_page=True)
     server.start()
     sync_api.expect(frame).not_to_have_attribute("src", first, timeout=30_000)
