@@ -18,6 +18,7 @@ from .db.engine import make_engine, make_sessionmaker
 from .db.migrate import upgrade
 from .ingest.writer import GroupWriter, StreamState
 from .live.broker import make_hub
+from .live.worker import LiveBatcher
 from .settings import Settings
 
 T = TypeVar("T")
@@ -35,9 +36,14 @@ class Services:
         self.writer = GroupWriter(self.engine, settings.ack_interval_s)
         #: short database reads and writes of the async side
         self.db_pool = ThreadPoolExecutor(4, thread_name_prefix="armtrack-db")
-        #: estimation: live workers and the batch processing of closed sessions
+        #: estimation of closed sessions (batch)
         self.compute_pool = ThreadPoolExecutor(settings.processing_threads,
                                                thread_name_prefix="armtrack-compute")
+        #: live estimation: the streams' pipelines, in batches (server/live/worker.py)
+        self.live_pool = ThreadPoolExecutor(settings.processing_threads,
+                                            thread_name_prefix="armtrack-live")
+        self.live = LiveBatcher(self.hub, self.live_pool, settings.processing_threads,
+                                settings.live_batch_s)
         self.streams: dict[str, StreamState] = {}
         self.connections: dict[str, Any] = {}  # stream id → open IngestConnection
         self.sensor_status: dict[int, dict[str, dict[str, Any]]] = {}  # patient → sensor
@@ -54,6 +60,7 @@ class Services:
     async def start(self) -> None:
         await self.hub.start()
         self.writer.start()
+        self.live.start()
         await self.viewer.start()
 
     async def stop(self) -> None:
@@ -61,11 +68,13 @@ class Services:
         for connection in list(self.connections.values()):
             await connection.close(1001, "server shutting down")
         await self.writer.stop()
+        await self.live.stop()
         await self.hub.stop()
         if self.background:
             await asyncio.gather(*self.background, return_exceptions=True)
         self.db_pool.shutdown(wait=True)
         self.compute_pool.shutdown(wait=True)
+        self.live_pool.shutdown(wait=True)
         self.engine.dispose()
 
     async def run_db(self, fn: Callable[..., T], *args: Any) -> T:

@@ -31,6 +31,8 @@ class Settings(BaseSettings):
     refused_window_s: float = Field(10.0, gt=0)
     processing_threads: int = Field(2, ge=1, description="threads for estimation work")
     live_poses_hz: float = Field(30.0, gt=0, description="most live poses published per second")
+    live_batch_s: float = Field(0.02, gt=0, le=0.5,
+                                description="how long live messages gather before a batch [s]")
     broker_url: str | None = Field(
         None, description="Redis URL of the live broker shared by several server instances "
         "(README \"Scaling out\"); unset: live updates stay in this process")

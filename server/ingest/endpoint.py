@@ -248,7 +248,7 @@ class IngestConnection:
             config = PipelineConfig(side=hello.side, lengths=SegmentLengths.from_height(height),
                                     sensors=hello.sensors)
             self.worker = LiveWorker(config, patient_id=self.patient_id, session_id=session_id,
-                                     hub=services.hub, executor=services.compute_pool,
+                                     hub=services.hub, batcher=services.live,
                                      max_rate_hz=self.settings.live_poses_hz)
         except EstimatorError as exc:  # the data are still stored; only live view is off
             log.warning("no live estimates for session %s: %s", session_id, exc)

@@ -1,13 +1,19 @@
-"""The live worker of one streaming session: feeds the streaming ``Pipeline`` with each
-accepted message, off the event loop (one task at a time per session, on a shared thread
-pool), and publishes the newest pose and the running range of motion.
+"""Live estimation. A ``LiveWorker`` per streaming session holds its streaming
+``Pipeline`` and running range of motion; the ``LiveBatcher`` runs every worker's accepted
+messages off the event loop in batches: every ``interval_s`` one call on the compute pool
+(per pool thread, workers shared out by session) feeds and polls every worker that has
+something new, and the newest poses are published. So the thread hops per second do not
+grow with the number of patients, and a message waits at most ``interval_s`` plus the
+batch's work before its pose is out.
 
-A worker that fails stops estimating and says why; the stream and its stored data go on.
+A worker that fails stops estimating and says why; the stream, its stored data and the
+other workers go on.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import time
 from concurrent.futures import Executor
@@ -62,18 +68,80 @@ class RunningRange:
         return self._as_dict
 
 
+class LiveBatcher:
+    """Runs the pending messages of all live workers in batches (see the module)."""
+
+    def __init__(self, hub: LiveHub, executor: Executor, threads: int, interval_s: float):
+        self._hub = hub
+        self._executor = executor
+        self._threads = max(1, threads)
+        self._interval = interval_s
+        self._ready: set[LiveWorker] = set()
+        self._wake = asyncio.Event()
+        self._task: asyncio.Task | None = None
+        self.batches = 0
+
+    def start(self) -> None:
+        self._task = asyncio.create_task(self._run(), name="armtrack-live-batcher")
+
+    async def stop(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+
+    def ready(self, worker: LiveWorker) -> None:
+        self._ready.add(worker)
+        self._wake.set()
+
+    def forget(self, worker: LiveWorker) -> None:
+        self._ready.discard(worker)
+
+    async def _run(self) -> None:
+        loop = asyncio.get_running_loop()
+        while True:
+            await self._wake.wait()
+            await asyncio.sleep(self._interval)  # let a batch gather
+            self._wake.clear()
+            workers, self._ready = self._ready, set()
+            # take each worker's messages here, on the loop, so feed() never races a batch
+            jobs = [(w, w.take()) for w in workers]
+            shares = [jobs[i::self._threads] for i in range(self._threads)]
+            results = await asyncio.gather(*(
+                loop.run_in_executor(self._executor, _process_share, share)
+                for share in shares if share))
+            self.batches += 1
+            now = time.monotonic()
+            for share in results:
+                for worker, outcome, received in share:
+                    worker.publish(outcome, received, now)
+
+
+def _process_share(jobs: list[tuple[LiveWorker, tuple[list, float]]]
+                   ) -> list[tuple[LiveWorker, dict[str, Any] | Exception | None, float]]:
+    """On a compute thread: each worker's messages through its pipeline. One worker's
+    failure is its own: it is returned, not raised."""
+    out = []
+    for worker, (items, received) in jobs:
+        try:
+            outcome: dict[str, Any] | Exception | None = worker.process(items)
+        except Exception as exc:
+            outcome = exc
+        out.append((worker, outcome, received))
+    return out
+
+
 class LiveWorker:
     def __init__(self, config: PipelineConfig, *, patient_id: int, session_id: int,
-                 hub: LiveHub, executor: Executor, max_rate_hz: float):
+                 hub: LiveHub, batcher: LiveBatcher, max_rate_hz: float):
         self.pipeline = Pipeline(config)
         self.patient_id = patient_id
         self.session_id = session_id
         self._hub = hub
-        self._executor = executor
+        self._batcher = batcher
         self._min_interval = 1.0 / max_rate_hz
         self._pending: list[Samples | MarkMessage] = []
         self._received = 0.0  # monotonic time the newest pending message arrived
-        self._wake = asyncio.Event()
         self._pose_end = -np.inf
         self.rom = RunningRange()
         self.error: str | None = None
@@ -82,43 +150,36 @@ class LiveWorker:
         self.estimates = 0
         self._first_t = np.inf
         self._last_publish = 0.0
-        self._task = asyncio.create_task(self._run(), name=f"armtrack-live-{session_id}")
 
     def feed(self, item: Samples | MarkMessage, received: float) -> None:
         """An accepted message; ``received`` [s, ``time.monotonic``] when it arrived."""
         if self.error is None:
             self._pending.append(item)
             self._received = received
-            self._wake.set()
+            self._batcher.ready(self)
+
+    def take(self) -> tuple[list[Samples | MarkMessage], float]:
+        """The pending messages and when the newest arrived (on the event loop)."""
+        items, self._pending = self._pending, []
+        return items, self._received
 
     async def close(self) -> None:
-        self._task.cancel()
-        try:
-            await self._task
-        except asyncio.CancelledError:
-            pass
+        self.error = self.error or "closed"
+        self._batcher.forget(self)
 
-    async def _run(self) -> None:
-        loop = asyncio.get_running_loop()
-        while True:
-            await self._wake.wait()
-            self._wake.clear()
-            items, self._pending = self._pending, []
-            received = self._received
-            try:
-                pose = await loop.run_in_executor(self._executor, self._process, items)
-            except Exception as exc:  # a broken stream stops its own estimates only
-                log.exception("live estimation of session %s failed", self.session_id)
-                self.error = f"live estimation stopped: {exc}"
-                self._hub.publish(self.patient_id, {"kind": "error",
-                                                    "session_id": self.session_id,
-                                                    "reason": self.error})
-                return
-            now = time.monotonic()
-            if pose is not None and now - self._last_publish >= self._min_interval:
-                self._last_publish = now
-                pose["latency_s"] = now - received  # newest sample received → published
-                self._hub.publish(self.patient_id, pose)
+    def publish(self, outcome: dict[str, Any] | Exception | None, received: float,
+                now: float) -> None:
+        """On the event loop, after a batch: the pose (or the failure) goes out."""
+        if isinstance(outcome, Exception):
+            log.error("live estimation of session %s failed", self.session_id,
+                      exc_info=outcome)
+            self.error = f"live estimation stopped: {outcome}"
+            self._hub.publish(self.patient_id, {"kind": "error", "session_id": self.session_id,
+                                                "reason": self.error})
+        elif outcome is not None:
+            self._last_publish = now
+            outcome["latency_s"] = now - received  # newest sample received → published
+            self._hub.publish(self.patient_id, outcome)
 
     def _drop_silent(self, t: float) -> None:
         if t - self._first_t < SILENT_SENSOR_S or self.pipeline.calibration is not None:
@@ -131,8 +192,11 @@ class LiveWorker:
             self.warnings.append(message)
             log.warning("session %s: %s", self.session_id, message)
 
-    def _process(self, items: list[Samples | MarkMessage]) -> dict[str, Any] | None:
-        """Runs on the thread pool: feed, poll, and the newest pose (or None)."""
+    def process(self, items: list[Samples | MarkMessage]) -> dict[str, Any] | None:
+        """On a compute thread: feed, poll, and the newest pose (None when nothing new or
+        one was published less than 1/``max_rate_hz`` ago)."""
+        if self.error is not None:
+            return None
         for item in items:
             if isinstance(item, Samples):
                 rows = item.rows
