@@ -591,6 +591,8 @@ def run_one(n: int, args: argparse.Namespace, recording_path: Path, tmp: Path) -
     broker = None
     if args.database_url:
         env["ARMTRACK_DATABASE_URL"] = fresh_database(args.database_url)
+    else:  # one SQLite file for create-user and the server (their data dirs differ)
+        env["ARMTRACK_DATABASE_URL"] = f"sqlite:///{(data_dir / 'armtrack.db').resolve()}"
     if args.instances > 1:
         broker, env["ARMTRACK_BROKER_URL"] = start_broker(data_dir)
     done = subprocess.run([sys.executable, "-m", "armtrack.server.cli", "create-user",
