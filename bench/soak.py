@@ -389,6 +389,146 @@ def run_soak(n: int, duration_s: float, *, interval_s: float = 10.0, session_s: 
             bench_ingest.stop_server(server)
 
 
+# -- do viewers slow ingestion? ----------------------------------------------------------------
+
+@dataclass
+class OverheadRun:
+    viewers: int
+    rows: int
+    seconds: float
+    poses_seen: int
+
+    @property
+    def rows_per_s(self) -> float:
+        return self.rows / self.seconds if self.seconds > 0 else math.nan
+
+
+async def _viewers_round(ws_base: str, token: str, measured: dict, live: list[dict],
+                         recording, plan, n_viewers: int) -> OverheadRun:
+    """``n_viewers`` ``/ws/live`` viewers, spread over the ``live`` patients (whose kits
+    stream in real time all along), watch until each has had a pose; then the
+    ``measured`` patient's kit streams ``recording`` as fast as it can (speed 0). The
+    round's ingestion rate: its rows acked over its ``ready`` → ``bye``."""
+    from armtrack.server.emulator import KitEmulator
+    from websockets.asyncio.client import connect
+
+    seen = [0]
+    stop = asyncio.Event()
+    first_pose = [asyncio.Event() for _ in range(n_viewers)]
+
+    async def watch(i: int, patient_id: int) -> None:
+        async with connect(f"{ws_base}/ws/live?patient={patient_id}",
+                           additional_headers={"Authorization": f"Bearer {token}"},
+                           open_timeout=30, max_size=2**22) as ws:
+            while not stop.is_set():
+                try:
+                    async with asyncio.timeout(0.5):
+                        text = await ws.recv()
+                except TimeoutError:
+                    continue
+                if text.startswith('{"kind":"pose"'):
+                    first_pose[i].set()
+                    if not stop.is_set():
+                        seen[0] += 1
+
+    viewers = [asyncio.create_task(watch(i, live[i % len(live)]["patient_id"]))
+               for i in range(n_viewers)]
+    async with asyncio.timeout(60):
+        for event in first_pose:
+            await event.wait()
+    seen[0] = 0
+    kit = KitEmulator(recording, f"{ws_base}/ws/ingest", measured["token"], speed=0,
+                      device="measured", ack_timeout_s=60, open_timeout_s=60)
+    kit.plan = plan
+    stats = await kit.run()
+    stop.set()
+    await asyncio.gather(*viewers, return_exceptions=True)
+    assert stats.acked == stats.total and not stats.errors, stats.errors[:3]
+    assert stats.started is not None and stats.finished is not None
+    return OverheadRun(n_viewers, stats.rows_acked, stats.finished - stats.started, seen[0])
+
+
+def viewer_overhead(*, live: int = 2, viewers: int = 20, rounds: int = 3,
+                    repetitions: int = 12, server_cpu: int | None = None,
+                    workdir: Path | None = None) -> tuple[list[OverheadRun], float]:
+    """Does watching slow ingestion? On one fresh server, ``live`` patients stream in
+    real time throughout (3 sensors × 100 Hz), and in alternating rounds (0, V, V, 0, 0,
+    V, …) ``viewers`` live viewers watch them, or none; in each round one more kit streams
+    a recording of ``repetitions`` elbow flexions (100 Hz) as fast as it can: the rate it
+    is ingested at is what is left of the server for ingestion. Returns the rounds and
+    the ratio of the best rate with viewers to the best without (1.0: no slowdown; best
+    of each, as the machine's other work only ever slows a round down)."""
+    import httpx
+    from armtrack.estimator.recording import read_recording
+
+    with tempfile.TemporaryDirectory(prefix="armtrack-viewers-", dir=workdir) as tmp_name:
+        tmp = Path(tmp_name)
+        data_dir = tmp / "server"
+        data_dir.mkdir()
+        measured_path, live_path = tmp / "measured.csv", tmp / "live.csv"
+        bench_ingest.simulate_recording(17.0 * repetitions, measured_path)
+        bench_ingest.simulate_recording(120.0, live_path)
+        measured_recording, live_recording = map(read_recording, (measured_path, live_path))
+        measured_plan = bench_ingest.make_cached_plan(measured_recording, 10)
+        live_plan = bench_ingest.make_cached_plan(live_recording, 10)
+        done = subprocess.run([sys.executable, "-m", "armtrack.server.cli", "create-user",
+                               bench_ingest.THERAPIST, "--password", bench_ingest.PASSWORD,
+                               "--data-dir", str(data_dir)], capture_output=True, text=True)
+        if done.returncode != 0:
+            raise RuntimeError(f"create-user failed: {done.stderr}")
+        port = bench_ingest.free_port()
+        server = bench_ingest.start_server(data_dir, port, server_cpu, {})
+        base = f"http://127.0.0.1:{port}"
+        try:
+            http = httpx.Client(base_url=base, timeout=60)
+            answer = http.post("/api/auth/token", data={"username": bench_ingest.THERAPIST,
+                                                        "password": bench_ingest.PASSWORD})
+            answer.raise_for_status()
+            token = answer.json()["access_token"]
+            http.headers["Authorization"] = f"Bearer {token}"
+            patients = []
+            for i in range(live + 1):
+                p = http.post("/api/patients", json={"name": f"viewed {i}", "side": "right",
+                                                     "height_m": 1.75})
+                d = http.post(f"/api/patients/{p.json()['id']}/devices", json={"name": "k"})
+                patients.append({"patient_id": p.json()["id"], "token": d.json()["token"]})
+            measured, live_patients = patients[0], patients[1:]
+
+            async def all_rounds() -> list[OverheadRun]:
+                from armtrack.server.emulator import KitEmulator
+
+                ws_base = base.replace("http://", "ws://")
+                streaming = []
+                for i, p in enumerate(live_patients):
+                    kit = KitEmulator(live_recording, f"{ws_base}/ws/ingest", p["token"],
+                                      device=f"live-{i}", speed=1.0, ack_timeout_s=60)
+                    kit.plan = live_plan
+                    streaming.append(asyncio.create_task(kit.run()))
+                try:
+                    await _viewers_round(ws_base, token, measured, live_patients,  # warm-up
+                                         measured_recording, measured_plan, 1)
+                    runs = []
+                    for i in range(2 * rounds):
+                        n = viewers if (i % 2 == 1) == (i // 2 % 2 == 0) else 0  # 0 V V 0 …
+                        runs.append(await _viewers_round(
+                            ws_base, token, measured, live_patients, measured_recording,
+                            measured_plan, n))
+                        if any(task.done() for task in streaming):
+                            raise RuntimeError("a live kit stopped streaming")
+                    return runs
+                finally:
+                    for task in streaming:
+                        task.cancel()
+                    await asyncio.gather(*streaming, return_exceptions=True)
+
+            runs = asyncio.run(all_rounds())
+        finally:
+            bench_ingest.stop_server(server)
+    best_with = max(r.rows_per_s for r in runs if r.viewers)
+    best_without = max(r.rows_per_s for r in runs if not r.viewers)
+    return runs, best_with / best_without
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--patients", type=int, default=25)
@@ -403,6 +543,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-pin", action="store_true")
     parser.add_argument("--output", type=Path, default=RESULTS_DIR / "soak.csv")
     parser.add_argument("--plot", type=Path, default=RESULTS_DIR / "soak.png")
+    parser.add_argument("--viewers-overhead", type=int, metavar="VIEWERS", default=None,
+                        help="instead of the soak: the ingestion rate of one kit streaming "
+                             "unpaced beside --patients live ones, with and without "
+                             "VIEWERS live viewers on them")
     args = parser.parse_args(argv)
 
     bench_ingest.raise_fd_limit()
@@ -412,6 +556,15 @@ def main(argv: list[str] | None = None) -> int:
         server_cpu = allowed[-1]
         bench_ingest.pin(allowed[0])
     version = bench_ingest.code_version()
+    if args.viewers_overhead is not None:
+        runs, ratio = viewer_overhead(live=args.patients, viewers=args.viewers_overhead,
+                                      server_cpu=server_cpu)
+        for r in runs:
+            print(f"viewers {r.viewers:3d}: {r.rows_per_s:9,.0f} rows/s ingested "
+                  f"({r.rows:,} rows in {r.seconds:.2f} s; {r.poses_seen:,} poses viewed)")
+        print(f"best with viewers / best without: {ratio:.3f} (commit {version}; "
+              f"load {bench_ingest.load_average()})")
+        return 0 if ratio >= 0.9 else 1
     print(f"soak: {args.patients} patients, {args.duration:g} s, sampled every "
           f"{args.interval:g} s; sessions of {args.session_s:g} s; server "
           f"{f'on CPU {server_cpu}' if server_cpu is not None else 'not pinned'}; "

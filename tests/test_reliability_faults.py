@@ -234,7 +234,9 @@ def test_a_locked_database_gives_errors_keeps_the_unacked_data_and_recovers(zygo
     """Another connection holds an exclusive lock on the SQLite file for 3 s while a kit
     streams (the server's busy timeout set to 0.3 s by the test hook; 30 s in
     production): commits fail ("database is locked"), the kit gets errors and keeps its
-    unacked messages; once the lock goes, everything is stored once."""
+    unacked messages; once the lock goes, everything is stored once. A second kit that
+    loses its connection during the lock is let go cleanly (its session cannot be marked
+    interrupted then) and resumes afterwards."""
     server = ZygoteServerProcess(tmp_path / "server", zygote,
                                  env={"TEST_SQLITE_BUSY_MS": "300"})
     lock = threading.Event()
@@ -258,12 +260,44 @@ def test_a_locked_database_gives_errors_keeps_the_unacked_data_and_recovers(zygo
         sent = recording(repetitions=2, rate_hz=100)
         kit = KitEmulator(sent, server.ws_url, token, speed=4, ack_timeout_s=30)
 
-        def start() -> None:
-            holder.start()
-            assert locked.wait(10)
+        _, other_token = new_device(api, "Leaves while locked")
+        hello = {"type": "hello", "protocol": 1, "device": "kit", "side": "right",
+                 "sensors": ["forearm"], "rate_hz": 100, "nine_axis": True, "resume": None}
+        row = [0.0, 0.1, 0.2, 9.8, 0.01, 0.02, 0.03, 20.0, 5.0, -30.0]
 
-        seen = run(_stream_through_a_fault(kit, start, lock.set, 3.0))
+        async def scenario():
+            # a second kit, one message stored, loses its connection during the lock: the
+            # server cannot mark its session interrupted, and must let the stream go
+            other = await _bare(server, other_token)
+            await other.send(json.dumps(hello))
+            ready = await _reply(other)
+            await other.send(json.dumps({"type": "samples", "seq": 0, "sensor": "forearm",
+                                         "rows": [row]}))
+            assert (await _reply(other, skip_acks=False)) == {"type": "ack", "seq": 0}
+
+            def start() -> None:
+                holder.start()
+                assert locked.wait(10)
+                other.transport.abort()
+
+            seen = await _stream_through_a_fault(kit, start, lock.set, 3.0)
+            again = await _bare(server, other_token)
+            await again.send(json.dumps({**hello, "resume": ready["stream"]}))
+            resumed = await _reply(again)
+            assert resumed == {"type": "ready", "stream": ready["stream"],
+                               "session": ready["session"], "next_seq": 1}, resumed
+            await again.send(json.dumps({"type": "bye"}))
+            with contextlib.suppress(ConnectionClosed):
+                while True:
+                    await _reply(again)
+            return seen, ready["session"]
+
+        seen, other_session = run(scenario())
         holder.join(10)
+        assert api.session(other_session)["status"] == "closed"
+        assert api.session(other_session)["samples"] == 1
+        log = server.log.read_text()
+        assert "Traceback" not in log and "Exception in ASGI" not in log, log[-3000:]
         assert seen["acked_moved"] == 0 and seen["pending_end"] > seen["pending"] > 0, seen
         storage = [e for e in seen["errors"] if "storage failed" in e["reason"]]
         assert storage and all(e["seq"] is None for e in storage), seen["errors"]

@@ -416,12 +416,12 @@ file_damage = st.sampled_from(["delete", "duplicate", "swap", "field", "insert",
                                "bytes", "header", "blank", "crlf"])
 
 
-@settings(max_examples=3000, deadline=None, suppress_health_check=[HealthCheck.too_slow,
+@settings(max_examples=2000, deadline=None, suppress_health_check=[HealthCheck.too_slow,
                                                                   HealthCheck.function_scoped_fixture])
 @given(data=st.data(), hows=st.lists(file_damage, min_size=1, max_size=3))
 def test_generated_bad_recordings_are_refused_naming_a_line_none_half_read(
         recording_text, data, hows):
-    """3,000 damaged recording files (lines deleted, duplicated, swapped, a field replaced
+    """2,000 damaged recording files (lines deleted, duplicated, swapped, a field replaced
     by generated text or a number on the edges, random bytes, cut, header lines changed,
     blank lines, CRLF): ``parse_recording`` either returns a whole recording (which
     then writes and reads back the same) or raises ``InvalidRecording`` naming a line

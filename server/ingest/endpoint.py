@@ -420,14 +420,19 @@ class IngestConnection:
         if self.services.connections.get(state.stream_id) is self:
             # still registered until all is done, so that a resume waits for it (ended)
             await state.idle.wait()
-            if not state.fenced and await self.services.run_db(
-                    _interrupt_session, state.session_id, state.stream_id,
-                    state.durable_seq + 1):
-                self.services.hub.publish(self.patient_id, {"kind": "session",
-                                                            "session_id": state.session_id,
-                                                            "status": "interrupted"})
-            self.services.streams.pop(state.stream_id, None)
-            self.services.connections.pop(state.stream_id, None)
+            try:
+                if not state.fenced and await self.services.run_db(
+                        _interrupt_session, state.session_id, state.stream_id,
+                        state.durable_seq + 1):
+                    self.services.hub.publish(self.patient_id, {
+                        "kind": "session", "session_id": state.session_id,
+                        "status": "interrupted"})
+            except Exception as exc:  # the database locked or full: the session stays live
+                # until the kit resumes it or the server restarts; the stream is let go
+                log.warning("session %s not marked interrupted: %s", state.session_id, exc)
+            finally:
+                self.services.streams.pop(state.stream_id, None)
+                self.services.connections.pop(state.stream_id, None)
         if self.websocket.application_state != WebSocketState.DISCONNECTED:
             with contextlib.suppress(Exception):
                 await self.websocket.close(1000)
