@@ -203,7 +203,7 @@ def check_samples(message: dict[str, Any], seq: int, hello: Hello,
         raise Refused("a row value is too large for a float64", seq) from None
     if t_offset:
         data[:, 0] += t_offset
-    if not _plausible(data, hello.nine_axis):
+    if not plausible_rows(data, hello.nine_axis):
         _explain(data, sensor, seq, hello.nine_axis)  # raises, naming the first fault
     t = data[:, 0]
     previous = last_t.get(sensor)
@@ -220,24 +220,62 @@ _COLUMNS = ("t", "ax", "ay", "az", "gx", "gy", "gz", "mx", "my", "mz")
 _NORM_LIMITS = np.array([LIMITS[q][1] for q in ("acc", "gyr", "mag")])
 
 
-def _plausible(data: np.ndarray, nine_axis: bool) -> bool:
-    """Every rule of a samples message's rows, in a few whole-array operations (the hot
-    path: most messages are fine). The same float64 operations as the recording reader's
-    range check, so a boundary value is judged alike."""
+def plausible_numpy(data: np.ndarray, nine_axis: bool) -> bool:
+    """Every rule of a samples message's rows, in a few whole-array operations. The same
+    float64 operations as the recording reader's range check, so a boundary value is
+    judged alike. The reference of the compiled ``plausible_rows`` (and its fallback)."""
     if nine_axis:
         if not np.isfinite(data).all():
             return False
     elif not (np.isfinite(data[:, :7]).all() and np.isnan(data[:, 7:]).all()):
         return False
-    squares = data[:, 1:] * data[:, 1:]
-    norms = np.sqrt(squares[:, 0::3] + squares[:, 1::3] + squares[:, 2::3])  # (n, 3)
+    with np.errstate(over="ignore"):  # a huge value squares to inf: beyond range all the same
+        squares = data[:, 1:] * data[:, 1:]
+        norms = np.sqrt(squares[:, 0::3] + squares[:, 1::3] + squares[:, 2::3])  # (n, 3)
     if (norms > _NORM_LIMITS).any():  # a 6-axis NaN norm compares False
         return False
     return not (data[1:, 0] < data[:-1, 0]).any()
 
 
+def _plausible_loop(data: np.ndarray, nine_axis: bool, limits: np.ndarray) -> bool:
+    """``plausible_numpy`` as one pass over the rows (compiled by numba: the hot path
+    costs one call instead of a dozen array operations)."""
+    for i in range(data.shape[0]):
+        for j in range(7 if not nine_axis else 10):
+            if not math.isfinite(data[i, j]):
+                return False
+        if not nine_axis:
+            for j in range(7, 10):
+                if not math.isnan(data[i, j]):
+                    return False
+        for k in range(3 if nine_axis else 2):
+            x, y, z = data[i, 1 + 3 * k], data[i, 2 + 3 * k], data[i, 3 + 3 * k]
+            if math.sqrt(x * x + y * y + z * z) > limits[k]:
+                return False
+        if i > 0 and data[i, 0] < data[i - 1, 0]:
+            return False
+    return True
+
+
+def _compile_plausible():
+    try:
+        import numba
+    except ImportError:  # pragma: no cover - numba is a dependency
+        return plausible_numpy
+    kernel = numba.njit(cache=True, nogil=True)(_plausible_loop)
+
+    def plausible_rows(data: np.ndarray, nine_axis: bool) -> bool:
+        return bool(kernel(data, nine_axis, _NORM_LIMITS))
+
+    return plausible_rows
+
+
+#: The hot-path check of a message's rows (see ``plausible_numpy``).
+plausible_rows = _compile_plausible()
+
+
 def _explain(data: np.ndarray, sensor: str, seq: int, nine_axis: bool) -> None:
-    """Raise the refusal that names the first fault of rows ``_plausible`` refused."""
+    """Raise the refusal that names the first fault of rows ``plausible_rows`` refused."""
     missing = np.isnan(data)  # only null can give NaN: NotJsonNumber was refused above
     if missing[:, :7].any():
         row, col = map(int, np.argwhere(missing[:, :7])[0])
@@ -267,7 +305,7 @@ def _explain(data: np.ndarray, sensor: str, seq: int, nine_axis: bool) -> None:
     if back.size:
         i = int(back[0]) + 1
         raise Refused(f"row {i}: " + backwards_message(sensor, t[i], t[i - 1]), seq)
-    raise AssertionError("_explain found nothing wrong with rows _plausible refused")
+    raise AssertionError("_explain found nothing wrong with rows plausible_rows refused")
 
 
 def check_mark(message: dict[str, Any], seq: int, t_offset: float = 0.0) -> MarkMessage:
