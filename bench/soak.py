@@ -197,6 +197,8 @@ async def soak_async(*, base: str, token: str, patients: list[dict], recording_p
             if not all_done:
                 await asyncio.wait(loops, timeout=max(wait, 0.05))
             now = time.monotonic()
+            if all_done and now - last_t < 1.0:
+                break  # the kits ended right after the last row: nothing more to say
             cpu = bench_ingest.proc_cpu_s(server_pid)
             rss, _ = bench_ingest.proc_rss(server_pid)
             lat = np.array(latencies[pose_index:], dtype=np.float64)  # a copy: the

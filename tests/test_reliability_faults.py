@@ -152,6 +152,7 @@ def test_sigkill_at_random_moments_in_50_streaming_runs_loses_nothing(srv, api):
             assert session["status"] in ("closed", "interrupted"), (i, session)
             if session["id"] != stats.session:
                 assert session["samples"] == 0, (i, session)
+    print(f"50 SIGKILLs: {kills}; {resumed} kits resumed their stream")
     assert resumed >= 20 and kills["mid-stream"] >= 20, (resumed, kills)
 
 
