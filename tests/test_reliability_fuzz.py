@@ -394,6 +394,43 @@ def test_generated_messages_over_a_real_connection_refused_whole_server_alive(
                 assert np.array_equal(table.view(np.int64), expect.view(np.int64)), sensor
 
 
+def test_odd_kit_names_and_empty_sessions_export_without_a_server_error(srv, api):
+    """Found by the runs here: a kit named with a line break or surrounding spaces (any
+    name ``hello`` allows) made every export of its sessions fail (500), and so did a
+    session without samples (a stream whose messages were all refused) in the patient's
+    archive and its own ``recording.csv``. Now: the name is stored and exported on one
+    line, an empty session's recording is a 409, the archive leaves it out."""
+    patient = api.patient("Odd names")
+    token = api.device(patient["id"])["token"]
+    row = [0.0, 0.1, 0.2, 9.8, 0.01, 0.02, 0.03, 20.0, 5.0, -30.0]
+
+    async def two_sessions() -> list[int]:
+        sessions = []
+        for device, samples in ((" kit\n7 ", 1), ("kit 8", 0)):
+            async with connect(srv.ws_url, additional_headers={
+                    "Authorization": f"Bearer {token}"}, open_timeout=10) as ws:
+                await ws.send(json.dumps({**WIRE_HELLO, "device": device}))
+                sessions.append(json.loads(await ws.recv())["session"])
+                for seq in range(samples):
+                    await ws.send(json.dumps({"type": "samples", "seq": seq,
+                                              "sensor": "forearm", "rows": [row]}))
+                await ws.send(json.dumps({"type": "bye"}))
+                try:
+                    while True:
+                        await ws.recv()
+                except ConnectionClosed:
+                    pass
+        return sessions
+
+    named, empty = asyncio.run(two_sessions())
+    answer = api.http.get(f"/api/sessions/{named}/recording.csv")
+    assert answer.status_code == 200, answer.text
+    assert parse_recording(answer.content).metadata["device"] == "kit 7"
+    assert api.http.get(f"/api/sessions/{empty}/recording.csv").status_code == 409
+    answer = api.http.get(f"/api/patients/{patient['id']}/export")
+    assert answer.status_code == 200, answer.text
+
+
 def test_after_the_fuzzing_the_server_is_up_and_logged_no_crash(srv, api):
     """The server answers, and its log holds no traceback (an unhandled error)."""
     assert httpx.get(srv.url + "/healthz", timeout=5).status_code == 200

@@ -80,8 +80,9 @@ def patient_archive(db: DbSession, patient: models.Patient) -> bytes:
             [session_out(s).model_dump(mode="json") for s in sessions]))
         for session in sessions:
             folder = f"sessions/{session.id}/"
-            archive.writestr(folder + "recording.csv",
-                             format_recording(session_recording(db, session)))
+            recording = session_recording(db, session)
+            if recording.sensors:  # a session without samples has no recording file
+                archive.writestr(folder + "recording.csv", format_recording(recording))
             columns, values = stored_estimates(db, session)
             if columns:
                 width = columns.index(ANGLE_COLUMNS_END) + 1

@@ -154,7 +154,10 @@ def upload_recording(db: Db, who: Annotated[models.Therapist | models.Device,
 def export_recording(session_id: Id, db: Db, therapist: Therapist) -> Response:
     """The session's raw data as a recording file; it reads back to the stored numbers."""
     session = own_session(db, therapist, session_id)
-    data = format_recording(session_recording(db, session))
+    recording = session_recording(db, session)
+    if not recording.sensors:  # a recording file needs samples (was a 500)
+        raise HTTPException(status.HTTP_409_CONFLICT, f"session {session_id} has no samples")
+    data = format_recording(recording)
     return Response(data, media_type="text/csv", headers={
         "Content-Disposition": f'attachment; filename="session-{session_id}.csv"'})
 

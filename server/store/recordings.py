@@ -9,7 +9,9 @@ from collections.abc import Iterable
 import numpy as np
 from armtrack.estimator.body import SegmentLengths
 from armtrack.estimator.calibration.plan import poses_from_marks
+from armtrack.estimator.errors import InvalidArgument
 from armtrack.estimator.recording import Mark, Pose, Recording, SensorStream
+from armtrack.estimator.recording.model import check_metadata
 from sqlalchemy import select
 from sqlalchemy.orm import Session as DbSession
 
@@ -85,4 +87,20 @@ def session_recording(db: DbSession, session: models.Session) -> Recording:
         lengths=SegmentLengths(**session.lengths) if session.lengths else None,
         calibration=tuple(poses_from_marks(m for m in marks if m.label in POSE_LABELS)),
         marks=tuple(m for m in marks if m.label not in POSE_LABELS),
-        rate_hz=session.rate_hz, metadata=dict(session.meta or {}))
+        rate_hz=session.rate_hz, metadata=header_metadata(session.meta or {}))
+
+
+def header_metadata(meta: dict) -> dict[str, str]:
+    """The session's metadata a recording header can carry: each value on one line,
+    spaces collapsed (a kit's ``hello`` name may hold a line break or end in a space,
+    which made every export of its sessions fail); keys a header cannot carry are left
+    out."""
+    out = {}
+    for key, value in meta.items():
+        value = " ".join(str(value).split())
+        try:
+            check_metadata(key, value)
+        except InvalidArgument:
+            continue
+        out[key] = value
+    return out
