@@ -13,7 +13,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 
 import soak  # bench/soak.py
 
-PATIENTS = 5  # a modest N that holds on a shared 2-core CI machine (20 held for 30 min)
+PATIENTS = 5  # a modest N that holds on a shared 2-core CI machine (25 held for 30 min)
 
 
 def test_a_one_minute_soak_loses_nothing_keeps_memory_bounded_and_poses_fast(tmp_path):
