@@ -94,6 +94,15 @@ class Services:
         future.add_done_callback(self.background.discard)
         return future
 
+    async def end_session_streams(self, session_id: int, reason: str) -> None:
+        """Close the open streams of a session (1000, ``reason``) and wait until what
+        they sent is stored."""
+        for stream_id, connection in list(self.connections.items()):
+            state = self.streams.get(stream_id)
+            if state is not None and state.session_id == session_id:
+                await connection.close(1000, reason)
+                await state.idle.wait()
+
     async def revoke_device(self, device_id: int) -> None:
         """Close every open stream of a device with 4401."""
         for connection in list(self.connections.values()):

@@ -4,22 +4,26 @@ the raw data (a recording file) and the estimates (``armtrack estimate``'s CSV).
 from __future__ import annotations
 
 import io
-from datetime import UTC, datetime
 from typing import Annotated
 
 from armtrack.estimator.errors import EstimatorError
+from armtrack.estimator.orientation import DEFAULT_FILTER
 from armtrack.estimator.recording import format_recording, parse_recording
 from fastapi import APIRouter, Depends, Form, HTTPException, Request, UploadFile, status
 from fastapi.responses import Response
 from sqlalchemy import select
-from sqlalchemy.orm import Session as DbSession
 
 from .. import audit
 from ..auth import hash_token
 from ..commands.output import write_angles_csv
 from ..db import models
 from ..services import Services
-from ..store.processing import process_session, stored_estimates
+from ..store.processing import (
+    mark_closed,
+    process_in_background,
+    process_session,
+    stored_estimates,
+)
 from ..store.recordings import add_recording, session_recording
 from .deps import Db, Page, Therapist, current_therapist, oauth2, own_patient, own_session
 from .deps import services as get_services
@@ -66,29 +70,10 @@ async def close_session(session_id: Id, therapist: Therapist,
     session = await svc.run_db(lambda db: own_session(db, therapist, session_id))
     if session.status == "closed":
         raise HTTPException(status.HTTP_409_CONFLICT, f"session {session_id} is already closed")
-    for stream_id, connection in list(svc.connections.items()):
-        state = svc.streams.get(stream_id)
-        if state is not None and state.session_id == session_id:
-            await connection.close(1000, "session closed by the therapist")
-            await state.idle.wait()
-    await svc.run_db(_close, session_id)
-    await _run_compute(svc, session_id)
+    await svc.end_session_streams(session_id, "session closed by the therapist")
+    await svc.run_db(mark_closed, session_id)
+    await svc.in_background(process_in_background, svc.db, session_id, DEFAULT_FILTER)
     return await svc.run_db(lambda db: session_out(db.get(models.Session, session_id)))
-
-
-def _close(db: DbSession, session_id: int) -> None:
-    session = db.get(models.Session, session_id)
-    if session is not None:
-        session.status = "closed"
-        session.ended_at = datetime.now(UTC)
-        db.commit()
-
-
-async def _run_compute(svc: Services, session_id: int) -> None:
-    def work() -> None:
-        with svc.db() as db:
-            process_session(db, session_id)
-    await svc.in_background(work)
 
 
 @router.delete("/sessions/{session_id}", status_code=status.HTTP_204_NO_CONTENT)
@@ -96,11 +81,7 @@ async def delete_session(session_id: Id, therapist: Therapist,
                          svc: Annotated[Services, Depends(get_services)]) -> None:
     """Erase the session and all its data (an open stream of it is closed first)."""
     await svc.run_db(lambda db: own_session(db, therapist, session_id))
-    for stream_id, connection in list(svc.connections.items()):
-        state = svc.streams.get(stream_id)
-        if state is not None and state.session_id == session_id:
-            await connection.close(1000, "session erased")
-            await state.idle.wait()
+    await svc.end_session_streams(session_id, "session erased")
     await svc.run_db(erase_session, session_id)
 
 

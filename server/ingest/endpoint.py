@@ -25,11 +25,11 @@ import logging
 import secrets
 import time
 from collections import deque
-from datetime import UTC, datetime
 from typing import Any
 
 from armtrack.estimator.body import SegmentLengths
 from armtrack.estimator.errors import EstimatorError
+from armtrack.estimator.orientation import DEFAULT_FILTER
 from armtrack.estimator.pipeline import PipelineConfig
 from fastapi import APIRouter, WebSocket
 from sqlalchemy import func, select
@@ -40,7 +40,7 @@ from ..auth import hash_token
 from ..db import models
 from ..live.worker import LiveWorker
 from ..services import Services
-from ..store.processing import process_in_background
+from ..store.processing import mark_closed, process_in_background
 from . import protocol
 from .protocol import Hello, Refused
 from .writer import (
@@ -400,9 +400,9 @@ class IngestConnection:
         assert self.state is not None
         await self.state.idle.wait()
         await self.send({"type": "ack", "seq": self.state.durable_seq})
-        await self.services.run_db(_close_session, self.state.session_id)
+        await self.services.run_db(mark_closed, self.state.session_id)
         self.services.in_background(process_in_background, self.services.db,
-                                    self.state.session_id, "qcf")
+                                    self.state.session_id, DEFAULT_FILTER)
         self.services.hub.publish(self.patient_id, {"kind": "session",
                                                     "session_id": self.state.session_id,
                                                     "status": "closed"})
@@ -436,14 +436,6 @@ class IngestConnection:
         if self.websocket.application_state != WebSocketState.DISCONNECTED:
             with contextlib.suppress(Exception):
                 await self.websocket.close(1000)
-
-
-def _close_session(db: DbSession, session_id: int) -> None:
-    session = db.get(models.Session, session_id)
-    if session is not None and session.status != "closed":
-        session.status = "closed"
-        session.ended_at = datetime.now(UTC)
-        db.commit()
 
 
 def _interrupt_session(db: DbSession, session_id: int, stream_id: str | None = None,

@@ -4,6 +4,7 @@ The same numbers as ``armtrack estimate`` on the session's exported recording.""
 
 from __future__ import annotations
 
+from datetime import UTC, datetime
 from importlib.metadata import PackageNotFoundError, version
 
 import numpy as np
@@ -87,6 +88,15 @@ def stored_estimates(db: DbSession, session: models.Session) -> tuple[list[str],
                        .where(models.EstimateBlock.session_id == session.id)
                        .order_by(models.EstimateBlock.ordinal)).all()
     return columns, unpack_many(list(blobs), len(columns)) if columns else np.empty((0, 0))
+
+
+def mark_closed(db: DbSession, session_id: int) -> None:
+    """A live or interrupted session becomes closed, ended now (committed)."""
+    session = db.get(models.Session, session_id)
+    if session is not None and session.status != "closed":
+        session.status = "closed"
+        session.ended_at = datetime.now(UTC)
+        db.commit()
 
 
 def process_in_background(factory: sessionmaker, session_id: int, filter_name: str) -> None:
