@@ -183,3 +183,49 @@ def test_the_migrations_make_the_models_schema(tmp_path):
     assert diff == []
     with engine.connect() as connection:
         assert connection.exec_driver_sql("PRAGMA journal_mode").scalar() == "wal"
+
+
+def test_closing_a_live_session_ends_its_stream_and_estimates_it(module_server, alice):
+    import asyncio
+    import json
+
+    import numpy as np
+    from armtrack.estimator.simulation import SimulationConfig, simulate
+    from websockets.asyncio.client import connect
+    from websockets.exceptions import ConnectionClosed
+
+    recording = simulate(SimulationConfig(exercise="elbow_flexion", repetitions=2)).recording
+    patient = alice.patient("Closed live")
+    token = alice.device(patient["id"])["token"]
+
+    async def stream_then_close():
+        async with connect(module_server.ws_url,
+                           additional_headers={"Authorization": f"Bearer {token}"}) as ws:
+            await ws.send(json.dumps({"type": "hello", "protocol": 1, "device": "kit",
+                                      "side": "right", "sensors": list(recording.sensors),
+                                      "rate_hz": 100, "nine_axis": True, "resume": None}))
+            ready = json.loads(await ws.recv())
+            seq = 0
+            for name, s in recording.sensors.items():
+                rows = np.column_stack([s.t, s.acc, s.gyr, s.mag])
+                for start in range(0, len(rows), 100):
+                    await ws.send(json.dumps({"type": "samples", "seq": seq, "sensor": name,
+                                              "rows": rows[start:start + 100].tolist()}))
+                    seq += 1
+            while json.loads(await ws.recv()) != {"type": "ack", "seq": seq - 1}:
+                pass
+            answer = await asyncio.to_thread(
+                alice.http.post, f"/api/sessions/{ready['session']}/close")
+            with pytest.raises(ConnectionClosed) as closed:
+                while True:
+                    await ws.recv()
+            return ready["session"], answer, closed.value.rcvd.code
+
+    session_id, answer, code = asyncio.run(stream_then_close())
+    assert code == 1000
+    assert answer.status_code == 200, answer.text
+    closed = answer.json()
+    assert closed["status"] == "closed" and closed["processed"]
+    assert closed["samples"] == sum(len(s) for s in recording.sensors.values())
+    again = alice.http.post(f"/api/sessions/{session_id}/close")
+    assert again.status_code == 409
