@@ -32,12 +32,9 @@ HELLO = {"type": "hello", "protocol": 1, "device": "test-kit", "side": "right",
 # -- the server, shared by the module ----------------------------------------------------
 
 @pytest.fixture(scope="module")
-def srv(tmp_path_factory):
-    process = ServerProcess(tmp_path_factory.mktemp("ingest") / "server")
-    process.create_user("alice")
-    process.start()
-    yield process
-    process.stop()
+def srv(module_server):
+    """The module's server (conftest's ``module_server``)."""
+    return module_server
 
 
 @pytest.fixture(scope="module")

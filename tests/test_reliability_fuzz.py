@@ -28,7 +28,6 @@ from armtrack.server.ingest import protocol
 from armtrack.server.ingest.protocol import Hello, Refused
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from server_support import ServerProcess
 from websockets.asyncio.client import connect
 from websockets.exceptions import ConnectionClosed
 
@@ -286,12 +285,9 @@ def test_generated_hellos_are_accepted_or_closed_with_4400_and_a_reason(changes,
 # -- over a real connection --------------------------------------------------------------
 
 @pytest.fixture(scope="module")
-def srv(tmp_path_factory):
-    process = ServerProcess(tmp_path_factory.mktemp("fuzz") / "server")
-    process.create_user("alice")
-    process.start()
-    yield process
-    process.stop()
+def srv(module_server):
+    """The module's server (conftest's ``module_server``)."""
+    return module_server
 
 
 @pytest.fixture(scope="module")

@@ -54,6 +54,23 @@ class OrientationFilter(Protocol):
         ...
 
 
+class RestartableFilter:
+    """``reset`` and ``update_batch`` for a filter whose whole state is ``self.state``
+    (None: the next sample starts it afresh) and which advances with ``update``."""
+
+    state: object | None = None
+
+    def reset(self) -> None:
+        """Forget the state: the next sample starts the filter again."""
+        self.state = None
+
+    def update_batch(self, t: np.ndarray, acc: np.ndarray, gyr: np.ndarray,
+                     mag: np.ndarray | None = None) -> OrientationOutput:
+        """A whole recording from a fresh state (the state is left as after it)."""
+        self.reset()
+        return self.update(t, acc, gyr, mag)  # type: ignore[attr-defined]
+
+
 def check_inputs(t, acc, gyr, mag) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
     """Arrays as float64 with matching shapes, or InvalidShape naming what is wrong."""
     t = np.ascontiguousarray(t, dtype=np.float64)

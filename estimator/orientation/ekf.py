@@ -74,7 +74,7 @@ import numpy as np
 
 from ..errors import InvalidArgument
 from ..rotations import matrix_to_quat
-from .base import OrientationOutput, check_inputs, check_time
+from .base import OrientationOutput, RestartableFilter, check_inputs, check_time
 
 N_STATE = 10
 W, Q, B = slice(0, 3), slice(3, 7), slice(7, 10)
@@ -251,7 +251,7 @@ def initial_quat(acc: np.ndarray, mag: np.ndarray | None) -> np.ndarray:
 
 # --- the filter ---------------------------------------------------------------------------
 
-class ExtendedKalmanFilter:
+class ExtendedKalmanFilter(RestartableFilter):
     """The thesis's EKF on (ω, q) with a gyroscope bias (module docstring).
 
     ``update`` advances over one chunk from the state left by the previous one (a fresh
@@ -270,16 +270,6 @@ class ExtendedKalmanFilter:
                                 p.norm_noise**2])
         self._P0 = np.diag(np.r_[np.full(3, p.gyr_noise**2), np.full(4, p.quat_std0**2),
                                  np.full(3, p.bias_std0**2)])
-
-    def reset(self) -> None:
-        """Forget the state: the next sample starts the filter again."""
-        self.state = None
-
-    def update_batch(self, t: np.ndarray, acc: np.ndarray, gyr: np.ndarray,
-                     mag: np.ndarray | None = None) -> OrientationOutput:
-        """A whole recording from a fresh state (the state is left as after it)."""
-        self.reset()
-        return self.update(t, acc, gyr, mag)
 
     def update(self, t: np.ndarray, acc: np.ndarray, gyr: np.ndarray,
                mag: np.ndarray | None = None) -> OrientationOutput:

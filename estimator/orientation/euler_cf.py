@@ -76,7 +76,7 @@ import numpy as np
 
 from ..errors import InvalidArgument
 from ..rotations import elemental, matrix_to_quat
-from .base import OrientationOutput, check_inputs, check_time
+from .base import OrientationOutput, RestartableFilter, check_inputs, check_time
 
 #: Lower bound on ``cos θ_a`` in eq. (4): only guards the division at exactly ±90° pitch.
 MIN_COS_PITCH = 1e-9
@@ -145,7 +145,7 @@ def level_heading(phi: np.ndarray, theta: np.ndarray) -> np.ndarray:
     return np.arctan2(np.sin(theta) * np.sin(phi), np.cos(phi))
 
 
-class EulerComplementaryFilter:
+class EulerComplementaryFilter(RestartableFilter):
     """The seed paper's complementary filter on roll, pitch and yaw (module docstring).
 
     ``update`` advances over one chunk from the state left by the previous one (a fresh
@@ -157,16 +157,6 @@ class EulerComplementaryFilter:
     def __init__(self, params: EulerCfParams | None = None) -> None:
         self.params = params if params is not None else EulerCfParams()
         self.state: EulerCfState | None = None
-
-    def reset(self) -> None:
-        """Forget the state: the next sample starts the filter again."""
-        self.state = None
-
-    def update_batch(self, t: np.ndarray, acc: np.ndarray, gyr: np.ndarray,
-                     mag: np.ndarray | None = None) -> OrientationOutput:
-        """A whole recording from a fresh state (the state is left as after it)."""
-        self.reset()
-        return self.update(t, acc, gyr, mag)
 
     def update(self, t: np.ndarray, acc: np.ndarray, gyr: np.ndarray,
                mag: np.ndarray | None = None) -> OrientationOutput:
