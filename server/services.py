@@ -102,6 +102,7 @@ class Services:
             if state is not None and state.session_id == session_id:
                 await connection.close(1000, reason)
                 await state.idle.wait()
+                await connection.ended.wait()  # its clean-up is over: it marks nothing after
 
     async def revoke_device(self, device_id: int) -> None:
         """Close every open stream of a device with 4401."""

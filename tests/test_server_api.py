@@ -228,6 +228,4 @@ def test_closing_a_live_session_ends_its_stream_and_estimates_it(module_server, 
     assert closed["status"] == "closed" and closed["processed"]
     assert closed["samples"] == sum(len(s) for s in recording.sensors.values())
     again = alice.http.post(f"/api/sessions/{session_id}/close")
-    if again.status_code != 409:  # seen once in CI: the ended stream's clean-up raced it
-        pytest.xfail("known bug, open: the closed stream's clean-up can set a session the "
-                     f"therapist just closed back from closed (second close: {again.status_code})")
+    assert again.status_code == 409
