@@ -26,7 +26,8 @@ Measured, per N:
   leaves out (the kit's lateness, loopback, the server's queue before reading, sending
   the pose), plus how far the estimator's newest estimate trails the newest sample;
 * poses/s per viewer (the server publishes at most ``ARMTRACK_LIVE_POSES_HZ``, 30);
-* server CPU % (user + system of the server process and its threads, 100 % = one core)
+* server CPU % (user + system of the server process and its threads, and of its live
+  estimation process, 100 % = one core; the notes give the two parts)
   and RSS (the largest seen, and the kernel's peak ``VmHWM``), over the steady window
   (every kit streaming: from the last start + 1 s to the first kit's end), from ``/proc``;
 * the client's CPU % over the same window, to show it was not the bottleneck (above
@@ -37,11 +38,13 @@ A run "holds" with zero loss and no errors, every kit done, and pose latency p99
 ``--limit-ms`` (100). ``--find-max`` doubles N from ``--start`` until a run does not hold,
 then bisects down to ``--resolution``, and reports the largest N that held.
 
-CPUs: on a 2-core machine the server is pinned to one CPU and the client (with this
-script and py-spy) to the other, so that the client does not take the server's core
-(``--server-cpu``, ``--client-cpu``, ``--no-pin``). The server keeps its own threads (the
-writer, the database and compute pools) on its CPU. Other work on the machine shows in
-the numbers; the load average is printed with every run.
+CPUs: nothing is pinned by default: the server is two processes (the server and its live
+estimation process, ``ARMTRACK_LIVE_PROCESSES``), and they and the client share the
+machine's cores as the operating system sees fit, as they would on a clinic's server.
+``--pin`` pins the server with its live estimation process to one CPU and the client
+(with this script and py-spy) to another (or ``--server-cpu``, ``--client-cpu``): a
+one-core server. Other work on the machine shows in the numbers; the load average is
+printed with every run.
 
 ``--instances N`` (default 1) runs N server instances as one clinic network would
 (README "Scaling out"): one PostgreSQL database (a fresh database per run on
@@ -116,6 +119,18 @@ def proc_cpu_s(pid: int) -> float | None:
     return (int(fields[11]) + int(fields[12])) / TICKS  # utime, stime (fields 14, 15)
 
 
+def live_processes(pid: int) -> list[int]:
+    """The live estimation processes of server ``pid`` (its multiprocessing children)."""
+    children = []
+    try:
+        for task in Path(f"/proc/{pid}/task").iterdir():
+            children += [int(c) for c in (task / "children").read_text().split()]
+        return [c for c in children
+                if b"spawn_main" in Path(f"/proc/{c}/cmdline").read_bytes()]
+    except OSError:
+        return []
+
+
 def proc_rss(pid: int) -> tuple[int | None, int | None]:
     """(VmRSS, VmHWM) in bytes."""
     try:
@@ -138,14 +153,17 @@ class Sampler(threading.Thread):
         super().__init__(daemon=True)
         self.pid, self.interval = pid, interval
         self.samples: list[tuple[float, float, int]] = []  # (monotonic, cpu s, rss B)
+        self.live: list[float] = []  # cpu s of the live estimation processes, alike
         self.hwm = 0
         self._halt = threading.Event()
 
     def run(self) -> None:
         while not self._halt.is_set():
             cpu, (rss, hwm) = proc_cpu_s(self.pid), proc_rss(self.pid)
+            live = sum(proc_cpu_s(child) or 0.0 for child in live_processes(self.pid))
             if cpu is not None and rss is not None:
-                self.samples.append((time.monotonic(), cpu, rss))
+                self.samples.append((time.monotonic(), cpu + live, rss))
+                self.live.append(live)
                 self.hwm = max(self.hwm, hwm or 0)
             self._halt.wait(self.interval)
 
@@ -154,12 +172,22 @@ class Sampler(threading.Thread):
         self.join()
 
     def window(self, start: float, end: float) -> tuple[float, int]:
-        """CPU % (100 = one core) and the largest RSS [B] between two monotonic times."""
+        """CPU % (100 = one core; the process and its live estimation processes) and the
+        largest RSS [B] (of the process) between two monotonic times."""
         inside = [s for s in self.samples if start <= s[0] <= end]
         if len(inside) < 2:
             return math.nan, max((s[2] for s in self.samples), default=0)
         (t0, c0, _), (t1, c1, _) = inside[0], inside[-1]
         return 100.0 * (c1 - c0) / (t1 - t0), max(s[2] for s in inside)
+
+    def live_window(self, start: float, end: float) -> float:
+        """CPU % of the live estimation processes alone, as ``window``."""
+        inside = [(s[0], live) for s, live in zip(self.samples, self.live, strict=True)
+                  if start <= s[0] <= end]
+        if len(inside) < 2:
+            return math.nan
+        (t0, c0), (t1, c1) = inside[0], inside[-1]
+        return 100.0 * (c1 - c0) / (t1 - t0)
 
 
 class Samplers:
@@ -187,6 +215,9 @@ class Samplers:
     def window(self, start: float, end: float) -> tuple[float, int]:
         parts = [s.window(start, end) for s in self.samplers]
         return sum(p[0] for p in parts), max(p[1] for p in parts)
+
+    def live_window(self, start: float, end: float) -> float:
+        return sum(s.live_window(start, end) for s in self.samplers)
 
 
 def fresh_database(url: str) -> str:
@@ -721,6 +752,10 @@ def run_one(n: int, args: argparse.Namespace, recording_path: Path, tmp: Path) -
         run.notes.append(f"steady window only {run.steady_s:.1f} s: CPU over the whole run")
         steady0, steady1 = result["first_ready"], result["last_bye"]
     run.server_cpu_pct, rss = sampler.window(steady0, steady1)
+    live_cpu = sampler.live_window(steady0, steady1)
+    run.notes.append(f"server CPU {run.server_cpu_pct:.0f} % = main process "
+                     f"{run.server_cpu_pct - live_cpu:.0f} % + live estimation process "
+                     f"{live_cpu:.0f} %")
     run.server_cpu_run_pct, _ = sampler.window(result["first_ready"], result["last_bye"])
     run.server_rss_mb = rss / 2**20
     run.server_hwm_mb = sampler.hwm / 2**20
@@ -879,7 +914,11 @@ def main(argv: list[str] | None = None) -> int:
                         help="the CPU for the server (default: the last allowed)")
     parser.add_argument("--client-cpu", type=int, default=None,
                         help="the CPU for the client and py-spy (default: the first allowed)")
-    parser.add_argument("--no-pin", action="store_true", help="pin nothing")
+    parser.add_argument("--pin", action="store_true",
+                        help="pin the server (with its live estimation process) to one CPU "
+                             "and the client to another")
+    parser.add_argument("--no-pin", action="store_true",
+                        help="pin nothing (the default; kept for old command lines)")
     parser.add_argument("--server-env", nargs=2, action="append", default=[],
                         metavar=("NAME", "VALUE"),
                         help="a server setting, e.g. --server-env live_poses_hz 10 "
@@ -909,7 +948,8 @@ def main(argv: list[str] | None = None) -> int:
 
     raise_fd_limit()
     allowed = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
-    if args.no_pin or len(allowed) < 2:
+    if not (args.pin or args.server_cpu is not None or args.client_cpu is not None) \
+            or args.no_pin or len(allowed) < 2:
         args.server_cpu = args.client_cpu = None
         pinned = "not pinned"
     else:

@@ -34,7 +34,8 @@ def quat_from_rows(m00, m01, m02, m10, m11, m12, m20, m21, m22):
         f = 0.5 / r
         q = ((m10 - m01) * f, (m02 + m20) * f, (m12 + m21) * f, 0.5 * r)
     norm = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]) ** 0.5
-    first = next((c for c in q if c != 0.0), 1.0)
+    # the first non-zero component (the norm is ≥ 0.5: not all are zero)
+    first = q[0] if q[0] != 0.0 else q[1] if q[1] != 0.0 else q[2] if q[2] != 0.0 else q[3]
     sign = (1.0 if first > 0 else -1.0) / norm
     return (q[0] * sign, q[1] * sign, q[2] * sign, q[3] * sign)
 

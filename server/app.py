@@ -14,6 +14,7 @@ from armtrack.web.viewer import routes as viewer_routes
 from fastapi import FastAPI
 from fastapi.middleware.cors import CORSMiddleware
 
+from . import heap
 from .api import (
     admin,
     auth_routes,
@@ -57,6 +58,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         services.migrate()
         app.state.services = services
         await services.start()
+        heap.settle()  # what start-up loaded is out of the collector's way from now on
         retention = (asyncio.create_task(retention_loop(services))
                      if settings.retention_days else None)
         try:

@@ -18,6 +18,7 @@ from .db.engine import make_engine, make_sessionmaker
 from .db.migrate import upgrade
 from .ingest.writer import GroupWriter, StreamState
 from .live.broker import make_hub
+from .live.estimation import make_estimation
 from .live.worker import LiveBatcher
 from .settings import Settings
 
@@ -39,11 +40,11 @@ class Services:
         #: estimation of closed sessions (batch)
         self.compute_pool = ThreadPoolExecutor(settings.processing_threads,
                                                thread_name_prefix="armtrack-compute")
-        #: live estimation: the streams' pipelines, in batches (server/live/worker.py)
-        self.live_pool = ThreadPoolExecutor(settings.processing_threads,
-                                            thread_name_prefix="armtrack-live")
-        self.live = LiveBatcher(self.hub, self.live_pool, settings.processing_threads,
-                                settings.live_batch_s)
+        #: live estimation: the streams' pipelines, in batches (server/live/worker.py),
+        #: in the live estimation process(es) (server/live/estimation.py)
+        self.live_estimation = make_estimation(settings.live_processes,
+                                               settings.processing_threads)
+        self.live = LiveBatcher(self.hub, self.live_estimation, settings.live_batch_s)
         self.streams: dict[str, StreamState] = {}
         self.connections: dict[str, Any] = {}  # stream id → open IngestConnection
         self.sensor_status: dict[int, dict[str, dict[str, Any]]] = {}  # patient → sensor
@@ -60,6 +61,7 @@ class Services:
     async def start(self) -> None:
         await self.hub.start()
         self.writer.start()
+        await self.live_estimation.start()
         self.live.start()
         await self.viewer.start()
 
@@ -69,12 +71,12 @@ class Services:
             await connection.close(1001, "server shutting down")
         await self.writer.stop()
         await self.live.stop()
+        await self.live_estimation.stop()
         await self.hub.stop()
         if self.background:
             await asyncio.gather(*self.background, return_exceptions=True)
         self.db_pool.shutdown(wait=True)
         self.compute_pool.shutdown(wait=True)
-        self.live_pool.shutdown(wait=True)
         self.engine.dispose()
 
     async def run_db(self, fn: Callable[..., T], *args: Any) -> T:

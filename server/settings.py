@@ -31,6 +31,8 @@ class Settings(BaseSettings):
     refused_window_s: float = Field(10.0, gt=0)
     processing_threads: int = Field(2, ge=1, description="threads for estimation work")
     live_poses_hz: float = Field(30.0, gt=0, description="most live poses published per second")
+    live_processes: int = Field(1, ge=0, le=64, description="processes computing the live "
+                                "estimates (0: threads of the server process)")
     live_batch_s: float = Field(0.02, gt=0, le=0.5,
                                 description="how long live messages gather before a batch [s]")
     broker_url: str | None = Field(

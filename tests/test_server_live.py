@@ -115,3 +115,67 @@ def test_a_sensor_that_never_starts_does_not_stop_the_live_view(module_server, e
     updates = asyncio.run(scenario())
     pose = next(u for u in updates if u["kind"] == "pose")
     assert any("sensor hand sent nothing" in w for w in pose["warnings"])
+
+
+def _live_estimation_processes(server) -> list[int]:
+    """The server's live estimation processes (its children started by multiprocessing)."""
+    from pathlib import Path
+
+    pids = []
+    for task in Path(f"/proc/{server.process.pid}/task").iterdir():
+        pids += [int(p) for p in (task / "children").read_text().split()]
+    return [p for p in pids
+            if b"spawn_main" in Path(f"/proc/{p}/cmdline").read_bytes()]
+
+
+def test_the_live_view_says_so_when_its_estimation_process_dies_and_data_go_on(
+        module_server, elbow):
+    """The live estimation process killed mid-stream: the therapist's feed gets an error
+    naming it, the stream is stored whole, and the next stream has live poses again."""
+    import os
+    import signal
+
+    api = module_server.client("alice")
+    patient = api.patient()
+    token = api.device(patient["id"])["token"]
+    killed = []
+
+    async def scenario():
+        def stopped(ups):
+            return any(u["kind"] == "error" for u in ups)
+
+        def posed(ups):
+            if any(u["kind"] == "pose" for u in ups) and not killed:
+                children = _live_estimation_processes(module_server)
+                assert children, "no live estimation process found"
+                for pid in children:
+                    os.kill(pid, signal.SIGKILL)
+                killed.extend(children)
+            return stopped(ups)
+
+        watcher = asyncio.create_task(watch(module_server, api.token, patient["id"], posed))
+        await asyncio.sleep(0.3)
+        kit = KitEmulator(elbow.recording, module_server.ws_url, token, speed=3)
+        stats = await kit.run()
+        return stats, await watcher
+
+    stats, updates = asyncio.run(scenario())
+    error = next(u for u in updates if u["kind"] == "error")
+    print(f"killed {killed}; the feed said: {error['reason']}")
+    assert "live estimation process stopped" in error["reason"]
+    assert stats.acked == stats.total  # the stream went on, every message stored
+    session = api.wait_processed(error["session_id"])
+    assert session["samples"] == sum(len(s.t) for s in elbow.recording.sensors.values())
+
+    # a new stream: a new live estimation process, poses again
+    async def again():
+        watcher = asyncio.create_task(watch(
+            module_server, api.token, patient["id"],
+            lambda ups: any(u["kind"] == "pose" for u in ups)))
+        await asyncio.sleep(0.3)
+        kit = KitEmulator(elbow.recording, module_server.ws_url, token, speed=3)
+        await kit.run()
+        return await watcher
+
+    assert any(u["kind"] == "pose" for u in asyncio.run(again()))
+    assert set(_live_estimation_processes(module_server)).isdisjoint(killed)

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from armtrack.estimator.metrics import Repetition, repetitions_by_angle
 from armtrack.server.db import models
-from armtrack.server.live.worker import CALIBRATION_TAIL_S
+from armtrack.server.live.estimator import CALIBRATION_TAIL_S
 from armtrack.server.store.processing import stored_estimates
 from sqlalchemy import select
 from sqlalchemy.orm import Session as DbSession

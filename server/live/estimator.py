@@ -1,0 +1,118 @@
+"""One streaming session's live estimation: its streaming ``Pipeline``, the running
+range of motion after calibration, and the pose to publish. Pure computation: it runs
+wherever ``estimation`` puts it (the live estimation process, or a thread)."""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+from armtrack.estimator.arm.joints import REPORTED_ANGLES, SEGMENTS
+from armtrack.estimator.pipeline import Pipeline, PipelineConfig
+from armtrack.estimator.recording import Mark
+from armtrack.estimator.scalar_rotations import quat_from_rows
+
+from ..ingest.protocol import MarkMessage, Samples
+
+#: Seconds after the last calibration pose's end still counted as calibration.
+CALIBRATION_TAIL_S = 2.5
+#: Stream seconds after which a sensor named in hello that sent nothing is left out of
+#: the live estimates (the others would wait for it for ever).
+SILENT_SENSOR_S = 10.0
+
+
+class RunningRange:
+    """Per angle (``REPORTED_ANGLES``), the least and greatest value so far [deg], from
+    ``start_s`` on."""
+
+    def __init__(self) -> None:
+        self.low = np.full(len(REPORTED_ANGLES), np.inf)
+        self.high = np.full(len(REPORTED_ANGLES), -np.inf)
+        self.start_s = -np.inf
+        self._as_dict: dict[str, dict[str, float]] | None = {}
+
+    def update(self, t: np.ndarray, degrees: np.ndarray) -> None:
+        """``degrees`` (len(REPORTED_ANGLES), n) at times ``t`` (n,)."""
+        keep = t >= self.start_s
+        if not keep.all():
+            if not keep.any():
+                return
+            t, degrees = t[keep], degrees[:, keep]
+        low = np.fmin(self.low, degrees.min(axis=1))  # a NaN chunk changes nothing
+        high = np.fmax(self.high, degrees.max(axis=1))
+        if (low != self.low).any() or (high != self.high).any():
+            self.low, self.high = low, high
+            self._as_dict = None  # rebuilt when asked
+
+    def as_dict(self) -> dict[str, dict[str, float]]:
+        if self._as_dict is None:
+            self._as_dict = {k: {"min": lo, "max": hi, "range": hi - lo}
+                             for k, lo, hi in zip(REPORTED_ANGLES, self.low.tolist(),
+                                                  self.high.tolist(), strict=True) if lo <= hi}
+        return self._as_dict
+
+
+class LiveEstimator:
+    """One streaming session's estimation, where the estimates are computed: its
+    ``Pipeline``, running range of motion, and the sensors left out for silence."""
+
+    def __init__(self, config: PipelineConfig, session_id: int, max_rate_hz: float):
+        self.pipeline = Pipeline(config)
+        self.session_id = session_id
+        self._min_interval = 1.0 / max_rate_hz
+        self._pose_end = -np.inf
+        self.rom = RunningRange()
+        self.warnings: list[str] = []
+        self._dropped: set[str] = set()
+        self.estimates = 0
+        self._first_t = np.inf
+        self._last_pose = -np.inf  # monotonic time the last pose was returned
+
+    def _drop_silent(self, t: float) -> None:
+        if t - self._first_t < SILENT_SENSOR_S or self.pipeline.calibration is not None:
+            return
+        for sensor in self.pipeline.silent_sensors():
+            self.pipeline.drop_sensor(sensor)
+            self._dropped.add(sensor)
+            self.warnings.append(f"sensor {sensor} sent nothing in {SILENT_SENSOR_S:g} s: "
+                                 "the live view goes on without it")
+
+    def process(self, items: list[Samples | MarkMessage]) -> dict[str, Any] | None:
+        """Feed, poll, and the newest pose (None when nothing new or one was returned less
+        than 1/``max_rate_hz`` ago)."""
+        for item in items:
+            if isinstance(item, Samples):
+                rows = item.rows
+                if item.sensor in self._dropped:
+                    continue  # it came too late for the live view; it is stored all the same
+                self._first_t = min(self._first_t, float(rows[0, 0]))
+                mag = rows[:, 7:10] if not np.isnan(rows[0, 7]) else None
+                self.pipeline.feed(item.sensor, rows[:, 0], rows[:, 1:4], rows[:, 4:7], mag)
+                self._drop_silent(float(rows[-1, 0]))
+            else:
+                self.pipeline.add_mark(Mark(item.t, item.label))
+                if item.label in ("end:npose", "end:tpose"):
+                    self._pose_end = max(self._pose_end, item.t)
+                    self.rom.start_s = self._pose_end + CALIBRATION_TAIL_S
+        estimates = self.pipeline.poll()
+        n = len(estimates)
+        if n == 0:
+            return None
+        self.estimates += n
+        degrees = np.rad2deg(np.stack([estimates.angles[k] for k in REPORTED_ANGLES]))
+        self.rom.update(estimates.t, degrees)
+        now = time.monotonic()
+        if now - self._last_pose < self._min_interval:
+            return None  # published recently enough: the range of motion is kept all the same
+        self._last_pose = now
+        return {
+            "kind": "pose", "session_id": self.session_id, "t": float(estimates.t[-1]),
+            "angles_deg": dict(zip(REPORTED_ANGLES, degrees[:, -1].tolist(), strict=True)),
+            "positions_m": {k: v[-1].tolist() for k, v in estimates.positions.items()},
+            "segments_q": {s: quat_from_rows(*estimates.R_world_segment[s][-1].ravel().tolist())
+                           for s in SEGMENTS},
+            "rom_deg": self.rom.as_dict(),
+            "estimates": self.estimates,
+            "warnings": list(self.warnings),
+        }
