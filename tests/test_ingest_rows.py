@@ -45,3 +45,39 @@ def test_realistic_rows_pass_and_each_fault_fails():
     six[:, 7:] = np.nan
     assert plausible_rows(six, False) and not plausible_rows(six, True)
     assert not plausible_rows(data, False)  # a 6-axis sensor with magnetometer numbers
+
+
+def test_the_quick_row_conversion_refuses_with_the_same_reasons_as_the_step_by_step_one():
+    """``check_samples``'s quick path (one type scan, one conversion) hands every odd
+    message to the step-by-step checks, which name the fault; numbers too large for a
+    float64 (a mark's ``t`` found by the fuzz test) are refused, not raised."""
+    import pytest
+    from armtrack.server.ingest.protocol import (
+        NotJsonNumber,
+        Refused,
+        check_hello,
+        check_mark,
+        check_samples,
+    )
+
+    hello = check_hello({"type": "hello", "protocol": 1, "device": "k", "side": "right",
+                         "sensors": ["forearm"], "rate_hz": 100, "nine_axis": True,
+                         "resume": None})
+    good = [[0.01 * i, 0, 0, 9.81, 0, 0, 0, 20, 5, -40] for i in range(10)]
+    assert check_samples({"sensor": "forearm", "rows": good}, 0, hello, {}).rows.shape \
+        == (10, 10)
+    cases = {
+        "every row must be a list of 10": [good[0], good[1][:9]],
+        "every row must be a list": [good[0], 3.0],
+        r"numbers \(or null magnetometer\), got a str": [good[0], [*good[1][:9], "1.5"]],
+        "got true/false": [good[0], [*good[1][:9], True]],
+        "JSON allows": [[*good[0][:9], NotJsonNumber("NaN")]],
+        "too large for a float64": [[*good[0][:9], 10 ** 400]],
+        "every row must be a list of": ["abcdefghij"],
+        "row values must be numbers": [[[1.0]] * 10],
+    }
+    for reason, rows in cases.items():
+        with pytest.raises(Refused, match=reason):
+            check_samples({"sensor": "forearm", "rows": rows}, 7, hello, {})
+    with pytest.raises(Refused, match="t must be a finite number"):
+        check_mark({"t": 10 ** 400, "label": "npose"}, 8)

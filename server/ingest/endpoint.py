@@ -121,12 +121,12 @@ class IngestConnection:
                 await self.websocket.close(code, reason)
 
     async def _ack_loop(self) -> None:
-        """Acks what is stored, as soon as it is, and at least once a second while
-        messages arrive (a duplicate is acked again)."""
+        """Acks what is stored, as soon as it is (the group writer's ``on_durable`` wakes
+        it after each commit that holds this stream's messages), and a duplicate again.
+        No timer: ``asyncio.wait_for`` made a task per wake-up, two for every ack."""
         assert self.state is not None
         while not self._closed:
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self._ack_wanted.wait(), 1.0)
+            await self._ack_wanted.wait()
             self._ack_wanted.clear()
             durable = self.state.durable_seq
             if durable >= 0 and (durable > self._acked or self._resend_ack):

@@ -58,14 +58,16 @@ class Hello:
     session: int | None = None
 
 
-@dataclass(frozen=True)
+# the messages' records are plain slotted classes, not frozen ones: a frozen dataclass's
+# __init__ goes through object.__setattr__, and there is one per kit message
+@dataclass(slots=True)
 class Samples:
     seq: int
     sensor: str
     rows: np.ndarray  # (n, 10) float64, NaN magnetometer on a 6-axis sensor
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class MarkMessage:
     seq: int
     t: float
@@ -113,8 +115,13 @@ def _is_int(value: Any) -> bool:
 
 
 def _is_number(value: Any) -> bool:
-    return (isinstance(value, int | float) and not isinstance(value, bool)
-            and math.isfinite(value))
+    """A finite JSON number that a float64 holds (a whole number past ~1.8e308 is not)."""
+    if not isinstance(value, int | float) or isinstance(value, bool):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:  # an int too large for a float
+        return False
 
 
 def check_hello(message: dict[str, Any]) -> Hello:
@@ -184,23 +191,9 @@ def check_samples(message: dict[str, Any], seq: int, hello: Hello,
     rows = message.get("rows")
     if not isinstance(rows, list) or not 1 <= len(rows) <= MAX_ROWS:
         raise Refused(f"rows must be a list of 1 to {MAX_ROWS} rows", seq)
-    # C-level scans: every row a list of 10, every value a number or null
-    if set(map(type, rows)) != {list} or set(map(len, rows)) != {ROW_WIDTH}:
-        raise Refused(f"every row must be a list of {ROW_WIDTH} values "
-                      "[t, ax, ay, az, gx, gy, gz, mx, my, mz]", seq)
-    kinds = set(map(type, chain.from_iterable(rows)))
-    if not kinds <= {float, int, type(None)}:
-        odd = next(k for k in kinds if k not in (float, int, type(None)))
-        if odd is NotJsonNumber:
-            literal = next(v for v in chain.from_iterable(rows) if type(v) is NotJsonNumber)
-            raise Refused(f"row values must be finite numbers: {literal!r} is not a number "
-                          "JSON allows", seq)
-        raise Refused(f"row values must be numbers (or null magnetometer), got a {odd.__name__}"
-                      if odd is not bool else "row values must be numbers, got true/false", seq)
-    try:
-        data = np.array(rows, dtype=np.float64)
-    except OverflowError:
-        raise Refused("a row value is too large for a float64", seq) from None
+    data = _numbers(rows)
+    if data is None:
+        data = _numbers_or_refuse(rows, seq)
     if t_offset:
         data[:, 0] += t_offset
     if not plausible_rows(data, hello.nine_axis):
@@ -213,6 +206,48 @@ def check_samples(message: dict[str, Any], seq: int, hello: Hello,
                       "stream in this session (hello with resume null and session = its id)",
                       seq)
     return Samples(seq, sensor, data)
+
+
+_NUMBER_TYPES = frozenset((float, int, type(None)))
+
+
+def _numbers(rows: list) -> np.ndarray | None:
+    """The rows as an (n, 10) float64 array (null → NaN) when every row is a list of 10
+    numbers or nulls; None when anything is off (``_numbers_or_refuse`` names it). One
+    C-level scan of the values' types (no bool, no string: NumPy would take "1.5" and
+    true as numbers), then NumPy's conversion, whose shape shows a row of another length
+    or a row that is no list."""
+    try:
+        kinds = set(map(type, chain.from_iterable(rows)))
+    except TypeError:  # a row that is a number, null or true/false
+        return None
+    if not kinds <= _NUMBER_TYPES:  # a string, a bool, a list, NaN/Infinity, or a row
+        return None  # that is a string or an object (their characters or keys)
+    try:
+        data = np.array(rows, dtype=np.float64)
+    except (ValueError, TypeError, OverflowError):
+        return None
+    return data if data.shape == (len(rows), ROW_WIDTH) else None
+
+
+def _numbers_or_refuse(rows: list, seq: int) -> np.ndarray:
+    """``_numbers`` checked step by step, raising the refusal that names the fault."""
+    if set(map(type, rows)) != {list} or set(map(len, rows)) != {ROW_WIDTH}:
+        raise Refused(f"every row must be a list of {ROW_WIDTH} values "
+                      "[t, ax, ay, az, gx, gy, gz, mx, my, mz]", seq)
+    kinds = set(map(type, chain.from_iterable(rows)))
+    if not kinds <= _NUMBER_TYPES:
+        odd = next(k for k in kinds if k not in (float, int, type(None)))
+        if odd is NotJsonNumber:
+            literal = next(v for v in chain.from_iterable(rows) if type(v) is NotJsonNumber)
+            raise Refused(f"row values must be finite numbers: {literal!r} is not a number "
+                          "JSON allows", seq)
+        raise Refused(f"row values must be numbers (or null magnetometer), got a {odd.__name__}"
+                      if odd is not bool else "row values must be numbers, got true/false", seq)
+    try:
+        return np.array(rows, dtype=np.float64)
+    except OverflowError:
+        raise Refused("a row value is too large for a float64", seq) from None
 
 
 _COLUMNS = ("t", "ax", "ay", "az", "gx", "gy", "gz", "mx", "my", "mz")

@@ -94,7 +94,7 @@ class StreamState:
         self.idle.set()
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class Write:
     """One handled message: stored data (samples or a mark) or a refused ``seq`` that
     only moves the stream's count on."""
