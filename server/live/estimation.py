@@ -24,8 +24,9 @@ import multiprocessing
 import signal
 import threading
 import traceback
+from collections import deque
 from collections.abc import Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from typing import Any, Protocol
@@ -81,8 +82,9 @@ def run_jobs(estimators: dict[int, LiveEstimator], jobs: Sequence[Job],
                                                 opening.max_rate_hz)
             estimator = estimators.get(key)
             if estimator is None:
-                outcome = LiveFailure("its estimator was lost (the live estimation process "
-                                      "restarted)", f"no live estimator {key}")
+                outcome = LiveFailure("the live estimation process stopped (a new one "
+                                      "does not hold this stream's estimator)",
+                                      f"no live estimator {key}")
             else:
                 outcome = estimator.process(items)
         except Exception as exc:
@@ -93,7 +95,10 @@ def run_jobs(estimators: dict[int, LiveEstimator], jobs: Sequence[Job],
 
 
 class Estimation(Protocol):
-    """Runs a batch of jobs where the estimators live."""
+    """Runs a batch of jobs where the estimators live; up to ``depth`` batches at once,
+    each key's jobs in the order of the batches."""
+
+    depth: int
 
     async def start(self) -> None: ...
 
@@ -111,6 +116,9 @@ def make_estimation(processes: int, threads: int) -> Estimation:
 
 class ThreadEstimation:
     """The estimators in this process, run on a thread pool (jobs shared out by key)."""
+
+    #: batches that may be under way at once (one: a key's estimator is on one thread)
+    depth = 1
 
     def __init__(self, threads: int):
         self._threads = max(1, threads)
@@ -137,6 +145,10 @@ class ThreadEstimation:
 class ProcessEstimation:
     """The estimators in ``processes`` child processes, keys shared out by ``key % n``."""
 
+    #: batches that may be under way at once: the next is sent while one is computed (a
+    #: child takes them in order)
+    depth = 2
+
     def __init__(self, processes: int):
         self._children = [EstimationProcess(i) for i in range(processes)]
 
@@ -151,19 +163,22 @@ class ProcessEstimation:
     async def run(self, jobs: list[Job], closed: list[int]) -> list[tuple[int, Outcome]]:
         n = len(self._children)
         loop = asyncio.get_running_loop()
-        calls = []
+        sent = []
         for i, child in enumerate(self._children):
             share = [job for job in jobs if job[0] % n == i]
             gone = [key for key in closed if key % n == i]
-            if share or gone:
-                calls.append(loop.run_in_executor(child.executor, child.call, share, gone))
-        results = await asyncio.gather(*calls)
+            if share or gone:  # sent in order: each child's sends are on its one thread
+                sent.append(loop.run_in_executor(child.executor, child.submit, share, gone))
+        futures = await asyncio.gather(*sent)
+        results = await asyncio.gather(*(asyncio.wrap_future(f) for f in futures))
         return [outcome for share in results for outcome in share]
 
 
 class EstimationProcess:
-    """One child process holding estimators, and the pipe to it. ``call`` runs on its
-    own thread (``executor``), one batch at a time."""
+    """One child process holding estimators, and the pipe to it. Batches are sent on
+    their own thread (``executor``: a big batch fills the pipe until the child reads it)
+    and their outcomes read on another, in the order sent, so a batch can be sent while
+    the one before is still computed."""
 
     def __init__(self, index: int):
         self.index = index
@@ -171,6 +186,8 @@ class EstimationProcess:
         self._lock = threading.Lock()
         self._process: multiprocessing.process.BaseProcess | None = None
         self._conn: Connection | None = None
+        #: batches sent and not answered yet, oldest first: (future, keys of their jobs)
+        self._waiting: deque[tuple[Future, list[int]]] = deque()
 
     def start(self) -> None:
         with self._lock:
@@ -185,37 +202,59 @@ class EstimationProcess:
         process.start()
         theirs.close()
         self._process, self._conn = process, ours
+        self._waiting = deque()
+        threading.Thread(target=self._read, args=(process, ours, self._waiting),
+                         name=f"armtrack-live-read{self.index}", daemon=True).start()
 
-    def call(self, jobs: list[Job], closed: list[int]) -> list[tuple[int, Outcome]]:
+    def submit(self, jobs: list[Job], closed: list[int]) -> Future:
+        """Send a batch (on ``executor``); the future gets its outcomes."""
+        future: Future = Future()
         with self._lock:
             if self._process is None:
                 self._spawn()
-            assert self._conn is not None and self._process is not None
+            assert self._conn is not None
+            self._waiting.append((future, [key for key, _, _ in jobs]))
             try:
                 self._conn.send((jobs, closed))
-                return self._conn.recv()
-            except (EOFError, OSError) as exc:  # the process died (killed, out of memory)
-                self._process.join(1.0)
-                reason = (f"the live estimation process stopped (exit code "
-                          f"{self._process.exitcode})")
-                log.error("%s: %s; a new one takes the next streams", reason, exc)
-                self._conn.close()
+            except OSError:  # the process died: its reader answers every waiting batch
+                pass
+        return future
+
+    def _read(self, process: multiprocessing.process.BaseProcess, conn: Connection,
+              waiting: deque[tuple[Future, list[int]]]) -> None:
+        """The outcomes of each batch, in the order sent, until the process ends."""
+        while True:
+            try:
+                outcomes = conn.recv()
+            except (EOFError, OSError):
+                break
+            future, _ = waiting.popleft()
+            future.set_result(outcomes)
+        with self._lock:  # the process died (killed, out of memory) or was stopped
+            stopping = self._process is not process
+            if not stopping:
                 self._process = self._conn = None
-                return [(key, LiveFailure(reason, reason)) for key, _, _ in jobs]
+            conn.close()
+            process.join(1.0)
+            reason = f"the live estimation process stopped (exit code {process.exitcode})"
+            if waiting and not stopping:
+                log.error("%s; a new one takes the next streams", reason)
+            while waiting:
+                future, keys = waiting.popleft()
+                future.set_result([(key, LiveFailure(reason, reason)) for key in keys])
 
     def stop(self) -> None:
+        self.executor.shutdown(wait=True)  # nothing more is sent
         with self._lock:
             process, conn = self._process, self._conn
             self._process = self._conn = None
-            if process is not None and conn is not None:
-                with contextlib.suppress(OSError):
-                    conn.send(None)  # ends its loop
+        if process is not None and conn is not None:
+            with contextlib.suppress(OSError):
+                conn.send(None)  # ends its loop; the reader sees the pipe close
+            process.join(STOP_TIMEOUT_S)
+            if process.is_alive():
+                process.terminate()
                 process.join(STOP_TIMEOUT_S)
-                if process.is_alive():
-                    process.terminate()
-                    process.join(STOP_TIMEOUT_S)
-                conn.close()
-        self.executor.shutdown(wait=True)
 
 
 def serve(conn: Connection) -> None:

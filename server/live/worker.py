@@ -40,16 +40,19 @@ class LiveBatcher:
         self._wake = asyncio.Event()
         self._task: asyncio.Task | None = None
         self._keys = itertools.count(1)
+        self._under_way: set[asyncio.Task] = set()  # batches sent, not yet published
         self.batches = 0
 
     def start(self) -> None:
         self._task = asyncio.create_task(self._run(), name="armtrack-live-batcher")
 
     async def stop(self) -> None:
-        if self._task is not None:
-            self._task.cancel()
+        tasks = [t for t in (self._task, *self._under_way) if t is not None]
+        for task in tasks:
+            task.cancel()
+        for task in tasks:
             with contextlib.suppress(asyncio.CancelledError):
-                await self._task
+                await task
 
     def new_key(self) -> int:
         """A worker's key: names its estimator where the estimates are computed."""
@@ -66,32 +69,45 @@ class LiveBatcher:
 
     async def _run(self) -> None:
         started = -float("inf")  # monotonic start of the last batch
+        # up to ``depth`` batches under way: the next is sent while one is computed
+        slots = asyncio.Semaphore(self._estimation.depth)
         while True:
             await self._wake.wait()
             # let a batch gather for what is left of the interval since the last one
             # started: when batches take longer than that, the next goes at once
             await asyncio.sleep(max(0.0, started + self._interval - time.monotonic()))
+            await slots.acquire()
             started = time.monotonic()
             self._wake.clear()
             workers, self._ready = self._ready, set()
             closed, self._closed = self._closed, []
             # take each worker's messages here, on the loop, so feed() never races a batch
-            by_key = {w.key: w for w in workers}
             jobs, received = [], {}
             for worker in workers:
                 opening, items, received[worker.key] = worker.take()
                 jobs.append((worker.key, opening, items))
-            try:
-                outcomes = await self._estimation.run(jobs, closed)
-            except Exception:  # a fault of the estimation side itself: no worker's doing
-                log.exception("a live estimation batch failed")
-                continue
             self.batches += 1
-            now = time.monotonic()
-            for key, outcome in outcomes:
-                worker = by_key.get(key)
-                if worker is not None:
-                    worker.publish(outcome, received[key], now)
+            task = asyncio.create_task(self._publish(
+                self.batches, jobs, closed, {w.key: w for w in workers}, received, slots))
+            self._under_way.add(task)
+            task.add_done_callback(self._under_way.discard)
+
+    async def _publish(self, batch: int, jobs: list, closed: list[int],
+                       workers: dict[int, LiveWorker], received: dict[int, float],
+                       slots: asyncio.Semaphore) -> None:
+        """One batch's round trip, then its poses out."""
+        try:
+            outcomes = await self._estimation.run(jobs, closed)
+        except Exception:  # a fault of the estimation side itself: no worker's doing
+            log.exception("a live estimation batch failed")
+            return
+        finally:
+            slots.release()
+        now = time.monotonic()
+        for key, outcome in outcomes:
+            worker = workers.get(key)
+            if worker is not None:
+                worker.publish(outcome, received[key], now, batch)
 
 
 class LiveWorker:
@@ -110,6 +126,7 @@ class LiveWorker:
         self._pending: list[Samples | MarkMessage] = []
         self._received = 0.0  # monotonic time the newest pending message arrived
         self._warned = 0
+        self._batch = 0  # number of the batch whose outcome was published last
         self.error: str | None = None
 
     def feed(self, item: Samples | MarkMessage, received: float) -> None:
@@ -130,8 +147,12 @@ class LiveWorker:
         self.error = self.error or "closed"
         self._batcher.forget(self)
 
-    def publish(self, outcome: Outcome, received: float, now: float) -> None:
-        """On the event loop, after a batch: the pose (or the failure) goes out."""
+    def publish(self, outcome: Outcome, received: float, now: float, batch: int = 0) -> None:
+        """On the event loop, after batch number ``batch``: the pose (or the failure) goes
+        out, unless a later batch's already did."""
+        if batch < self._batch:
+            return
+        self._batch = batch
         if isinstance(outcome, LiveFailure):
             log.error("live estimation of session %s failed: %s", self.session_id,
                       outcome.details)
