@@ -33,7 +33,7 @@ class Settings(BaseSettings):
     live_poses_hz: float = Field(30.0, gt=0, description="most live poses published per second")
     live_processes: int = Field(1, ge=0, le=64, description="processes computing the live "
                                 "estimates (0: threads of the server process)")
-    live_batch_s: float = Field(0.02, gt=0, le=0.5,
+    live_batch_s: float = Field(0.01, gt=0, le=0.5,
                                 description="how long live messages gather before a batch [s]")
     broker_url: str | None = Field(
         None, description="Redis URL of the live broker shared by several server instances "

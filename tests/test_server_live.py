@@ -179,3 +179,33 @@ def test_the_live_view_says_so_when_its_estimation_process_dies_and_data_go_on(
 
     assert any(u["kind"] == "pose" for u in asyncio.run(again()))
     assert set(_live_estimation_processes(module_server)).isdisjoint(killed)
+
+
+def test_live_estimates_on_threads_of_the_server_process_when_asked(tmp_path, elbow):
+    """``ARMTRACK_LIVE_PROCESSES=0``: no live estimation process; the estimators run on
+    the server's own threads, and the feed has poses all the same."""
+    from server_support import ServerProcess
+
+    server = ServerProcess(tmp_path / "server", {"ARMTRACK_LIVE_PROCESSES": "0"})
+    server.create_user("alice")
+    server.start()
+    try:
+        api = server.client("alice")
+        patient = api.patient()
+        token = api.device(patient["id"])["token"]
+
+        async def scenario():
+            watcher = asyncio.create_task(watch(
+                server, api.token, patient["id"],
+                lambda ups: sum(u["kind"] == "pose" for u in ups) >= 10))
+            await asyncio.sleep(0.3)
+            kit = KitEmulator(elbow.recording, server.ws_url, token, speed=4)
+            stats = await kit.run()
+            return stats, await watcher
+
+        stats, updates = asyncio.run(scenario())
+        assert stats.acked == stats.total
+        assert sum(u["kind"] == "pose" for u in updates) >= 10
+        assert _live_estimation_processes(server) == []
+    finally:
+        server.stop()
