@@ -32,17 +32,10 @@ class RunningRange:
         self.start_s = -np.inf
         self._as_dict: dict[str, dict[str, float]] | None = {}
 
-    def update(self, t: np.ndarray, degrees: np.ndarray) -> None:
-        """``degrees`` (len(REPORTED_ANGLES), n) at times ``t`` (n,)."""
-        keep = t >= self.start_s
-        if not keep.all():
-            if not keep.any():
-                return
-            t, degrees = t[keep], degrees[:, keep]
-        low = np.fmin(self.low, degrees.min(axis=1))  # a NaN chunk changes nothing
-        high = np.fmax(self.high, degrees.max(axis=1))
-        if (low != self.low).any() or (high != self.high).any():
-            self.low, self.high = low, high
+    def update(self, t: np.ndarray, radians: np.ndarray) -> None:
+        """Angles ``radians`` (len(REPORTED_ANGLES), n) at times ``t`` (n,). A chunk with a
+        NaN in an angle changes nothing of that angle."""
+        if _extend_range(t, radians, self.start_s, self.low, self.high):
             self._as_dict = None  # rebuilt when asked
 
     def as_dict(self) -> dict[str, dict[str, float]]:
@@ -51,6 +44,47 @@ class RunningRange:
                              for k, lo, hi in zip(REPORTED_ANGLES, self.low.tolist(),
                                                   self.high.tolist(), strict=True) if lo <= hi}
         return self._as_dict
+
+
+def _extend_range_loop(t, radians, start_s, low, high) -> bool:
+    """``low``/``high`` [deg] widened, in place, by each angle's least and greatest value
+    at times ≥ ``start_s`` (none when the angle has a NaN there); True if any changed.
+    One pass (compiled by numba: a dozen array calls a chunk before)."""
+    changed = False
+    for a in range(radians.shape[0]):
+        lo, hi, kept, nan = np.inf, -np.inf, False, False
+        for i in range(radians.shape[1]):
+            if t[i] >= start_s:
+                v = radians[a, i]
+                if v != v:
+                    nan = True
+                    break
+                kept = True
+                lo = min(lo, v)
+                hi = max(hi, v)
+        if kept and not nan:
+            lo_deg, hi_deg = lo * _DEG_PER_RAD, hi * _DEG_PER_RAD  # as np.rad2deg
+            if lo_deg < low[a]:
+                low[a] = lo_deg
+                changed = True
+            if hi_deg > high[a]:
+                high[a] = hi_deg
+                changed = True
+    return changed
+
+
+_DEG_PER_RAD = 180.0 / np.pi
+
+
+def _compile_extend_range():
+    try:
+        import numba
+    except ImportError:  # pragma: no cover - numba is a dependency
+        return _extend_range_loop
+    return numba.njit(cache=True, nogil=True)(_extend_range_loop)
+
+
+_extend_range = _compile_extend_range()
 
 
 class LiveEstimator:
@@ -100,15 +134,16 @@ class LiveEstimator:
         if n == 0:
             return None
         self.estimates += n
-        degrees = np.rad2deg(np.stack([estimates.angles[k] for k in REPORTED_ANGLES]))
-        self.rom.update(estimates.t, degrees)
+        radians = np.stack([estimates.angles[k] for k in REPORTED_ANGLES])
+        self.rom.update(estimates.t, radians)
         now = time.monotonic()
         if now - self._last_pose < self._min_interval:
             return None  # published recently enough: the range of motion is kept all the same
         self._last_pose = now
         return {
             "kind": "pose", "session_id": self.session_id, "t": float(estimates.t[-1]),
-            "angles_deg": dict(zip(REPORTED_ANGLES, degrees[:, -1].tolist(), strict=True)),
+            "angles_deg": dict(zip(REPORTED_ANGLES, np.rad2deg(radians[:, -1]).tolist(),
+                                   strict=True)),
             "positions_m": {k: v[-1].tolist() for k, v in estimates.positions.items()},
             "segments_q": {s: quat_from_rows(*estimates.R_world_segment[s][-1].ravel().tolist())
                            for s in SEGMENTS},
