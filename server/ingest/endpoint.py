@@ -54,6 +54,9 @@ from .writer import (
 log = logging.getLogger("armtrack.ingest")
 router = APIRouter()
 
+#: Least time between two acks of a streaming kit [s] (the spec asks for one a second).
+ACK_EVERY_S = 0.25
+
 
 def find_device(db: DbSession, token: str | None) -> tuple[int, int] | None:
     """(device id, patient id) of a valid, unrevoked device token."""
@@ -121,15 +124,24 @@ class IngestConnection:
                 await self.websocket.close(code, reason)
 
     async def _ack_loop(self) -> None:
-        """Acks what is stored, as soon as it is (the group writer's ``on_durable`` wakes
-        it after each commit that holds this stream's messages), and a duplicate again.
-        No timer: ``asyncio.wait_for`` made a task per wake-up, two for every ack."""
+        """Acks what is stored (the group writer's ``on_durable`` wakes it after each
+        commit that holds this stream's messages), and a duplicate again. While the kit
+        streams, at most one ack every ``ACK_EVERY_S``: each ack is a frame and a system
+        call, and a kit keeps its unacked messages anyway. A commit that leaves nothing
+        of the stream pending is acked at once, so the last messages before a pause are
+        never left unacked. No timer: ``asyncio.wait_for`` made a task per wake-up."""
         assert self.state is not None
+        state = self.state
+        acked_at = -float("inf")
         while not self._closed:
             await self._ack_wanted.wait()
             self._ack_wanted.clear()
-            durable = self.state.durable_seq
+            durable = state.durable_seq
             if durable >= 0 and (durable > self._acked or self._resend_ack):
+                now = time.monotonic()
+                if state.pending and not self._resend_ack and now - acked_at < ACK_EVERY_S:
+                    continue  # more is on its way: its commit wakes this loop again
+                acked_at = now
                 self._resend_ack = False
                 self._acked = durable
                 await self.send({"type": "ack", "seq": durable})

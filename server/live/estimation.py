@@ -31,10 +31,11 @@ from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from typing import Any, Protocol
 
+import numpy as np
 from armtrack.estimator.pipeline import PipelineConfig
 
 from .. import heap
-from ..ingest.protocol import MarkMessage, Samples
+from ..ingest.protocol import ROW_WIDTH, MarkMessage, Samples
 from .estimator import LiveEstimator
 
 log = logging.getLogger("armtrack.live")
@@ -61,8 +62,28 @@ class LiveFailure:
     details: str
 
 
+#: A message as it travels to the estimators: (sensor, the rows' float64 bytes) for
+#: samples, (t, label) for a mark. Plain tuples pickle ~25× faster than the records with
+#: their arrays (a batch of 60 streams × 3 messages: 19 µs against 550 µs).
+WireItem = tuple[str, bytes] | tuple[float, str]
 #: One estimator's part of a batch: (key, its opening the first time or None, messages).
-Job = tuple[int, Opening | None, list[Samples | MarkMessage]]
+Job = tuple[int, Opening | None, list[WireItem]]
+
+
+def to_wire(items: Sequence[Samples | MarkMessage]) -> list[WireItem]:
+    return [(item.sensor, item.rows.tobytes()) if isinstance(item, Samples)
+            else (item.t, item.label) for item in items]
+
+
+def from_wire(items: Sequence[WireItem]) -> list[Samples | MarkMessage]:
+    out: list[Samples | MarkMessage] = []
+    for first, second in items:
+        if isinstance(first, str):
+            rows = np.frombuffer(second, dtype=np.float64).reshape(-1, ROW_WIDTH)
+            out.append(Samples(-1, first, rows))
+        else:
+            out.append(MarkMessage(-1, first, second))
+    return out
 #: What an estimator returns for a job: a pose, nothing new, or why it stopped.
 Outcome = dict[str, Any] | LiveFailure | None
 
@@ -86,7 +107,7 @@ def run_jobs(estimators: dict[int, LiveEstimator], jobs: Sequence[Job],
                                       "does not hold this stream's estimator)",
                                       f"no live estimator {key}")
             else:
-                outcome = estimator.process(items)
+                outcome = estimator.process(from_wire(items))
         except Exception as exc:
             estimators.pop(key, None)
             outcome = LiveFailure(f"{type(exc).__name__}: {exc}", traceback.format_exc())

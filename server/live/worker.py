@@ -22,7 +22,7 @@ import time
 from armtrack.estimator.pipeline import PipelineConfig
 
 from ..ingest.protocol import MarkMessage, Samples
-from .estimation import Estimation, LiveFailure, Opening, Outcome
+from .estimation import Estimation, LiveFailure, Opening, Outcome, to_wire
 from .hub import LiveHub
 
 log = logging.getLogger("armtrack.live")
@@ -85,7 +85,7 @@ class LiveBatcher:
             jobs, received = [], {}
             for worker in workers:
                 opening, items, received[worker.key] = worker.take()
-                jobs.append((worker.key, opening, items))
+                jobs.append((worker.key, opening, to_wire(items)))
             self.batches += 1
             task = asyncio.create_task(self._publish(
                 self.batches, jobs, closed, {w.key: w for w in workers}, received, slots))
