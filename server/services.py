@@ -44,7 +44,7 @@ class Services:
         #: in the live estimation process(es) (server/live/estimation.py)
         self.live_estimation = make_estimation(settings.live_processes,
                                                settings.processing_threads)
-        self.live = LiveBatcher(self.hub, self.live_estimation, settings.live_batch_s)
+        self.live = LiveBatcher(self.live_estimation, settings.live_batch_s)
         self.streams: dict[str, StreamState] = {}
         self.connections: dict[str, Any] = {}  # stream id → open IngestConnection
         self.sensor_status: dict[int, dict[str, dict[str, Any]]] = {}  # patient → sensor

@@ -28,21 +28,25 @@ async def watch(server, token, patient_id, until, timeout=60.0):
     return updates
 
 
+def stream_while_watching(server, api, patient_id, token, recording, until, speed=4.0):
+    """A kit streams ``recording`` while the therapist watches the patient's feed until
+    ``until(updates)``: (the kit's stats, the updates)."""
+    async def scenario():
+        watcher = asyncio.create_task(watch(server, api.token, patient_id, until))
+        await asyncio.sleep(0.3)
+        stats = await KitEmulator(recording, server.ws_url, token, speed=speed).run()
+        return stats, await watcher
+
+    return asyncio.run(scenario())
+
+
 def test_a_therapist_watches_poses_and_range_of_motion_live(module_server, elbow):
     api = module_server.client("alice")
     patient = api.patient()
     token = api.device(patient["id"])["token"]
-
-    async def scenario():
-        closed = lambda ups: any(u["kind"] == "session" and u["status"] == "closed"  # noqa: E731
-                                 for u in ups)
-        watcher = asyncio.create_task(watch(module_server, api.token, patient["id"], closed))
-        await asyncio.sleep(0.3)
-        kit = KitEmulator(elbow.recording, module_server.ws_url, token, speed=4)
-        stats = await kit.run()
-        return stats, await watcher
-
-    stats, updates = asyncio.run(scenario())
+    stats, updates = stream_while_watching(
+        module_server, api, patient["id"], token, elbow.recording,
+        lambda ups: any(u["kind"] == "session" and u["status"] == "closed" for u in ups))
     assert stats.acked == stats.total
     poses = [u for u in updates if u["kind"] == "pose"]
     assert len(poses) > 20
@@ -140,26 +144,18 @@ def test_the_live_view_says_so_when_its_estimation_process_dies_and_data_go_on(
     token = api.device(patient["id"])["token"]
     killed = []
 
-    async def scenario():
-        def stopped(ups):
-            return any(u["kind"] == "error" for u in ups)
+    def kill_at_first_pose_until_an_error(ups):
+        if any(u["kind"] == "pose" for u in ups) and not killed:
+            children = _live_estimation_processes(module_server)
+            assert children, "no live estimation process found"
+            for pid in children:
+                os.kill(pid, signal.SIGKILL)
+            killed.extend(children)
+        return any(u["kind"] == "error" for u in ups)
 
-        def posed(ups):
-            if any(u["kind"] == "pose" for u in ups) and not killed:
-                children = _live_estimation_processes(module_server)
-                assert children, "no live estimation process found"
-                for pid in children:
-                    os.kill(pid, signal.SIGKILL)
-                killed.extend(children)
-            return stopped(ups)
-
-        watcher = asyncio.create_task(watch(module_server, api.token, patient["id"], posed))
-        await asyncio.sleep(0.3)
-        kit = KitEmulator(elbow.recording, module_server.ws_url, token, speed=3)
-        stats = await kit.run()
-        return stats, await watcher
-
-    stats, updates = asyncio.run(scenario())
+    stats, updates = stream_while_watching(module_server, api, patient["id"], token,
+                                           elbow.recording, kill_at_first_pose_until_an_error,
+                                           speed=3)
     error = next(u for u in updates if u["kind"] == "error")
     print(f"killed {killed}; the feed said: {error['reason']}")
     assert "live estimation process stopped" in error["reason"]
@@ -168,16 +164,11 @@ def test_the_live_view_says_so_when_its_estimation_process_dies_and_data_go_on(
     assert session["samples"] == sum(len(s.t) for s in elbow.recording.sensors.values())
 
     # a new stream: a new live estimation process, poses again
-    async def again():
-        watcher = asyncio.create_task(watch(
-            module_server, api.token, patient["id"],
-            lambda ups: any(u["kind"] == "pose" for u in ups)))
-        await asyncio.sleep(0.3)
-        kit = KitEmulator(elbow.recording, module_server.ws_url, token, speed=3)
-        await kit.run()
-        return await watcher
-
-    assert any(u["kind"] == "pose" for u in asyncio.run(again()))
+    _, updates = stream_while_watching(module_server, api, patient["id"], token,
+                                       elbow.recording,
+                                       lambda ups: any(u["kind"] == "pose" for u in ups),
+                                       speed=3)
+    assert any(u["kind"] == "pose" for u in updates)
     assert set(_live_estimation_processes(module_server)).isdisjoint(killed)
 
 
@@ -194,16 +185,9 @@ def test_live_estimates_on_threads_of_the_server_process_when_asked(tmp_path, el
         patient = api.patient()
         token = api.device(patient["id"])["token"]
 
-        async def scenario():
-            watcher = asyncio.create_task(watch(
-                server, api.token, patient["id"],
-                lambda ups: sum(u["kind"] == "pose" for u in ups) >= 10))
-            await asyncio.sleep(0.3)
-            kit = KitEmulator(elbow.recording, server.ws_url, token, speed=4)
-            stats = await kit.run()
-            return stats, await watcher
-
-        stats, updates = asyncio.run(scenario())
+        stats, updates = stream_while_watching(
+            server, api, patient["id"], token, elbow.recording,
+            lambda ups: sum(u["kind"] == "pose" for u in ups) >= 10)
         assert stats.acked == stats.total
         assert sum(u["kind"] == "pose" for u in updates) >= 10
         assert _live_estimation_processes(server) == []

@@ -31,8 +31,7 @@ log = logging.getLogger("armtrack.live")
 class LiveBatcher:
     """Runs the pending messages of all live workers in batches (see the module)."""
 
-    def __init__(self, hub: LiveHub, estimation: Estimation, interval_s: float):
-        self._hub = hub
+    def __init__(self, estimation: Estimation, interval_s: float):
         self._estimation = estimation
         self._interval = interval_s
         self._ready: set[LiveWorker] = set()
