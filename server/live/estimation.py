@@ -71,11 +71,14 @@ Job = tuple[int, Opening | None, list[WireItem]]
 
 
 def to_wire(items: Sequence[Samples | MarkMessage]) -> list[WireItem]:
+    """Accepted messages as they travel to the estimators."""
     return [(item.sensor, item.rows.tobytes()) if isinstance(item, Samples)
             else (item.t, item.label) for item in items]
 
 
 def from_wire(items: Sequence[WireItem]) -> list[Samples | MarkMessage]:
+    """The messages again, for ``LiveEstimator.process`` (their ``seq`` is not needed
+    there and does not travel: -1)."""
     out: list[Samples | MarkMessage] = []
     for first, second in items:
         if isinstance(first, str):
@@ -84,6 +87,8 @@ def from_wire(items: Sequence[WireItem]) -> list[Samples | MarkMessage]:
         else:
             out.append(MarkMessage(-1, first, second))
     return out
+
+
 #: What an estimator returns for a job: a pose, nothing new, or why it stopped.
 Outcome = dict[str, Any] | LiveFailure | None
 

@@ -97,9 +97,12 @@ class LiveBatcher:
         """One batch's round trip, then its poses out."""
         try:
             outcomes = await self._estimation.run(jobs, closed)
-        except Exception:  # a fault of the estimation side itself: no worker's doing
+        except Exception as exc:  # a fault of the estimation side itself: the batch's
+            # workers lost these messages (and maybe their estimator's opening): they stop
+            # and say why, rather than go on with a gap
             log.exception("a live estimation batch failed")
-            return
+            reason = f"{type(exc).__name__}: {exc}"
+            outcomes = [(key, LiveFailure(reason, reason)) for key, _, _ in jobs]
         finally:
             slots.release()
         now = time.monotonic()
