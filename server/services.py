@@ -21,6 +21,8 @@ from .live.broker import make_hub
 from .live.estimation import make_estimation
 from .live.worker import LiveBatcher
 from .settings import Settings
+from .store.background import SessionProcessing
+from .store.processing import process_in_background
 
 T = TypeVar("T")
 
@@ -37,9 +39,12 @@ class Services:
         self.writer = GroupWriter(self.engine, settings.ack_interval_s)
         #: short database reads and writes of the async side
         self.db_pool = ThreadPoolExecutor(4, thread_name_prefix="armtrack-db")
-        #: estimation of closed sessions (batch)
-        self.compute_pool = ThreadPoolExecutor(settings.processing_threads,
-                                               thread_name_prefix="armtrack-compute")
+        #: estimation of closed sessions (batch), in the processing process
+        self.processing = SessionProcessing(
+            settings.resolved_database_url(), settings.processing_processes,
+            settings.processing_threads,
+            lambda session_id, filter_name: process_in_background(self.db, session_id,
+                                                                  filter_name))
         #: live estimation: the streams' pipelines, in batches (server/live/worker.py),
         #: in the live estimation process(es) (server/live/estimation.py)
         self.live_estimation = make_estimation(settings.live_processes,
@@ -59,6 +64,7 @@ class Services:
                        .values(status="interrupted"))
 
     async def start(self) -> None:
+        self.processing.start()
         await self.hub.start()
         self.writer.start()
         await self.live_estimation.start()
@@ -75,8 +81,8 @@ class Services:
         await self.hub.stop()
         if self.background:
             await asyncio.gather(*self.background, return_exceptions=True)
+        await asyncio.get_running_loop().run_in_executor(None, self.processing.stop)
         self.db_pool.shutdown(wait=True)
-        self.compute_pool.shutdown(wait=True)
         self.engine.dispose()
 
     async def run_db(self, fn: Callable[..., T], *args: Any) -> T:
@@ -89,9 +95,10 @@ class Services:
         return await asyncio.get_running_loop().run_in_executor(self.db_pool, context.run,
                                                                 call)
 
-    def in_background(self, fn: Callable[..., Any], *args: Any) -> asyncio.Future:
-        """Run ``fn(*args)`` on the compute pool without waiting; tracked until done."""
-        future = asyncio.get_running_loop().run_in_executor(self.compute_pool, fn, *args)
+    def process_later(self, session_id: int, filter_name: str) -> asyncio.Future:
+        """Estimate a closed session (``store.background``) without waiting; tracked until
+        done. Awaiting it raises ``ProcessingFailed`` if it did not complete."""
+        future = asyncio.wrap_future(self.processing.submit(session_id, filter_name))
         self.background.add(future)
         future.add_done_callback(self.background.discard)
         return future

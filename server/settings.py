@@ -29,7 +29,11 @@ class Settings(BaseSettings):
                                   description="longest wait to group commits before acking [s]")
     refused_limit: int = Field(50, gt=0, description="refused messages per window before 4429")
     refused_window_s: float = Field(10.0, gt=0)
-    processing_threads: int = Field(2, ge=1, description="threads for estimation work")
+    processing_threads: int = Field(2, ge=1, description="threads for estimation work "
+                                    "done in the server process")
+    processing_processes: int = Field(1, ge=0, le=1, description="processes estimating "
+                                      "closed sessions, at a lower CPU priority (0: threads "
+                                      "of the server process)")
     live_poses_hz: float = Field(30.0, gt=0, description="most live poses published per second")
     live_processes: int = Field(1, ge=0, le=64, description="processes computing the live "
                                 "estimates (0: threads of the server process)")

@@ -3,6 +3,7 @@ the raw data (a recording file) and the estimates (``armtrack estimate``'s CSV).
 
 from __future__ import annotations
 
+import contextlib
 import io
 from typing import Annotated
 
@@ -18,10 +19,9 @@ from ..auth import hash_token
 from ..commands.output import write_angles_csv
 from ..db import models
 from ..services import Services
+from ..store.background import ProcessingFailed
 from ..store.processing import (
     mark_closed,
-    process_in_background,
-    process_session,
     stored_estimates,
 )
 from ..store.recordings import add_recording, session_recording
@@ -72,7 +72,8 @@ async def close_session(session_id: Id, therapist: Therapist,
         raise HTTPException(status.HTTP_409_CONFLICT, f"session {session_id} is already closed")
     await svc.end_session_streams(session_id, "session closed by the therapist")
     await svc.run_db(mark_closed, session_id)
-    await svc.in_background(process_in_background, svc.db, session_id, DEFAULT_FILTER)
+    with contextlib.suppress(ProcessingFailed):  # logged; the session shows no estimates
+        await svc.process_later(session_id, DEFAULT_FILTER)
     return await svc.run_db(lambda db: session_out(db.get(models.Session, session_id)))
 
 
@@ -101,6 +102,7 @@ def uploader(db: Db, token: Annotated[str | None, Depends(oauth2)], request: Req
 def upload_recording(db: Db, who: Annotated[models.Therapist | models.Device,
                                             Depends(uploader)],
                      file: UploadFile,
+                     svc: Annotated[Services, Depends(get_services)],
                      patient_id: Annotated[int | None, Form(ge=1, le=MAX_ID)] = None,
                      ) -> SessionOut:
     """A recording file (``spec/recording.md``) recorded offline: stored as a new closed
@@ -125,7 +127,8 @@ def upload_recording(db: Db, who: Annotated[models.Therapist | models.Device,
     session = add_recording(db, patient, recording, device_id)
     db.commit()
     audit.note(patient_id=patient.id, session_id=session.id)
-    process_session(db, session.id)
+    # estimated where closed sessions are (store.background); this thread waits for it
+    svc.processing.submit(session.id, DEFAULT_FILTER).result()
     db.refresh(session)
     return session_out(session)
 

@@ -40,7 +40,7 @@ from ..auth import hash_token
 from ..db import models
 from ..live.worker import LiveWorker
 from ..services import Services
-from ..store.processing import mark_closed, process_in_background
+from ..store.processing import mark_closed
 from . import protocol
 from .protocol import Hello, Refused
 from .writer import (
@@ -413,8 +413,7 @@ class IngestConnection:
         await self.state.idle.wait()
         await self.send({"type": "ack", "seq": self.state.durable_seq})
         await self.services.run_db(mark_closed, self.state.session_id)
-        self.services.in_background(process_in_background, self.services.db,
-                                    self.state.session_id, DEFAULT_FILTER)
+        self.services.process_later(self.state.session_id, DEFAULT_FILTER)
         self.services.hub.publish(self.patient_id, {"kind": "session",
                                                     "session_id": self.state.session_id,
                                                     "status": "closed"})

@@ -46,15 +46,21 @@ def estimate_table(estimates: Estimates) -> tuple[list[str], np.ndarray]:
 def process_session(db: DbSession, session_id: int, filter_name: str = DEFAULT_FILTER) -> None:
     """Estimate a session from its stored samples and store the result, replacing any
     earlier estimates (committed). A recording the estimator refuses is recorded in
-    ``processing_error``; the raw data stay."""
+    ``processing_error``; the raw data stay.
+
+    The samples are read and estimated before anything is written, so the write
+    transaction (which on SQLite holds the database's one write lock, and with it every
+    live stream's group commit and ack) lasts only for the writes, not for the
+    estimation's seconds."""
     session = db.get(models.Session, session_id)
     if session is None:
         return
-    db.execute(delete(models.EstimateBlock).where(models.EstimateBlock.session_id == session_id))
     try:
         recording = session_recording(db, session)
         estimates, calibration = estimate_recording(recording, filter_name)
     except EstimatorError as exc:
+        db.execute(delete(models.EstimateBlock)
+                   .where(models.EstimateBlock.session_id == session_id))
         session.processing_error = str(exc)
         session.estimator = {"version": estimator_version(), "filter": filter_name}
         db.commit()
@@ -64,10 +70,12 @@ def process_session(db: DbSession, session_id: int, filter_name: str = DEFAULT_F
               for i, part in enumerate(np.array_split(
                   values, max(1, -(-len(values) // ESTIMATE_BLOCK_ROWS))))
               if len(part)]
-    if blocks:
-        db.execute(models.EstimateBlock.__table__.insert(), blocks)
     warnings = [w.message for w in calibration.warnings]
     warnings += [w.message for w in residual_warnings(estimates, tuple(recording.sensors))]
+    # the writes, in one short transaction
+    db.execute(delete(models.EstimateBlock).where(models.EstimateBlock.session_id == session_id))
+    if blocks:
+        db.execute(models.EstimateBlock.__table__.insert(), blocks)
     session.calibration = {
         "method": calibration.method,
         "final_time_s": calibration.final_time_s,

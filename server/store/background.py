@@ -1,0 +1,207 @@
+"""Where closed sessions are estimated: in a process of their own beside the server's, at
+a lower CPU priority (``ARMTRACK_PROCESSING_PROCESSES``, 1 by default; 0: on threads of
+the server process, as always with an in-memory database, which no other process sees).
+
+Why: a session's end runs its whole recording through the estimator and stores the
+result (``processing.process_session``: a 44-s session in ~30 ms of CPU, 30 minutes in
+~0.5 s, plus reading and writing its blocks). On threads of the server process that work
+holds the interpreter lock the event loop needs for every live stream's messages: in
+``bench/ingest.py`` at 200 patients, the sessions ending together stalled the loop and
+the group commit for up to 1.5 s. In a child process at ``NICENESS`` it runs on the
+other core, and when the machine is short of CPU the live streams are served first; a
+report is ready a moment later.
+
+Jobs go to the child one at a time over a pipe, in the order given; each answers with
+None or why it failed. If the child dies (killed, out of memory) the job under way fails
+(logged: ``armtrack reprocess SESSION_ID`` redoes it) and a new child takes the next. The
+child ends when the server's end of the pipe closes, also when the server is killed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import multiprocessing
+import os
+import signal
+import threading
+import traceback
+from collections import deque
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
+from multiprocessing.connection import Connection
+
+from sqlalchemy.engine import make_url
+
+log = logging.getLogger("armtrack.processing")
+
+#: How much less CPU priority the processing child has than the server (``nice``).
+NICENESS = 10
+#: Seconds the child is given to finish its job and end at shutdown.
+STOP_TIMEOUT_S = 30.0
+
+
+class ProcessingFailed(RuntimeError):
+    """A session's processing did not complete; the message says why."""
+
+
+def shared_with_other_processes(database_url: str) -> bool:
+    """Whether another process opens the same database (not SQLite's ``:memory:``)."""
+    url = make_url(database_url)
+    return not (url.get_backend_name() == "sqlite"
+                and url.database in (None, "", ":memory:"))
+
+
+class SessionProcessing:
+    """Estimates closed sessions in the processing child (or on ``threads`` threads of
+    this process when ``processes`` is 0)."""
+
+    def __init__(self, database_url: str, processes: int, threads: int,
+                 thread_job: Callable[[int, str], None]):
+        self._url = database_url
+        self._in_child = processes > 0 and shared_with_other_processes(database_url)
+        self._thread_job = thread_job
+        self._threads = None if self._in_child else ThreadPoolExecutor(
+            max(1, threads), thread_name_prefix="armtrack-compute")
+        self._lock = threading.Lock()
+        self._queue: deque[tuple[Future, int, str]] = deque()  # not sent yet
+        self._under_way: tuple[Future, int, str] | None = None
+        self._process: multiprocessing.process.BaseProcess | None = None
+        self._conn: Connection | None = None
+        self._stopped = False
+
+    def start(self) -> None:
+        """Start the child now (its imports take a second or two) rather than at the
+        first session's end."""
+        if self._in_child:
+            with self._lock:
+                if self._process is None:
+                    self._spawn()
+
+    def submit(self, session_id: int, filter_name: str) -> Future:
+        """Estimate session ``session_id`` with ``filter_name``; the future is done when its
+        estimates are stored (or raises ``ProcessingFailed``)."""
+        if self._threads is not None:
+            return self._threads.submit(self._thread_job, session_id, filter_name)
+        future: Future = Future()
+        with self._lock:
+            if self._stopped:
+                future.set_exception(ProcessingFailed("the server is stopping"))
+                return future
+            self._queue.append((future, session_id, filter_name))
+            if self._process is None:
+                self._spawn()
+            self._send_next()
+        return future
+
+    def stop(self) -> None:
+        """Wait for the jobs given (at most ``STOP_TIMEOUT_S`` for the one under way),
+        then end the child."""
+        if self._threads is not None:
+            self._threads.shutdown(wait=True)
+            return
+        with self._lock:
+            self._stopped = True
+            waiting = [job[0] for job in ([self._under_way] if self._under_way else [])
+                       + list(self._queue)]
+        for future in waiting:
+            with contextlib.suppress(Exception):
+                future.result(timeout=STOP_TIMEOUT_S)
+        with self._lock:
+            process, conn = self._process, self._conn
+            self._process = self._conn = None
+        if process is not None and conn is not None:
+            with contextlib.suppress(OSError):
+                conn.send(None)  # ends its loop
+            process.join(STOP_TIMEOUT_S)
+            if process.is_alive():
+                process.terminate()
+                process.join(STOP_TIMEOUT_S)
+
+    # -- the child and the pipe (under ``_lock``) -----------------------------------------
+    def _spawn(self) -> None:
+        context = multiprocessing.get_context("spawn")  # no copy of this process's threads
+        ours, theirs = context.Pipe()
+        process = context.Process(target=serve, args=(theirs, self._url), daemon=True,
+                                  name="armtrack-processing")
+        process.start()
+        theirs.close()  # only the child holds its end: it sees ours close if we die
+        self._process, self._conn = process, ours
+        threading.Thread(target=self._read, args=(process, ours), daemon=True,
+                         name="armtrack-processing-read").start()
+
+    def _send_next(self) -> None:
+        if self._under_way is not None or not self._queue or self._conn is None:
+            return
+        job = self._queue.popleft()
+        if not job[0].set_running_or_notify_cancel():
+            self._send_next()
+            return
+        self._under_way = job
+        try:
+            self._conn.send((job[1], job[2]))
+        except OSError:  # the child died: its reader fails this job and starts another
+            pass
+
+    def _read(self, process: multiprocessing.process.BaseProcess, conn: Connection) -> None:
+        """Each job's answer, until the child ends; then the job under way fails and a
+        new child takes what is queued."""
+        while True:
+            try:
+                failure = conn.recv()
+            except (EOFError, OSError):
+                break
+            with self._lock:
+                job, self._under_way = self._under_way, None
+                self._send_next()
+            if job is not None:
+                if failure is None:
+                    job[0].set_result(None)
+                else:
+                    log.error("processing of session %s failed: %s", job[1], failure)
+                    job[0].set_exception(ProcessingFailed(failure.strip().splitlines()[-1]))
+        process.join(1.0)
+        with self._lock:
+            if self._process is not process:  # stopped on purpose
+                return
+            self._process = self._conn = None
+            job, self._under_way = self._under_way, None
+            conn.close()
+            if job is not None:
+                reason = (f"the processing process stopped (exit code {process.exitcode}) "
+                          f"while estimating session {job[1]}; `armtrack reprocess {job[1]}` "
+                          "estimates it again")
+                log.error("%s", reason)
+                job[0].set_exception(ProcessingFailed(reason))
+            if self._queue and not self._stopped:
+                self._spawn()
+                self._send_next()
+
+
+def serve(conn: Connection, database_url: str) -> None:
+    """The processing child: (session id, filter) jobs in, None or a traceback out, one
+    at a time, until told to stop (None) or the server is gone (the pipe closes)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl+C stops the server; it stops us
+    with contextlib.suppress(OSError):
+        os.nice(NICENESS)
+    from ..db.engine import make_engine, make_sessionmaker
+    from .processing import process_in_background
+
+    factory = make_sessionmaker(make_engine(database_url))
+    while True:
+        try:
+            message = conn.recv()
+        except (EOFError, OSError):
+            return
+        if message is None:
+            return
+        session_id, filter_name = message
+        try:
+            process_in_background(factory, session_id, filter_name)
+            answer = None
+        except Exception:
+            answer = traceback.format_exc()
+        try:
+            conn.send(answer)
+        except OSError:
+            return
