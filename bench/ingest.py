@@ -465,7 +465,14 @@ async def client_main(config: dict) -> dict:
 def client_entry(config_path: str, output_path: str) -> int:
     raise_fd_limit()
     config = json.loads(Path(config_path).read_text())
-    result = asyncio.run(client_main(config))
+    # uvloop (uvicorn's, so always there) as the server has it: the emulated kits and
+    # viewers share this machine with the server, and the standard loop costs them more
+    try:
+        import uvloop
+        run = uvloop.run
+    except ImportError:  # pragma: no cover - uvicorn[standard] brings it
+        run = asyncio.run
+    result = run(client_main(config))
     Path(output_path).write_text(json.dumps(result))
     return 0
 

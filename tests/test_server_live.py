@@ -122,14 +122,18 @@ def test_a_sensor_that_never_starts_does_not_stop_the_live_view(module_server, e
 
 
 def _live_estimation_processes(server) -> list[int]:
-    """The server's live estimation processes (its children started by multiprocessing)."""
+    """The server's live estimation processes (its children started by multiprocessing
+    that named themselves so; the processing process is another)."""
     from pathlib import Path
+
+    from armtrack.server.processes import LIVE_ESTIMATION
 
     pids = []
     for task in Path(f"/proc/{server.process.pid}/task").iterdir():
         pids += [int(p) for p in (task / "children").read_text().split()]
     return [p for p in pids
-            if b"spawn_main" in Path(f"/proc/{p}/cmdline").read_bytes()]
+            if b"spawn_main" in Path(f"/proc/{p}/cmdline").read_bytes()
+            and Path(f"/proc/{p}/comm").read_text().strip() == LIVE_ESTIMATION]
 
 
 def test_the_live_view_says_so_when_its_estimation_process_dies_and_data_go_on(

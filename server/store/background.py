@@ -33,6 +33,8 @@ from multiprocessing.connection import Connection
 
 from sqlalchemy.engine import make_url
 
+from ..processes import PROCESSING, name_this_process
+
 log = logging.getLogger("armtrack.processing")
 
 #: How much less CPU priority the processing child has than the server (``nice``).
@@ -182,6 +184,7 @@ def serve(conn: Connection, database_url: str) -> None:
     """The processing child: (session id, filter) jobs in, None or a traceback out, one
     at a time, until told to stop (None) or the server is gone (the pipe closes)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl+C stops the server; it stops us
+    name_this_process(PROCESSING)
     with contextlib.suppress(OSError):
         os.nice(NICENESS)
     from ..db.engine import make_engine, make_sessionmaker

@@ -1,0 +1,146 @@
+"""Closed sessions estimated in the processing process (``server/store/background.py``):
+the same estimates as in the server's own process, a new child after one is killed, and
+no child left behind when the server is killed."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from armtrack.estimator.simulation import SimulationConfig, simulate
+from armtrack.server.db import models
+from armtrack.server.db.engine import make_engine, make_sessionmaker
+from armtrack.server.db.migrate import upgrade
+from armtrack.server.processes import PROCESSING
+from armtrack.server.store.background import ProcessingFailed, SessionProcessing
+from armtrack.server.store.processing import process_in_background, stored_estimates
+from armtrack.server.store.recordings import add_recording
+
+
+def _children_named(name: str, parent: int | None = None) -> list[int]:
+    parent = os.getpid() if parent is None else parent
+    found = []
+    for task in Path(f"/proc/{parent}/task").iterdir():
+        for pid in (task / "children").read_text().split():
+            try:
+                if Path(f"/proc/{pid}/comm").read_text().strip() == name:
+                    found.append(int(pid))
+            except FileNotFoundError:  # ended meanwhile
+                pass
+    return found
+
+
+@pytest.fixture(scope="module")
+def database(tmp_path_factory):
+    """An SQLite file with two stored (uploaded) sessions of a simulated elbow flexion."""
+    url = f"sqlite:///{tmp_path_factory.mktemp('bg') / 'bg.db'}"
+    engine = make_engine(url)
+    upgrade(engine)
+    recording = simulate(SimulationConfig(exercise="elbow_flexion", repetitions=2,
+                                          seed=3)).recording
+    with make_sessionmaker(engine)() as db:
+        therapist = models.Therapist(username="t", password_hash="x")
+        db.add(therapist)
+        db.flush()
+        patient = models.Patient(therapist_id=therapist.id, name="p", side="right",
+                                 height_m=1.7)
+        db.add(patient)
+        db.flush()
+        ids = [add_recording(db, patient, recording).id for _ in range(3)]
+        db.commit()
+    yield url, engine, ids
+    engine.dispose()
+
+
+def _estimates(engine, session_id: int) -> tuple[list[str], np.ndarray]:
+    with make_sessionmaker(engine)() as db:
+        return stored_estimates(db, db.get(models.Session, session_id))
+
+
+def test_the_child_stores_what_the_server_process_would(database):
+    url, engine, (first, second, _) = database
+    process_in_background(make_sessionmaker(engine), first, "qcf")  # here, as before
+    processing = SessionProcessing(url, 1, 1, lambda *_: None)
+    processing.start()
+    try:
+        processing.submit(second, "qcf").result(timeout=120)
+        assert len(_children_named(PROCESSING)) == 1
+        niceness = int(Path(f"/proc/{_children_named(PROCESSING)[0]}/stat").read_text()
+                       .rsplit(")", 1)[1].split()[16])
+    finally:
+        processing.stop()
+    here, there = _estimates(engine, first), _estimates(engine, second)
+    assert here[0] == there[0] and len(here[1]) > 1000
+    assert here[1].tobytes() == there[1].tobytes()  # bit for bit
+    assert niceness == 10  # below the server's own priority
+    assert _children_named(PROCESSING) == []  # stop() ended it
+
+
+def test_a_killed_child_fails_its_job_and_a_new_one_takes_the_next(database):
+    url, engine, (_, _, third) = database
+    processing = SessionProcessing(url, 1, 1, lambda *_: None)
+    processing.start()
+    try:
+        processing.submit(third, "qcf").result(timeout=120)  # warm
+        [child] = _children_named(PROCESSING)
+        os.kill(child, signal.SIGKILL)
+        deadline = time.monotonic() + 10
+        while _children_named(PROCESSING) == [child] and time.monotonic() < deadline:
+            time.sleep(0.05)
+        # a job given to the dead child (before its end was seen) fails, or runs on the
+        # next one; either way a later job is done by a new child
+        outcome = processing.submit(third, "qcf")
+        try:
+            outcome.result(timeout=120)
+        except ProcessingFailed as exc:
+            assert "exit code -9" in str(exc) and f"reprocess {third}" in str(exc)
+            processing.submit(third, "qcf").result(timeout=120)
+        assert child not in _children_named(PROCESSING)
+        assert len(_estimates(engine, third)[1]) > 1000
+    finally:
+        processing.stop()
+
+
+def test_the_child_ends_when_the_server_is_killed(database, tmp_path):
+    """A server killed with SIGKILL leaves no processing child behind: the child sees the
+    pipe close (a ``ProcessPoolExecutor``'s workers would stay)."""
+    url, _, _ = database
+    script = tmp_path / "server.py"
+    script.write_text(textwrap.dedent(f"""
+        import time
+        from armtrack.server.store.background import SessionProcessing
+        if __name__ == "__main__":
+            processing = SessionProcessing({url!r}, 1, 1, lambda *_: None)
+            processing.start()
+            print("started", flush=True)
+            time.sleep(600)
+        """))
+    server = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True)
+    try:
+        assert server.stdout.readline().strip() == "started"
+        deadline = time.monotonic() + 30
+        while not _children_named(PROCESSING, server.pid) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        [child] = _children_named(PROCESSING, server.pid)
+        server.kill()
+        server.wait()
+        deadline = time.monotonic() + 30
+        while Path(f"/proc/{child}").exists() and time.monotonic() < deadline:
+            state = Path(f"/proc/{child}/stat").read_text().rsplit(")", 1)[1].split()[0] \
+                if Path(f"/proc/{child}").exists() else "gone"
+            if state == "Z":
+                break  # ended; only its parent (now init) has to reap it
+            time.sleep(0.05)
+        alive = Path(f"/proc/{child}").exists() and Path(
+            f"/proc/{child}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+        assert not alive, f"processing child {child} outlived the killed server"
+    finally:
+        if server.poll() is None:
+            server.kill()
