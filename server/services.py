@@ -101,6 +101,8 @@ class Services:
         future = asyncio.wrap_future(self.processing.submit(session_id, filter_name))
         self.background.add(future)
         future.add_done_callback(self.background.discard)
+        # a failure is logged where it happened; nobody need wait for it to be seen
+        future.add_done_callback(lambda done: done.cancelled() or done.exception())
         return future
 
     async def end_session_streams(self, session_id: int, reason: str) -> None:
