@@ -3,13 +3,14 @@ a lower CPU priority (``ARMTRACK_PROCESSING_PROCESSES``, 1 by default; 0: on thr
 the server process, as always with an in-memory database, which no other process sees).
 
 Why: a session's end runs its whole recording through the estimator and stores the
-result (``processing.process_session``: a 44-s session in ~30 ms of CPU, 30 minutes in
-~0.5 s, plus reading and writing its blocks). On threads of the server process that work
-holds the interpreter lock the event loop needs for every live stream's messages: in
-``bench/ingest.py`` at 200 patients, the sessions ending together stalled the loop and
-the group commit for up to 1.5 s. In a child process at ``NICENESS`` it runs on the
-other core, and when the machine is short of CPU the live streams are served first; a
-report is ready a moment later.
+result (``processing.process_session``; the estimator alone takes 0.3–0.4 s of CPU for a
+30-minute session, ``bench/speed.py``, plus reading and writing its blocks). On threads
+of the server process that work holds the interpreter lock the event loop needs for
+every live stream's messages. In a child process at ``NICENESS`` it runs on the other
+core, and when the machine is short of CPU the live streams are served first; a report
+is ready a moment later. (In ``bench/ingest.py`` at 200 patients, with the sessions
+ending together, the group commit stalled for up to 1.5 s; most of that was the write
+lock the estimation held, see ``processing.process_session``.)
 
 Jobs go to the child one at a time over a pipe, in the order given; each answers with
 None or why it failed. If the child dies (killed, out of memory) the job under way fails
