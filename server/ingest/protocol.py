@@ -328,11 +328,13 @@ def _explain(data: np.ndarray, sensor: str, seq: int, nine_axis: bool) -> None:
         if quantity == "mag" and not nine_axis:
             continue
         block = data[:, columns]
-        over = beyond_range(quantity, block[:, 0], block[:, 1], block[:, 2])
+        with np.errstate(over="ignore"):  # a huge value squares to inf: beyond all the same
+            over = beyond_range(quantity, block[:, 0], block[:, 1], block[:, 2])
         if over.any():
             row = int(np.argmax(over))
             symbol, limit, unit = LIMITS[quantity]
-            value = float(np.sqrt(np.sum(block[row] ** 2)))
+            with np.errstate(over="ignore"):
+                value = float(np.sqrt(np.sum(block[row] ** 2)))
             raise Refused(f"row {row}: {symbol} = {value:.6g} {unit} is beyond the physical "
                           f"range ({symbol} ≤ {limit:g} {unit})", seq)
     t = data[:, 0]
