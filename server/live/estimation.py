@@ -23,7 +23,6 @@ import logging
 import multiprocessing
 import os
 import pickle
-import signal
 import struct
 import traceback
 from collections import deque
@@ -38,7 +37,7 @@ from armtrack.estimator.pipeline import PipelineConfig
 
 from .. import heap
 from ..ingest.protocol import ROW_WIDTH, MarkMessage, Samples
-from ..processes import LIVE_ESTIMATION, name_this_process
+from ..processes import LIVE_ESTIMATION, become_child, requests
 from .estimator import LiveEstimator
 
 log = logging.getLogger("armtrack.live")
@@ -369,16 +368,8 @@ class EstimationProcess:
 def serve(conn: Connection) -> None:
     """The live estimation process: batches in, outcomes out, until told to stop (None)
     or the server is gone (the pipe closes)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl+C stops the server; it stops us
-    name_this_process(LIVE_ESTIMATION)
+    become_child(LIVE_ESTIMATION)
     heap.settle()
     estimators: dict[int, LiveEstimator] = {}
-    while True:
-        try:
-            message = conn.recv()
-        except (EOFError, OSError):
-            return
-        if message is None:
-            return
-        jobs, closed = message
+    for jobs, closed in requests(conn):
         conn.send(run_jobs(estimators, jobs, closed))

@@ -24,7 +24,6 @@ import contextlib
 import logging
 import multiprocessing
 import os
-import signal
 import threading
 import traceback
 from collections import deque
@@ -34,7 +33,7 @@ from multiprocessing.connection import Connection
 
 from sqlalchemy.engine import make_url
 
-from ..processes import PROCESSING, name_this_process
+from ..processes import PROCESSING, become_child, requests
 
 log = logging.getLogger("armtrack.processing")
 
@@ -184,22 +183,14 @@ class SessionProcessing:
 def serve(conn: Connection, database_url: str) -> None:
     """The processing child: (session id, filter) jobs in, None or a traceback out, one
     at a time, until told to stop (None) or the server is gone (the pipe closes)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl+C stops the server; it stops us
-    name_this_process(PROCESSING)
+    become_child(PROCESSING)
     with contextlib.suppress(OSError):
         os.nice(NICENESS)
     from ..db.engine import make_engine, make_sessionmaker
     from .processing import process_in_background
 
     factory = make_sessionmaker(make_engine(database_url))
-    while True:
-        try:
-            message = conn.recv()
-        except (EOFError, OSError):
-            return
-        if message is None:
-            return
-        session_id, filter_name = message
+    for session_id, filter_name in requests(conn):
         try:
             process_in_background(factory, session_id, filter_name)
             answer = None
