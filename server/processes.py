@@ -5,9 +5,11 @@ processing, instead of another ``python``) and their loop over the server's requ
 from __future__ import annotations
 
 import contextlib
+import multiprocessing
 import signal
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from multiprocessing.connection import Connection
+from multiprocessing.process import BaseProcess
 from typing import Any
 
 LIVE_ESTIMATION = "armtrack-live"
@@ -38,3 +40,28 @@ def requests(conn: Connection) -> Iterator[Any]:
         if message is None:
             return
         yield message
+
+
+def spawn_child(target: Callable[..., None], *args: Any, name: str
+                ) -> tuple[BaseProcess, Connection]:
+    """Start ``target(conn, *args)`` in a new process (spawned: no copy of this process's
+    threads) and return it with our end of the pipe. Only the child holds its end, so it
+    sees ours close when we end or are killed."""
+    context = multiprocessing.get_context("spawn")
+    ours, theirs = context.Pipe()
+    process = context.Process(target=target, args=(theirs, *args), daemon=True, name=name)
+    process.start()
+    theirs.close()
+    return process, ours
+
+
+def end_child(process: BaseProcess, conn: Connection, timeout_s: float) -> None:
+    """Tell a child to stop (None), give it ``timeout_s`` to end, else terminate it; then
+    close our end (blocking: run it off the event loop)."""
+    with contextlib.suppress(OSError):
+        conn.send(None)
+    process.join(timeout_s)
+    if process.is_alive():
+        process.terminate()
+        process.join(timeout_s)
+    conn.close()

@@ -267,3 +267,19 @@ class ZygoteServerProcess(ServerProcess):
             except httpx.HTTPError:
                 time.sleep(0.02)
         raise RuntimeError(f"server did not start: {self.log.read_text()[-2000:]}")
+
+
+def add_patient(db, name: str = "p", therapist=None):
+    """A patient (right arm, 1.7 m) of ``therapist``, or of a new therapist ``t``, added
+    straight to the database session ``db`` (flushed, not committed)."""
+    from armtrack.server.db import models
+
+    if therapist is None:
+        therapist = models.Therapist(username="t", password_hash="x")
+        db.add(therapist)
+        db.flush()
+    patient = models.Patient(therapist_id=therapist.id, name=name, side="right",
+                             height_m=1.7)
+    db.add(patient)
+    db.flush()
+    return patient

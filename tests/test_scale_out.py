@@ -28,7 +28,7 @@ from armtrack.server.emulator import KitEmulator
 from armtrack.server.ingest.protocol import Samples
 from armtrack.server.ingest.writer import GroupWriter, StreamState, Write
 from conftest import fresh_postgres_database
-from server_support import ServerProcess, free_port
+from server_support import ServerProcess, add_patient, free_port
 from sqlalchemy import func, select
 from test_server_e2e import assert_same_samples
 
@@ -37,13 +37,7 @@ def _session_with_stream(engine) -> int:
     from sqlalchemy.orm import Session
 
     with Session(engine) as db:
-        therapist = models.Therapist(username="t", password_hash="x")
-        db.add(therapist)
-        db.flush()
-        patient = models.Patient(therapist_id=therapist.id, name="p", side="right",
-                                 height_m=1.7)
-        db.add(patient)
-        db.flush()
+        patient = add_patient(db)
         session = models.Session(patient_id=patient.id, source="stream", status="live",
                                  side="right", sensors={"upperarm": {}}, meta={})
         db.add(session)

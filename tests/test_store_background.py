@@ -22,6 +22,7 @@ from armtrack.server.processes import PROCESSING
 from armtrack.server.store.background import ProcessingFailed, SessionProcessing
 from armtrack.server.store.processing import process_in_background, stored_estimates
 from armtrack.server.store.recordings import add_recording
+from server_support import add_patient
 
 
 def _children_named(name: str, parent: int | None = None) -> list[int]:
@@ -46,13 +47,7 @@ def database(tmp_path_factory):
     recording = simulate(SimulationConfig(exercise="elbow_flexion", repetitions=2,
                                           seed=3)).recording
     with make_sessionmaker(engine)() as db:
-        therapist = models.Therapist(username="t", password_hash="x")
-        db.add(therapist)
-        db.flush()
-        patient = models.Patient(therapist_id=therapist.id, name="p", side="right",
-                                 height_m=1.7)
-        db.add(patient)
-        db.flush()
+        patient = add_patient(db)
         ids = [add_recording(db, patient, recording).id for _ in range(3)]
         db.commit()
     yield url, engine, ids

@@ -30,6 +30,7 @@ from armtrack.server.store.blocks import (
     stored_zlib,
     unpack,
 )
+from server_support import add_patient
 from sqlalchemy import event, select
 
 
@@ -53,15 +54,11 @@ def test_pack_reads_back_bit_for_bit(n_rows):
 def _streams(engine, n: int) -> list[tuple[str, int]]:
     """``n`` live sessions, a stream each: (stream id, session id)."""
     with make_sessionmaker(engine)() as db:
-        therapist = models.Therapist(username="t", password_hash="x")
-        db.add(therapist)
-        db.flush()
+        therapist = None
         out = []
         for i in range(n):
-            patient = models.Patient(therapist_id=therapist.id, name=f"p{i}", side="right",
-                                     height_m=1.7)
-            db.add(patient)
-            db.flush()
+            patient = add_patient(db, f"p{i}", therapist)
+            therapist = therapist or db.get(models.Therapist, patient.therapist_id)
             device = models.Device(patient_id=patient.id, name="kit", token_hash=f"h{i}")
             db.add(device)
             db.flush()

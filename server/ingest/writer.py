@@ -12,9 +12,10 @@ On SQLite each statement also goes over many rows at once (multi-row ``VALUES``,
 … FROM (VALUES …)``, one ``json_group_object`` row for the fence), never one execution per
 row: the driver lets go of the interpreter lock around every execution step, and with the
 event loop busy on another thread each step waits up to the switch interval (5 ms) to get
-it back. A commit of 1,000 blocks by ``executemany`` took 6–9 s beside a busy thread
-(5 ms alone); as two multi-row statements, 24 ms. In the server at 200 patients, commits
-of ~1,100 messages took 78 ms (p50) to 1.6 s, and a kit's ack waited for them.
+it back. 1,000 rows inserted by ``executemany`` (the bare driver, one table) took 6–9 s
+beside a busy thread (5 ms alone); as two multi-row statements, 24 ms. In the server at
+200 patients, commits of ~1,100 messages took 78 ms (p50) to 1.6 s, and a kit's ack
+waited for them.
 
 Fencing (several server instances on one database, README "Scaling out"): a stream's
 messages are stored only if the stream's stored ``next_seq`` is, in the same transaction

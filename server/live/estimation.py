@@ -18,7 +18,6 @@ stored as ever, without live poses) and a new process takes the next streams.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import multiprocessing
 import os
@@ -37,7 +36,7 @@ from armtrack.estimator.pipeline import PipelineConfig
 
 from .. import heap
 from ..ingest.protocol import ROW_WIDTH, MarkMessage, Samples
-from ..processes import LIVE_ESTIMATION, become_child, requests
+from ..processes import LIVE_ESTIMATION, become_child, end_child, requests, spawn_child
 from .estimator import LiveEstimator
 
 log = logging.getLogger("armtrack.live")
@@ -231,12 +230,7 @@ class EstimationProcess:
             self._spawn()
 
     def _spawn(self) -> None:
-        context = multiprocessing.get_context("spawn")  # no copy of this process's threads
-        ours, theirs = context.Pipe()
-        process = context.Process(target=serve, args=(theirs,), daemon=True,
-                                  name=f"armtrack-live-{self.index}")
-        process.start()
-        theirs.close()  # only the child holds its end: it sees ours close if we die
+        process, ours = spawn_child(serve, name=f"armtrack-live-{self.index}")
         os.set_blocking(ours.fileno(), False)
         self._process, self._conn = process, ours
         self._out, self._in, self._writing = bytearray(), bytearray(), False
@@ -354,13 +348,7 @@ class EstimationProcess:
 
         def end() -> None:
             os.set_blocking(conn.fileno(), True)
-            with contextlib.suppress(OSError):
-                conn.send(None)  # ends its loop
-            process.join(STOP_TIMEOUT_S)
-            if process.is_alive():
-                process.terminate()
-                process.join(STOP_TIMEOUT_S)
-            conn.close()
+            end_child(process, conn, STOP_TIMEOUT_S)
 
         await asyncio.get_running_loop().run_in_executor(None, end)
 

@@ -33,7 +33,7 @@ from multiprocessing.connection import Connection
 
 from sqlalchemy.engine import make_url
 
-from ..processes import PROCESSING, become_child, requests
+from ..processes import PROCESSING, become_child, end_child, requests, spawn_child
 
 log = logging.getLogger("armtrack.processing")
 
@@ -113,21 +113,11 @@ class SessionProcessing:
             process, conn = self._process, self._conn
             self._process = self._conn = None
         if process is not None and conn is not None:
-            with contextlib.suppress(OSError):
-                conn.send(None)  # ends its loop
-            process.join(STOP_TIMEOUT_S)
-            if process.is_alive():
-                process.terminate()
-                process.join(STOP_TIMEOUT_S)
+            end_child(process, conn, STOP_TIMEOUT_S)
 
     # -- the child and the pipe (under ``_lock``) -----------------------------------------
     def _spawn(self) -> None:
-        context = multiprocessing.get_context("spawn")  # no copy of this process's threads
-        ours, theirs = context.Pipe()
-        process = context.Process(target=serve, args=(theirs, self._url), daemon=True,
-                                  name="armtrack-processing")
-        process.start()
-        theirs.close()  # only the child holds its end: it sees ours close if we die
+        process, ours = spawn_child(serve, self._url, name="armtrack-processing")
         self._process, self._conn = process, ours
         threading.Thread(target=self._read, args=(process, ours), daemon=True,
                          name="armtrack-processing-read").start()
