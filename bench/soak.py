@@ -399,6 +399,7 @@ class OverheadRun:
     rows: int
     seconds: float
     poses_seen: int
+    session: int
 
     @property
     def rows_per_s(self) -> float:
@@ -447,17 +448,33 @@ async def _viewers_round(ws_base: str, token: str, measured: dict, live: list[di
     await asyncio.gather(*viewers, return_exceptions=True)
     assert stats.acked == stats.total and not stats.errors, stats.errors[:3]
     assert stats.started is not None and stats.finished is not None
-    return OverheadRun(n_viewers, stats.rows_acked, stats.finished - stats.started, seen[0])
+    return OverheadRun(n_viewers, stats.rows_acked, stats.finished - stats.started, seen[0],
+                       int(stats.session))
 
 
-def viewer_overhead(*, live: int = 2, viewers: int = 20, rounds: int = 3,
-                    repetitions: int = 12, server_cpu: int | None = None,
+def _wait_processed(http, session_id: int, timeout_s: float = 120.0) -> None:
+    """Block until the closed session's estimates are stored (its processing would
+    otherwise share the CPU with the next round)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        session = http.get(f"/api/sessions/{session_id}").raise_for_status().json()
+        if session["processing_error"]:
+            raise RuntimeError(f"session {session_id}: {session['processing_error']}")
+        if session["processed"]:
+            return
+        time.sleep(0.1)
+    raise TimeoutError(f"session {session_id} was not processed in {timeout_s} s")
+
+
+def viewer_overhead(*, live: int = 2, viewers: int = 20, rounds: int = 4,
+                    repetitions: int = 36, server_cpu: int | None = None,
                     workdir: Path | None = None) -> tuple[list[OverheadRun], float]:
     """Does watching slow ingestion? On one fresh server, ``live`` patients stream in
     real time throughout (3 sensors × 100 Hz), and in alternating rounds (0, V, V, 0, 0,
-    V, …) ``viewers`` live viewers watch them, or none; in each round one more kit streams
+    V, V, 0, …) ``viewers`` live viewers watch them, or none; in each round one more kit streams
     a recording of ``repetitions`` elbow flexions (100 Hz) as fast as it can: the rate it
-    is ingested at is what is left of the server for ingestion. Returns the rounds and
+    is ingested at is what is left of the server for ingestion (each round starts once the
+    previous round's session is processed). Returns the rounds and
     the ratio of the best rate with viewers to the best without (1.0: no slowdown; best
     of each, as the machine's other work only ever slows a round down)."""
     import httpx
@@ -507,17 +524,19 @@ def viewer_overhead(*, live: int = 2, viewers: int = 20, rounds: int = 3,
                     kit.plan = live_plan
                     streaming.append(asyncio.create_task(kit.run()))
                 try:
-                    await _viewers_round(ws_base, token, measured, live_patients,  # warm-up
-                                         measured_recording, measured_plan, 1)
-                    runs = []
+                    warm_up = await _viewers_round(ws_base, token, measured, live_patients,
+                                                   measured_recording, measured_plan, 1)
+                    runs = [warm_up]
                     for i in range(2 * rounds):
+                        # each round starts once the last one's session is processed
+                        await asyncio.to_thread(_wait_processed, http, runs[-1].session)
                         n = viewers if (i % 2 == 1) == (i // 2 % 2 == 0) else 0  # 0 V V 0 …
                         runs.append(await _viewers_round(
                             ws_base, token, measured, live_patients, measured_recording,
                             measured_plan, n))
                         if any(task.done() for task in streaming):
                             raise RuntimeError("a live kit stopped streaming")
-                    return runs
+                    return runs[1:]
                 finally:
                     for task in streaming:
                         task.cancel()

@@ -79,7 +79,10 @@ meta_keys = st.from_regex(r"\A[A-Za-z0-9_][A-Za-z0-9_.\-]{0,10}\Z").filter(
     lambda k: k not in ("armtrack-recording", "side", "height_m", "lengths_m", "calibration",
                         "marks", "rate_hz")
 )
-meta_values = st.text(st.characters(exclude_characters="\n\r"), max_size=20).map(str.strip)
+# Text a header line can carry: one line, encodable as UTF-8 (no lone surrogates; their
+# refusal is tested on its own below).
+meta_values = st.text(st.characters(codec="utf-8", exclude_characters="\n\r"),
+                      max_size=20).map(str.strip)
 
 
 @st.composite
@@ -297,6 +300,8 @@ def test_recording_checks_its_structure():
         Recording("right", {"hand": s}, height_m=1.8, metadata={"side": "left"})
     with pytest.raises(InvalidArgument, match="without surrounding spaces"):
         Recording("right", {"hand": s}, height_m=1.8, metadata={"note": " x"})
+    with pytest.raises(InvalidArgument, match="note is not encodable as UTF-8"):
+        Recording("right", {"hand": s}, height_m=1.8, metadata={"note": "a\ud800"})
     with pytest.raises(InvalidArgument, match="start before it ends"):
         Pose("npose", 3.0, 1.0)
     with pytest.raises(InvalidArgument, match="mark label"):
