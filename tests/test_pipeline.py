@@ -346,3 +346,66 @@ def test_a_silent_sensor_can_be_dropped_so_the_others_need_not_wait():
     estimates = pipeline.poll()
     assert len(estimates) > 0.9 * len(rec.sensors["upper_arm"])
     assert np.allclose(estimates.angles["wrist_flexion"], 0.0)  # no hand: the wrist stays 0
+
+
+def stream_rows(stream, a: int, b: int) -> np.ndarray:
+    """Samples a..b of a sensor as the stream protocol's rows (n, 10), NaN magnetometer
+    on a 6-axis sensor."""
+    rows = np.full((b - a, 10), np.nan)
+    rows[:, 0], rows[:, 1:4], rows[:, 4:7] = stream.t[a:b], stream.acc[a:b], stream.gyr[a:b]
+    if stream.mag is not None:
+        rows[:, 7:10] = stream.mag[a:b]
+    return rows
+
+
+@pytest.mark.parametrize("nine_axis", [True, False], ids=["9-axis", "6-axis"])
+def test_feeding_stream_rows_equals_feeding_their_columns(nine_axis, monkeypatch):
+    """The live server's ``feed_rows`` (the filter and the copy in one compiled call) gives
+    the same estimates, bit for bit, as ``feed`` of the columns, message by message; a
+    message going back in time is refused alike and changes nothing."""
+    from armtrack.estimator.orientation.qcf import QuaternionComplementaryFilter
+    from armtrack.estimator.orientation.qcf_kernel import COMPILED
+
+    compiled_calls = []
+    append_rows = QuaternionComplementaryFilter.append_rows
+    monkeypatch.setattr(QuaternionComplementaryFilter, "append_rows",
+                        lambda self, *args: compiled_calls.append(1) or append_rows(self, *args))
+    rec = simulate(SimulationConfig(exercise="elbow_flexion", seed=5, nine_axis=nine_axis,
+                                    jitter_s=0.001)).recording
+    config = PipelineConfig(side=rec.side, lengths=rec.segment_lengths(),
+                            sensors=tuple(rec.sensors))
+    by_columns, by_rows = Pipeline(config), Pipeline(config)
+    for pipeline in (by_columns, by_rows):
+        for p in rec.calibration:
+            pipeline.add_mark(Mark(p.start, p.name))
+            pipeline.add_mark(Mark(p.end, f"end:{p.name}"))
+    parts: dict[str, list] = {"columns": [], "rows": []}
+    n = min(len(s.t) for s in rec.sensors.values())
+    for a in range(0, n, 10):
+        for name, s in rec.sensors.items():
+            b = min(a + 10, n)
+            by_columns.feed(name, s.t[a:b], s.acc[a:b], s.gyr[a:b],
+                            None if s.mag is None else s.mag[a:b])
+            by_rows.feed_rows(name, stream_rows(s, a, b))
+        if a == 3000:  # a message from the past: refused by both, nothing changed
+            s = rec.sensors["hand"]
+            with pytest.raises(InvalidArgument, match="t goes backwards") as by_col_error:
+                by_columns.feed("hand", s.t[a - 20:a - 10], s.acc[a - 20:a - 10],
+                                s.gyr[a - 20:a - 10],
+                                None if s.mag is None else s.mag[a - 20:a - 10])
+            with pytest.raises(InvalidArgument, match="t goes backwards") as by_row_error:
+                by_rows.feed_rows("hand", stream_rows(s, a - 20, a - 10))
+            assert str(by_col_error.value) == str(by_row_error.value)
+        parts["columns"].append(by_columns.poll())
+        parts["rows"].append(by_rows.poll())
+    estimated = sum(len(p) for p in parts["rows"])
+    assert estimated > 0.9 * n
+    assert len(compiled_calls) >= 3 * (n // 10), "feed_rows did not take the compiled path"
+    assert COMPILED
+    for column_part, row_part in zip(parts["columns"], parts["rows"], strict=True):
+        assert column_part.t.tobytes() == row_part.t.tobytes()
+        for k in REPORTED_ANGLES:
+            assert column_part.angles[k].tobytes() == row_part.angles[k].tobytes(), k
+        for p in column_part.positions:
+            assert column_part.positions[p].tobytes() == row_part.positions[p].tobytes(), p
+    print(f"{estimated} estimates of {n} samples, bit-identical ({'9' if nine_axis else '6'}-axis)")

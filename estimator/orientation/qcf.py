@@ -26,6 +26,7 @@ import numpy as np
 from ..errors import InvalidArgument
 from .base import OrientationOutput, check_inputs, check_time
 from .qcf_kernel import EMPTY_MAG, PARAM_SIZE, STATE_SIZE, kernel, kernel_python
+from .qcf_kernel import append_rows as append_rows_kernel
 
 
 @dataclass(frozen=True)
@@ -148,3 +149,20 @@ class QuaternionComplementaryFilter:
     def update_batch(self, t, acc, gyr, mag=None) -> OrientationOutput:
         self.state = QcfState()
         return self.update(t, acc, gyr, mag)
+
+    def append_rows(self, rows: np.ndarray, nine_axis: bool, t_out: np.ndarray,
+                    acc_out: np.ndarray, gyr_out: np.ndarray, q_out: np.ndarray,
+                    end: int) -> bool:
+        """``update`` over stream rows (n, 10) float64 ``[t, acc, gyr, mag]``, their t,
+        acc, gyr and q written at ``end`` of a track's buffers, in one compiled call (see
+        ``qcf_kernel.append_rows_python``). False, doing nothing, when this filter has no
+        compiled kernel: the caller feeds the columns to ``update`` instead."""
+        if append_rows_kernel is None or not self.compiled:
+            return False
+        bad = append_rows_kernel(rows, 1 if nine_axis else 0, self._params, self.state.vector,
+                          t_out, acc_out, gyr_out, q_out, end)
+        if bad >= 0:  # nothing was changed: say why
+            t = np.ascontiguousarray(rows[:, 0])
+            check_time(t, self.state.vector[12] if self.state.vector[13] else None)
+            raise InvalidArgument(f"t at sample {bad} is not after the previous one")
+        return True

@@ -445,14 +445,53 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     return -1
 
 
+def append_rows_python(rows, has_mag, params, state, t_out, acc_out, gyr_out, q_out, end):
+    """``kernel`` over a block of stream rows ``[t, ax, ay, az, gx, gy, gz, mx, my, mz]``
+    (n, 10), the outputs' quaternions and the rows' t, acc, gyr then written at ``end`` of
+    a track's buffers (``t_out`` (cap,), ``acc_out``/``gyr_out`` (cap, 3), ``q_out``
+    (cap, 4)). The same inputs reach ``kernel`` as through ``update`` of the columns, so
+    the same numbers; one compiled call per message of a live stream instead of a dozen
+    array calls around one. Returns ``kernel``'s −1 or, having written nothing, the
+    index of the first bad time."""
+    n = rows.shape[0]
+    t = np.empty(n)
+    acc = np.empty((n, 3))
+    gyr = np.empty((n, 3))
+    mag = np.empty((n if has_mag else 0, 3))
+    for i in range(n):
+        t[i] = rows[i, 0]
+        for j in range(3):
+            acc[i, j] = rows[i, 1 + j]
+            gyr[i, j] = rows[i, 4 + j]
+            if has_mag:
+                mag[i, j] = rows[i, 7 + j]
+    q = np.empty((n, 4))
+    bias = np.empty((n, 3))
+    rest = np.zeros(n, dtype=np.bool_)
+    disturbed = np.zeros(n, dtype=np.bool_)
+    bad = kernel(t, acc, gyr, mag, has_mag, params, state, q, bias, rest, disturbed)
+    if bad >= 0:
+        return bad
+    for i in range(n):
+        t_out[end + i] = t[i]
+        for j in range(3):
+            acc_out[end + i, j] = acc[i, j]
+            gyr_out[end + i, j] = gyr[i, j]
+        for j in range(4):
+            q_out[end + i, j] = q[i, j]
+    return -1
+
+
 def _compile():
     try:
         import numba
     except ImportError:  # the pure-Python fallback: same numbers, slower
-        return kernel_python, False
-    return numba.njit(cache=True, nogil=True)(kernel_python), True
+        return kernel_python, None, False
+    jit = numba.njit(cache=True, nogil=True)
+    return jit(kernel_python), jit(append_rows_python), True
 
 
-kernel, COMPILED = _compile()
+#: ``append_rows``: None without numba (the track then feeds the columns to ``update``).
+kernel, append_rows, COMPILED = _compile()
 
 EMPTY_MAG = np.zeros((0, 3))

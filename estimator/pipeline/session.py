@@ -86,6 +86,18 @@ class Pipeline:
                                   f"({', '.join(self._tracks)})")
         self._tracks[sensor].append(t, acc, gyr, mag)
 
+    def feed_rows(self, sensor: str, rows: np.ndarray) -> None:
+        """``feed`` of stream rows (n, 10) float64 ``[t, ax, ay, az, gx, gy, gz, mx, my,
+        mz]``, NaN magnetometer on a 6-axis sensor (the live server's messages): the same
+        estimates as ``feed`` of the columns, in fewer calls."""
+        if self._finished:
+            raise InvalidArgument("the pipeline was finished; start a new one")
+        track = self._tracks.get(sensor)
+        if track is None:
+            raise InvalidArgument(f"sensor {sensor!r} is not in this session "
+                                  f"({', '.join(self._tracks)})")
+        track.append_rows(rows)
+
     def silent_sensors(self) -> list[str]:
         """Sensors of the session that have not sent a sample yet."""
         return [name for name, track in self._tracks.items() if track.first_t == np.inf]

@@ -4,6 +4,7 @@ size, not the history's) and can drop what no estimate needs any more."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -59,6 +60,38 @@ class SensorTrack:
         self.last_t = float(t[-1])
         if self.first_t == np.inf:
             self.first_t = float(t[0])
+
+    def append_rows(self, rows: np.ndarray) -> None:
+        """``append`` of stream rows (n, 10) float64 ``[t, ax, ay, az, gx, gy, gz, mx, my,
+        mz]`` (NaN magnetometer: a 6-axis sensor), as the stream protocol checked them. The
+        same numbers as ``append`` of their columns; with ``qcf`` compiled, the filter and
+        the copy into the buffers are one call (a live stream's every message comes here)."""
+        n = rows.shape[0]
+        if n == 0:
+            return
+        nine_axis = not math.isnan(rows[0, 7])
+        mag = None if not nine_axis else rows[:, 7:10]
+        append = getattr(self.filter, "append_rows", None)
+        if append is None:
+            self.append(rows[:, 0], rows[:, 1:4], rows[:, 4:7], mag)
+            return
+        if self.nine_axis is None:
+            self.nine_axis = nine_axis
+        elif self.nine_axis != nine_axis:
+            raise InvalidArgument(f"sensor {self.name} changed between 6 and 9 axes mid-stream")
+        first = float(rows[0, 0])
+        if first < self.last_t:
+            raise InvalidArgument(
+                f"t goes backwards for sensor {self.name} ({first} after {self.last_t})")
+        if self._end + n > len(self._t):
+            self._grow(n)
+        if not append(rows, nine_axis, self._t, self._acc, self._gyr, self._q, self._end):
+            self.append(rows[:, 0], rows[:, 1:4], rows[:, 4:7], mag)  # no compiled kernel
+            return
+        self._end += n
+        self.last_t = float(rows[n - 1, 0])
+        if self.first_t == np.inf:
+            self.first_t = first
 
     def _grow(self, n: int) -> None:
         kept = slice(self._start, self._end)

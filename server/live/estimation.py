@@ -202,6 +202,8 @@ class ProcessEstimation:
 #: big-endian signed, then the payload (-1 and 8 bytes for one of 2 GiB or more).
 _FRAME = struct.Struct("!i")
 _LONG_FRAME = struct.Struct("!Q")
+#: Most bytes read from a child's pipe at once.
+_READ_BYTES = 1 << 20
 
 
 class EstimationProcess:
@@ -277,17 +279,20 @@ class EstimationProcess:
         """What the child wrote: each whole frame is the outcomes of the oldest batch."""
         if self._process is not process or self._conn is None:
             return
-        try:
-            data = os.read(self._conn.fileno(), 1 << 16)  # a pipe holds 64 KiB
-        except BlockingIOError:
-            return
-        except OSError:
-            data = b""
-        if not data:  # the process died (killed, out of memory)
-            self._lost(process)
-            return
-        buffer = self._in
-        buffer += data
+        buffer, fd = self._in, self._conn.fileno()
+        while True:  # all there is now, in this one turn of the loop
+            try:
+                data = os.read(fd, _READ_BYTES)
+            except BlockingIOError:
+                break
+            except OSError:
+                data = b""
+            if not data:  # the process died (killed, out of memory)
+                self._lost(process)
+                return
+            buffer += data
+            if len(data) < _READ_BYTES:
+                break
         while len(buffer) >= _FRAME.size:
             (size,) = _FRAME.unpack_from(buffer)
             head = _FRAME.size

@@ -115,15 +115,18 @@ class LiveEstimator:
     def process(self, items: list[Samples | MarkMessage]) -> dict[str, Any] | None:
         """Feed, poll, and the newest pose (None when nothing new or one was returned less
         than 1/``max_rate_hz`` ago)."""
+        pipeline = self.pipeline
         for item in items:
             if isinstance(item, Samples):
                 rows = item.rows
                 if item.sensor in self._dropped:
                     continue  # it came too late for the live view; it is stored all the same
-                self._first_t = min(self._first_t, float(rows[0, 0]))
-                mag = rows[:, 7:10] if not np.isnan(rows[0, 7]) else None
-                self.pipeline.feed(item.sensor, rows[:, 0], rows[:, 1:4], rows[:, 4:7], mag)
-                self._drop_silent(float(rows[-1, 0]))
+                first = float(rows[0, 0])
+                if first < self._first_t:
+                    self._first_t = first
+                pipeline.feed_rows(item.sensor, rows)
+                if pipeline.calibration is None:
+                    self._drop_silent(float(rows[-1, 0]))
             else:
                 self.pipeline.add_mark(Mark(item.t, item.label))
                 if item.label in ("end:npose", "end:tpose"):
