@@ -221,7 +221,7 @@ def test_the_running_range_of_motion_agrees_with_the_array_reference():
             rom.low[:] = rng.normal(0, 50, k)
             rom.high[:] = rom.low + 30
         low, high = rom.low.copy(), rom.high.copy()
-        rom.update(t, radians)
+        rom.update(t, radians.T.copy())  # (n, angles), as the pipeline's kernel gives them
         keep = t >= rom.start_s
         if keep.any():
             degrees = np.rad2deg(radians)[:, keep]

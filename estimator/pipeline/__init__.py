@@ -2,7 +2,7 @@
 
 from ..recording import Recording
 from .calibrate import Calibration
-from .estimates import REFERENCE_ORDER, Estimates
+from .estimates import REFERENCE_ORDER, EstimateArrays, Estimates
 from .session import Pipeline, PipelineConfig
 
 
@@ -21,5 +21,5 @@ def estimate_recording(recording: Recording, filter_name: str = "qcf"
     return estimates, pipeline.calibration
 
 
-__all__ = ["REFERENCE_ORDER", "Calibration", "Estimates", "Pipeline", "PipelineConfig",
-           "estimate_recording"]
+__all__ = ["REFERENCE_ORDER", "Calibration", "EstimateArrays", "Estimates", "Pipeline",
+           "PipelineConfig", "estimate_recording"]

@@ -17,6 +17,29 @@ REFERENCE_ORDER = ("upper_arm", "forearm", "hand", "trunk", "clavicle")
 RESIDUALS = ("clavicle_axial", "elbow_carrying", "wrist_twist")
 
 
+@dataclass(frozen=True, slots=True)
+class EstimateArrays:
+    """Estimates as the compiled kernels give them, without a view per name: ``t`` [s]
+    (N,); ``angles`` [rad] (N, 10) in ``REPORTED_ANGLES`` order; ``residuals`` [rad] (N, 3)
+    in ``RESIDUALS`` order; ``positions`` [m] (N, 4, 3) in ``POINTS`` order, thorax frame;
+    ``R_world_segment`` (N, 5, 3, 3) in ``SEGMENTS`` order. ``Estimates`` names them."""
+
+    t: np.ndarray
+    angles: np.ndarray
+    residuals: np.ndarray
+    positions: np.ndarray
+    R_world_segment: np.ndarray
+
+    def named(self) -> Estimates:
+        """The same numbers as ``Estimates`` (views, no copies)."""
+        return Estimates(
+            t=self.t, angles=dict(zip(REPORTED_ANGLES, self.angles.T, strict=True)),
+            residuals=dict(zip(RESIDUALS, self.residuals.T, strict=True)),
+            positions=dict(zip(POINTS, self.positions.swapaxes(0, 1), strict=True)),
+            R_world_segment=dict(zip(SEGMENTS, self.R_world_segment.swapaxes(0, 1),
+                                     strict=True)))
+
+
 @dataclass(frozen=True)
 class Estimates:
     """Estimates at times ``t`` [s] (N,).

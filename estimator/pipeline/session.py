@@ -12,15 +12,15 @@ chunks of any size and any interleaving of sensors, gives the same numbers.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from ..arm.compiled import CompiledJoints
-from ..arm.forward import POINTS
 from ..arm.inverse import JointAngleParams
-from ..arm.joints import REPORTED_ANGLES, SEGMENT_OF_SENSOR, SEGMENTS
+from ..arm.joints import SEGMENT_OF_SENSOR, SEGMENTS
 from ..body import SENSOR_NAMES, SegmentLengths, Side
 from ..calibration import CalibrationPlan, poses_from_marks
 from ..errors import InvalidArgument
@@ -29,7 +29,7 @@ from ..recording import Mark, Pose
 from ..rotations import elemental
 from .calibrate import Calibration, calibrate
 from .constraints import HeadingConstraint
-from .estimates import REFERENCE_ORDER, RESIDUALS, Estimates
+from .estimates import REFERENCE_ORDER, EstimateArrays, Estimates
 from .segment_kernel import segment_orientations
 from .tracks import SensorTrack
 
@@ -120,6 +120,13 @@ class Pipeline:
         """Every estimate that has become available since the last call."""
         return self._advance(final=False)
 
+    def poll_arrays(self) -> EstimateArrays | None:
+        """``poll`` as the kernels' arrays (None when nothing is new): the same numbers
+        without a view per angle, point and segment (the live server's every message)."""
+        if not self._calibrated(final=False):
+            return None
+        return self._estimate(final=False)
+
     def finish(self) -> Estimates:
         """The end of the stream: calibrate if not yet done, and estimate the rest."""
         self._finished = True
@@ -130,41 +137,48 @@ class Pipeline:
         return CalibrationPlan.from_poses([*self._poses, *poses_from_marks(self._marks)])
 
     def _advance(self, final: bool) -> Estimates:
+        if not self._calibrated(final):
+            return Estimates.empty()
+        arrays = self._estimate(final)
+        return Estimates.empty() if arrays is None else arrays.named()
+
+    def _calibrated(self, final: bool) -> bool:
+        """Whether calibration is done, doing it once its poses have passed (or at the
+        end of the stream)."""
         if self.calibration is not None:
-            return self._estimate(final)
+            return True
         tracks = [t for t in self._tracks.values() if t.first_t < np.inf]
         if not tracks or self._tracks[self._reference].last_t == -np.inf:
-            return Estimates.empty()
-        if self.calibration is None:
-            plan = self._plan()
-            first = min(t.first_t for t in tracks)
-            final_time = plan.final_time(first)
-            passed = all(t.last_t >= final_time for t in self._tracks.values())
-            if not (passed or final):
-                return Estimates.empty()
-            present = {name: track for name, track in self._tracks.items()
-                       if track.first_t < np.inf}
-            self.calibration = calibrate(present, plan, self.config.side, final_time)
-            if not all(track.nine_axis for track in present.values()):
-                # 6-axis: keep the forearm's and hand's headings tied by the joints
-                self._constraints = {s: HeadingConstraint() for s in ("forearm", "hand")
-                                     if s in present}
-        return self._estimate(final)
+            return False
+        plan = self._plan()
+        first = min(t.first_t for t in tracks)
+        final_time = plan.final_time(first)
+        passed = all(t.last_t >= final_time for t in self._tracks.values())
+        if not (passed or final):
+            return False
+        present = {name: track for name, track in self._tracks.items()
+                   if track.first_t < np.inf}
+        self.calibration = calibrate(present, plan, self.config.side, final_time)
+        if not all(track.nine_axis for track in present.values()):
+            # 6-axis: keep the forearm's and hand's headings tied by the joints
+            self._constraints = {s: HeadingConstraint() for s in ("forearm", "hand")
+                                 if s in present}
+        return True
 
-    def _estimate(self, final: bool) -> Estimates:
+    def _estimate(self, final: bool) -> EstimateArrays | None:
         assert self.calibration is not None
         reference = self._tracks[self._reference]
-        t_ref = reference.arrays()[0]
+        t_ref = reference.times()
         horizon = np.inf
         if not final:
             for track in self._others:
                 if track.last_t < horizon:
                     horizon = track.last_t
         start = self._given - reference.discarded
-        stop = int(np.searchsorted(t_ref, horizon, "right")) if np.isfinite(horizon) \
+        stop = int(t_ref.searchsorted(horizon, "right")) if math.isfinite(horizon) \
             else len(t_ref)
         if stop <= start:
-            return Estimates.empty()
+            return None
         times = t_ref[start:stop].copy()
         self._given += stop - start
 
@@ -175,7 +189,7 @@ class Pipeline:
             if track.first_t == np.inf:
                 continue
             index = _SEGMENT_INDEX[SEGMENT_OF_SENSOR[name]]
-            t, _, _, q = track.arrays()
+            t, q = track.times(), track.orientations()
             segment_orientations(t, q, times, self.calibration.R_sensor_segment[name],
                                  self.calibration.heading[name], out=Rw[:, index])
             present[index] = 1.0
@@ -186,13 +200,10 @@ class Pipeline:
             self._apply_constraints(times, Rw, present)
         angles, residuals, positions, R_world_all = self._joints.update(Rw, present)
         # no later estimate looks further back than this one: the tracks forget the rest
+        last = float(times[-1])
         for track in self._tracks.values():
-            track.discard_before(float(times[-1]))
-        return Estimates(  # columns of the kernel's arrays, by name (views, no copies)
-            t=times, angles=dict(zip(REPORTED_ANGLES, angles.T, strict=True)),
-            residuals=dict(zip(RESIDUALS, residuals.T, strict=True)),
-            positions=dict(zip(POINTS, positions.swapaxes(0, 1), strict=True)),
-            R_world_segment=dict(zip(SEGMENTS, R_world_all.swapaxes(0, 1), strict=True)))
+            track.discard_before(last)
+        return EstimateArrays(times, angles, residuals, positions, R_world_all)
 
     def _apply_constraints(self, times: np.ndarray, Rw: np.ndarray, present: np.ndarray
                            ) -> None:

@@ -107,7 +107,7 @@ class SensorTrack:
     def discard_before(self, t: float) -> None:
         """Forget samples before the last one at or before ``t`` (kept for slerp)."""
         times = self._t[self._start:self._end]
-        keep_from = max(int(np.searchsorted(times, t, "right")) - 1, 0)
+        keep_from = max(int(times.searchsorted(t, "right")) - 1, 0)
         self._start += keep_from
         self.discarded += keep_from
 
@@ -115,6 +115,14 @@ class SensorTrack:
         """``(t, acc, gyr, q)`` of the samples kept (contiguous views, not copies)."""
         kept = slice(self._start, self._end)
         return self._t[kept], self._acc[kept], self._gyr[kept], self._q[kept]
+
+    def times(self) -> np.ndarray:
+        """``t`` of the samples kept (a contiguous view)."""
+        return self._t[self._start:self._end]
+
+    def orientations(self) -> np.ndarray:
+        """``q`` of the samples kept (a contiguous view)."""
+        return self._q[self._start:self._end]
 
     def window(self, start: float, end: float):
         """``(acc, gyr, q)`` of the samples with ``start ≤ t ≤ end``."""
