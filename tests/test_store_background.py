@@ -67,14 +67,20 @@ def test_the_child_stores_what_the_server_process_would(database):
     try:
         processing.submit(second, "qcf").result(timeout=120)
         assert len(_children_named(PROCESSING)) == 1
-        niceness = int(Path(f"/proc/{_children_named(PROCESSING)[0]}/stat").read_text()
-                       .rsplit(")", 1)[1].split()[16])
+        child = _children_named(PROCESSING)[0]
+        niceness = int(Path(f"/proc/{child}/stat").read_text().rsplit(")", 1)[1].split()[16])
+        policies = {int(task.name): os.sched_getscheduler(int(task.name))
+                    for task in Path(f"/proc/{child}/task").iterdir()}
     finally:
         processing.stop()
     here, there = _estimates(engine, first), _estimates(engine, second)
     assert here[0] == there[0] and len(here[1]) > 1000
     assert here[1].tobytes() == there[1].tobytes()  # bit for bit
-    assert niceness == 10  # below the server's own priority
+    assert niceness == 19  # below the server's own priority
+    # the estimation on a thread of its own that takes only idle CPU; the main thread
+    # (its database reads and write transaction) at an ordinary, lowest-nice policy
+    assert policies[child] == os.SCHED_OTHER
+    assert sorted(policies.values()).count(os.SCHED_IDLE) == 1, policies
     assert _children_named(PROCESSING) == []  # stop() ended it
 
 

@@ -6,11 +6,15 @@ Why: a session's end runs its whole recording through the estimator and stores t
 result (``processing.process_session``; the estimator alone takes 0.3–0.4 s of CPU for a
 30-minute session, ``bench/speed.py``, plus reading and writing its blocks). On threads
 of the server process that work holds the interpreter lock the event loop needs for
-every live stream's messages. In a child process at ``NICENESS`` it runs on the other
-core, and when the machine is short of CPU the live streams are served first; a report
-is ready a moment later. (In ``bench/ingest.py`` at 200 patients, with the sessions
-ending together, the group commit stalled for up to 1.5 s; most of that was the write
-lock the estimation held, see ``processing.process_session``.)
+every live stream's messages. In a child process it runs beside the server, its
+estimation on a thread that takes only CPU time nothing else wants (``SCHED_IDLE``), so
+the live streams are always served first and a report is ready a moment later. (In
+``bench/ingest.py`` at 200 patients, with the sessions ending together, the group commit
+stalled for up to 1.5 s; most of that was the write lock the estimation held, see
+``processing.process_session``. At ``nice`` 10, and still at 19, the first sessions'
+processing took 20–50 % of a core from the live streams for a second and a half: the
+pose latency p99 of a run was 118–184 ms, all of it in that second and a half; with the
+estimation at ``SCHED_IDLE``, 52 ms.)
 
 Jobs go to the child one at a time over a pipe, in the order given; each answers with
 None or why it failed. If the child dies (killed, out of memory) the job under way fails
@@ -30,6 +34,7 @@ from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from multiprocessing.connection import Connection
+from typing import Any
 
 from sqlalchemy.engine import make_url
 
@@ -37,8 +42,9 @@ from ..processes import PROCESSING, become_child, end_child, requests, spawn_chi
 
 log = logging.getLogger("armtrack.processing")
 
-#: How much less CPU priority the processing child has than the server (``nice``).
-NICENESS = 10
+#: How much less CPU priority the processing child has than the server (``nice``; its
+#: estimation thread is at ``SCHED_IDLE`` besides, see ``_only_idle_cpu``).
+NICENESS = 19
 #: Seconds the child is given to finish its job and end at shutdown.
 STOP_TIMEOUT_S = 30.0
 
@@ -180,9 +186,15 @@ def serve(conn: Connection, database_url: str) -> None:
     from .processing import process_in_background
 
     factory = make_sessionmaker(make_engine(database_url))
+    estimating = ThreadPoolExecutor(1, thread_name_prefix="armtrack-estimate",
+                                    initializer=_only_idle_cpu)
+
+    def compute(work: Callable[..., Any], *args: Any) -> Any:
+        return estimating.submit(work, *args).result()
+
     for session_id, filter_name in requests(conn):
         try:
-            process_in_background(factory, session_id, filter_name)
+            process_in_background(factory, session_id, filter_name, compute)
             answer = None
         except Exception:
             answer = traceback.format_exc()
@@ -190,3 +202,15 @@ def serve(conn: Connection, database_url: str) -> None:
             conn.send(answer)
         except OSError:
             return
+
+
+def _only_idle_cpu() -> None:
+    """This thread runs only on CPU time nothing else wants (Linux ``SCHED_IDLE``; at
+    ``NICENESS`` elsewhere). The estimation thread of the processing child: the database
+    reads and the write transaction stay on the child's main thread at ``NICENESS``, so a
+    busy server can delay an estimate but never starve a transaction holding SQLite's
+    write lock (unprivileged, a thread cannot leave ``SCHED_IDLE`` again)."""
+    policy = getattr(os, "SCHED_IDLE", None)
+    if policy is not None:
+        with contextlib.suppress(OSError):
+            os.sched_setscheduler(0, policy, os.sched_param(0))

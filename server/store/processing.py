@@ -4,15 +4,18 @@ The same numbers as ``armtrack estimate`` on the session's exported recording.""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from datetime import UTC, datetime
 from importlib.metadata import PackageNotFoundError, version
+from typing import Any
 
 import numpy as np
 from armtrack.estimator.arm.joints import SEGMENTS
 from armtrack.estimator.errors import EstimatorError
 from armtrack.estimator.orientation import DEFAULT_FILTER
-from armtrack.estimator.pipeline import Estimates, estimate_recording
+from armtrack.estimator.pipeline import Calibration, Estimates, estimate_recording
 from armtrack.estimator.pipeline.quality import residual_warnings
+from armtrack.estimator.recording import Recording
 from armtrack.estimator.rotations import matrix_to_quat
 from sqlalchemy import delete, select
 from sqlalchemy.orm import Session as DbSession
@@ -24,6 +27,11 @@ from .recordings import session_recording
 
 #: Estimates per stored block.
 ESTIMATE_BLOCK_ROWS = 6000
+
+
+def here(work: Callable[..., Any], *args: Any) -> Any:
+    """Run ``work(*args)`` on this thread (``process_session``'s default ``compute``)."""
+    return work(*args)
 
 
 def estimator_version() -> str:
@@ -43,10 +51,12 @@ def estimate_table(estimates: Estimates) -> tuple[list[str], np.ndarray]:
     return columns, np.column_stack([values, *quats])
 
 
-def process_session(db: DbSession, session_id: int, filter_name: str = DEFAULT_FILTER) -> None:
+def process_session(db: DbSession, session_id: int, filter_name: str = DEFAULT_FILTER,
+                    compute: Callable[..., Any] = here) -> None:
     """Estimate a session from its stored samples and store the result, replacing any
     earlier estimates (committed). A recording the estimator refuses is recorded in
-    ``processing_error``; the raw data stay.
+    ``processing_error``; the raw data stay. ``compute(work, *args)`` runs the estimation
+    (here by default; the processing child runs it on a thread of lowest priority).
 
     The samples are read and estimated before anything is written, so the write
     transaction (which on SQLite holds the database's one write lock, and with it every
@@ -57,7 +67,8 @@ def process_session(db: DbSession, session_id: int, filter_name: str = DEFAULT_F
         return
     try:
         recording = session_recording(db, session)
-        estimates, calibration = estimate_recording(recording, filter_name)
+        calibration, columns, blocks, warnings = compute(
+            _estimated_blocks, recording, filter_name, session_id)
     except EstimatorError as exc:
         db.execute(delete(models.EstimateBlock)
                    .where(models.EstimateBlock.session_id == session_id))
@@ -65,13 +76,6 @@ def process_session(db: DbSession, session_id: int, filter_name: str = DEFAULT_F
         session.estimator = {"version": estimator_version(), "filter": filter_name}
         db.commit()
         return
-    columns, values = estimate_table(estimates)
-    blocks = [{"session_id": session_id, "ordinal": i, "n_rows": len(part), "data": pack(part)}
-              for i, part in enumerate(np.array_split(
-                  values, max(1, -(-len(values) // ESTIMATE_BLOCK_ROWS))))
-              if len(part)]
-    warnings = [w.message for w in calibration.warnings]
-    warnings += [w.message for w in residual_warnings(estimates, tuple(recording.sensors))]
     # the writes, in one short transaction
     db.execute(delete(models.EstimateBlock).where(models.EstimateBlock.session_id == session_id))
     if blocks:
@@ -87,6 +91,21 @@ def process_session(db: DbSession, session_id: int, filter_name: str = DEFAULT_F
     session.estimate_columns = columns
     session.processing_error = None
     db.commit()
+
+
+def _estimated_blocks(recording: Recording, filter_name: str, session_id: int
+                      ) -> tuple[Calibration, list[str], list[dict], list[str]]:
+    """The CPU work of ``process_session``: the estimates of ``recording`` as the
+    estimate table's columns and packed blocks, with the calibration and its warnings."""
+    estimates, calibration = estimate_recording(recording, filter_name)
+    columns, values = estimate_table(estimates)
+    blocks = [{"session_id": session_id, "ordinal": i, "n_rows": len(part), "data": pack(part)}
+              for i, part in enumerate(np.array_split(
+                  values, max(1, -(-len(values) // ESTIMATE_BLOCK_ROWS))))
+              if len(part)]
+    warnings = [w.message for w in calibration.warnings]
+    warnings += [w.message for w in residual_warnings(estimates, tuple(recording.sensors))]
+    return calibration, columns, blocks, warnings
 
 
 def stored_estimates(db: DbSession, session: models.Session) -> tuple[list[str], np.ndarray]:
@@ -107,6 +126,7 @@ def mark_closed(db: DbSession, session_id: int) -> None:
         db.commit()
 
 
-def process_in_background(factory: sessionmaker, session_id: int, filter_name: str) -> None:
+def process_in_background(factory: sessionmaker, session_id: int, filter_name: str,
+                          compute: Callable[..., Any] = here) -> None:
     with factory() as db:
-        process_session(db, session_id, filter_name)
+        process_session(db, session_id, filter_name, compute)
