@@ -229,3 +229,26 @@ def test_the_running_range_of_motion_agrees_with_the_array_reference():
         assert np.array_equal(rom.low, low) and np.array_equal(rom.high, high)
         changed += rom._as_dict is None
     assert changed > 1000  # the cases did widen the range, often
+
+
+def test_an_encoded_pose_is_the_json_of_its_dict_and_reads_as_it():
+    """The live estimation process encodes each pose once: the text viewers get is, byte
+    for byte, the JSON of the dict with ``latency_s`` appended last (as the server added
+    it before); it reads as that dict, and pickles as its text alone."""
+    import pickle
+
+    import orjson
+    from armtrack.server.live.encoded import EncodedPose
+
+    pose = {"kind": "pose", "session_id": 7, "t": 12.5,
+            "angles_deg": {"elbow_flexion": 91.25, "wrist_flexion": -3.5e-7},
+            "positions_m": {"wrist": [0.1, -0.2, 0.30000000000000004]},
+            "rom_deg": {}, "estimates": 1250, "warnings": ["sensor hand sent nothing"]}
+    encoded = EncodedPose.encode(pose).with_field("latency_s", 0.012345678901234)
+    as_dict = {**pose, "latency_s": 0.012345678901234}
+    assert encoded.text == orjson.dumps(as_dict)
+    assert dict(encoded) == as_dict and encoded["angles_deg"]["elbow_flexion"] == 91.25
+    assert encoded.get("kind") == "pose" and encoded.warnings == ("sensor hand sent nothing",)
+    copy = pickle.loads(pickle.dumps(encoded, pickle.HIGHEST_PROTOCOL))
+    assert copy.text == encoded.text and copy._parsed is None
+    assert copy.warnings == encoded.warnings

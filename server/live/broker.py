@@ -27,10 +27,12 @@ import contextlib
 import logging
 import secrets
 import time
+from collections.abc import Mapping
 from typing import Any
 
 import orjson
 
+from .encoded import EncodedPose
 from .hub import LiveHub, Subscription
 
 log = logging.getLogger("armtrack.live")
@@ -93,10 +95,13 @@ class RedisHub(LiveHub):
             self._control.put_nowait(("unsubscribe",
                                       f"{CHANNEL_PREFIX}{subscription.patient_id}"))
 
-    def publish(self, patient_id: int, update: dict[str, Any]) -> None:
+    def publish(self, patient_id: int, update: Mapping[str, Any]) -> None:
         super().publish(patient_id, update)  # this instance's viewers
-        data = orjson.dumps({**update, "published_at": time.time()},
-                            option=orjson.OPT_SERIALIZE_NUMPY)
+        if isinstance(update, EncodedPose):
+            data = update.with_field("published_at", time.time()).text
+        else:
+            data = orjson.dumps({**update, "published_at": time.time()},
+                                option=orjson.OPT_SERIALIZE_NUMPY)
         self._queue.append((f"{CHANNEL_PREFIX}{patient_id}", self.instance + b" " + data))
         if len(self._queue) > MAX_QUEUED:
             del self._queue[:len(self._queue) - MAX_QUEUED]

@@ -19,6 +19,7 @@ from ..api.deps import therapist_of_token
 from ..db import models
 from ..ingest.endpoint import bearer
 from ..ingest.protocol import CLOSE_BAD_TOKEN, dumps
+from .encoded import EncodedPose
 
 router = APIRouter()
 CLOSE_NOT_FOUND = 4404
@@ -65,8 +66,10 @@ async def live(websocket: WebSocket,
         gone = asyncio.create_task(watch_gone())
         try:
             while (update := await subscription.get()) is not None:
-                try:
-                    await websocket.send_text(dumps(update))
+                try:  # a pose comes encoded by the live estimation process
+                    await websocket.send_text(update.text.decode()
+                                              if isinstance(update, EncodedPose)
+                                              else dumps(update))
                 except (WebSocketDisconnect, RuntimeError):
                     return
         finally:

@@ -10,7 +10,8 @@ for 150 patients with the estimators on threads (``bench/ingest.py``, README "Lo
 
 A batch goes to the process as one message — per estimator its key, its ``Opening`` the
 first time, and its new messages; the keys of closed streams — and comes back as one
-list of outcomes: a pose (a dict ready to publish), None, or a ``LiveFailure``. If the
+list of outcomes: a pose (``EncodedPose``: its JSON, ready to publish), None, or a
+``LiveFailure``. If the
 process dies, the estimators it held answer with a ``LiveFailure`` (their streams go on,
 stored as ever, without live poses) and a new process takes the next streams.
 """
@@ -29,7 +30,7 @@ from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
 from armtrack.estimator.pipeline import PipelineConfig
@@ -37,6 +38,7 @@ from armtrack.estimator.pipeline import PipelineConfig
 from .. import heap
 from ..ingest.protocol import ROW_WIDTH, MarkMessage, Samples
 from ..processes import LIVE_ESTIMATION, become_child, end_child, requests, spawn_child
+from .encoded import EncodedPose
 from .estimator import LiveEstimator
 
 log = logging.getLogger("armtrack.live")
@@ -91,7 +93,7 @@ def from_wire(items: Sequence[WireItem]) -> list[Samples | MarkMessage]:
 
 
 #: What an estimator returns for a job: a pose, nothing new, or why it stopped.
-Outcome = dict[str, Any] | LiveFailure | None
+Outcome = EncodedPose | LiveFailure | None
 
 
 def run_jobs(estimators: dict[int, LiveEstimator], jobs: Sequence[Job],

@@ -5,7 +5,6 @@ wherever ``estimation`` puts it (the live estimation process, or a thread)."""
 from __future__ import annotations
 
 import time
-from typing import Any
 
 import numpy as np
 from armtrack.estimator.arm.forward import POINTS
@@ -15,6 +14,7 @@ from armtrack.estimator.recording import Mark
 from armtrack.estimator.scalar_rotations import quat_from_rows
 
 from ..ingest.protocol import MarkMessage, Samples
+from .encoded import EncodedPose
 
 #: Seconds after the last calibration pose's end still counted as calibration.
 CALIBRATION_TAIL_S = 2.5
@@ -114,9 +114,9 @@ class LiveEstimator:
             self.warnings.append(f"sensor {sensor} sent nothing in {SILENT_SENSOR_S:g} s: "
                                  "the live view goes on without it")
 
-    def process(self, items: list[Samples | MarkMessage]) -> dict[str, Any] | None:
-        """Feed, poll, and the newest pose (None when nothing new or one was returned less
-        than 1/``max_rate_hz`` ago)."""
+    def process(self, items: list[Samples | MarkMessage]) -> EncodedPose | None:
+        """Feed, poll, and the newest pose, encoded (None when nothing new or one was
+        returned less than 1/``max_rate_hz`` ago)."""
         pipeline = self.pipeline
         for item in items:
             if isinstance(item, Samples):
@@ -145,7 +145,7 @@ class LiveEstimator:
             return None  # published recently enough: the range of motion is kept all the same
         self._last_pose = now
         segments = estimates.R_world_segment[-1].reshape(len(SEGMENTS), 9).tolist()
-        return {
+        return EncodedPose.encode({
             "kind": "pose", "session_id": self.session_id, "t": float(estimates.t[-1]),
             "angles_deg": dict(zip(REPORTED_ANGLES, np.rad2deg(estimates.angles[-1]).tolist(),
                                    strict=True)),
@@ -155,4 +155,4 @@ class LiveEstimator:
             "rom_deg": self.rom.as_dict(),
             "estimates": self.estimates,
             "warnings": list(self.warnings),
-        }
+        })

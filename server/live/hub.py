@@ -8,7 +8,10 @@ from __future__ import annotations
 
 import asyncio
 from collections import defaultdict
+from collections.abc import Mapping
 from typing import Any
+
+from .encoded import EncodedPose
 
 #: Updates a subscriber may fall behind before its oldest are dropped.
 QUEUE_SIZE = 64
@@ -18,16 +21,16 @@ class Subscription:
     def __init__(self, hub: LiveHub, patient_id: int):
         self.hub = hub
         self.patient_id = patient_id
-        self.queue: asyncio.Queue[dict[str, Any] | None] = asyncio.Queue(QUEUE_SIZE)
+        self.queue: asyncio.Queue[Mapping[str, Any] | None] = asyncio.Queue(QUEUE_SIZE)
         self.dropped = 0
 
-    def put(self, update: dict[str, Any] | None) -> None:
+    def put(self, update: Mapping[str, Any] | None) -> None:
         if self.queue.full():
             self.queue.get_nowait()
             self.dropped += 1
         self.queue.put_nowait(update)
 
-    async def get(self) -> dict[str, Any] | None:
+    async def get(self) -> Mapping[str, Any] | None:
         """The next update; None once the subscriber's side put an end to it."""
         return await self.queue.get()
 
@@ -46,7 +49,7 @@ class LiveHub:
 
     def __init__(self) -> None:
         self._subscribers: dict[int, set[Subscription]] = defaultdict(set)
-        self.latest: dict[int, dict[str, Any]] = {}  # last pose per patient
+        self.latest: dict[int, Mapping[str, Any]] = {}  # last pose per patient
 
     async def start(self) -> None:
         """Nothing to start in one process (a broker-backed hub connects here)."""
@@ -66,8 +69,9 @@ class LiveHub:
             if not subscribers:
                 del self._subscribers[subscription.patient_id]
 
-    def publish(self, patient_id: int, update: dict[str, Any]) -> None:
-        if update.get("kind") == "pose":
+    def publish(self, patient_id: int, update: Mapping[str, Any]) -> None:
+        """``update``: a dict, or a pose as ``EncodedPose`` (read as one)."""
+        if isinstance(update, EncodedPose) or update.get("kind") == "pose":
             self.latest[patient_id] = update
         for subscription in tuple(self._subscribers.get(patient_id, ())):
             subscription.put(update)

@@ -163,8 +163,8 @@ class LiveWorker:
                 self._hub.publish(self.patient_id, {
                     "kind": "error", "session_id": self.session_id, "reason": self.error})
         elif outcome is not None and self.error is None:
-            for message in outcome["warnings"][self._warned:]:
+            for message in outcome.warnings[self._warned:]:
                 log.warning("session %s: %s", self.session_id, message)
-            self._warned = len(outcome["warnings"])
-            outcome["latency_s"] = now - received  # newest sample received → published
-            self._hub.publish(self.patient_id, outcome)
+            self._warned = len(outcome.warnings)
+            # newest sample received → published
+            self._hub.publish(self.patient_id, outcome.with_field("latency_s", now - received))
