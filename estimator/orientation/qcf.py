@@ -159,8 +159,8 @@ class QuaternionComplementaryFilter:
         compiled kernel: the caller feeds the columns to ``update`` instead."""
         if append_rows_kernel is None or not self.compiled:
             return False
-        bad = append_rows_kernel(rows, 1 if nine_axis else 0, self._params, self.state.vector,
-                          t_out, acc_out, gyr_out, q_out, end)
+        bad = append_rows_kernel(rows, 1 if nine_axis else 0, self._params,
+                                 self.state.vector, t_out, acc_out, gyr_out, q_out, end)
         if bad >= 0:  # nothing was changed: say why
             t = np.ascontiguousarray(rows[:, 0])
             check_time(t, self.state.vector[12] if self.state.vector[13] else None)

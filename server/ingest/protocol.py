@@ -379,5 +379,11 @@ def check_status(message: dict[str, Any], hello: Hello) -> dict[str, Any]:
 
 
 def dumps(message: dict[str, Any]) -> str:
-    """Compact JSON text (floats in their shortest round-trip form)."""
-    return orjson.dumps(message).decode()
+    """Compact JSON text (floats in their shortest round-trip form). An integer beyond 64
+    bits (a kit's ``seq`` of 400 digits, named back in its ``error``), which ``orjson``
+    refuses, is written by the standard library: JSON's integers have no limit."""
+    try:
+        return orjson.dumps(message).decode()
+    except TypeError:
+        return json.dumps(message, separators=(",", ":"), ensure_ascii=False,
+                          allow_nan=False)

@@ -14,7 +14,7 @@ stalled for up to 1.5 s; most of that was the write lock the estimation held, se
 ``processing.process_session``. At ``nice`` 10, and still at 19, the first sessions'
 processing took 20–50 % of a core from the live streams for a second and a half: the
 pose latency p99 of a run was 118–184 ms, all of it in that second and a half; with the
-estimation at ``SCHED_IDLE``, 52 ms.)
+estimation at ``SCHED_IDLE``, 23–52 ms in the runs right after.)
 
 Jobs go to the child one at a time over a pipe, in the order given; each answers with
 None or why it failed. If the child dies (killed, out of memory) the job under way fails
