@@ -471,12 +471,12 @@ def viewer_overhead(*, live: int = 2, viewers: int = 20, rounds: int = 4,
                     workdir: Path | None = None) -> tuple[list[OverheadRun], float]:
     """Does watching slow ingestion? On one fresh server, ``live`` patients stream in
     real time throughout (3 sensors × 100 Hz), and in alternating rounds (0, V, V, 0, 0,
-    V, V, 0, …) ``viewers`` live viewers watch them, or none; in each round one more kit streams
-    a recording of ``repetitions`` elbow flexions (100 Hz) as fast as it can: the rate it
-    is ingested at is what is left of the server for ingestion (each round starts once the
-    previous round's session is processed). Returns the rounds and
-    the ratio of the best rate with viewers to the best without (1.0: no slowdown; best
-    of each, as the machine's other work only ever slows a round down)."""
+    V, V, 0, …) ``viewers`` live viewers watch them, or none; in each round one more kit
+    streams a recording of ``repetitions`` elbow flexions (100 Hz) as fast as it can: the
+    rate it is ingested at is what is left of the server for ingestion (each round starts
+    once the previous round's session is processed). Returns the rounds and the ratio of
+    the best rate with viewers to the best without (1.0: no slowdown; best of each, as the
+    machine's other work only ever slows a round down)."""
     import httpx
     from armtrack.estimator.recording import read_recording
 

@@ -111,9 +111,10 @@ class IngestConnection:
     async def send(self, message: dict[str, Any]) -> None:
         if self._closed:
             return
-        async with self._send_lock:
+        text = protocol.dumps(message)  # outside the suppress: a message it cannot encode
+        async with self._send_lock:  # is a bug to see, not a vanished peer
             with contextlib.suppress(Exception):  # a vanished peer ends in receive()
-                await self.websocket.send_text(protocol.dumps(message))
+                await self.websocket.send_text(text)
 
     async def close(self, code: int, reason: str) -> None:
         if self._closed:

@@ -11,9 +11,9 @@ for 150 patients with the estimators on threads (``bench/ingest.py``, README "Lo
 A batch goes to the process as one message — per estimator its key, its ``Opening`` the
 first time, and its new messages; the keys of closed streams — and comes back as one
 list of outcomes: a pose (``EncodedPose``: its JSON, ready to publish), None, or a
-``LiveFailure``. If the
-process dies, the estimators it held answer with a ``LiveFailure`` (their streams go on,
-stored as ever, without live poses) and a new process takes the next streams.
+``LiveFailure``. If the process dies, the estimators it held answer with a
+``LiveFailure`` (their streams go on, stored as ever, without live poses) and a new
+process takes the next streams.
 """
 
 from __future__ import annotations
