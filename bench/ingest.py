@@ -84,6 +84,10 @@ from collections import Counter
 from dataclasses import asdict, dataclass, field
 from datetime import datetime
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # numpy is imported where it is used: the client process starts lean
+    import numpy as np
 
 REPO = Path(__file__).resolve().parent.parent
 RESULTS = REPO / "bench" / "results" / "ingest.csv"
@@ -297,8 +301,8 @@ class ViewerStats:
 
 
 async def viewer(url: str, token: str, ready: asyncio.Event, done: asyncio.Event,
-                 kit, plan, latencies: array, ages: array, received: array,
-                 stats: ViewerStats, deflate: bool) -> None:
+                 kit, plan, latencies: array, latency_at: array, ages: array,
+                 received: array, stats: ViewerStats, deflate: bool) -> None:
     """One therapist's ``/ws/live`` feed: every pose's ``latency_s`` and age, until the
     session is closed (or the kit is done and 5 s passed)."""
     from websockets.asyncio.client import connect
@@ -334,6 +338,7 @@ async def viewer(url: str, token: str, ready: asyncio.Event, done: asyncio.Event
                         while text[end] not in ",}":
                             end += 1
                         latencies.append(float(text[i + 12:end]))
+                        latency_at.append(now)
                     m = _POSE_T.search(text, 0, 200)
                     started = kit.stats.started
                     if m is not None and started is not None:
@@ -387,7 +392,7 @@ async def client_main(config: dict) -> dict:
     kits = [kit_for(p["token"], config["speed"], f"bench-kit-{p['patient_id']}",
                     ingest_urls[i % len(ingest_urls)])
             for i, p in enumerate(patients)]
-    latencies, ages, received = array("d"), array("d"), array("d")
+    latencies, latency_at, ages, received = array("d"), array("d"), array("d"), array("d")
     viewers = [ViewerStats() for _ in patients]
     kit_errors: list[str] = [""] * n
     kit_done = [asyncio.Event() for _ in patients]
@@ -398,7 +403,7 @@ async def client_main(config: dict) -> dict:
     viewer_tasks = [asyncio.create_task(viewer(
         f"{live_urls[(i + 1) % len(live_urls)]}?patient={p['patient_id']}",
         config["therapist_token"], viewer_ready[i],
-        kit_done[i], kits[i], plan, latencies, ages, received, viewers[i],
+        kit_done[i], kits[i], plan, latencies, latency_at, ages, received, viewers[i],
         config["deflate"]))
         for i, p in enumerate(patients)]
     for event in viewer_ready:
@@ -457,6 +462,7 @@ async def client_main(config: dict) -> dict:
         "pose_rate": [v.poses / (v.last - v.first) if v.poses > 1 else 0.0 for v in viewers],
         "ack_latencies": ack.tobytes().hex(),
         "pose_latencies": latencies.tobytes().hex(),
+        "pose_latency_at": latency_at.tobytes().hex(),
         "pose_ages": ages.tobytes().hex(),
         "pose_received": received.tobytes().hex(),
     }
@@ -754,6 +760,9 @@ def run_one(n: int, args: argparse.Namespace, recording_path: Path, tmp: Path) -
     rates = [r for r in result["pose_rate"] if r > 0]
     run.poses_per_s_viewer = float(np.median(rates)) if rates else 0.0
     steady0, steady1 = result["last_start"] + 1.0, result["first_bye"]
+    if len(lat):
+        run.notes.append(slow_poses_by_phase(lat, floats("pose_latency_at"), args.limit_ms,
+                                             result["first_ready"], steady0, steady1))
     run.steady_s = max(steady1 - steady0, 0.0)
     if run.steady_s < 5.0:
         run.notes.append(f"steady window only {run.steady_s:.1f} s: CPU over the whole run")
@@ -794,6 +803,29 @@ def run_one(n: int, args: argparse.Namespace, recording_path: Path, tmp: Path) -
     run.holds = not problems
     run.why = "; ".join(problems) if problems else "holds"
     return run
+
+
+def slow_poses_by_phase(latencies: np.ndarray, arrived: np.ndarray, limit_ms: float,
+                        first_ready: float, steady0: float, steady1: float) -> str:
+    """Where the poses over ``limit_ms`` fell: while kits were still starting (first
+    ``ready`` → last start + 1 s), steady (every kit streaming), or ending (first ``bye``
+    on); with the worst second of the run. Times are the viewers' arrival times."""
+    import numpy as np
+
+    slow = latencies > limit_ms / 1e3
+    phases = {"starting": arrived < steady0, "steady": (arrived >= steady0) & (arrived < steady1),
+              "ending": arrived >= steady1}
+    parts = [f"{name} {int(np.count_nonzero(slow & inside))} of {int(np.count_nonzero(inside))}"
+             for name, inside in phases.items()]
+    worst = ""
+    if slow.any():
+        seconds = np.floor(arrived[slow] - first_ready).astype(int)
+        second, count = np.unique(seconds, return_counts=True)
+        k = int(np.argmax(count))
+        worst = (f"; worst second {int(second[k])}-{int(second[k]) + 1} s after the first "
+                 f"ready ({int(count[k])} slow; steady {steady0 - first_ready:.1f}–"
+                 f"{steady1 - first_ready:.1f} s)")
+    return f"poses over {limit_ms:g} ms: " + ", ".join(parts) + worst
 
 
 def profile_server(pid: int, output_path: Path, data_dir: Path, args: argparse.Namespace,

@@ -27,6 +27,7 @@ from armtrack.server.db.migrate import upgrade
 from armtrack.server.emulator import KitEmulator
 from armtrack.server.ingest.protocol import Samples
 from armtrack.server.ingest.writer import GroupWriter, StreamState, Write
+from armtrack.server.store.blocks import unpack
 from conftest import fresh_postgres_database
 from server_support import ServerProcess, add_patient, free_port
 from sqlalchemy import func, select
@@ -98,11 +99,17 @@ def test_a_stream_taken_over_elsewhere_is_fenced_off_not_stored_twice(database_u
     assert fenced == ["a"] and a.fenced and not b.fenced
     assert a.durable_seq == 4 and b.durable_seq == 7  # A never acks what it did not store
     with engine.connect() as connection:
-        ordinals = connection.scalars(select(models.SampleBlock.ordinal)
-                                      .order_by(models.SampleBlock.id)).all()
+        blocks = connection.execute(select(models.SampleBlock.ordinal, models.SampleBlock.data)
+                                    .order_by(models.SampleBlock.id)).all()
         samples = connection.scalar(select(models.Session.samples))
         next_seq = connection.scalar(select(models.Stream.next_seq))
-    assert ordinals == list(range(8)) and samples == 8 * 5 and next_seq == 8
+    # every seq once, in order (a commit's messages of a sensor are one block, numbered by
+    # its first seq): A's 0..4, then B's 5..7, none of A's late 5..6
+    ordinals = [ordinal for ordinal, _ in blocks]
+    assert ordinals == sorted(ordinals) and ordinals[0] == 0
+    stored = np.concatenate([unpack(data, 10) for _, data in blocks])
+    assert stored.tobytes() == np.concatenate([_samples(seq).rows for seq in range(8)]).tobytes()
+    assert samples == 8 * 5 and next_seq == 8
     engine.dispose()
 
 

@@ -18,6 +18,7 @@ from armtrack.server.db.engine import make_engine, make_sessionmaker
 from armtrack.server.db.migrate import upgrade
 from armtrack.server.ingest.protocol import MarkMessage, Samples
 from armtrack.server.ingest.writer import (
+    BLOCK_MAX_ROWS,
     SQLITE_ROWS_PER_STATEMENT,
     GroupWriter,
     StreamState,
@@ -93,7 +94,13 @@ def test_a_large_commit_stores_everything_in_a_few_statements(tmp_path):
             rows[:, 1] = seq
             sensor = sensors[seq % 3]
             batch.append(Write(state, seq, samples=Samples(seq, sensor, rows)))
-            expected[(state.session_id, seq)] = (sensor, rows)
+            # a stream's messages of one sensor in a commit are one block, numbered by
+            # the first (seq 0 and 3 are both thorax's)
+            first = min(k for k in range(per_stream) if sensors[k % 3] == sensor)
+            if (state.session_id, first) in expected:
+                earlier = expected[(state.session_id, first)][1]
+                rows = np.concatenate([earlier, rows])
+            expected[(state.session_id, first)] = (sensor, rows)
     statements: list[str] = []
     event.listen(engine, "before_cursor_execute",
                  lambda *args: statements.append(args[2]))
@@ -115,7 +122,7 @@ def test_a_large_commit_stores_everything_in_a_few_statements(tmp_path):
     want = (3 * math.ceil(n_streams / per_statement)
             + math.ceil(len(expected) / per_statement) + math.ceil(n_marks / per_statement))
     print(f"\n{len(batch)} writes of {n_streams} streams: {len(statements)} statements")
-    assert writer_statements(statements) == want == 13
+    assert writer_statements(statements) == want == 12  # 2,250 blocks: 5 inserts
     assert all(state.durable_seq == per_stream - 1 for state in states)
     with engine.connect() as connection:
         blocks = connection.execute(select(
@@ -131,7 +138,7 @@ def test_a_large_commit_stores_everything_in_a_few_statements(tmp_path):
     assert len(blocks) == len(expected)
     for session_id, ordinal, sensor, n_rows, t_first, t_last, data in blocks:
         want_sensor, want = expected[(session_id, ordinal)]
-        assert sensor == want_sensor and n_rows == 10
+        assert sensor == want_sensor and n_rows == len(want)
         assert (t_first, t_last) == (want[0, 0], want[-1, 0])
         assert unpack(data, 10).tobytes() == want.tobytes()
     assert sorted(marks) == sorted((sid, 0.2, "npose") for (_, sid) in ids[::100])
@@ -150,3 +157,54 @@ def test_a_large_commit_stores_everything_in_a_few_statements(tmp_path):
 def writer_statements(statements: list[str]) -> int:
     """The statements of the commit (the test's own set-up ran before the listener)."""
     return sum(1 for s in statements if not s.lstrip().upper().startswith(("BEGIN", "COMMIT")))
+
+
+def test_a_commit_stores_a_streams_messages_of_a_sensor_as_few_blocks(tmp_path):
+    """The messages of one stream and sensor in a commit become blocks of at most
+    BLOCK_MAX_ROWS rows (uncompressed, numbered by their first seq); read back in ordinal
+    order they are the messages' rows, bit for bit; the other sensor's stay apart."""
+    engine = make_engine(f"sqlite:///{tmp_path / 'w.db'}")
+    upgrade(engine)
+    [(stream_id, session_id)] = _streams(engine, 1)
+    state = StreamState(stream_id, session_id, 0, {})
+    rng = np.random.default_rng(3)
+    sent: dict[str, list[np.ndarray]] = {"upperarm": [], "forearm": []}
+    batch = []
+    per_message = 300  # two messages a block: a third would pass its 819 rows
+    for seq in range(8):
+        sensor = "upperarm" if seq % 4 else "forearm"
+        rows = rng.normal(size=(per_message, 10))
+        rows[:, 0] = seq + np.arange(per_message) * 1e-3
+        sent[sensor].append(rows)
+        batch.append(Write(state, seq, samples=Samples(seq, sensor, rows)))
+
+    async def commit() -> None:
+        writer = GroupWriter(engine, 0.01)
+        writer.start()
+        for write in batch:
+            writer.submit(write)
+        await state.idle.wait()
+        await writer.stop()
+
+    asyncio.run(commit())
+    assert BLOCK_MAX_ROWS == STORED_MAX_BYTES // 80 == 819
+    with engine.connect() as connection:
+        blocks = connection.execute(
+            select(models.SampleBlock.sensor, models.SampleBlock.ordinal,
+                   models.SampleBlock.n_rows, models.SampleBlock.t_first,
+                   models.SampleBlock.t_last, models.SampleBlock.data)
+            .order_by(models.SampleBlock.sensor, models.SampleBlock.ordinal)).all()
+    # forearm: seqs 0 and 4 (one block); upperarm: 1 2 | 3 5 | 6 7
+    assert [(b.sensor, b.ordinal, b.n_rows) for b in blocks] == [
+        ("forearm", 0, 600), ("upperarm", 1, 600), ("upperarm", 3, 600),
+        ("upperarm", 6, 600)]
+    for sensor in sent:
+        mine = [b for b in blocks if b.sensor == sensor]
+        stored = np.concatenate([unpack(b.data, 10) for b in mine])
+        assert stored.tobytes() == np.concatenate(sent[sensor]).tobytes()
+        for b in mine:
+            assert b.data[:2] == b"\x78\x01"  # stored, not compressed
+            assert (b.t_first, b.t_last) == (unpack(b.data, 10)[0, 0],
+                                             unpack(b.data, 10)[-1, 0])
+    assert state.durable_seq == 7
+    engine.dispose()

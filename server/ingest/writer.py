@@ -34,17 +34,22 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from itertools import chain
 
+import numpy as np
 import orjson
 from sqlalchemy import Connection, Engine, bindparam, case, insert, select, update
 
 from ..db import models
-from ..store.blocks import pack
+from ..store.blocks import STORED_MAX_BYTES, pack_stored
 from .protocol import MarkMessage, Samples, dumps
 
 log = logging.getLogger("armtrack.ingest")
 
 #: Most accepted-but-unstored messages before a stream stops reading (back-pressure).
 MAX_PENDING_PER_STREAM = 2000
+#: Most rows in one stored block of a stream (its messages of one commit, one sensor):
+#: as many as are stored uncompressed (``store.blocks.pack_stored``); a longer message is
+#: a block of its own.
+BLOCK_MAX_ROWS = STORED_MAX_BYTES // (8 * 10)
 #: Retry delay after a failed commit [s].
 RETRY_S = 0.5
 #: Keys of a stream's stored ``last_t`` that are not sensors: a stream continuing a session
@@ -222,7 +227,9 @@ class GroupWriter:
                ) -> list[tuple[StreamState, dict[str, float]]]:
         """The blocks, the marks, each stream's position and each session's sample count;
         returns each stream's stored last times."""
-        blocks, marks = [], []
+        marks = []
+        # a stream's messages of one sensor in this batch, in seq order: one block
+        runs: dict[tuple[str, str], list[tuple[int, np.ndarray]]] = {}
         streams: dict[str, tuple[StreamState, int]] = {}
         last_t: dict[str, dict[str, float]] = {}
         counts: dict[int, int] = {}
@@ -234,13 +241,14 @@ class GroupWriter:
             if write.samples is not None:
                 rows = write.samples.rows
                 times[write.samples.sensor] = float(rows[-1, 0])
-                blocks.append((stream.session_id, write.samples.sensor,
-                               stream.ordinal_base + write.seq, len(rows),
-                               float(rows[0, 0]), float(rows[-1, 0]), pack(rows)))
+                runs.setdefault((stream.stream_id, write.samples.sensor), []).append(
+                    (write.seq, rows))
                 counts[stream.session_id] = counts.get(stream.session_id, 0) + len(rows)
             elif write.mark is not None:
                 marks.append({"session_id": stream.session_id, "t": write.mark.t,
                               "label": write.mark.label})
+        blocks = [block for (stream_id, sensor), run in runs.items()
+                  for block in _blocks(streams[stream_id][0], sensor, run)]
         positions = [(top + 1, last_t[stream_id], stream_id)
                      for stream_id, (_, top) in streams.items()]
         sessions = list(counts.items())
@@ -265,6 +273,29 @@ class GroupWriter:
             connection.execute(_ADD_SAMPLES, [{"session": session_id, "n": n}
                                               for session_id, n in sessions])
         return [(stream, last_t[stream_id]) for stream_id, (stream, _) in streams.items()]
+
+
+def _blocks(stream: StreamState, sensor: str, run: list[tuple[int, np.ndarray]]
+            ) -> list[tuple]:
+    """One sensor's messages of one batch, in seq order, as rows of ``sample_blocks``
+    (tuples in the order of ``_BLOCK_COLUMNS``): consecutive messages go in one block of
+    up to ``BLOCK_MAX_ROWS`` rows, whose ordinal is its first message's (so a sensor's
+    blocks still sort by ordinal, and a stream continuing the session numbers after
+    them). Fewer, longer blocks keep the commit small: each block is an entry in the
+    ``(session, sensor, ordinal)`` index, whose pages are spread over every live session."""
+    blocks: list[tuple] = []
+    start = 0
+    while start < len(run):
+        end, n = start, 0
+        while end < len(run) and (end == start or n + len(run[end][1]) <= BLOCK_MAX_ROWS):
+            n += len(run[end][1])
+            end += 1
+        parts = [rows for _, rows in run[start:end]]
+        rows = parts[0] if len(parts) == 1 else np.concatenate(parts)
+        blocks.append((stream.session_id, sensor, stream.ordinal_base + run[start][0],
+                       len(rows), float(rows[0, 0]), float(rows[-1, 0]), pack_stored(rows)))
+        start = end
+    return blocks
 
 
 def _fence(connection: Connection, batch: list[Write]) -> set[str]:
