@@ -44,7 +44,9 @@ class Services:
             settings.resolved_database_url(), settings.processing_processes,
             settings.processing_threads,
             lambda session_id, filter_name: process_in_background(self.db, session_id,
-                                                                  filter_name))
+                                                                  filter_name),
+            busy=lambda: bool(self.connections),
+            share_while_busy=settings.processing_share_live)
         #: live estimation: the streams' pipelines, in batches (server/live/worker.py),
         #: in the live estimation process(es) (server/live/estimation.py)
         self.live_estimation = make_estimation(settings.live_processes,

@@ -34,6 +34,9 @@ class Settings(BaseSettings):
     processing_processes: int = Field(1, ge=0, le=1, description="processes estimating "
                                       "closed sessions, at a lower CPU priority (0: threads "
                                       "of the server process)")
+    processing_share_live: float = Field(
+        0.25, gt=0, le=1, description="most share of the time the processing process works "
+        "while streams are live: it rests after each session (1: no rest)")
     live_poses_hz: float = Field(30.0, gt=0, description="most live poses published per second")
     live_processes: int = Field(1, ge=0, le=64, description="processes computing the live "
                                 "estimates (0: threads of the server process)")

@@ -109,6 +109,37 @@ def test_a_killed_child_fails_its_job_and_a_new_one_takes_the_next(database):
         processing.stop()
 
 
+def test_while_streams_are_live_the_child_rests_between_jobs(database):
+    """Busy (streams live), at a share of 0.25 the child rests 3× each job's time before
+    the next queued job; not busy, the jobs follow each other at once."""
+    url, _, (_, _, third) = database
+    busy = [False]
+    processing = SessionProcessing(url, 1, 1, lambda *_: None, busy=lambda: busy[0],
+                                   share_while_busy=0.25)
+    processing.start()
+
+    def gap() -> float:
+        """Between the ends of two jobs given together [s]."""
+        done: list[float] = []
+        futures = [processing.submit(third, "qcf") for _ in range(2)]
+        for future in futures:
+            future.add_done_callback(lambda _: done.append(time.monotonic()))
+        for future in futures:
+            future.result(timeout=120)
+        return done[1] - done[0]
+
+    try:
+        processing.submit(third, "qcf").result(timeout=120)  # warm
+        at_once = gap()  # the second job's time
+        busy[0] = True
+        rested = gap()  # a rest of 3× the first's time, then the second's
+        busy[0] = False
+    finally:
+        processing.stop()
+    print(f"\nnot busy: {at_once * 1e3:.0f} ms between two jobs; busy: {rested * 1e3:.0f} ms")
+    assert rested > 2.5 * at_once  # 4× the job's time, jobs vary a little
+
+
 def test_the_child_ends_when_the_server_is_killed(database, tmp_path):
     """A server killed with SIGKILL leaves no processing child behind: the child sees the
     pipe close (a ``ProcessPoolExecutor``'s workers would stay)."""

@@ -16,6 +16,15 @@ processing took 20–50 % of a core from the live streams for a second and a hal
 pose latency p99 of a run was 118–184 ms, all of it in that second and a half; with the
 estimation at ``SCHED_IDLE``, 23–52 ms in the runs right after.)
 
+While streams are live, the child also rests after each session for 3× the time it
+took (``ARMTRACK_PROCESSING_SHARE_LIVE``, 0.25: it works a quarter of the time at most)
+before the next queued one: idle CPU time is not free on a 2-core machine (the cores'
+shared caches, and two hyperthreads of one core). At 250 patients ending their sessions
+within 5 s, back-to-back jobs took ~45 % of a core and put 1,500 poses over 100 ms in
+the second after the first ``bye``; resting, none (``bench/ingest.py``). A session closed
+when nothing streams is estimated at once; one closed beside live streams waits only for
+the sessions queued before it.
+
 Jobs go to the child one at a time over a pipe, in the order given; each answers with
 None or why it failed. If the child dies (killed, out of memory) the job under way fails
 (logged: ``armtrack reprocess SESSION_ID`` redoes it) and a new child takes the next. The
@@ -29,6 +38,7 @@ import logging
 import multiprocessing
 import os
 import threading
+import time
 import traceback
 from collections import deque
 from collections.abc import Callable
@@ -45,6 +55,8 @@ log = logging.getLogger("armtrack.processing")
 #: How much less CPU priority the processing child has than the server (``nice``; its
 #: estimation thread is at ``SCHED_IDLE`` besides, see ``_only_idle_cpu``).
 NICENESS = 19
+#: Longest rest of the child between two jobs while streams are live [s].
+MAX_REST_S = 5.0
 #: Seconds the child is given to finish its job and end at shutdown.
 STOP_TIMEOUT_S = 30.0
 
@@ -65,8 +77,15 @@ class SessionProcessing:
     this process when ``processes`` is 0)."""
 
     def __init__(self, database_url: str, processes: int, threads: int,
-                 thread_job: Callable[[int, str], None]):
+                 thread_job: Callable[[int, str], None], busy: Callable[[], bool] = bool,
+                 share_while_busy: float = 1.0):
         self._url = database_url
+        #: while ``busy()`` (streams are live), the child works this share of the time at
+        #: most: after a job of w seconds it rests w × (1/share − 1), up to ``MAX_REST_S``
+        self._busy = busy
+        self._share = share_while_busy
+        self._sent_at = 0.0
+        self._rest_until = 0.0  # no job is sent before (time.monotonic())
         self._in_child = processes > 0 and shared_with_other_processes(database_url)
         self._thread_job = thread_job
         self._threads = None if self._in_child else ThreadPoolExecutor(
@@ -110,6 +129,8 @@ class SessionProcessing:
             return
         with self._lock:
             self._stopped = True
+            self._rest_until = 0.0  # what is queued goes now
+            self._send_next()
             waiting = [job[0] for job in ([self._under_way] if self._under_way else [])
                        + list(self._queue)]
         for future in waiting:
@@ -129,17 +150,31 @@ class SessionProcessing:
                          name="armtrack-processing-read").start()
 
     def _send_next(self) -> None:
-        if self._under_way is not None or not self._queue or self._conn is None:
+        if (self._under_way is not None or not self._queue or self._conn is None
+                or time.monotonic() < self._rest_until):
             return
         job = self._queue.popleft()
         if not job[0].set_running_or_notify_cancel():
             self._send_next()
             return
         self._under_way = job
+        self._sent_at = time.monotonic()
         try:
             self._conn.send((job[1], job[2]))
         except OSError:  # the child died: its reader fails this job and starts another
             pass
+
+    def _rest_after(self, job_s: float) -> float:
+        """How long the child rests after a job of ``job_s`` seconds [s]: only while the
+        server is busy with live streams (a session's end then waits a little for its
+        report, and the live poses keep their pace), and only if more jobs wait."""
+        if self._share >= 1.0 or not self._queue or self._stopped or not self._busy():
+            return 0.0
+        return min(job_s * (1.0 / self._share - 1.0), MAX_REST_S)
+
+    def _after_rest(self) -> None:
+        with self._lock:
+            self._send_next()
 
     def _read(self, process: multiprocessing.process.BaseProcess, conn: Connection) -> None:
         """Each job's answer, until the child ends; then the job under way fails and a
@@ -151,7 +186,11 @@ class SessionProcessing:
                 break
             with self._lock:
                 job, self._under_way = self._under_way, None
+                rest = self._rest_after(time.monotonic() - self._sent_at)
+                self._rest_until = time.monotonic() + rest
                 self._send_next()
+            if rest > 0:
+                threading.Timer(rest, self._after_rest).start()
             if job is not None:
                 if failure is None:
                     job[0].set_result(None)
