@@ -296,6 +296,7 @@ class ViewerStats:
     poses: int = 0
     other: int = 0
     error: str = ""
+    extensions: str = ""  # negotiated in the handshake (permessage-deflate or none)
     first: float = math.nan
     last: float = math.nan
 
@@ -312,6 +313,7 @@ async def viewer(url: str, token: str, ready: asyncio.Event, done: asyncio.Event
         async with connect(url, additional_headers={"Authorization": f"Bearer {token}"},
                            open_timeout=60, max_size=2**22,
                            compression="deflate" if deflate else None) as ws:
+            stats.extensions = ",".join(e.name for e in ws.protocol.extensions) or "none"
             ready.set()
             deadline = None
             while True:
@@ -459,6 +461,7 @@ async def client_main(config: dict) -> dict:
         "viewer_error_examples": [v.error for v in viewers if v.error][:5],
         "sessions": [s.session for s in stats],
         "poses": sum(v.poses for v in viewers),
+        "viewer_extensions": sorted({v.extensions for v in viewers if v.extensions}),
         "pose_rate": [v.poses / (v.last - v.first) if v.poses > 1 else 0.0 for v in viewers],
         "ack_latencies": ack.tobytes().hex(),
         "pose_latencies": latencies.tobytes().hex(),
@@ -782,6 +785,8 @@ def run_one(n: int, args: argparse.Namespace, recording_path: Path, tmp: Path) -
     for key in ("error_examples", "kit_error_examples", "viewer_error_examples"):
         if result[key]:
             run.notes.append(f"{key}: {result[key][:2]}")
+    run.notes.append("WebSocket extensions the server took for the viewers: "
+                     + (", ".join(result["viewer_extensions"]) or "none"))
     if result["warmup_error"]:
         run.notes.append(f"warm-up kit: {result['warmup_error']}")
     if run.client_cpu_pct > 90:
@@ -1007,7 +1012,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.instances > 1 or args.database_url:
         settings += (f"; {args.instances} instance(s) on PostgreSQL"
                      + (" + Redis broker" if args.instances > 1 else ""))
-    settings += "; clients without deflate" if args.no_deflate else "; permessage-deflate on"
+    settings += ("; clients without deflate" if args.no_deflate
+                 else "; clients offer permessage-deflate")
     print(f"server settings: {settings}")
 
     with tempfile.TemporaryDirectory(prefix="armtrack-bench-ingest-") as tmp_name:
