@@ -17,7 +17,7 @@ Measured, per N:
   the run) over the time from the first kit's ``ready`` to the last kit's ``bye``; and
   loss = rows sent − rows stored (must be 0), every message acked;
 * ack latency p50/p99: the kit's send → the ``ack`` covering it (``KitStats``); it holds
-  the group commit's wait (``ARMTRACK_ACK_INTERVAL_S``, 50 ms by default) by design;
+  the group commit's wait (``ARMTRACK_ACK_INTERVAL_S``, 0.1 s by default) by design;
 * pose latency p50/p99: the server's own ``latency_s`` of every ``pose`` update (newest
   sample's arrival → publication); it starts when the server *reads* the message, so time
   spent in socket buffers while the event loop is busy is not in it;
@@ -32,7 +32,10 @@ Measured, per N:
   (every kit streaming: from the last start + 1 s to the first kit's end), from ``/proc``;
 * the client's CPU % over the same window, to show it was not the bottleneck (above
   ~90 % of its core, the numbers say more about the client than about the server);
-* errors: ``error`` messages, refused messages, reconnects, kits or viewers that failed.
+* errors: ``error`` messages, refused messages, reconnects, kits or viewers that failed;
+* in the notes: where the poses over ``--limit-ms`` fell (while kits were starting, all
+  streaming, or sessions ending; and the worst second), and the WebSocket extensions the
+  server took in the viewers' handshakes.
 
 A run "holds" with zero loss and no errors, every kit done, and pose latency p99 under
 ``--limit-ms`` (100). ``--find-max`` doubles N from ``--start`` until a run does not hold,
