@@ -113,7 +113,10 @@ class IngestConnection:
             return
         text = protocol.dumps(message)  # outside the suppress: a message it cannot encode
         async with self._send_lock:  # is a bug to see, not a vanished peer
-            with contextlib.suppress(Exception):  # a vanished peer ends in receive()
+            # a vanished peer (Starlette's WebSocketDisconnect for the transport's OSError,
+            # its RuntimeError once the socket is closed) ends in receive(); anything else
+            # is a bug, and raises
+            with contextlib.suppress(WebSocketDisconnect, RuntimeError, OSError):
                 await self.websocket.send_text(text)
 
     async def close(self, code: int, reason: str) -> None:
