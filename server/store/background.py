@@ -189,8 +189,10 @@ class SessionProcessing:
                 rest = self._rest_after(time.monotonic() - self._sent_at)
                 self._rest_until = time.monotonic() + rest
                 self._send_next()
-            if rest > 0:
-                threading.Timer(rest, self._after_rest).start()
+            if rest > 0:  # (a daemon: a rest never holds the interpreter's exit)
+                timer = threading.Timer(rest, self._after_rest)
+                timer.daemon = True
+                timer.start()
             if job is not None:
                 if failure is None:
                     job[0].set_result(None)

@@ -1,15 +1,14 @@
 """Packing of sample and estimate blocks: float64 little-endian in a zlib stream. Large
 blocks (uploads, estimates) at level 1 (fast; IMU rows compress to about half); small
 ones (a live message's 10 rows) stored as they are: they do not compress (a simulated
-10-row block came out 808 bytes from 800); and so are the group commit's blocks of a
+10-row block came out 808 bytes from 800), and so are the group commit's blocks of a
 live stream (its messages of one sensor in one commit, ``pack_stored``). Those are
-written here, byte for byte what
-``zlib.compress(raw, 0)`` gives (a zlib header, one stored deflate block, the Adler-32;
-compared for every length up to ``STORED_MAX_BYTES`` when written, and on a sample of
-lengths in the tests), in 1.3 µs instead of zlib's 54: zlib
-sets up its whole deflate state for each call, and lets go of the interpreter lock around
-it, which beside the busy event loop cost the group commit a wait of up to 5 ms a block.
-Both read back with the same ``zlib.decompress``."""
+written here, byte for byte what ``zlib.compress(raw, 0)`` gives (a zlib header, one
+stored deflate block, the Adler-32; compared for every length up to ``STORED_MAX_BYTES``
+when written, and on a sample of lengths in the tests), in 1.3 µs instead of zlib's 54:
+zlib sets up its whole deflate state for each call, and lets go of the interpreter lock
+around it, which beside the busy event loop cost the group commit a wait of up to 5 ms a
+block. Both read back with the same ``zlib.decompress``."""
 
 from __future__ import annotations
 
