@@ -40,7 +40,7 @@ from sqlalchemy import Connection, Engine, bindparam, case, insert, select, upda
 
 from ..db import models
 from ..store.blocks import STORED_MAX_BYTES, pack_stored
-from .protocol import MarkMessage, Samples, dumps
+from .protocol import ROW_WIDTH, MarkMessage, Samples, dumps
 
 log = logging.getLogger("armtrack.ingest")
 
@@ -49,7 +49,7 @@ MAX_PENDING_PER_STREAM = 2000
 #: Most rows in one stored block of a stream (its messages of one commit, one sensor):
 #: as many as are stored uncompressed (``store.blocks.pack_stored``); a longer message is
 #: a block of its own.
-BLOCK_MAX_ROWS = STORED_MAX_BYTES // (8 * 10)
+BLOCK_MAX_ROWS = STORED_MAX_BYTES // (8 * ROW_WIDTH)
 #: Retry delay after a failed commit [s].
 RETRY_S = 0.5
 #: Keys of a stream's stored ``last_t`` that are not sensors: a stream continuing a session

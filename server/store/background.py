@@ -77,7 +77,8 @@ class SessionProcessing:
     this process when ``processes`` is 0)."""
 
     def __init__(self, database_url: str, processes: int, threads: int,
-                 thread_job: Callable[[int, str], None], busy: Callable[[], bool] = bool,
+                 thread_job: Callable[[int, str], None],
+                 busy: Callable[[], bool] = lambda: False,
                  share_while_busy: float = 1.0):
         self._url = database_url
         #: while ``busy()`` (streams are live), the child works this share of the time at
