@@ -97,6 +97,15 @@ def _parser() -> argparse.ArgumentParser:
         "create-user", help="make a therapist account",
         description="Creates a therapist who can sign in; the password comes from "
         "--password or standard input."))
+    from .commands import import_files
+
+    import_files.add_arguments(commands.add_parser(
+        "import", help="vendor IMU exports (Movella DOT, APDM, Shimmer, MetaMotion, Sensor "
+        "Logger, CSV) to a recording",
+        description="Reads vendor exports into a strict recording (spec/recording.md): "
+        "SENSOR=PATH[:LABEL] per sensor (a file, folder or zip; LABEL picks one sensor of a "
+        "file that holds several; repeat SENSOR for several files of one sensor), puts the "
+        "sensors on one clock and checks them. See docs/importing.md."))
     reprocess.add_arguments(commands.add_parser(
         "reprocess", help="recompute stored sessions' estimates with this estimator",
         description="Re-estimates sessions from their stored raw data and records the "
@@ -104,11 +113,15 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: Commands whose module is not their name (``import`` is a Python keyword).
+COMMAND_MODULES = {"import": "import_files"}
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     try:
         # one module per command, each with run(args); imported only when used
-        module = args.command.replace("-", "_")
+        module = COMMAND_MODULES.get(args.command, args.command.replace("-", "_"))
         command = importlib.import_module(f".commands.{module}", __package__)
         return command.run(args)
     except EstimatorError as exc:

@@ -181,6 +181,12 @@ def _apply(header: Header, key: str, value: str, line: int) -> None:
         raise InvalidRecording(f"{key}: {exc}", line) from None
 
 
+def parse_calibration(value: str, line: int | None = None) -> tuple[Pose, ...]:
+    """A ``calibration`` value (``npose 0.5 3.0; tpose 5.5 8.0``) as poses; refuses what the
+    header line would refuse."""
+    return tuple(_pose(item, line) for item in _items(value, "calibration", line))
+
+
 def _items(value: str, key: str, line: int) -> list[str]:
     items = [item.strip() for item in value.split(";")]
     if not all(items):

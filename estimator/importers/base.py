@@ -1,0 +1,93 @@
+"""What every vendor reader takes and gives: source files, one sensor's converted samples
+(:class:`Signal`), the options a user may set, and the error that names file and line."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import EstimatorError
+from .units import DEFAULT_FIELD_UT
+
+
+class ImportFailure(EstimatorError):
+    """A vendor file cannot be imported; the message names the file, the line (counted
+    from 1, where there is one) and the problem."""
+
+    def __init__(self, file: str, problem: str, line: int | None = None):
+        where = file if line is None else f"{file}, line {line}"
+        super().__init__(f"{where}: {problem}")
+        self.file = file
+        self.line = line
+        self.problem = problem
+
+
+@dataclass(frozen=True)
+class SourceFile:
+    """One file's bytes and the name the user knows it by (a path, or ``zip/member``)."""
+
+    name: str
+    data: bytes
+
+    @property
+    def basename(self) -> str:
+        return self.name.replace("\\", "/").rsplit("/", 1)[-1]
+
+
+@dataclass(frozen=True)
+class ReadOptions:
+    """Settings a user may give where a file does not say.
+
+    field_ut: the local field [µT] one "a.u." of a normalised magnetometer stands for.
+    columns: the generic reader's column map (``t=Time:ms ax=AccX:g …``).
+    platform: Sensor Logger's platform when no metadata file says it (``android``,
+    ``ios`` or ``standardised``).
+    """
+
+    field_ut: float = DEFAULT_FIELD_UT
+    columns: str | None = None
+    platform: str | None = None
+
+
+@dataclass
+class Signal:
+    """One physical sensor's samples as found in vendor files, in the recording's units
+    and the sensor's own frame (right-handed; at rest the axis pointing up reads +9.81).
+
+    t: sample times [s] on ``clock``: ``unix`` (s since 1970 UTC), a vendor's shared sync
+    clock (``xsens-dot-sync``), or ``file:<name>`` (starts with its file; no other file
+    shares it). lines: each sample's line in ``files[0]`` (1-based; 0 where a sample has
+    no line, e.g. in an HDF5 file). declared_rate_hz: the rate the file states, if any.
+    """
+
+    format: str
+    label: str
+    files: tuple[str, ...]
+    t: np.ndarray
+    acc: np.ndarray
+    gyr: np.ndarray
+    mag: np.ndarray | None
+    clock: str
+    lines: np.ndarray
+    declared_rate_hz: float | None = None
+    notes: list[str] = field(default_factory=list)
+    metadata: dict[str, str] = field(default_factory=dict)
+    #: True where acc/mag were interpolated onto the gyroscope's times (rates differed)
+    resampled: bool = False
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    @property
+    def rate_hz(self) -> float:
+        """The median sample rate [Hz] (0 with fewer than two samples)."""
+        if len(self.t) < 2:
+            return 0.0
+        dt = np.diff(self.t)
+        dt = dt[dt > 0]
+        return float(1.0 / np.median(dt)) if dt.size else 0.0
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t[-1] - self.t[0]) if len(self.t) else 0.0

@@ -1,0 +1,11 @@
+"""Placeholder: written next."""
+NAME = "metamotion"
+TITLE = "metamotion"
+
+
+def sniff(source):
+    return False
+
+
+def read(sources, options):
+    raise NotImplementedError

@@ -1,0 +1,56 @@
+"""Files as the user gives them: a file, a folder of files, or a zip of files (a Sensor
+Logger export, a MetaBase session) → :class:`SourceFile` objects."""
+
+from __future__ import annotations
+
+import io
+import zipfile
+from pathlib import Path
+
+from .base import ImportFailure, SourceFile
+
+#: Largest total size [bytes] a zip may unpack to (a zip bomb is refused, not unpacked).
+MAX_UNPACKED_BYTES = 2 << 30
+
+
+def is_zip(data: bytes) -> bool:
+    return data[:4] == b"PK\x03\x04"
+
+
+def unzip(name: str, data: bytes, limit: int = MAX_UNPACKED_BYTES) -> list[SourceFile]:
+    """The regular files inside a zip (macOS resource forks and hidden files left out)."""
+    try:
+        archive = zipfile.ZipFile(io.BytesIO(data))
+    except zipfile.BadZipFile as exc:
+        raise ImportFailure(name, f"not a readable zip file ({exc})") from None
+    members = [m for m in archive.infolist() if not m.is_dir()
+               and not m.filename.startswith("__MACOSX/")
+               and not m.filename.rsplit("/", 1)[-1].startswith(".")]
+    total = sum(m.file_size for m in members)
+    if total > limit:
+        raise ImportFailure(name, f"unpacks to {total} bytes, more than {limit}")
+    out = []
+    for m in sorted(members, key=lambda m: m.filename):
+        try:
+            out.append(SourceFile(f"{name}/{m.filename}", archive.read(m)))
+        except (zipfile.BadZipFile, OSError, EOFError) as exc:
+            raise ImportFailure(f"{name}/{m.filename}", f"cannot be unpacked ({exc})") from None
+    return out
+
+
+def expand(path: Path) -> list[SourceFile]:
+    """A path's files: itself, a folder's regular files (not recursive), or a zip's."""
+    if path.is_dir():
+        files = sorted(p for p in path.iterdir() if p.is_file() and not p.name.startswith("."))
+        if not files:
+            raise ImportFailure(str(path), "the folder holds no files")
+        return [s for p in files for s in expand(p)]
+    data = path.read_bytes()
+    if is_zip(data):
+        return unzip(str(path), data)
+    return [SourceFile(str(path), data)]
+
+
+def expand_upload(name: str, data: bytes) -> list[SourceFile]:
+    """An uploaded file's files: itself, or a zip's members."""
+    return unzip(name, data) if is_zip(data) else [SourceFile(name, data)]

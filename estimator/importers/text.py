@@ -1,0 +1,92 @@
+"""Reading the text of vendor CSV exports: lines, separators and columns of numbers, with
+errors that name the file and the line."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .base import ImportFailure, SourceFile
+
+
+def text_lines(source: SourceFile) -> list[str]:
+    """The file's lines without line endings (UTF-8, a BOM dropped; Latin-1 if not UTF-8,
+    as spreadsheet programs on Windows save)."""
+    try:
+        text = source.data.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        text = source.data.decode("latin-1")
+    return text.splitlines()
+
+
+def head_text(source: SourceFile, size: int = 4096) -> str:
+    """The start of the file as text, for telling formats apart."""
+    return source.data[:size].decode("utf-8-sig", errors="replace")
+
+
+def split_line(line: str, delimiter: str) -> list[str]:
+    """A line's cells, spaces and surrounding double quotes removed."""
+    return [cell.strip().strip('"').strip() for cell in line.split(delimiter)]
+
+
+def numeric_columns(source: SourceFile, lines: list[str], first: int, delimiter: str,
+                    width: int, wanted: dict[str, int], names: dict[str, str] | None = None,
+                    optional: frozenset[str] = frozenset()) -> tuple[dict[str, np.ndarray],
+                                                                   np.ndarray]:
+    """Numbers of the data lines ``lines[first:]``: each of ``wanted`` (key → column
+    index) as float64, and each row's line number (1-based).
+
+    Refuses a line with fewer cells than the header's ``width`` (a truncated file), an
+    empty cell in a column not in ``optional`` (which then reads NaN), text that is no
+    number and a non-finite number, naming the line and the column (``names``)."""
+    rows = lines[first:]
+    while rows and not rows[-1].strip(" \t,;\"'"):
+        rows.pop()  # blank lines (or bare separators) at the end
+    if not rows:
+        raise ImportFailure(source.name, "no data lines after the header", first)
+    split = [row.split(delimiter) for row in rows]
+    counts = np.fromiter(map(len, split), dtype=np.int64, count=len(split))
+    short = np.flatnonzero(counts < width)
+    if short.size:
+        i = int(short[0])
+        what = ("the last line is cut short: the file is truncated" if i == len(rows) - 1
+                else "the line is cut short or damaged")
+        raise ImportFailure(source.name, f"{counts[i]} cells where the header has {width}: "
+                            f"{what}", first + i + 1)
+    line_numbers = np.arange(first + 1, first + 1 + len(rows))
+    out: dict[str, np.ndarray] = {}
+    for key, index in wanted.items():
+        cells = [cells[index].strip().strip('"') for cells in split]
+        label = (names or {}).get(key, key)
+        try:
+            if key in optional:
+                values = np.array([c if c else "nan" for c in cells], dtype=np.float64)
+            else:
+                values = np.array(cells, dtype=np.float64)
+        except ValueError:
+            _refuse_cell(source, cells, first, label, key in optional)
+        if key not in optional or not np.isnan(values).all():
+            bad = np.flatnonzero(~np.isfinite(values))
+            if bad.size and key not in optional:
+                i = int(bad[0])
+                raise ImportFailure(source.name, f"{label} is not a finite number "
+                                    f"({cells[i]!r})", first + i + 1)
+        out[key] = values
+    return out, line_numbers
+
+
+def _refuse_cell(source: SourceFile, cells: list[str], first: int, label: str,
+                 optional: bool) -> None:
+    for i, cell in enumerate(cells):  # the error path only: find the first bad cell
+        if optional and not cell:
+            continue
+        try:
+            value = float(cell)
+        except ValueError:
+            problem = "is empty" if not cell else f"is not a number ({cell!r})"
+            raise ImportFailure(source.name, f"{label} {problem}", first + i + 1) from None
+        if not math.isfinite(value):
+            raise ImportFailure(source.name, f"{label} is not a finite number ({cell!r})",
+                                first + i + 1)
+    raise ImportFailure(source.name, f"{label} holds a value that is not a number", first + 1)

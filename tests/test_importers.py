@@ -1,0 +1,275 @@
+"""Vendor importers (estimator/importers): per format, files written in the vendor's layout
+from a simulated session import to the same joint angles as the simulated recording
+(within 0.1°); real public header lines and samples read with gravity where it must be;
+damaged files refused naming file, line and problem; unit conversions in one place."""
+
+from __future__ import annotations
+
+import math
+from functools import cache
+from pathlib import Path
+
+import numpy as np
+import pytest
+from armtrack.estimator.importers import (
+    Assignment,
+    ImportFailure,
+    ReadOptions,
+    SourceFile,
+    import_recording,
+    read_signals,
+)
+from armtrack.estimator.importers import units as U
+from armtrack.estimator.importers.xsens_dot import parse_start_time
+from armtrack.estimator.pipeline import estimate_recording
+from armtrack.estimator.recording import parse_recording, write_recording
+from armtrack.estimator.simulation import SimulationConfig, simulate
+from importer_layouts import SIM_FIELD_UT, shimmer_csv, xsens_dot_csv
+
+FIXTURES = Path(__file__).parent / "fixtures" / "importers"
+SENSORS = ("upper_arm", "forearm", "hand")
+TOLERANCE_DEG = 0.1
+
+
+@cache
+def session(rate_hz: float = 60.0):
+    """A short simulated elbow-flexion session with calibration poses (9-axis)."""
+    return simulate(SimulationConfig(rate_hz=rate_hz, repetitions=2, seed=3))
+
+
+@cache
+def simulated_angles(rate_hz: float = 60.0):
+    estimates, _ = estimate_recording(session(rate_hz).recording)
+    return estimates.t, estimates.degrees()
+
+
+def worst_difference(recording, rate_hz: float = 60.0) -> tuple[float, str]:
+    """The largest difference [deg] of any reported angle, imported vs simulated."""
+    t_ref, ref = simulated_angles(rate_hz)
+    estimates, _ = estimate_recording(recording)
+    assert np.allclose(estimates.t, t_ref, atol=1e-6)
+    got = estimates.degrees()
+    diffs = {k: float(np.max(np.abs(got[k] - ref[k]))) for k in ref}
+    name = max(diffs, key=diffs.get)
+    return diffs[name], name
+
+
+def calibration_of(recording) -> str:
+    return "; ".join(f"{p.name} {p.start:g} {p.end:g}" for p in recording.calibration)
+
+
+# --- units, in one place --------------------------------------------------------------
+
+def test_unit_conversions():
+    assert U.g_to_ms2(1.0) == pytest.approx(9.80665)
+    assert U.deg_to_rad(180.0) == pytest.approx(math.pi)
+    assert U.tesla_to_ut(4.8e-5) == pytest.approx(48.0)
+    assert U.gauss_to_ut(0.5) == pytest.approx(50.0)
+    assert U.au_to_ut(1.0, 48.0) == pytest.approx(48.0)
+    assert U.unit_factor("m/(s^2)", "acc") == 1.0
+    assert U.unit_factor("m/s²", "acc") == 1.0
+    assert U.unit_factor("g", "acc") == pytest.approx(9.80665)
+    assert U.unit_factor("G", "mag") == 100.0  # gauss for a magnetometer
+    assert U.unit_factor("(deg/s)", "gyr") == pytest.approx(math.pi / 180)
+    assert U.unit_factor("µT", "mag") == 1.0
+    assert U.unit_factor("T", "mag") == 1e6
+    assert U.unit_factor("local_flux", "mag") == 100.0
+    assert U.unit_factor("ms", "time") == 1e-3
+    assert U.unit_factor("ns", "time") == 1e-9
+    assert U.unit_factor("deg/s", "acc") is None  # a unit of another quantity
+
+
+# --- Movella DOT ------------------------------------------------------------------------
+
+def dot_files(rec, **kw) -> dict[str, SourceFile]:
+    return {s: SourceFile(f"{s}_D4CA6EF1{i:04X}.csv",
+                          xsens_dot_csv(rec.sensors[s], f"dot{i}", **kw))
+            for i, s in enumerate(SENSORS)}
+
+
+def test_xsens_dot_round_trip_same_angles(tmp_path):
+    rec = session().recording
+    files = dot_files(rec)  # SampleTimeFine starts 80 s before its 32-bit wrap
+    result = import_recording([Assignment(s, [f]) for s, f in files.items()], side=rec.side,
+                              height_m=rec.height_m, calibration=calibration_of(rec),
+                              options=ReadOptions(field_ut=SIM_FIELD_UT))
+    for s in SENSORS:
+        got = result.recording.sensors[s]
+        np.testing.assert_allclose(got.t, rec.sensors[s].t, atol=1e-6)
+        np.testing.assert_allclose(got.acc, rec.sensors[s].acc, rtol=1e-9, atol=1e-9)
+    worst, name = worst_difference(result.recording)
+    print(f"xsens-dot: largest angle difference {worst:.2e} deg ({name})")
+    assert worst < TOLERANCE_DEG
+    out = tmp_path / "dot.csv"
+    write_recording(result.recording, out)
+    assert parse_recording(out.read_bytes()).sensors.keys() == rec.sensors.keys()
+
+
+def test_xsens_dot_unsynced_sensors_placed_by_start_time():
+    rec = session().recording
+    files = {s: SourceFile(f"{s}.csv", xsens_dot_csv(
+        rec.sensors[s], s, synced=False, stf0_us=1000 * (i + 1),
+        start_time=f"2024-03-01 09:30:0{2 * i}.250 +0100")) for i, s in enumerate(SENSORS)}
+    result = import_recording([Assignment(s, [f]) for s, f in files.items()], side="right",
+                              height_m=1.75)
+    starts = [float(result.recording.sensors[s].t[0]) for s in SENSORS]
+    assert starts == pytest.approx([0.0, 2.0, 4.0])
+    assert result.recording.metadata["start_utc"] == "2024-03-01T08:30:00.250Z"
+
+
+def test_xsens_dot_start_time_forms():
+    assert parse_start_time("2021-08-30_17:05:05_000 GMT+8") == pytest.approx(1630314305.0)
+    assert parse_start_time("2024-03-01 09:30:00.250 +0100") == pytest.approx(1709281800.25)
+
+
+def test_xsens_dot_real_export_gravity_up():
+    """A public DOT export (Euler + Acc + Gyr, sensor upside down): the reader's
+    specific force, turned to the earth frame by the file's own Euler angles (Xsens:
+    R = Rz(yaw) Ry(pitch) Rx(roll)), points up with ~9.81 m/s²."""
+    source = SourceFile("dot.csv", (FIXTURES / "xsens_dot_rest_euler_acc_gyr.csv").read_bytes())
+    (signal,) = read_signals([source])
+    assert signal.label == "bei"
+    assert len(signal) == 12  # the all-zero first packet dropped
+    assert signal.clock == "unix"  # old export: no SyncStatus line
+    text = (FIXTURES / "xsens_dot_rest_euler_acc_gyr.csv").read_text().splitlines()[9:]
+    euler = np.array([[float(v) for v in line.split(",")[2:5]] for line in text])
+    from scipy.spatial.transform import Rotation
+
+    world = Rotation.from_euler("ZYX", euler[:, ::-1], degrees=True).apply(signal.acc)
+    print("DOT real rows, specific force in the earth frame:", world.mean(axis=0))
+    assert np.all(world[:, 2] > 9.5) and np.all(np.abs(world[:, :2]) < 0.2)
+    assert np.allclose(signal.t - signal.t[0], np.arange(12) * 0.008333, atol=1e-6)
+
+
+def test_xsens_dot_orientation_only_and_delta_modes_refused():
+    euler = b"sep=,\nDeviceTag:,a\n\nPacketCounter,SampleTimeFine,Euler_X,Euler_Y,Euler_Z," \
+            b"FreeAcc_X,FreeAcc_Y,FreeAcc_Z\n0,1,0,0,0,0,0,0\n"
+    with pytest.raises(ImportFailure, match=r"e\.csv, line 4: an orientation-only export.*"
+                       r"Rate quantities"):
+        read_signals([SourceFile("e.csv", euler)])
+    delta = b"sep=,\n\nPacketCounter,SampleTimeFine,dq_W,dq_X,dq_Y,dq_Z,dv[1],dv[2],dv[3]\n"
+    with pytest.raises(ImportFailure, match=r"line 3: a delta-quantities export \(dq/dv\)"):
+        read_signals([SourceFile("d.csv", delta)])
+
+
+# --- Shimmer ----------------------------------------------------------------------------
+
+def test_shimmer_round_trip_same_angles():
+    rec = session(50.0).recording  # Consensys stamps whole ms: 50 Hz keeps them exact
+    data = shimmer_csv({"Shimmer_8A1F": rec.sensors["upper_arm"],
+                        "Shimmer_40AC": rec.sensors["forearm"],
+                        "Shimmer_5E77": rec.sensors["hand"]})
+    source = SourceFile("consensys.csv", data)
+    result = import_recording([Assignment("upper_arm", [source], "Shimmer_8A1F"),
+                               Assignment("forearm", [source], "40AC"),
+                               Assignment("hand", [source], "5E77")],
+                              side=rec.side, height_m=rec.height_m,
+                              calibration=calibration_of(rec))
+    worst, name = worst_difference(result.recording, 50.0)
+    print(f"shimmer: largest angle difference {worst:.2e} deg ({name})")
+    assert worst < TOLERANCE_DEG
+    assert result.recording.metadata["start_utc"] == "2024-03-01T08:30:00.000Z"
+
+
+def test_shimmer_real_export_gravity_and_units():
+    """A public Consensys export (devicely's test data, ';'-separated, no formats row):
+    at rest |a| ≈ 9.81 with +Y up, gyroscope deg/s → rad/s, local_flux → µT."""
+    source = SourceFile("s.csv", (FIXTURES / "shimmer_rest_semicolon.csv").read_bytes())
+    (signal,) = read_signals([source])
+    assert signal.label == "Shimmer_40AC"
+    norms = np.linalg.norm(signal.acc, axis=1)
+    print("Shimmer real rows |a|:", norms.mean(), "mean a:", signal.acc.mean(axis=0))
+    assert np.all(np.abs(norms - 9.81) < 0.5) and np.all(signal.acc[:, 1] > 9.5)
+    assert signal.gyr[0, 1] == pytest.approx(1.8778625954198473 * math.pi / 180)
+    assert signal.mag[0, 1] == pytest.approx(-91.60419790104948)
+    assert signal.t[0] == pytest.approx(1595933810.034)
+    assert list(signal.lines[:2]) == [4, 5]
+
+
+# --- damaged files: refused naming file, line and problem; nothing written -------------
+
+def test_damaged_missing_column(tmp_path):
+    rec = session().recording
+    text = xsens_dot_csv(rec.sensors["forearm"], "f").decode()
+    text = text.replace("Gyr_X,Gyr_Y,Gyr_Z", "Gyr_X,Gyr_Y,Gyr_Q")
+    with pytest.raises(ImportFailure, match=r"f\.csv, line 12: column Gyr_Z is missing"):
+        read_signals([SourceFile("f.csv", text.encode())])
+
+
+def test_damaged_unit_row_that_lies():
+    rec = session().recording
+    data = shimmer_csv({"Shimmer_40AC": rec.sensors["forearm"]},
+                       acc_factor=1 / 9.80665)  # values in g, units row says m/(s^2)
+    with pytest.raises(ImportFailure, match=r"s\.csv, line \d+: sensor Shimmer_40AC: \|a\| at "
+                       r"rest is 1 m/s², not near 9\.81 \(values look like g, not m/s²\)"):
+        import_recording([Assignment("forearm", [SourceFile("s.csv", data)])], "right", 1.75)
+
+
+def test_damaged_truncated_file():
+    rec = session().recording
+    data = xsens_dot_csv(rec.sensors["forearm"], "f")
+    cut = data[: len(data) - 40]
+    lines = cut.decode().count("\n") + 1
+    with pytest.raises(ImportFailure, match=rf"f\.csv, line {lines}: \d+ cells where the header "
+                       r"has 11: the last line is cut short: the file is truncated"):
+        read_signals([SourceFile("f.csv", cut)])
+
+
+def test_damaged_mixed_rates():
+    rec = session().recording
+    s = rec.sensors["forearm"]
+    from armtrack.estimator.recording import SensorStream
+
+    # the second half at twice the rate: a file that joins two exports
+    half = len(s) // 2
+    t = np.concatenate([s.t[:half], s.t[half - 1] + np.arange(1, len(s) - half + 1) / 120.0])
+    mixed = SensorStream(t, s.acc, s.gyr, s.mag)
+    data = xsens_dot_csv(mixed, "f")
+    with pytest.raises(ImportFailure, match=r"f\.csv, line \d+: the sample rate changes from "
+                       r"60 Hz to 120 Hz"):
+        import_recording([Assignment("forearm", [SourceFile("f.csv", data)])], "right", 1.75)
+
+
+def test_refused_import_writes_nothing(tmp_path, capsys):
+    from armtrack.server.cli import main
+
+    rec = session().recording
+    good = tmp_path / "ua.csv"
+    good.write_bytes(xsens_dot_csv(rec.sensors["upper_arm"], "ua"))
+    bad = tmp_path / "fa.csv"
+    bad.write_bytes(xsens_dot_csv(rec.sensors["forearm"], "fa")[:-30])
+    out = tmp_path / "rec.csv"
+    code = main(["import", f"upper_arm={good}", f"forearm={bad}", "--side", "right",
+                 "--height", "1.75", "-o", str(out)])
+    assert code == 2
+    assert "fa.csv, line" in capsys.readouterr().err
+    assert sorted(tmp_path.iterdir()) == sorted([good, bad])  # no output, no temporary file
+
+
+# --- calibration proposal and the command line --------------------------------------------
+
+def test_cli_import_proposes_calibration_then_check_passes(tmp_path, capsys):
+    from armtrack.server.cli import main
+
+    rec = session().recording
+    paths = []
+    for i, s in enumerate(SENSORS):
+        p = tmp_path / f"{s}.csv"
+        p.write_bytes(xsens_dot_csv(rec.sensors[s], f"dot{i}"))
+        paths.append(f"{s}={p}")
+    out = tmp_path / "rec.csv"
+    assert main(["import", *paths, "--side", "right", "--height", "1.75", "-o", str(out)]) == 0
+    printed = capsys.readouterr().out
+    print(printed)
+    proposal = printed.split('--calibration "')[1].split('"')[0]
+    poses = dict((p.split()[0], (float(p.split()[1]), float(p.split()[2])))
+                 for p in proposal.split("; "))
+    # inside the simulated poses' still periods (N-pose 0–3 s, T-pose ~5–8.5 s)
+    assert 0.0 <= poses["npose"][0] < poses["npose"][1] <= 3.1
+    assert 4.9 <= poses["tpose"][0] < poses["tpose"][1] <= 8.6
+    assert main(["import", *paths, "--side", "right", "--height", "1.75", "--calibration",
+                 proposal, "-o", str(out)]) == 0
+    capsys.readouterr()
+    assert main(["check", str(out)]) == 0
+    checked = capsys.readouterr().out
+    assert "a valid recording" in checked and "npose" in checked
