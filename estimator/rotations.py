@@ -7,10 +7,14 @@ Angles are radians. Everything is vectorised over leading axes; there is no loop
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from .errors import InvalidArgument, InvalidShape
+
+if TYPE_CHECKING:  # scipy (~0.3-1 s to import) loads on the first conversion that needs it
+    from scipy.spatial.transform import Rotation
 
 _AXIS_INDEX = {"x": 0, "y": 1, "z": 2}
 
@@ -114,6 +118,8 @@ def quat_to_matrix(q: np.ndarray) -> np.ndarray:
 
 def to_scipy_matrix(R: np.ndarray) -> Rotation:
     """The one place a matrix stack becomes a scipy ``Rotation``."""
+    from scipy.spatial.transform import Rotation
+
     return Rotation.from_matrix(np.asarray(R, dtype=float).reshape(-1, 3, 3))
 
 

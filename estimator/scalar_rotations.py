@@ -48,4 +48,10 @@ def _compile():
     return numba.njit(cache=True, inline="always")(_quat_to_rows)
 
 
-quat_to_rows = _compile()
+def __getattr__(name: str):
+    """``quat_to_rows``, compiled on first use: importing numba takes ~0.45 s, which the
+    plain-Python ``quat_from_rows`` (``armtrack pose``, the live estimator) need not pay."""
+    if name == "quat_to_rows":
+        globals()["quat_to_rows"] = compiled = _compile()
+        return compiled
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -3,6 +3,7 @@ stored only as their SHA-256, so a copy of the database reveals no usable token)
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import secrets
 
@@ -10,8 +11,13 @@ from argon2 import PasswordHasher
 from argon2.exceptions import InvalidHashError, VerificationError
 
 _hasher = PasswordHasher()
-#: A hash to verify against when the user does not exist, so both cases take as long.
-_DUMMY_HASH = _hasher.hash("armtrack-no-such-user")
+
+
+@functools.cache
+def _dummy_hash() -> str:
+    """A hash to verify against when the user does not exist, so both cases take as long
+    (made on first use: hashing takes ~0.1 s, which `armtrack create-user` need not pay)."""
+    return _hasher.hash("armtrack-no-such-user")
 
 
 def hash_password(password: str) -> str:
@@ -21,7 +27,8 @@ def hash_password(password: str) -> str:
 def verify_password(password: str, password_hash: str | None) -> bool:
     """True when ``password`` matches; a missing user costs the same time as a wrong one."""
     try:
-        return _hasher.verify(password_hash or _DUMMY_HASH, password) and password_hash is not None
+        return (_hasher.verify(password_hash or _dummy_hash(), password)
+                and password_hash is not None)
     except (VerificationError, InvalidHashError):
         return False
 

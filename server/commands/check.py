@@ -3,12 +3,23 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
-from armtrack.estimator.recording import read_recording
-from armtrack.estimator.sampling import summarise_sampling
+HELP = "validate a recording file and summarise it"
+DESCRIPTION = ("Reads a recording (docs/spec/recording.md) with every rule checked; prints "
+               "its sensors, rates, lost samples, calibration and marks, or the line and rule "
+               "it breaks.")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("recording", type=Path)
+    parser.add_argument("--json", action="store_true", help="print the summary as JSON")
 
 
 def run(args: argparse.Namespace) -> int:
+    from armtrack.estimator.recording import read_recording
+    from armtrack.estimator.sampling import summarise_sampling
+
     recording = read_recording(args.recording)
     lengths = recording.segment_lengths()
     sensors = {}

@@ -14,6 +14,10 @@ from .serve import settings_from
 
 MIN_PASSWORD = 8
 
+HELP = "make a therapist account"
+DESCRIPTION = ("Creates a therapist who can sign in; the password comes from --password or "
+               "standard input.")
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("name", help="the therapist's user name")
@@ -25,10 +29,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_server_arguments(parser)
 
 
+def _database(args: argparse.Namespace):
+    """A session factory on the settings' database, migrated to the newest schema first
+    (only when it is behind), and its engine. Just the database: not the server's
+    services (viewer, live estimation), which `create-user` does not need and which would
+    cost seconds to import."""
+    from armtrack.server.db.engine import make_engine, make_sessionmaker
+    from armtrack.server.db.migrate import ensure_current
+
+    settings = settings_from(args)
+    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    engine = make_engine(settings.resolved_database_url())
+    ensure_current(engine)
+    return make_sessionmaker(engine), engine
+
+
 def run(args: argparse.Namespace) -> int:
     from armtrack.server.auth import hash_password
     from armtrack.server.db import models
-    from armtrack.server.services import Services
     from sqlalchemy import select
 
     if args.disable:
@@ -41,10 +59,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"armtrack create-user: the password needs at least {MIN_PASSWORD} characters",
               file=sys.stderr)
         return 2
-    services = Services(settings_from(args))
+    sessions, engine = _database(args)
     try:
-        services.migrate()
-        with services.db() as db:
+        with sessions() as db:
             if db.scalar(select(models.Therapist).where(models.Therapist.username == args.name)):
                 print(f"armtrack create-user: user {args.name!r} exists already",
                       file=sys.stderr)
@@ -53,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
                                     is_admin=args.admin))
             db.commit()
     finally:
-        services.engine.dispose()
+        engine.dispose()
     print(f"created {'clinic admin' if args.admin else 'therapist'} {args.name!r}")
     return 0
 
@@ -62,13 +79,11 @@ def _disable(args: argparse.Namespace) -> int:
     from datetime import UTC, datetime
 
     from armtrack.server.db import models
-    from armtrack.server.services import Services
     from sqlalchemy import delete, select
 
-    services = Services(settings_from(args))
+    sessions, engine = _database(args)
     try:
-        services.migrate()
-        with services.db() as db:
+        with sessions() as db:
             therapist = db.scalar(select(models.Therapist)
                                   .where(models.Therapist.username == args.name))
             if therapist is None:
@@ -79,6 +94,6 @@ def _disable(args: argparse.Namespace) -> int:
                        .where(models.AccessToken.therapist_id == therapist.id))
             db.commit()
     finally:
-        services.engine.dispose()
+        engine.dispose()
     print(f"disabled {args.name!r}")
     return 0

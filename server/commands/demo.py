@@ -8,7 +8,6 @@ Ctrl-C stops it cleanly."""
 from __future__ import annotations
 
 import argparse
-import asyncio
 import contextlib
 import dataclasses
 import logging
@@ -22,6 +21,11 @@ DEMO_EXERCISES = ("elbow_flexion", "shoulder_abduction", "shoulder_flexion", "pr
                   "wrist_flexion", "reach")
 DEMO_USER = "demo"
 DEMO_PATIENT = "Demo Patient"
+HELP = "run the server with a simulated patient streaming exercises"
+DESCRIPTION = ("Starts the server (SQLite in ./armtrack-demo), makes a demo therapist (user "
+               "demo, a password printed each run), a patient and a kit, and streams a "
+               "simulated patient (calibration poses, then exercises in a loop) through the "
+               "real protocol in real time. Prints the address and the sign-in; Ctrl-C stops.")
 #: Pause between two sessions [s].
 PAUSE_S = 5.0
 #: How often the demo kit reports battery and signal [s].
@@ -133,6 +137,8 @@ def _demo_kit_class():
 
 async def _patient_loop(url: str, token: str, exercises: list[str], speed: float,
                         once: bool, side: str, height_m: float) -> None:
+    import asyncio
+
     from armtrack.server.emulator import KitError
 
     kit_class = _demo_kit_class()
@@ -164,6 +170,8 @@ async def _patient_loop(url: str, token: str, exercises: list[str], speed: float
 
 
 async def _main(args: argparse.Namespace) -> int:
+    import asyncio
+
     import uvicorn
     from armtrack.server.app import create_app
 
@@ -215,6 +223,8 @@ Ctrl-C stops.
 
 
 def run(args: argparse.Namespace) -> int:
+    import asyncio
+
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s %(message)s")
     try:
         code = asyncio.run(_main(args))

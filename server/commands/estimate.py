@@ -6,13 +6,14 @@ import argparse
 import sys
 from pathlib import Path
 
-from armtrack.estimator.metrics import range_of_motion_table, repetitions_by_angle
-from armtrack.estimator.orientation import DEFAULT_FILTER, FILTERS
-from armtrack.estimator.pipeline import estimate_recording
-from armtrack.estimator.pipeline.quality import residual_warnings
-from armtrack.estimator.recording import read_recording
-
+from .choices import DEFAULT_FILTER, FILTER_NAMES
 from .output import open_output, write_angles_csv
+
+HELP = "joint angles and positions of a recording, with its range of motion"
+DESCRIPTION = ("Calibrates from the recording's poses, runs an orientation filter per sensor "
+               "and writes per-sample t, every joint angle of docs/spec/kinematics.md "
+               "(degrees), shoulder_elevation and shoulder_x … hand_z (metres, thorax frame); "
+               "prints the range of motion against normal values.")
 
 #: Seconds after the last calibration pose still counted as calibration (the return to
 #: the N-pose), so the poses never count as range of motion.
@@ -23,11 +24,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("recording", type=Path)
     parser.add_argument("-o", "--output", type=Path, metavar="FILE",
                         help="the angles CSV to write (default: standard output)")
-    parser.add_argument("--filter", choices=sorted(FILTERS), default=DEFAULT_FILTER,
+    parser.add_argument("--filter", choices=sorted(FILTER_NAMES), default=DEFAULT_FILTER,
                         help=f"orientation filter (default {DEFAULT_FILTER})")
 
 
 def run(args: argparse.Namespace) -> int:
+    from armtrack.estimator.metrics import range_of_motion_table, repetitions_by_angle
+    from armtrack.estimator.pipeline import estimate_recording
+    from armtrack.estimator.pipeline.quality import residual_warnings
+    from armtrack.estimator.recording import read_recording
+
     recording = read_recording(args.recording)
     estimates, calibration = estimate_recording(recording, args.filter)
     columns, values = estimates.table()

@@ -14,6 +14,13 @@ from pathlib import Path
 
 SENSORS = ("trunk", "clavicle", "upper_arm", "forearm", "hand")
 
+HELP = ("vendor IMU exports (Movella DOT, APDM, Shimmer, MetaMotion, Sensor Logger, CSV) to a "
+        "recording")
+DESCRIPTION = ("Reads vendor exports into a strict recording (docs/spec/recording.md): "
+               "SENSOR=PATH[:LABEL] per sensor (a file, folder or zip; LABEL picks one sensor "
+               "of a file that holds several; repeat SENSOR for several files of one sensor), "
+               "puts the sensors on one clock and checks them. See docs/importing.md.")
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("specs", nargs="+", metavar="SENSOR=PATH[:LABEL]",

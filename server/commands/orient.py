@@ -4,14 +4,19 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
-import pyarrow as pa
-import pyarrow.csv as pacsv
 from armtrack.estimator.errors import InvalidArgument
-from armtrack.estimator.orientation import DEFAULT_FILTER, FILTERS, make_filter
 
+from .choices import DEFAULT_FILTER, FILTER_NAMES
 from .output import open_output
+
+if TYPE_CHECKING:
+    import numpy as np
+
+HELP = "one sensor's orientation (quaternion, sensor to earth ENU)"
+DESCRIPTION = ("Runs an orientation filter on one IMU: input t,ax,ay,az,gx,gy,gz,mx,my,mz; "
+               "output t,qw,qx,qy,qz (R_world_sensor, earth x east, y north, z up).")
 
 COLUMNS = ["t", "ax", "ay", "az", "gx", "gy", "gz", "mx", "my", "mz"]
 
@@ -21,12 +26,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         " (units as in recordings; mx,my,mz empty for a 6-axis sensor)")
     parser.add_argument("-o", "--output", type=Path, metavar="FILE",
                         help="where to write t,qw,qx,qy,qz (default: standard output)")
-    parser.add_argument("--filter", choices=sorted(FILTERS), default=DEFAULT_FILTER)
+    parser.add_argument("--filter", choices=sorted(FILTER_NAMES), default=DEFAULT_FILTER)
 
 
 def read_imu(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
     """``t, acc, gyr, mag`` of a one-sensor CSV, checked: the columns, finite numbers, all
     three magnetometer fields empty or none, t non-decreasing."""
+    import numpy as np
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+
     with open(path, "rb") as file:
         header = file.readline().decode("utf-8", "replace").strip()
     if header.split(",") != COLUMNS:
@@ -64,6 +73,9 @@ def read_imu(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+    from armtrack.estimator.orientation import make_filter
+
     t, acc, gyr, mag = read_imu(args.imu)
     q = make_filter(args.filter).update_batch(t, acc, gyr, mag).q
     with open_output(args.output) as out:

@@ -3,14 +3,34 @@
 from __future__ import annotations
 
 import argparse
+import math
+from pathlib import Path
 
-import numpy as np
-from armtrack.estimator.arm import ANGLE_NAMES, POINTS, forward_kinematics, joint_angles
 from armtrack.estimator.body import SegmentLengths
 from armtrack.estimator.errors import InvalidArgument
-from armtrack.estimator.rotations import matrix_to_quat
 
 from .output import open_output
+
+HELP = "the arm's pose (segment orientations, joint positions) from joint angles"
+DESCRIPTION = ("Forward kinematics of the 9-DoF arm. Give angles as NAME=DEGREES "
+               "(e.g. shoulder_abduction=90 elbow_flexion=45), or a CSV of angles over time "
+               "with --angles-csv (columns t and any of the joint-angle names, in degrees). "
+               "Positions are in the thorax frame (X anterior, Y superior, Z right), in metres.")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("angles", nargs="*", metavar="NAME=DEGREES")
+    parser.add_argument("--side", choices=("right", "left"), default="right")
+    size = parser.add_mutually_exclusive_group()
+    size.add_argument("--height", type=float, default=1.75, metavar="METRES",
+                      help="body height for the segment lengths (default 1.75)")
+    size.add_argument("--lengths", metavar="C,U,F,H",
+                      help="measured clavicle, upper arm, forearm, hand lengths in metres")
+    parser.add_argument("--angles-csv", type=Path, metavar="FILE",
+                        help="angles over time; writes a CSV of positions")
+    parser.add_argument("-o", "--output", type=Path, metavar="FILE",
+                        help="where to write the positions CSV (default: standard output)")
+    parser.add_argument("--json", action="store_true", help="print one pose as JSON")
 
 
 def _lengths(args: argparse.Namespace) -> SegmentLengths:
@@ -28,6 +48,8 @@ def _lengths(args: argparse.Namespace) -> SegmentLengths:
 
 
 def _parse_assignments(items: list[str]) -> dict[str, float]:
+    from armtrack.estimator.arm import ANGLE_NAMES
+
     angles: dict[str, float] = {}
     for item in items:
         name, sep, value = item.partition("=")
@@ -39,13 +61,17 @@ def _parse_assignments(items: list[str]) -> dict[str, float]:
             degrees = float(value)
         except ValueError:
             raise InvalidArgument(f"{name}: {value!r} is not a number of degrees") from None
-        if not np.isfinite(degrees):
+        if not math.isfinite(degrees):
             raise InvalidArgument(f"{name}: {value!r} is not a finite number of degrees")
         angles[name] = degrees
     return angles
 
 
-def _read_angles_csv(path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+def _read_angles_csv(path):
+    """``t [s], {name: angle [rad]}`` of an angles CSV, checked."""
+    import numpy as np
+    from armtrack.estimator.arm import ANGLE_NAMES
+
     with open(path, encoding="utf-8") as file:
         header = file.readline().strip().split(",")
     if "t" not in header:
@@ -66,6 +92,10 @@ def _read_angles_csv(path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+    from armtrack.estimator.arm import ANGLE_NAMES, POINTS, forward_kinematics, joint_angles
+    from armtrack.estimator.scalar_rotations import quat_from_rows
+
     lengths = _lengths(args)
     if args.angles_csv is not None:
         if args.angles:
@@ -90,7 +120,8 @@ def run(args: argparse.Namespace) -> int:
         "angles_deg": {name: degrees.get(name, 0.0) for name in ANGLE_NAMES},
         "shoulder_elevation_deg": float(elevation),
         "positions_m": {p: pose.p_thorax[p].tolist() for p in POINTS},
-        "orientations_wxyz": {s: matrix_to_quat(R).tolist() for s, R in pose.R_thorax.items()},
+        "orientations_wxyz": {s: list(quat_from_rows(*R.ravel().tolist()))
+                              for s, R in pose.R_thorax.items()},
     }
     if args.json:
         from ..cli import print_json
@@ -109,5 +140,6 @@ def run(args: argparse.Namespace) -> int:
     print("segment orientations in the thorax frame (quaternion w, x, y, z):")
     for segment, R in pose.R_thorax.items():
         if segment != "thorax":
-            print(f"  {segment:<10}" + " ".join(f"{c:7.4f}" for c in matrix_to_quat(R)))
+            q = quat_from_rows(*R.ravel().tolist())
+            print(f"  {segment:<10}" + " ".join(f"{c:7.4f}" for c in q))
     return 0

@@ -9,6 +9,10 @@ import sys
 from .serve import add_arguments as add_server_arguments
 from .serve import settings_from
 
+HELP = "recompute stored sessions' estimates with this estimator"
+DESCRIPTION = ("Re-estimates sessions from their stored raw data and records the estimator "
+               "version and settings used.")
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("session_ids", type=int, nargs="+", metavar="SESSION_ID")

@@ -11,6 +11,11 @@ from pathlib import Path
 #: ``token=…`` in a logged URL (kits that cannot set headers put their token there).
 TOKEN_IN_URL = re.compile(r"(token=)[^&\s\"']+")
 
+HELP = "run the server (REST API, ingest WebSocket, dashboard)"
+DESCRIPTION = ("Runs armtrack under uvicorn. Settings come from the environment "
+               "(ARMTRACK_DATABASE_URL, ARMTRACK_DATA_DIR, ARMTRACK_HOST, ARMTRACK_PORT, ...) "
+               "and these flags; the database is migrated on start.")
+
 
 class RedactTokens(logging.Filter):
     """Keeps bearer tokens given in URLs out of the logs."""

@@ -8,14 +8,19 @@ from pathlib import Path
 
 from armtrack.estimator.body import SENSOR_NAMES
 from armtrack.estimator.errors import InvalidArgument
-from armtrack.estimator.recording import write_recording
-from armtrack.estimator.simulation import EXERCISES, SimulationConfig, simulate, write_truth
+
+from .choices import EXERCISE_NAMES
+
+HELP = "write a simulated recording with its ground truth"
+DESCRIPTION = ("Simulates an exercise session (calibration poses, then the exercise) with "
+               "exact IMU physics, sensor mounting, noise, gyroscope bias and optional faults; "
+               "writes the recording and a truth CSV of joint angles (deg) and positions (m).")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--exercise", default="elbow_flexion", choices=sorted(EXERCISES))
+    parser.add_argument("--exercise", default="elbow_flexion", choices=sorted(EXERCISE_NAMES))
     parser.add_argument("-o", "--output", type=Path, required=True, metavar="FILE",
-                        help="the recording to write (spec/recording.md)")
+                        help="the recording to write (docs/spec/recording.md)")
     parser.add_argument("--truth", type=Path, metavar="FILE",
                         help="where to write the ground truth (default: FILE with .truth.csv)")
     parser.add_argument("--side", choices=("right", "left"), default="right")
@@ -40,6 +45,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from armtrack.estimator.recording import write_recording
+    from armtrack.estimator.simulation import SimulationConfig, simulate, write_truth
+
     sensors = tuple(s.strip() for s in args.sensors.split(",") if s.strip())
     unknown = [s for s in sensors if s not in SENSOR_NAMES]
     if unknown:

@@ -1,10 +1,9 @@
 """``armtrack stream``: play a recording (or a simulated exercise) to the server as a
-sensor kit would, over the ingest protocol of ``spec/ingest.md``."""
+sensor kit would, over the ingest protocol of ``docs/spec/ingest.md``."""
 
 from __future__ import annotations
 
 import argparse
-import asyncio
 import math
 import os
 import sys
@@ -13,11 +12,18 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from armtrack.estimator.errors import InvalidArgument
-from armtrack.estimator.recording import Recording, read_recording
-from armtrack.estimator.simulation import EXERCISES, SimulationConfig, simulate
 
-if TYPE_CHECKING:  # the emulator (and websockets) load only when streaming
+from .choices import EXERCISE_NAMES
+
+if TYPE_CHECKING:  # the estimator, the emulator (and websockets) load only when streaming
+    from armtrack.estimator.recording import Recording
+
     from ..emulator import KitEmulator, KitStats
+
+HELP = "play a recording to the server as a sensor kit (docs/spec/ingest.md)"
+DESCRIPTION = ("Connects to the ingest WebSocket with a device token and streams a recording "
+               "(or a simulated exercise) paced by its clock, resuming after a lost "
+               "connection; prints progress to standard error and a summary at the end.")
 
 #: Exit code when the server refuses the kit or cannot be reached (2 is bad input).
 EXIT_REFUSED = 1
@@ -32,8 +38,8 @@ def _default_url() -> str:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("recording", nargs="?", type=Path,
-                        help="the recording to stream (spec/recording.md)")
-    source.add_argument("--exercise", choices=sorted(EXERCISES),
+                        help="the recording to stream (docs/spec/recording.md)")
+    source.add_argument("--exercise", choices=sorted(EXERCISE_NAMES),
                         help="stream a simulated exercise session instead of a file")
     parser.add_argument("--url", default=_default_url(),
                         help="the ingest WebSocket (default ws://$ARMTRACK_HOST:"
@@ -56,6 +62,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _recording(args: argparse.Namespace) -> tuple[Recording, str]:
+    from armtrack.estimator.recording import read_recording
+    from armtrack.estimator.simulation import SimulationConfig, simulate
+
     if args.recording is not None:
         return read_recording(args.recording), str(args.recording)
     config = SimulationConfig(exercise=args.exercise, side=args.side, rate_hz=args.rate,
@@ -73,6 +82,8 @@ def _progress(kit: KitEmulator, started: float) -> str:
 
 
 async def _stream(kit: KitEmulator, quiet: bool) -> KitStats:
+    import asyncio
+
     started = time.monotonic()
     run = asyncio.create_task(kit.run())
     while not quiet:
@@ -100,6 +111,8 @@ def _summary(kit: KitEmulator, what: str, url: str) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    import asyncio
+
     if not args.token:
         raise InvalidArgument("give the device token with --token or $ARMTRACK_TOKEN")
     if not (args.speed >= 0) or math.isnan(args.speed):
