@@ -24,7 +24,16 @@ from armtrack.estimator.importers.xsens_dot import parse_start_time
 from armtrack.estimator.pipeline import estimate_recording
 from armtrack.estimator.recording import parse_recording, write_recording
 from armtrack.estimator.simulation import SimulationConfig, simulate
-from importer_layouts import SIM_FIELD_UT, shimmer_csv, xsens_dot_csv
+from importer_layouts import (
+    GENERIC_MAP,
+    SIM_FIELD_UT,
+    apdm_h5,
+    generic_csv,
+    metamotion_csvs,
+    sensor_logger_files,
+    shimmer_csv,
+    xsens_dot_csv,
+)
 
 FIXTURES = Path(__file__).parent / "fixtures" / "importers"
 SENSORS = ("upper_arm", "forearm", "hand")
@@ -182,8 +191,182 @@ def test_shimmer_real_export_gravity_and_units():
     assert np.all(np.abs(norms - 9.81) < 0.5) and np.all(signal.acc[:, 1] > 9.5)
     assert signal.gyr[0, 1] == pytest.approx(1.8778625954198473 * math.pi / 180)
     assert signal.mag[0, 1] == pytest.approx(-91.60419790104948)
-    assert signal.t[0] == pytest.approx(1595933810.034)
+    assert signal.epoch + signal.t[0] == pytest.approx(1595933810.034)
     assert list(signal.lines[:2]) == [4, 5]
+
+
+# --- APDM Opal .h5 -----------------------------------------------------------------------
+
+def test_apdm_round_trip_same_angles(tmp_path):
+    pytest.importorskip("h5py")
+    rec = session(128.0).recording  # Opals sample at 128 Hz
+    path = tmp_path / "20240301-093000_Walk.h5"
+    apdm_h5(path, {"1234": ("Right Upper Arm", rec.sensors["upper_arm"]),
+                   "2345": ("Right Forearm", rec.sensors["forearm"]),
+                   "3456": ("Right Hand", rec.sensors["hand"])})
+    source = SourceFile(str(path), path.read_bytes())
+    result = import_recording([Assignment("upper_arm", [source], "Right Upper Arm"),
+                               Assignment("forearm", [source], "2345"),
+                               Assignment("hand", [source], "Hand")],
+                              side=rec.side, height_m=rec.height_m,
+                              calibration=calibration_of(rec))
+    worst, name = worst_difference(result.recording, 128.0)
+    print(f"apdm: largest angle difference {worst:.2e} deg ({name})")
+    assert worst < TOLERANCE_DEG
+
+
+def test_apdm_old_version_and_missing_dataset_refused(tmp_path):
+    h5py = pytest.importorskip("h5py")
+    old = tmp_path / "old.h5"
+    with h5py.File(old, "w") as f:
+        f.attrs["FileFormatVersion"] = 3
+        f.create_group("XI-000123").create_group("Calibrated")
+    with pytest.raises(ImportFailure, match=r"old\.h5: no /Sensors group \(file format version "
+                       r"3\); armtrack reads APDM file format version\(s\) 5"):
+        read_signals([SourceFile(str(old), old.read_bytes())])
+    rec = session(128.0).recording
+    broken = tmp_path / "broken.h5"
+    apdm_h5(broken, {"1234": ("Right Forearm", rec.sensors["forearm"])})
+    with h5py.File(broken, "a") as f:
+        del f["Sensors/1234/Gyroscope"]
+    with pytest.raises(ImportFailure, match=r"broken\.h5:/Sensors/1234: dataset Gyroscope is "
+                       "missing"):
+        read_signals([SourceFile(str(broken), broken.read_bytes())])
+    data = broken.read_bytes()
+    with pytest.raises(ImportFailure, match=r"cut\.h5: not a readable HDF5 file, truncated"):
+        read_signals([SourceFile("cut.h5", data[: len(data) // 3])])
+
+
+# --- MetaMotion ----------------------------------------------------------------------------
+
+def test_metamotion_round_trip_same_angles():
+    rec = session(100.0).recording
+    sources = {s: [SourceFile(n, d) for n, d in metamotion_csvs(
+        rec.sensors[s], mac=f"C8CF7A2F32A{i}", epoch_name=("epoc (ms)", "epoch (ms)")[i % 2]
+    ).items()] for i, s in enumerate(SENSORS)}
+    result = import_recording([Assignment(s, f) for s, f in sources.items()], side=rec.side,
+                              height_m=rec.height_m, calibration=calibration_of(rec))
+    assert not any(sig.resampled for sig in result.signals.values())
+    worst, name = worst_difference(result.recording, 100.0)
+    print(f"metamotion: largest angle difference {worst:.2e} deg ({name})")
+    assert worst < TOLERANCE_DEG
+
+
+def test_metamotion_mixed_rates_resampled_scored_against_truth():
+    """Gyroscope 200 Hz, accelerometer 100 Hz, magnetometer 25 Hz (MetaBase's usual mix):
+    merged onto the gyroscope's times; the angles' error against the simulation's truth
+    stays that of the simulated recording."""
+    from armtrack.estimator.simulation import SCORED_FROM_S
+
+    sim = simulate(SimulationConfig(rate_hz=200.0, repetitions=2, seed=3))
+    rec, truth = sim.recording, sim.truth
+    sources = {s: [SourceFile(n, d) for n, d in metamotion_csvs(
+        rec.sensors[s], mac=f"C8CF7A2F32A{i}",
+        every={"Accelerometer": 2, "Magnetometer": 8}).items()] for i, s in enumerate(SENSORS)}
+    result = import_recording([Assignment(s, f) for s, f in sources.items()], side=rec.side,
+                              height_m=rec.height_m, calibration=calibration_of(rec))
+    assert all(sig.resampled for sig in result.signals.values())
+
+    def error(recording):
+        est, _ = estimate_recording(recording)
+        got = est.degrees()
+        scored = est.t >= SCORED_FROM_S
+        worst = 0.0
+        for k in ("elbow_flexion", "shoulder_abduction", "forearm_pronation"):
+            ref = np.rad2deg(np.interp(est.t, truth.t, truth.angles[k]))
+            worst = max(worst, float(np.sqrt(np.mean((got[k] - ref)[scored] ** 2))))
+        return worst
+
+    original, imported = error(rec), error(result.recording)
+    print(f"metamotion mixed rates: RMS error vs truth {imported:.3f} deg "
+          f"(the simulated recording: {original:.3f} deg)")
+    assert imported < original + 0.5
+
+
+# --- Sensor Logger ---------------------------------------------------------------------------
+
+@pytest.mark.parametrize("platform", ["android", "ios"])
+def test_sensor_logger_round_trip_same_angles(tmp_path, platform):
+    """A phone on the forearm: Accelerometer.csv without gravity plus Gravity.csv, iOS
+    signs negated; imported from a zip to the same angles."""
+    import zipfile
+
+    sim = simulate(SimulationConfig(rate_hz=100.0, repetitions=2, seed=3, sensors=("forearm",)))
+    rec = sim.recording
+    files = sensor_logger_files(rec.sensors["forearm"], sim.truth.R_world_sensor["forearm"],
+                                platform=platform)
+    archive = tmp_path / "2024-03-01_08-30-00.zip"
+    with zipfile.ZipFile(archive, "w") as z:
+        for name, data in files.items():
+            z.writestr(f"2024-03-01_08-30-00/{name}", data)
+        z.writestr("2024-03-01_08-30-00/Location.csv", "time,seconds_elapsed,latitude\n")
+    from armtrack.estimator.importers.sources import expand
+
+    result = import_recording([Assignment("forearm", expand(archive))], side=rec.side,
+                              height_m=rec.height_m, calibration=calibration_of(rec))
+    est_ref, _ = estimate_recording(rec)
+    est, _ = estimate_recording(result.recording)
+    worst = max(float(np.max(np.abs(est.degrees()[k] - est_ref.degrees()[k])))
+                for k in est_ref.angles)
+    print(f"sensor-logger {platform}: largest angle difference {worst:.2e} deg")
+    assert worst < TOLERANCE_DEG
+
+
+def test_sensor_logger_real_ios_gravity():
+    """Public iOS lines (Metadata.csv 'ios', Gravity.csv): after the iOS negation the
+    gravity part of the specific force has |g| ≈ 9.81 and the phone lying screen up
+    (iOS gravity −z, per Sensor Logger's coordinates page) reads +z."""
+    meta = (FIXTURES / "sensor_logger_ios_Metadata.csv").read_bytes()
+    grav = (FIXTURES / "sensor_logger_ios_Gravity.csv").read_bytes()
+    from armtrack.estimator.importers import sensor_logger
+
+    assert sensor_logger._metadata(SourceFile("Metadata.csv", meta))["platform"] == "ios"
+    _, g, _ = sensor_logger._vectors(SourceFile("Gravity.csv", grav))
+    force = -g  # the reader's iOS convention
+    norms = np.linalg.norm(force, axis=1)
+    print("Sensor Logger real iOS gravity, negated:", force.mean(axis=0), norms.mean())
+    assert np.all(np.abs(norms - 9.81) < 0.3) and np.all(force[:, 2] > 7.0)
+
+
+def test_sensor_logger_without_gravity_refused():
+    sim = simulate(SimulationConfig(rate_hz=100.0, repetitions=1, seed=3, sensors=("forearm",)))
+    files = sensor_logger_files(sim.recording.sensors["forearm"],
+                                sim.truth.R_world_sensor["forearm"])
+    del files["Gravity.csv"]
+    with pytest.raises(ImportFailure, match=r"Gyroscope\.csv, line \d+: sensor Pixel 7: \|a\| "
+                       r"at rest is 0\.\d+ m/s², not near 9\.81 \(the accelerometer excludes "
+                       r"gravity\)"):
+        import_recording([Assignment("forearm", [SourceFile(n, d) for n, d in files.items()])],
+                         "right", 1.75)
+
+
+# --- generic CSV with a column map -------------------------------------------------------------
+
+def test_generic_round_trip_same_angles():
+    rec = session(100.0).recording
+    files = {s: SourceFile(f"{s}.txt", generic_csv(rec.sensors[s])) for s in SENSORS}
+    # one file each: each on its own clock, so one sensor per recording here; the three
+    # together come from one file with a sensor column below
+    rows = []
+    for s in SENSORS:
+        text = generic_csv(rec.sensors[s]).decode().splitlines()
+        rows += [f"{line};{s}" for line in text[2:]]
+    header = generic_csv(rec.sensors["hand"]).decode().splitlines()[1] + ";Device"
+    together = SourceFile("all.csv", ("\n".join([header, *rows]) + "\n").encode())
+    options = ReadOptions(columns=GENERIC_MAP + " sensor=Device")
+    result = import_recording([Assignment(s, [together], s, "generic") for s in SENSORS],
+                              side=rec.side, height_m=rec.height_m,
+                              calibration=calibration_of(rec), options=options)
+    worst, name = worst_difference(result.recording, 100.0)
+    print(f"generic: largest angle difference {worst:.2e} deg ({name})")
+    assert worst < TOLERANCE_DEG
+    with pytest.raises(ImportFailure, match="different clocks"):
+        import_recording([Assignment(s, [f], None, "generic") for s, f in files.items()],
+                         "right", 1.75, options=ReadOptions(columns=GENERIC_MAP))
+    with pytest.raises(ImportFailure, match=r"hand\.txt, line 2: column 'Gyro Z' \(gz\) is "
+                       "missing"):
+        read_signals([files["hand"]], "generic",
+                     ReadOptions(columns=GENERIC_MAP.replace("'Gyr Z'", "'Gyro Z'")))
 
 
 # --- damaged files: refused naming file, line and problem; nothing written -------------

@@ -1,11 +1,100 @@
-"""Placeholder: written next."""
+"""APDM Opal ``.h5`` files (Motion Studio / Mobility Lab), read with h5py (the optional
+``armtrack[apdm]`` extra).
+
+Layout read (file format version 5, the ``FileFormatVersion`` root attribute):
+``/Sensors/<id>/{Accelerometer [m/s², N×3], Gyroscope [rad/s], Magnetometer [µT],
+Time [µs since 1970 UTC, uint64]}``, the sensor's label in the attribute ``Label 0`` of
+``/Sensors/<id>/Configuration`` (bytes, NUL-padded). Older files (format versions 3–4,
+``/<case id>/Calibrated/…``) are refused naming their version. All sensors of a file
+share its time base (``unix``). A sensor is named ``<label> (<id>)``; LABEL in
+``SENSOR=FILE:LABEL`` may be either.
+"""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+
+from .base import ImportFailure, ReadOptions, Signal, SourceFile
+
 NAME = "apdm"
-TITLE = "apdm"
+TITLE = "APDM Opal .h5"
+HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
+READ_VERSIONS = (5,)
 
 
-def sniff(source):
-    return False
+def sniff(source: SourceFile) -> bool:
+    return source.data[:8] == HDF5_MAGIC
 
 
-def read(sources, options):
-    raise NotImplementedError
+def _text(value) -> str:
+    if isinstance(value, np.ndarray):
+        value = value.flat[0] if value.size else b""
+    if isinstance(value, bytes):
+        value = value.decode("utf-8", errors="replace")
+    return str(value).replace("\x00", "").strip()
+
+
+def read(sources: list[SourceFile], options: ReadOptions) -> list[Signal]:
+    try:
+        import h5py
+    except ImportError:
+        raise ImportFailure(sources[0].name, "reading APDM .h5 files needs h5py: "
+                            "pip install 'armtrack[apdm]'") from None
+    signals = []
+    for source in sources:
+        if not sniff(source):
+            continue
+        try:
+            h5 = h5py.File(io.BytesIO(source.data), "r")
+        except OSError as exc:
+            raise ImportFailure(source.name, f"not a readable HDF5 file, truncated or damaged "
+                                f"({exc})") from None
+        with h5:
+            signals.extend(_sensors(source, h5))
+    if not signals:
+        raise ImportFailure(sources[0].name if sources else "?", "no APDM sensors found")
+    return signals
+
+
+def _sensors(source: SourceFile, h5) -> list[Signal]:
+    version = h5.attrs.get("FileFormatVersion")
+    version = int(np.asarray(version).flat[0]) if version is not None else None
+    if "Sensors" not in h5:
+        raise ImportFailure(source.name, f"no /Sensors group (file format version {version}); "
+                            f"armtrack reads APDM file format version(s) "
+                            f"{', '.join(map(str, READ_VERSIONS))}: export again from a "
+                            "current Motion Studio or Mobility Lab")
+    out = []
+    for sid, group in h5["Sensors"].items():
+        where = f"{source.name}:/Sensors/{sid}"
+        label = ""
+        if "Configuration" in group:
+            label = _text(group["Configuration"].attrs.get("Label 0", b""))
+        missing = [d for d in ("Time", "Accelerometer", "Gyroscope") if d not in group]
+        if missing:
+            raise ImportFailure(where, f"dataset {', '.join(missing)} is missing (Time, "
+                                "Accelerometer and Gyroscope are needed)")
+        try:
+            time_us = np.asarray(group["Time"][()], dtype=np.int64)
+            acc = np.asarray(group["Accelerometer"][()], dtype=np.float64)
+            gyr = np.asarray(group["Gyroscope"][()], dtype=np.float64)
+            mag = (np.asarray(group["Magnetometer"][()], dtype=np.float64)
+                   if "Magnetometer" in group else None)
+        except (OSError, KeyError) as exc:
+            raise ImportFailure(where, f"cannot be read, the file is truncated or damaged "
+                                f"({exc})") from None
+        n = len(time_us)
+        for name, values in (("Accelerometer", acc), ("Gyroscope", gyr), ("Magnetometer", mag)):
+            if values is not None and values.shape != (n, 3):
+                raise ImportFailure(where, f"{name} has shape {values.shape}, Time has {n} "
+                                    "samples: expected (samples, 3)")
+        # µs since the epoch: keep the integers' precision, then seconds
+        t = (time_us - time_us[0]) / 1e6 if n else np.zeros(0)
+        out.append(Signal(format=NAME, label=f"{label} ({sid})" if label else str(sid),
+                          files=(where,), t=t, epoch=time_us[0] / 1e6 if n else 0.0,
+                          acc=acc, gyr=gyr, mag=mag, clock="unix",
+                          lines=np.arange(1, n + 1), place="sample",
+                          metadata={"apdm_file_format_version": str(version)}))
+    return out

@@ -15,8 +15,8 @@ class ImportFailure(EstimatorError):
     """A vendor file cannot be imported; the message names the file, the line (counted
     from 1, where there is one) and the problem."""
 
-    def __init__(self, file: str, problem: str, line: int | None = None):
-        where = file if line is None else f"{file}, line {line}"
+    def __init__(self, file: str, problem: str, line: int | None = None, place: str = "line"):
+        where = file if line is None else f"{file}, {place} {line}"
         super().__init__(f"{where}: {problem}")
         self.file = file
         self.line = line
@@ -55,10 +55,13 @@ class Signal:
     """One physical sensor's samples as found in vendor files, in the recording's units
     and the sensor's own frame (right-handed; at rest the axis pointing up reads +9.81).
 
-    t: sample times [s] on ``clock``: ``unix`` (s since 1970 UTC), a vendor's shared sync
-    clock (``xsens-dot-sync``), or ``file:<name>`` (starts with its file; no other file
-    shares it). lines: each sample's line in ``files[0]`` (1-based; 0 where a sample has
-    no line, e.g. in an HDF5 file). declared_rate_hz: the rate the file states, if any.
+    t: sample times [s] after ``epoch``; ``epoch + t`` is the time on ``clock``: ``unix``
+    (s since 1970 UTC), a vendor's shared sync clock (``xsens-dot-sync``), or
+    ``file:<name>`` (starts with its file; no other file shares it). Times are kept
+    relative so their spacing stays exact (a float64 of seconds since 1970 is only good to
+    0.24 µs, and the filters feel that jitter). lines: each sample's line in ``files[0]``
+    (1-based; a sample's index in a binary file). declared_rate_hz: the rate the file
+    states, if any.
     """
 
     format: str
@@ -75,6 +78,10 @@ class Signal:
     metadata: dict[str, str] = field(default_factory=dict)
     #: True where acc/mag were interpolated onto the gyroscope's times (rates differed)
     resampled: bool = False
+    #: the clock time [s] ``t`` counts from
+    epoch: float = 0.0
+    #: what ``lines`` count: ``line`` of a text file, or ``sample`` of a binary one
+    place: str = "line"
 
     def __len__(self) -> int:
         return len(self.t)

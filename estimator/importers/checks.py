@@ -27,29 +27,34 @@ def line_of(signal: Signal, i: int) -> int | None:
     return line or None
 
 
+def failure(signal: Signal, problem: str, i: int | None = None) -> ImportFailure:
+    """An ImportFailure naming the signal's file and sample ``i``'s line (or sample)."""
+    return ImportFailure(signal.files[0], problem, None if i is None else line_of(signal, i),
+                         signal.place)
+
+
 def check_signal(signal: Signal) -> None:
     """Refuse (ImportFailure naming file and line) what would make a wrong recording."""
-    file = signal.files[0]
     if len(signal) < 2:
-        raise ImportFailure(file, f"sensor {signal.label} has {len(signal)} sample(s); "
-                            "a recording needs more")
+        raise failure(signal, f"sensor {signal.label} has {len(signal)} sample(s); "
+                      "a recording needs more")
     back = np.flatnonzero(np.diff(signal.t) < 0)
     if back.size:
         i = int(back[0]) + 1
-        raise ImportFailure(file, f"time goes backwards ({signal.t[i]!r} s after "
-                            f"{signal.t[i - 1]!r} s on its clock)", line_of(signal, i))
+        raise failure(signal, f"time goes backwards ({signal.t[i]!r} s after "
+                      f"{signal.t[i - 1]!r} s on its clock)", i)
     for quantity, values in (("acc", signal.acc), ("gyr", signal.gyr), ("mag", signal.mag)):
         if values is None:
             continue
         bad = np.flatnonzero(~np.isfinite(values).all(axis=1))
         if bad.size:
-            raise ImportFailure(file, f"{quantity} is not finite", line_of(signal, int(bad[0])))
+            raise failure(signal, f"{quantity} is not finite", int(bad[0]))
         with np.errstate(over="ignore"):
             bad = np.flatnonzero(beyond_range(quantity, *values.T))
         if bad.size:
             i = int(bad[0])
-            raise ImportFailure(file, range_message(quantity, signal.label, values[i])
-                                + " (is the unit right?)", line_of(signal, i))
+            raise failure(signal, range_message(quantity, signal.label, values[i])
+                          + " (is the unit right?)", i)
     if not signal.resampled:
         check_one_rate(signal)
     check_gravity(signal)
@@ -57,11 +62,10 @@ def check_signal(signal: Signal) -> None:
 
 def check_one_rate(signal: Signal) -> None:
     """Refuse a file whose sample rate changes part-way, or that declares another rate."""
-    file = signal.files[0]
     dt = np.diff(signal.t)
     positive = dt[dt > 0]
     if not positive.size:
-        raise ImportFailure(file, "all time stamps are equal", line_of(signal, 0))
+        raise failure(signal, "all time stamps are equal", 0)
     nominal = float(np.median(positive))
     blocks = len(dt) // RATE_BLOCK
     if blocks >= 2:
@@ -72,13 +76,13 @@ def check_one_rate(signal: Signal) -> None:
             b = int(off[0])
             block = dt[b * RATE_BLOCK:(b + 1) * RATE_BLOCK]
             i = b * RATE_BLOCK + int(np.argmax(np.abs(block / nominal - 1.0) > RATE_TOLERANCE))
-            raise ImportFailure(file, f"the sample rate changes from {1 / nominal:.4g} Hz to "
-                                f"{1 / float(medians[b]):.4g} Hz (mixed rates in one file: "
-                                "export each rate on its own)", line_of(signal, i + 1))
+            raise failure(signal, f"the sample rate changes from {1 / nominal:.4g} Hz to "
+                          f"{1 / float(medians[b]):.4g} Hz (mixed rates in one file: "
+                          "export each rate on its own)", i + 1)
     declared = signal.declared_rate_hz
     if declared and abs((1.0 / nominal) / declared - 1.0) > RATE_TOLERANCE:
-        raise ImportFailure(file, f"the file declares {declared:g} Hz but its time stamps "
-                            f"are {1 / nominal:.4g} Hz apart")
+        raise failure(signal, f"the file declares {declared:g} Hz but its time stamps are "
+                      f"{1 / nominal:.4g} Hz apart")
 
 
 def check_gravity(signal: Signal) -> None:
@@ -93,6 +97,5 @@ def check_gravity(signal: Signal) -> None:
         hint = ("values look like g, not m/s²" if 0.6 < typical < 1.6 else
                 "the accelerometer excludes gravity" if typical < 0.6 else
                 "the unit is wrong")
-        raise ImportFailure(signal.files[0], f"sensor {signal.label}: |a| at rest is "
-                            f"{typical:.3g} m/s², not near 9.81 ({hint})",
-                            line_of(signal, first))
+        raise failure(signal, f"sensor {signal.label}: |a| at rest is {typical:.3g} m/s², "
+                      f"not near 9.81 ({hint})", first)

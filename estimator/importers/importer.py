@@ -160,8 +160,8 @@ def place_on_clock(signals: dict[str, Signal]) -> tuple[dict[str, SensorStream],
         raise ImportFailure(", ".join(s.files[0] for s in signals.values()),
                             f"the sensors' times are on different clocks ({detail}); "
                             "import files that share a clock (synced or time-stamped)")
-    starts = {n: float(s.t[0]) for n, s in signals.items()}
-    ends = {n: float(s.t[-1]) for n, s in signals.items()}
+    starts = {n: s.epoch + float(s.t[0]) for n, s in signals.items()}
+    ends = {n: s.epoch + float(s.t[-1]) for n, s in signals.items()}
     t0 = min(starts.values())
     late = max(starts, key=starts.get)
     early_end = min(ends, key=ends.get)
@@ -182,7 +182,8 @@ def place_on_clock(signals: dict[str, Signal]) -> tuple[dict[str, SensorStream],
     for n in signals:
         if starts[n] - t0 > 0.5:
             notes.append(f"{n} starts {starts[n] - t0:.2f} s after the first sensor")
-    streams = {n: SensorStream(t=s.t - t0, acc=s.acc, gyr=s.gyr, mag=s.mag)
+    # the offset first (small), then the exact relative times: no float64 jitter
+    streams = {n: SensorStream(t=(s.epoch - t0) + s.t, acc=s.acc, gyr=s.gyr, mag=s.mag)
                for n, s in signals.items()}
     return streams, notes, metadata
 
@@ -192,5 +193,6 @@ def describe(signal: Signal) -> dict:
     return {"format": signal.format, "label": signal.label, "files": list(signal.files),
             "rate_hz": round(signal.rate_hz, 2), "duration_s": round(signal.duration_s, 2),
             "samples": len(signal), "axes": 9 if signal.mag is not None else 6,
-            "clock": signal.clock, "start": float(signal.t[0]) if len(signal) else None,
+            "clock": signal.clock,
+            "start": signal.epoch + float(signal.t[0]) if len(signal) else None,
             "notes": list(signal.notes)}

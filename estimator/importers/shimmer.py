@@ -112,8 +112,9 @@ def _device(source, lines, units_row, delimiter, width, names, units, device, co
 
     notes = [f"{source.basename}: {device} accelerometer "
              + ("low-noise (Accel_LN)" if accel == "Accel_LN" else "wide-range (Accel_WR)")]
-    return Signal(format=NAME, label=device, files=(source.name,),
-                  t=values["t"] * factors["t"], acc=vector(accel), gyr=vector("Gyro"),
+    stamps = values["t"]
+    return Signal(format=NAME, label=device, files=(source.name,), epoch=stamps[0] * factors["t"],
+                  t=(stamps - stamps[0]) * factors["t"], acc=vector(accel), gyr=vector("Gyro"),
                   mag=vector("Mag") if has_mag else None, clock="unix", lines=numbers,
                   notes=notes)
 

@@ -32,14 +32,16 @@ def split_line(line: str, delimiter: str) -> list[str]:
 
 def numeric_columns(source: SourceFile, lines: list[str], first: int, delimiter: str,
                     width: int, wanted: dict[str, int], names: dict[str, str] | None = None,
-                    optional: frozenset[str] = frozenset()) -> tuple[dict[str, np.ndarray],
-                                                                   np.ndarray]:
+                    optional: frozenset[str] = frozenset(), integers: frozenset[str] = frozenset()
+                    ) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """Numbers of the data lines ``lines[first:]``: each of ``wanted`` (key → column
     index) as float64, and each row's line number (1-based).
 
     Refuses a line with fewer cells than the header's ``width`` (a truncated file), an
     empty cell in a column not in ``optional`` (which then reads NaN), text that is no
-    number and a non-finite number, naming the line and the column (``names``)."""
+    number and a non-finite number, naming the line and the column (``names``). Keys in
+    ``integers`` are read as int64 when every cell is a whole number (exact beyond 2⁵³,
+    for ns time stamps)."""
     rows = lines[first:]
     while rows and not rows[-1].strip(" \t,;\"'"):
         rows.pop()  # blank lines (or bare separators) at the end
@@ -59,6 +61,12 @@ def numeric_columns(source: SourceFile, lines: list[str], first: int, delimiter:
     for key, index in wanted.items():
         cells = [cells[index].strip().strip('"') for cells in split]
         label = (names or {}).get(key, key)
+        if key in integers:
+            try:
+                out[key] = np.array(cells, dtype=np.int64)
+                continue
+            except (ValueError, OverflowError):
+                pass  # not all whole numbers: read as float64 below
         try:
             if key in optional:
                 values = np.array([c if c else "nan" for c in cells], dtype=np.float64)

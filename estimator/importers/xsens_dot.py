@@ -132,19 +132,20 @@ def _read_one(source: SourceFile, options: ReadOptions) -> Signal:
     rate = meta.get("OutputRate", "")
     declared = float(rate.lower().removesuffix("hz")) if re.fullmatch(
         r"\d+(\.\d+)?\s*[Hh]z", rate) else None
+    t = (micros - micros[0]) / 1e6
     if meta.get("SyncStatus", "").lower() == "synced":
-        clock, t = "xsens-dot-sync", micros / 1e6
+        clock, epoch = "xsens-dot-sync", micros[0] / 1e6
     else:
         start_time = parse_start_time(meta.get("StartTime", ""))
         if start_time is None:
-            clock, t = f"file:{source.name}", (micros - micros[0]) / 1e6
+            clock, epoch = f"file:{source.name}", 0.0
         else:
-            clock, t = "unix", start_time + (micros - micros[0]) / 1e6
+            clock, epoch = "unix", start_time
             notes.append(f"{source.basename}: not synced; placed by its StartTime "
                          f"{meta.get('StartTime')}")
     label = meta.get("DeviceTag") or source.basename.rsplit(".", 1)[0]
     return Signal(format=NAME, label=label, files=(source.name,), t=t, acc=acc[start:],
                   gyr=deg_to_rad(gyr[start:]), mag=mag, clock=clock, lines=numbers[start:],
-                  declared_rate_hz=declared, notes=notes,
+                  declared_rate_hz=declared, notes=notes, epoch=epoch,
                   metadata={k: v for k, v in meta.items() if k in (
                       "DeviceTag", "FirmwareVersion", "FilterProfile", "Measurement Mode")})

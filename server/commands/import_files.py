@@ -89,6 +89,8 @@ def run(args: argparse.Namespace) -> int:
     from armtrack.estimator.recording import write_recording
 
     options = ReadOptions(field_ut=args.mag_field, columns=args.columns, platform=args.platform)
+    if args.columns and not args.format:
+        args.format = "generic"
     if args.inspect:
         for spec in args.specs:
             path = Path(spec.partition("=")[2] if "=" in spec and not Path(spec).exists()
