@@ -21,6 +21,7 @@ from .api import (
     lifecycle,
     live_status,
     patients,
+    programs,
     reports,
     session_summary,
     sessions,
@@ -78,6 +79,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(patients.router)
     app.include_router(sessions.router)
     app.include_router(reports.router)
+    app.include_router(programs.router)
     app.include_router(endpoint.router)
     app.include_router(live_endpoint.router)
     app.include_router(viewer_routes.router)

@@ -75,6 +75,20 @@ class Settings(BaseSettings):
     audit_repeat_s: float = Field(60.0, ge=0, description="a repeated view of the same data "
                                   "by the same person within this time is logged once [s]")
 
+    # -- programs (docs/programs.md) ------------------------------------------------------
+    clinic_timezone: str = Field("UTC", description="the clinic's time zone (IANA name, "
+                                 "e.g. Europe/Zurich): days and ISO weeks of adherence")
+    flag_no_session_days: int = Field(3, ge=1, le=365, description="flag a patient with a "
+                                      "program after this many days without a session")
+    flag_window_days: int = Field(14, ge=2, le=365, description="days (counting today) of "
+                                  "sessions the range and pain flags look at")
+    flag_min_sessions: int = Field(3, ge=2, le=100, description="sessions in the window a "
+                                   "range or pain flag needs")
+    flag_range_drop_deg_per_week: float = Field(5.0, gt=0, description="flag an exercise "
+                                                "whose range falls this fast [deg/week]")
+    flag_pain_rise_per_week: float = Field(1.0, gt=0, description="flag pain rising this "
+                                           "fast [points of 0-10 per week]")
+
     def cors_origin_list(self) -> list[str]:
         return [o.strip() for o in self.cors_origins.split(",") if o.strip()]
 

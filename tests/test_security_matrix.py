@@ -39,6 +39,8 @@ KINDS = {
     ("GET", "/api/audit"): "list",
     ("POST", "/api/recordings"): "upload",
     ("POST", "/api/viewer"): "owned",  # the patient is in the body
+    ("GET", "/api/programs/catalogue"): "list",
+    ("GET", "/api/flags"): "list",
 }
 
 
@@ -72,6 +74,10 @@ class World:
         answer = self.alice.http.put(f"/api/patients/{self.patient['id']}/targets/"
                                      "elbow_flexion", json={"min_deg": 0, "max_deg": 120})
         assert answer.status_code == 200, answer.text
+        answer = self.alice.http.post(f"/api/patients/{self.patient['id']}/programs",
+                                      json=program_body("Shoulder program"))
+        assert answer.status_code == 201, answer.text
+        self.program = answer.json()
         therapists = {t["username"]: t for t in self.carol.http.get(
             "/api/admin/therapists").json()}
         self.alice_id = therapists["alice"]["id"]
@@ -106,9 +112,11 @@ class World:
         if missing:
             return {"patient_id": MISSING, "session_id": MISSING, "device_id": MISSING,
                     "therapist_id": MISSING, "grant_id": "no-such-grant-0000000000000000",
+                    "program_id": MISSING,
                     "angle": "elbow_flexion"}
         values = {"patient_id": self.patient["id"], "session_id": self.session["id"],
                   "device_id": self.device["id"], "therapist_id": self.dave_id,
+                  "program_id": self.program["id"],
                   "grant_id": self.grant() if "{grant_id}" in path else "",
                   "angle": "elbow_flexion"}
         if identity == "owner" and method == "DELETE":
@@ -149,7 +157,15 @@ def body(method: str, path: str, identity: str, patient_id: int, alice_id: int):
         "/api/viewer": {"patient_id": patient_id, "session_id": None},
         "/api/admin/therapists": {"username": f"made-by-{identity}", "password": PASSWORD},
         "/api/admin/patients/{patient_id}/reassign": {"therapist_id": alice_id},
+        "/api/patients/{patient_id}/programs": program_body(f"Program of {identity}"),
+        "/api/programs/{program_id}": {k: v for k, v in program_body("").items()
+                                       if k != "name"},
     }.get(path) if method in ("POST", "PUT") else None
+
+
+def program_body(name: str) -> dict:
+    return {"name": name, "start_date": "2026-12-01", "exercises": [
+        {"exercise": "elbow_flexion", "sets": 2, "repetitions": 10, "days_per_week": 5}]}
 
 
 def expected(route_kind: str, identity: str, method: str, path: str) -> set[int]:
@@ -245,7 +261,8 @@ def test_the_authorisation_matrix(world):
                     failures.append(f"{method} {path} as other: lists the owner's patient")
             if refused and route_kind in ("owned", "upload"):
                 twin = world.request(identity, method, path, missing=True)
-                ids = [world.patient["id"], world.session["id"], world.device["id"], MISSING]
+                ids = [world.patient["id"], world.session["id"], world.device["id"],
+                       world.program["id"], MISSING]
                 if normalised(answer, ids) != normalised(twin, ids):
                     failures.append(f"{method} {path} as {identity}: the refusal differs for "
                                     f"a missing object: {answer.status_code} {answer.text!r} "

@@ -19,7 +19,8 @@ log = logging.getLogger("armtrack.erase")
 
 
 def _delete_session_rows(db: DbSession, session_id: int) -> None:
-    for table in (models.SampleBlock, models.EstimateBlock, models.Mark, models.Stream):
+    for table in (models.SampleBlock, models.EstimateBlock, models.Mark, models.Stream,
+                  models.SessionRating, models.SessionProgram):
         db.execute(delete(table).where(table.session_id == session_id))
     db.execute(delete(models.Session).where(models.Session.id == session_id))
 
@@ -40,11 +41,19 @@ def erase_session(db: DbSession, session_id: int) -> None:
 
 
 def erase_patient(db: DbSession, patient_id: int) -> None:
-    """Delete all of a patient's sessions, targets and devices, then the patient."""
+    """Delete all of a patient's sessions, targets, programs and devices, then the
+    patient."""
     for session_id in db.scalars(select(models.Session.id)
                                  .where(models.Session.patient_id == patient_id)).all():
         _delete_session_rows(db, session_id)
     db.execute(delete(models.PatientTarget).where(models.PatientTarget.patient_id == patient_id))
+    programs = select(models.Program.id).where(models.Program.patient_id == patient_id)
+    versions = select(models.ProgramVersion.id).where(
+        models.ProgramVersion.program_id.in_(programs))
+    db.execute(delete(models.ProgramExercise).where(
+        models.ProgramExercise.version_id.in_(versions)))
+    db.execute(delete(models.ProgramVersion).where(models.ProgramVersion.id.in_(versions)))
+    db.execute(delete(models.Program).where(models.Program.patient_id == patient_id))
     db.execute(delete(models.Device).where(models.Device.patient_id == patient_id))
     db.execute(delete(models.Patient).where(models.Patient.id == patient_id))
     db.commit()

@@ -8,13 +8,14 @@ rows, not half a million ORM objects. Times are seconds on the kit's clock.
 
 from __future__ import annotations
 
-from datetime import UTC, datetime
+from datetime import UTC, date, datetime
 from typing import Any, ClassVar
 
 from sqlalchemy import (
     JSON,
     BigInteger,
     Boolean,
+    Date,
     DateTime,
     Float,
     ForeignKey,
@@ -234,3 +235,106 @@ class AuditEntry(Base):
     session_id: Mapped[int | None] = mapped_column(Integer)
     route: Mapped[str] = mapped_column(String(300))
     client: Mapped[str | None] = mapped_column(String(64))
+
+
+class Program(Base):
+    """An exercise program prescribed for one patient (``docs/programs.md``); what it
+    prescribes is in its versions. ``ended_at``: ended by the therapist (kept, with its
+    history)."""
+
+    __tablename__ = "programs"
+    __table_args__ = (UniqueConstraint("patient_id", "name", name="uq_programs_patient_name"),
+                      {"sqlite_autoincrement": True})
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    patient_id: Mapped[int] = mapped_column(
+        ForeignKey("patients.id", ondelete="CASCADE"), index=True)
+    name: Mapped[str] = mapped_column(String(120))
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
+    ended_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+
+    versions: Mapped[list[ProgramVersion]] = relationship(
+        back_populates="program", order_by="ProgramVersion.number",
+        cascade="all, delete-orphan")
+
+
+class ProgramVersion(Base):
+    """One version of a program, never changed once saved: its dates (inclusive, in the
+    clinic's time zone), note and ordered exercises. In force from ``created_at`` until
+    the next version's."""
+
+    __tablename__ = "program_versions"
+    __table_args__ = (UniqueConstraint("program_id", "number",
+                                       name="uq_program_versions_program_number"),
+                      {"sqlite_autoincrement": True})
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    program_id: Mapped[int] = mapped_column(
+        ForeignKey("programs.id", ondelete="CASCADE"), index=True)
+    number: Mapped[int] = mapped_column(Integer)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
+    #: the therapist who saved it (no foreign key: the record outlives the account)
+    created_by: Mapped[int | None] = mapped_column(Integer)
+    start_date: Mapped[date] = mapped_column(Date)
+    end_date: Mapped[date | None] = mapped_column(Date)
+    note: Mapped[str | None] = mapped_column(String(2000))
+
+    program: Mapped[Program] = relationship(back_populates="versions")
+    exercises: Mapped[list[ProgramExercise]] = relationship(
+        order_by="ProgramExercise.position", cascade="all, delete-orphan")
+
+
+class ProgramExercise(Base):
+    """One exercise of a version: a catalogue exercise, its angle, and its dose. Target
+    [deg] ``None``: the patient's target for the angle applies, else the catalogue's."""
+
+    __tablename__ = "program_exercises"
+    __table_args__ = ({"sqlite_autoincrement": True},)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    version_id: Mapped[int] = mapped_column(
+        ForeignKey("program_versions.id", ondelete="CASCADE"), index=True)
+    position: Mapped[int] = mapped_column(Integer)
+    exercise: Mapped[str] = mapped_column(String(40))
+    angle: Mapped[str] = mapped_column(String(40))
+    sets: Mapped[int] = mapped_column(Integer)
+    repetitions: Mapped[int] = mapped_column(Integer)
+    target_min_deg: Mapped[float | None] = mapped_column(Float)
+    target_max_deg: Mapped[float | None] = mapped_column(Float)
+    hold_s: Mapped[float] = mapped_column(Float)
+    rest_s: Mapped[float] = mapped_column(Float)
+    days_per_week: Mapped[int] = mapped_column(Integer)
+    note: Mapped[str | None] = mapped_column(String(500))
+
+
+class SessionProgram(Base):
+    """The program version a session followed because its kit named the program in
+    ``hello`` (``docs/extensions/programs-hello.md``); never changed afterwards."""
+
+    __tablename__ = "session_programs"
+
+    session_id: Mapped[int] = mapped_column(
+        ForeignKey("sessions.id", ondelete="CASCADE"), primary_key=True)
+    version_id: Mapped[int] = mapped_column(
+        ForeignKey("program_versions.id", ondelete="CASCADE"), index=True)
+
+
+class SessionRating(Base):
+    """Effort (Borg CR10, 0–10) and pain (numeric rating scale, 0–10) the patient gave
+    after an exercise (``docs/extensions/effort-pain.md``). ``rating_id``: the kit's own
+    id of the message, so that a message sent again is stored once."""
+
+    __tablename__ = "session_ratings"
+    __table_args__ = (UniqueConstraint("session_id", "rating_id",
+                                       name="uq_session_ratings_session_rating"),
+                      {"sqlite_autoincrement": True})
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    session_id: Mapped[int] = mapped_column(
+        ForeignKey("sessions.id", ondelete="CASCADE"), index=True)
+    rating_id: Mapped[str] = mapped_column(String(64))
+    exercise: Mapped[str] = mapped_column(String(120))
+    t: Mapped[float | None] = mapped_column(Float)
+    effort: Mapped[float | None] = mapped_column(Float)
+    pain: Mapped[int | None] = mapped_column(Integer)
+    received_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))

@@ -1,0 +1,111 @@
+"""Exercise programs (``docs/programs.md``): the catalogue, a patient's programs and their
+versions. A program is the patient's data: another therapist's is 404, as if it did not
+exist."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Depends, HTTPException, status
+from sqlalchemy.orm import Session as DbSession
+
+from .. import audit
+from ..db import models
+from ..programs import catalogue, store
+from ..programs.calendar import clinic_zone, today
+from ..programs.schemas import CatalogueOut, PrescriptionIn, ProgramIn, ProgramOut, VersionOut
+from ..reports.targets import patient_targets
+from ..services import Services
+from ..settings import Settings
+from .deps import Db, Therapist, own_patient, services
+from .schemas import Id
+
+router = APIRouter(prefix="/api", tags=["programs"], responses={
+    401: {"description": "not signed in: a valid bearer token is required"},
+    404: {"description": "no such patient or program of this therapist's"}})
+
+
+def own_program(db: DbSession, therapist: models.Therapist, program_id: int
+                ) -> models.Program:
+    program = db.get(models.Program, program_id)
+    if program is not None:
+        patient = db.get(models.Patient, program.patient_id)
+        if patient is not None and patient.therapist_id == therapist.id:
+            audit.note(patient_id=patient.id)
+            return program
+    raise HTTPException(status.HTTP_404_NOT_FOUND, f"no program {program_id}")
+
+
+def settings_of(svc: Annotated[Services, Depends(services)]) -> Settings:
+    return svc.settings
+
+
+SettingsDep = Annotated[Settings, Depends(settings_of)]
+
+
+def _out(db: DbSession, program: models.Program, settings: Settings) -> ProgramOut:
+    return store.program_out(program, patient_targets(db, program.patient_id),
+                             today(clinic_zone(settings.clinic_timezone)))
+
+
+@router.get("/programs/catalogue", response_model=list[CatalogueOut])
+def get_catalogue(therapist: Therapist) -> list[dict]:
+    """The exercises a program can prescribe, each with the angle that measures it."""
+    return [e.as_dict() for e in catalogue.CATALOGUE.values()]
+
+
+@router.get("/patients/{patient_id}/programs", response_model=list[ProgramOut])
+def list_programs(patient_id: Id, db: Db, therapist: Therapist,
+                  settings: SettingsDep) -> list[ProgramOut]:
+    """The patient's programs, oldest first, each with its current version."""
+    own_patient(db, therapist, patient_id)
+    return [_out(db, p, settings) for p in store.patient_programs(db, patient_id)]
+
+
+@router.post("/patients/{patient_id}/programs", response_model=ProgramOut,
+             status_code=status.HTTP_201_CREATED,
+             responses={409: {"description": "the patient has a program of that name"}})
+def create_program(patient_id: Id, body: ProgramIn, db: Db, therapist: Therapist,
+                   settings: SettingsDep) -> ProgramOut:
+    """Prescribe a program: its version 1."""
+    own_patient(db, therapist, patient_id)
+    try:
+        program = store.create_program(db, patient_id, body, therapist.id)
+    except store.ProgramConflict as exc:
+        raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from None
+    return _out(db, program, settings)
+
+
+@router.get("/programs/{program_id}", response_model=ProgramOut)
+def get_program(program_id: Id, db: Db, therapist: Therapist,
+                settings: SettingsDep) -> ProgramOut:
+    """The program with its current version."""
+    return _out(db, own_program(db, therapist, program_id), settings)
+
+
+@router.put("/programs/{program_id}", response_model=ProgramOut)
+def change_program(program_id: Id, body: PrescriptionIn, db: Db, therapist: Therapist,
+                   settings: SettingsDep) -> ProgramOut:
+    """Change the prescription: saved as the program's next version (the sessions that
+    followed earlier versions keep them). An ended program is in force again."""
+    program = own_program(db, therapist, program_id)
+    store.change_program(db, program, body, therapist.id)
+    return _out(db, program, settings)
+
+
+@router.get("/programs/{program_id}/versions", response_model=list[VersionOut])
+def list_versions(program_id: Id, db: Db, therapist: Therapist) -> list[VersionOut]:
+    """Every version of the program, oldest first."""
+    program = own_program(db, therapist, program_id)
+    targets = patient_targets(db, program.patient_id)
+    return [store.version_out(v, targets) for v in program.versions]
+
+
+@router.post("/programs/{program_id}/end", response_model=ProgramOut)
+def end_program(program_id: Id, db: Db, therapist: Therapist,
+                settings: SettingsDep) -> ProgramOut:
+    """End the program now: no more prescriptions or flags after today; its history
+    stays."""
+    program = own_program(db, therapist, program_id)
+    store.end_program(db, program)
+    return _out(db, program, settings)
