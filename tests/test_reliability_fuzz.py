@@ -493,7 +493,7 @@ def test_generated_bad_recordings_are_refused_naming_a_line_none_half_read(
             if header:
                 k = data.draw(st.sampled_from(header))
                 lines[k] = data.draw(st.sampled_from([
-                    b"# armtrack-recording: 2", b"# side: up", b"# height_m: -1",
+                    b"# armtrack-recording: 3", b"# side: up", b"# height_m: -1",
                     b"# rate_hz: x", b"# calibration: npose 9 1", b"#", b"# : x",
                     b"# sensors: forearm", b"# mark: 1.0 bad label"]))
         elif how == "blank":

@@ -9,17 +9,30 @@ from .session import Pipeline, PipelineConfig
 def estimate_recording(recording: Recording, filter_name: str = "qcf"
                        ) -> tuple[Estimates, Calibration]:
     """Estimates of a whole recording, and the calibration they used."""
-    config = PipelineConfig(side=recording.side, lengths=recording.segment_lengths(),
-                            sensors=tuple(recording.sensors), filter=filter_name)
-    pipeline = Pipeline(config, poses=recording.calibration)
-    for mark in recording.marks:
-        pipeline.add_mark(mark)
-    for name, stream in recording.sensors.items():
-        pipeline.feed(name, stream.t, stream.acc, stream.gyr, stream.mag)
+    pipeline = run_recording(recording, filter_name)
     estimates = pipeline.finish()
     assert pipeline.calibration is not None
     return estimates, pipeline.calibration
 
 
+def run_recording(recording: Recording, filter_name: str = "qcf") -> Pipeline:
+    """A pipeline fed a whole recording (samples, marks, wrist points), not yet finished:
+    ``finish()`` gives its estimates; ``elbow_source`` and ``gamma`` say what the points
+    did."""
+    config = PipelineConfig(side=recording.side, lengths=recording.segment_lengths(),
+                            sensors=tuple(recording.sensors), filter=filter_name)
+    pipeline = Pipeline(config, poses=recording.calibration,
+                        points_frame=recording.points_frame if recording.points else None)
+    for mark in recording.marks:
+        pipeline.add_mark(mark)
+    for name, stream in recording.sensors.items():
+        pipeline.feed(name, stream.t, stream.acc, stream.gyr, stream.mag)
+    if pipeline.gamma is not None:
+        pipeline.gamma.flag_log = []
+    for name, points in recording.points.items():
+        pipeline.feed_points(name, points.t, points.p)
+    return pipeline
+
+
 __all__ = ["REFERENCE_ORDER", "Calibration", "EstimateArrays", "Estimates", "Pipeline",
-           "PipelineConfig", "estimate_recording"]
+           "PipelineConfig", "estimate_recording", "run_recording"]

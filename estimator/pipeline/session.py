@@ -20,18 +20,20 @@ import numpy as np
 
 from ..arm.compiled import CompiledJoints
 from ..arm.inverse import JointAngleParams
-from ..arm.joints import SEGMENT_OF_SENSOR, SEGMENTS
+from ..arm.joints import REPORTED_ANGLES, SEGMENT_OF_SENSOR, SEGMENTS
 from ..body import SENSOR_NAMES, SegmentLengths, Side
 from ..calibration import CalibrationPlan, poses_from_marks
 from ..errors import InvalidArgument
 from ..orientation import DEFAULT_FILTER
 from ..recording import Mark, Pose
+from ..recording.points import PointsFrame
 from ..rotations import elemental
 from .calibrate import Calibration, calibrate
 from .constraints import HeadingConstraint
 from .estimates import REFERENCE_ORDER, EstimateArrays, Estimates
 from .segment_kernel import segment_orientations
 from .tracks import SensorTrack
+from .wrist_points import MAX_POINTS_LAG_S, GammaElbow, WristTrack
 
 
 @dataclass(frozen=True)
@@ -59,7 +61,8 @@ class Pipeline:
     """Feed samples with ``feed``, marks with ``add_mark`` (or poses up front); take
     estimates with ``poll`` as they become available and the rest with ``finish``."""
 
-    def __init__(self, config: PipelineConfig, poses: Iterable[Pose] = ()):
+    def __init__(self, config: PipelineConfig, poses: Iterable[Pose] = (),
+                 points_frame: PointsFrame | None = None):
         self.config = config
         self._tracks = {s: SensorTrack(s, config.filter) for s in config.sensors}
         self._reference = config.reference
@@ -71,6 +74,29 @@ class Pipeline:
         self.calibration: Calibration | None = None
         self._finished = False
         self._constraints: dict[str, HeadingConstraint] = {}
+        # wrist points (a robot's handle, a camera) and an upper-arm IMU: the γ elbow
+        self._wrist: WristTrack | None = None
+        self.gamma: GammaElbow | None = None
+        if points_frame is not None and "upper_arm" in config.sensors:
+            self._wrist = WristTrack(points_frame, config.side, config.lengths)
+            self.gamma = GammaElbow(config.side, config.lengths,
+                                    forearm_imu="forearm" in config.sensors)
+
+    @property
+    def elbow_source(self) -> str:
+        """What makes the elbow: ``imu`` or ``points`` (the γ elbow from wrist points)."""
+        return self.gamma.source if self.gamma is not None else "imu"
+
+    def feed_points(self, point: str, t, p) -> None:
+        """Positions of a point (``wrist``) at times ``t`` [s] (N,), ``p`` [m] (N, 3) in the
+        session's points frame, in time order. Ignored without an upper-arm IMU (the γ
+        elbow needs one)."""
+        if self._finished:
+            raise InvalidArgument("the pipeline was finished; start a new one")
+        if point != "wrist":
+            raise InvalidArgument(f"unknown point {point!r} (the pipeline uses 'wrist')")
+        if self._wrist is not None:
+            self._wrist.append(t, p)
 
     def add_mark(self, mark: Mark) -> None:
         """A stream's mark; calibration poses are taken from ``npose``/``tpose`` marks."""
@@ -174,6 +200,9 @@ class Pipeline:
             for track in self._others:
                 if track.last_t < horizon:
                     horizon = track.last_t
+            if self._wrist is not None:  # wait for the points, but not for ever
+                waited = max(self._wrist.last_t, reference.last_t - MAX_POINTS_LAG_S)
+                horizon = min(horizon, waited)
         start = self._given - reference.discarded
         stop = int(t_ref.searchsorted(horizon, "right")) if math.isfinite(horizon) \
             else len(t_ref)
@@ -196,13 +225,22 @@ class Pipeline:
         if not present[0]:  # no trunk sensor: the thorax stays where calibration put it
             Rw[:, 0] = self.calibration.R_world_thorax
             present[0] = 1.0
+        points_flexion = None
+        if self.gamma is not None and self._wrist is not None:
+            points_flexion, flagged = self.gamma.apply(
+                Rw, present, self._wrist.at(times), self._wrist.shoulder_thorax,
+                _SEGMENT_INDEX["upper_arm"], _SEGMENT_INDEX["forearm"])
         if self._constraints:
             self._apply_constraints(times, Rw, present)
         angles, residuals, positions, R_world_all = self._joints.update(Rw, present)
+        if points_flexion is not None and self.gamma is not None and self.gamma.forearm_imu:
+            self.gamma.compare(points_flexion, angles[:, _ELBOW_FLEXION], flagged)
         # no later estimate looks further back than this one: the tracks forget the rest
         last = float(times[-1])
         for track in self._tracks.values():
             track.discard_before(last)
+        if self._wrist is not None:
+            self._wrist.discard_before(last)
         return EstimateArrays(times, angles, residuals, positions, R_world_all)
 
     def _apply_constraints(self, times: np.ndarray, Rw: np.ndarray, present: np.ndarray
@@ -223,3 +261,4 @@ class Pipeline:
 
 
 _SEGMENT_INDEX = {segment: i for i, segment in enumerate(SEGMENTS)}
+_ELBOW_FLEXION = REPORTED_ANGLES.index("elbow_flexion")

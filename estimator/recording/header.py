@@ -51,6 +51,8 @@ class Header:
     metadata: dict[str, str] = field(default_factory=dict)
     body_start: int = 0
     column_line: int = 0
+    version: int = 1
+    key_lines: dict[str, int] = field(default_factory=dict)
 
 
 def read_header(data: bytes, start: int) -> Header:
@@ -75,6 +77,7 @@ def read_header(data: bytes, start: int) -> Header:
             raise InvalidRecording(message, line)
         seen[key] = line
         _apply(header, key, value, line)
+    header.key_lines = seen
 
     column_line = len(raw_lines) + 1
     if pos >= len(data):
@@ -113,6 +116,8 @@ def format_header(recording: Recording) -> str:
         lines.append("marks: " + "; ".join(f"{_number(m.t)} {m.label}" for m in recording.marks))
     if recording.rate_hz is not None:
         lines.append(f"rate_hz: {_number(recording.rate_hz)}")
+    if recording.points_frame is not None:
+        lines += recording.points_frame.header_lines()
     lines += [f"{k}: {v}" if v else f"{k}:" for k, v in recording.metadata.items()]
     return "".join(f"# {line}\n" for line in lines) + COLUMN_LINE + "\n"
 
@@ -158,7 +163,9 @@ def _apply(header: Header, key: str, value: str, line: int) -> None:
         header.metadata[key] = value
         return
     try:
-        if key == "side":
+        if key == "armtrack-recording":
+            header.version = int(value)  # checked by _check_version
+        elif key == "side":
             if value not in SIDES:
                 raise InvalidRecording(f"side must be right or left, got {value!r}", line)
             header.side = value

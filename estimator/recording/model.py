@@ -17,16 +17,19 @@ import math
 import numbers
 import re
 from dataclasses import dataclass, field
-from typing import ClassVar, Literal
+from typing import Literal
 
 import numpy as np
 
 from ..body import SENSOR_NAMES, SIDES, SegmentLengths
 from ..errors import InvalidArgument, InvalidShape
+from .points import POINT_NAMES, POINTS_HEADER_KEYS, PointsFrame, PointStream
 
-#: The format versions this code reads and writes.
+#: The format versions this code reads and writes: 1, and 2 = 1 with the points extension
+#: (``docs/extensions/points.md``), written only for a recording that has a points frame.
 FORMAT_VERSION = 1
-SUPPORTED_VERSIONS: tuple[int, ...] = (1,)
+POINTS_VERSION = 2
+SUPPORTED_VERSIONS: tuple[int, ...] = (1, 2)
 
 PoseName = Literal["npose", "tpose"]
 POSE_NAMES: tuple[str, ...] = ("npose", "tpose")
@@ -153,9 +156,9 @@ class Recording:
     marks: exercise and pose marks, in file order.
     rate_hz: nominal sample rate [Hz], or None; informative only.
     metadata: the header's other ``key: value`` lines, in file order.
+    points: position points by name (``wrist``), in ``points_frame`` (version 2 only).
+    points_frame: where the points are given, or None (then the file is version 1).
     """
-
-    version: ClassVar[int] = FORMAT_VERSION
 
     side: Literal["right", "left"]
     sensors: dict[str, SensorStream]
@@ -165,6 +168,13 @@ class Recording:
     marks: tuple[Mark, ...] = ()
     rate_hz: float | None = None
     metadata: dict[str, str] = field(default_factory=dict)
+    points: dict[str, PointStream] = field(default_factory=dict)
+    points_frame: PointsFrame | None = None
+
+    @property
+    def version(self) -> int:
+        """The file format version this recording is written in."""
+        return POINTS_VERSION if self.points_frame is not None else FORMAT_VERSION
 
     def __post_init__(self) -> None:
         if self.side not in SIDES:
@@ -201,6 +211,26 @@ class Recording:
         object.__setattr__(self, "metadata", dict(self.metadata))
         for key, value in self.metadata.items():
             check_metadata(key, value)
+        self._check_points()
+
+    def _check_points(self) -> None:
+        points = {n: self.points[n] for n in POINT_NAMES if n in self.points}
+        unknown = set(self.points) - set(points)
+        if unknown:
+            raise InvalidArgument(f"unknown point {sorted(unknown)[0]!r} (expected one of "
+                                  f"{', '.join(POINT_NAMES)})")
+        if not all(isinstance(s, PointStream) for s in points.values()):
+            raise InvalidArgument("points must hold PointStream objects")
+        if points and self.points_frame is None:
+            raise InvalidArgument("a recording with points needs their points_frame")
+        if self.points_frame is not None:
+            if not isinstance(self.points_frame, PointsFrame):
+                raise InvalidArgument("points_frame must be a PointsFrame")
+            clash = [k for k in self.metadata if k in POINTS_HEADER_KEYS]
+            if clash:
+                raise InvalidArgument(f"metadata key {clash[0]!r} is a header field of the "
+                                      "points extension")
+        object.__setattr__(self, "points", points)
 
     def segment_lengths(self) -> SegmentLengths:
         """Segment lengths [m]: the measured ones if given, else from body height."""

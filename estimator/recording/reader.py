@@ -39,7 +39,15 @@ import pyarrow.csv as pacsv
 from ..body import SENSOR_NAMES
 from ..errors import InvalidRecording
 from .header import Header, read_header
-from .model import Recording
+from .model import POINTS_VERSION, Recording
+from .points import (
+    POINTS_COLUMN_LINE,
+    POINTS_HEADER_KEYS,
+    PointsFrame,
+    PointStream,
+    frame_from_header,
+    parse_points,
+)
 from .rows import (
     RowChecker,
     Rows,
@@ -95,6 +103,15 @@ def _parse(data: bytes, fast: bool) -> Recording:
     header = read_header(data, start)
     begin, end = header.body_start, _content_end(data, header.body_start)
     first_line = header.column_line + 1
+    points, frame = {}, None
+    if header.version >= POINTS_VERSION:
+        end, points, frame = _points(data, header, begin, end)
+    else:
+        at = _points_column(data, begin, end)
+        if at >= 0:
+            line = header.column_line + 1 + data.count(b"\n", begin, at + 1)
+            raise InvalidRecording(f"a points section ({POINTS_COLUMN_LINE}) needs "
+                                   f"'armtrack-recording: {POINTS_VERSION}'", line)
     if begin >= end:
         raise InvalidRecording("no data rows after the column line", first_line)
     if fast:
@@ -104,7 +121,28 @@ def _parse(data: bytes, fast: bool) -> Recording:
         _check(rows, data, begin, first_line)
     else:
         rows = parse_rows_slow(data[begin:end].split(b"\n"), first_line)
-    return _recording(header, rows)
+    return _recording(header, rows, points, frame)
+
+
+def _points(data: bytes, header: Header, begin: int, end: int
+            ) -> tuple[int, dict[str, PointStream], PointsFrame | None]:
+    """A version-2 file's points section (``docs/extensions/points.md``): the end of the
+    IMU rows, the points and their frame. The section starts at the first line that is
+    exactly ``t,point,x,y,z``; the extension's header keys leave the metadata."""
+    values = {key: (header.metadata.pop(key), header.key_lines[key])
+              for key in POINTS_HEADER_KEYS if key in header.metadata}
+    at = _points_column(data, begin, end)
+    if at < 0:
+        frame = frame_from_header(values, header.column_line) if values else None
+        return end, {}, frame
+    column_line = header.column_line + 1 + data.count(b"\n", begin, at + 1)
+    frame = frame_from_header(values, column_line)
+    rows_start = data.find(b"\n", at + 1, end)
+    if rows_start < 0:
+        raise InvalidRecording("no point rows after the points column line", column_line)
+    points = parse_points(data[rows_start + 1:end].split(b"\n"), column_line + 1)
+    imu_end = at - 1 if at > begin and data[at - 1] == 0x0D else at
+    return imu_end, points, frame
 
 
 def _check(rows: Rows, data: bytes, begin: int, first_line: int) -> None:
@@ -189,7 +227,18 @@ def _codes(column: pa.ChunkedArray) -> np.ndarray:
     return np.concatenate(parts) if parts else np.empty(0, dtype=np.int8)
 
 
-def _recording(header: Header, rows: Rows) -> Recording:
+def _points_column(data: bytes, begin: int, end: int) -> int:
+    """Offset of the newline before the line ``t,point,x,y,z`` in the body, or -1."""
+    marker = b"\n" + POINTS_COLUMN_LINE.encode()
+    at = data.find(marker, begin - 1, end)
+    while at >= 0 and not data.startswith((b"\n", b"\r\n"), at + len(marker)) \
+            and at + len(marker) != end:
+        at = data.find(marker, at + 1, end)
+    return at
+
+
+def _recording(header: Header, rows: Rows, points: dict[str, PointStream],
+               frame: PointsFrame | None) -> Recording:
     return Recording(
         side=header.side,  # type: ignore[arg-type]  # checked by read_header
         sensors=streams(rows),
@@ -199,4 +248,6 @@ def _recording(header: Header, rows: Rows) -> Recording:
         marks=header.marks,
         rate_hz=header.rate_hz,
         metadata=header.metadata,
+        points=points,
+        points_frame=frame,
     )

@@ -28,6 +28,7 @@ from ..body import SENSOR_NAMES
 from ..errors import EstimatorError, InvalidRecording
 from .header import format_header
 from .model import Recording, SensorStream, check_metadata
+from .points import check_points, format_points
 from .rules import COLUMNS, backwards_message, beyond_range, range_message
 
 _WRITE = pacsv.WriteOptions(include_header=False, quoting_style="none", batch_size=1 << 16)
@@ -50,6 +51,7 @@ def check_recording(recording: Recording) -> None:
             check_metadata(key, value)
         except EstimatorError as exc:
             raise InvalidRecording(str(exc)) from None
+    check_points(recording.points)
 
 
 def _check_stream(name: str, stream: SensorStream) -> None:
@@ -110,7 +112,10 @@ def write_recording(recording: Recording, path: str | os.PathLike[str]) -> None:
 def _parts(recording: Recording) -> list[bytes | memoryview]:
     """The file's bytes in pieces: the header, then the rows merged by time."""
     check_recording(recording)
-    return [format_header(recording).encode("utf-8"), *_rows(recording)]
+    parts = [format_header(recording).encode("utf-8"), *_rows(recording)]
+    if recording.points:
+        parts.append(format_points(recording.points))
+    return parts
 
 
 def _rows(recording: Recording) -> list[memoryview]:

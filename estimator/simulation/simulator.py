@@ -15,6 +15,7 @@ from ..recording import Pose, Recording, SensorStream
 from ..rotations import angle_between, elemental
 from .body_motion import Stance, body_motion
 from .imu import Dipole, ImuErrors, MagneticEnvironment, Mount, default_mount, synthesize_imu
+from .points import WRIST_SOURCES, wrist_points
 from .profiles import Motion
 from .scenarios import NPOSE_WINDOW_S, TPOSE_WINDOW_S, exercise_motion
 
@@ -50,6 +51,7 @@ class SimulationConfig:
     mount_tilt_deg: float = 8.0
     magnet_near_hand: bool = False
     heading_deg: float = 30.0
+    wrist_points: str | None = None
 
     def __post_init__(self) -> None:
         unknown = set(self.sensors) - set(SENSOR_NAMES)
@@ -59,6 +61,9 @@ class SimulationConfig:
             raise InvalidArgument(f"rate_hz must be within 1–2000 Hz, got {self.rate_hz}")
         if not 0.0 <= self.lost_fraction < 0.5:
             raise InvalidArgument(f"lost_fraction must be in [0, 0.5), got {self.lost_fraction}")
+        if self.wrist_points not in (None, *WRIST_SOURCES):
+            raise InvalidArgument(f"wrist_points must be one of {', '.join(WRIST_SOURCES)}, "
+                                  f"got {self.wrist_points!r}")
         if not 0.0 <= self.jitter_s < 0.5 / self.rate_hz:
             raise InvalidArgument(
                 f"jitter_s must be below half a sample period ({0.5 / self.rate_hz} s), "
@@ -170,10 +175,16 @@ def simulate(config: SimulationConfig = SimulationConfig(), motion: Motion | Non
     calibration = ()
     if config.calibration:
         calibration = (Pose("npose", *NPOSE_WINDOW_S), Pose("tpose", *TPOSE_WINDOW_S))
+    points, points_frame = {}, None
+    if config.wrist_points is not None:
+        points, points_frame = wrist_points(
+            WRIST_SOURCES[config.wrist_points], motion, config, lengths, stance, duration, rng)
     recording = Recording(
         side=config.side, sensors=streams, height_m=config.height_m,
+        lengths=None if lengths == SegmentLengths.from_height(config.height_m) else lengths,
         calibration=calibration, rate_hz=config.rate_hz,
         metadata={"scenario": config.exercise, "simulator": "armtrack", "seed": str(config.seed)},
+        points=points, points_frame=points_frame,
     )
     return Simulation(recording=recording, truth=truth)
 

@@ -41,6 +41,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a magnet near the hand's path disturbs the magnetometers")
     parser.add_argument("--no-calibration", action="store_true",
                         help="skip the N-pose/T-pose sequence at the start")
+    parser.add_argument("--wrist-points", choices=("robot", "camera"),
+                        help="also write the wrist's position as an end-effector robot "
+                        "(100 Hz, 0.5 mm) or a camera (30 Hz, 2-5 mm, latency, dropouts) "
+                        "gives it: the recording's points extension (docs/extensions/points.md)")
     parser.add_argument("--seed", type=int, default=0)
 
 
@@ -57,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
         nine_axis=not args.six_axis, sensors=sensors, repetitions=args.reps,
         amplitude_deg=args.amplitude, calibration=not args.no_calibration, seed=args.seed,
         jitter_s=args.jitter_ms / 1000.0, lost_fraction=args.lost,
-        magnet_near_hand=args.magnet,
+        magnet_near_hand=args.magnet, wrist_points=args.wrist_points,
         errors=replace(SimulationConfig().errors, gyro_bias_walk=args.bias_walk))
     result = simulate(config)
     truth_path = args.truth or args.output.with_name(
@@ -65,6 +69,7 @@ def run(args: argparse.Namespace) -> int:
     write_recording(result.recording, args.output)
     write_truth(result.truth, truth_path)
     rows = sum(len(s) for s in result.recording.sensors.values())
-    print(f"wrote {args.output} ({rows} rows, {len(sensors)} sensors, "
+    points = "".join(f", {len(p)} {name} points" for name, p in result.recording.points.items())
+    print(f"wrote {args.output} ({rows} rows, {len(sensors)} sensors{points}, "
           f"{result.truth.t[-1]:.1f} s) and its truth {truth_path}")
     return 0
