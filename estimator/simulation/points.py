@@ -77,6 +77,6 @@ def wrist_points(source: WristSource, motion: Motion, config, lengths: SegmentLe
     rest = body_motion(motion, config.side, lengths, np.zeros(1), stance)
     shoulder = rest.points["shoulder"].p[0] + rng.normal(0.0, source.shoulder_error_m, 3) \
         if source.shoulder_error_m else rest.points["shoulder"].p[0]
-    frame = PointsFrame("base", thorax_yaw_deg=float(np.rad2deg(stance.heading)),
+    frame = PointsFrame("base", thorax_yaw_deg=float(config.heading_deg),
                         shoulder_m=tuple(float(v) for v in shoulder))
     return {"wrist": PointStream(t, p)}, frame

@@ -47,12 +47,19 @@ def run(args: argparse.Namespace) -> int:
         "marks": [{"t": m.t, "label": m.label} for m in recording.marks],
         "metadata": recording.metadata,
     }
+    if recording.points_frame is not None:  # docs/extensions/points.md
+        frame = recording.points_frame
+        summary["points_frame"] = {"kind": frame.kind, "thorax_yaw_deg": frame.thorax_yaw_deg,
+                                   "shoulder_m": frame.shoulder_m}
+        summary["points"] = {name: {"samples": len(p), "start_s": float(p.t[0]),
+                                    "end_s": float(p.t[-1])}
+                             for name, p in recording.points.items()}
     if args.json:
         from ..cli import print_json
 
         print_json(summary)
         return 0
-    print(f"{args.recording}: a valid recording (format 1)")
+    print(f"{args.recording}: a valid recording (format {recording.version})")
     print(f"  {recording.side} arm; lengths (m): "
           + ", ".join(f"{k} {v:.3f}" for k, v in lengths.as_dict().items())
           + ("" if recording.lengths else f" (from height {recording.height_m} m)"))
@@ -61,6 +68,9 @@ def run(args: argparse.Namespace) -> int:
     for name, s in sensors.items():
         print(f"  {name:<10}{s['axes']:>5}{s['samples']:>9}{s['start_s']:>9.2f}{s['end_s']:>9.2f}"
               f"{s['rate_hz']:>8.1f}{s['lost_samples']:>7}{s['lost_percent']:>8.2f}")
+    for name, p in summary.get("points", {}).items():
+        print(f"  point {name}: {p['samples']} positions, {p['start_s']:.2f}–{p['end_s']:.2f} s, "
+              f"frame {recording.points_frame.kind}")
     poses = "; ".join(f"{p.name} {p.start:g}–{p.end:g} s" for p in recording.calibration)
     print(f"  calibration: {poses or 'none (the default mounting will be assumed)'}")
     if recording.marks:

@@ -30,12 +30,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from armtrack.estimator.metrics import range_of_motion_table, repetitions_by_angle
-    from armtrack.estimator.pipeline import estimate_recording
+    from armtrack.estimator.pipeline import run_recording
     from armtrack.estimator.pipeline.quality import residual_warnings
     from armtrack.estimator.recording import read_recording
 
     recording = read_recording(args.recording)
-    estimates, calibration = estimate_recording(recording, args.filter)
+    pipeline = run_recording(recording, args.filter)
+    estimates, calibration = pipeline.finish(), pipeline.calibration
+    assert calibration is not None
     columns, values = estimates.table()
     with open_output(args.output) as out:
         write_angles_csv(out, columns, values)
@@ -48,6 +50,15 @@ def run(args: argparse.Namespace) -> int:
     print(f"{args.recording}: {len(estimates)} estimates, filter {args.filter}, calibration "
           f"{calibration.method}" + (f", written to {args.output}" if args.output else ""),
           file=report)
+    if pipeline.gamma is not None:
+        stats = pipeline.gamma.stats
+        check = ("" if stats.disagreement_rms_deg is None else
+                 f"; the points' elbow flexion differs from the IMUs' by "
+                 f"{stats.disagreement_rms_deg:.1f}° RMS")
+        source = "forearm IMU" if pipeline.elbow_source == "imu" else "wrist points (γ)"
+        print(f"  elbow: from the {source}, upper-arm heading from the wrist points; heading "
+              f"held in {stats.flagged_share:.0%} of samples (wrist near below the shoulder, or no "
+              f"point){check}", file=report)
     for warning in (*calibration.warnings,
                     *residual_warnings(estimates, tuple(recording.sensors))):
         print(f"  warning: {warning.message}", file=report)
