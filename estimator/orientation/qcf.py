@@ -10,9 +10,12 @@ sensors need:
   bounded velocity, cancels out of it far better than out of a per-sample correction;
 * the magnetometer acting on heading only (a rotation about the vertical, so a disturbed
   field never tilts the estimate), and ignored while its norm or dip departs from the
-  reference learned in a clean field (a magnet, a steel table);
+  reference; the reference is the field that stayed put in the earth frame while the
+  sensor turned (not the first sample's: kits start on tables, near laptops), so a field
+  disturbed from the first sample is replaced within seconds of moving;
 * the gyroscope bias estimated online: quickly whenever the sensor rests (rest detected
-  from the low-passed gyroscope and accelerometer), slowly from the corrections in motion.
+  from the low-passed gyroscope and accelerometer; half a second of stillness from the
+  first sample already gives a provisional one), slowly from the corrections in motion.
 
 Parameters are one set for every sensor and session; see ``QcfParams``.
 """
@@ -89,6 +92,23 @@ class QcfParams:
     #: Rest samples count toward the bias only once the rest has gone on this long after
     #: them [s], so the slow start of a movement never leaks into the bias.
     rest_guard: float = 1.0
+    #: A sensor still from its first sample has a provisional bias after this much
+    #: stillness [s] (before it is a rest) …
+    rest_time_first: float = 0.5
+    #: … from samples that the stillness outlasted by this much [s] …
+    rest_guard_first: float = 0.2
+    #: … once there are this many of them.
+    rest_min_samples_first: float = 8.0
+    #: The reference's evidence grows by this while it holds, besides the turn [rad/s].
+    mag_hold_weight: float = 0.03
+    #: A new reference whose heading differs from the estimate's by more than this
+    #: restarts the heading from the running mean of its readings [rad] (a smaller
+    #: difference is corrected at tau_mag).
+    mag_restart: float = 0.35
+    #: A field that stayed put in the earth frame (its norm within mag_norm_tolerance,
+    #: its direction within twice mag_dip_tolerance of its mean) while the sensor turned
+    #: this far becomes the reference in place of one confirmed by less turning [rad].
+    mag_confirm_turn: float = 0.3
 
     def __post_init__(self) -> None:
         for name, value in self.__dict__.items():
@@ -102,7 +122,9 @@ class QcfParams:
                   self.mag_reaccept, self.max_dt, self.rest_min_samples, self.rest_guard,
                   self.tau_acc_rest, self.rest_rate, self.tau_bias_rest,
                   self.rest_rate_known, self.zupt_delay, self.mag_window,
-                  self.tau_bias_mag, self.mag_bias_prior, self.rest_tilt]
+                  self.tau_bias_mag, self.mag_bias_prior, self.rest_tilt,
+                  self.rest_time_first, self.rest_guard_first, self.mag_confirm_turn,
+                  self.rest_min_samples_first, self.mag_hold_weight, self.mag_restart]
         assert len(values) == PARAM_SIZE
         return np.array(values, dtype=np.float64)
 

@@ -24,7 +24,11 @@ time · ``[39:42]`` the previous gyroscope sample · ``[42]`` the first sample's
 · ``[43]`` whether a rest has taught the bias · ``[44:63]`` the field-turning bias
 estimator: window sums V, Y, first field, window time, information matrix and vector
 · ``[63:66]`` the previous field sample · ``[66]`` a window is open · ``[67:70]`` the
-low-passed accelerometer when the current rest began.
+low-passed accelerometer when the current rest began · ``[70:73]`` the candidate
+reference field in E [µT] · ``[73]`` how far the sensor turned while the field stayed
+with the candidate [rad] · ``[74]`` the same for the reference (its confirmation) [rad]
+· ``[75]`` when the heading's warm-up (running mean of the readings) began [s] · ``[76]``
+the time the candidate has held [s].
 """
 
 from __future__ import annotations
@@ -35,15 +39,16 @@ import numpy as np
 
 from ..scalar_rotations import quat_to_rows
 
-STATE_SIZE = 70
+STATE_SIZE = 77
 
 # Indices into the parameter vector, see QcfParams.as_array.
 (P_TAU_ACC, P_TAU_MAG, P_TAU_LP, P_REST_GYR, P_REST_ACC, P_REST_TIME,
  P_KI_BIAS, P_KI_BIAS_MAG, P_BIAS_MAX, P_MAG_NORM_TOL, P_MAG_DIP_TOL, P_TAU_MAG_REF,
  P_MAG_REACCEPT, P_MAX_DT, P_REST_MIN_SAMPLES, P_REST_GUARD, P_TAU_ACC_REST,
  P_REST_RATE, P_TAU_BIAS_REST, P_REST_RATE_KNOWN, P_ZUPT_DELAY, P_MAG_WINDOW,
- P_TAU_BIAS_MAG, P_MAG_BIAS_PRIOR, P_REST_TILT) = range(25)
-PARAM_SIZE = 25
+ P_TAU_BIAS_MAG, P_MAG_BIAS_PRIOR, P_REST_TILT, P_REST_TIME_FIRST, P_REST_GUARD_FIRST,
+ P_MAG_CONFIRM_TURN, P_REST_MIN_SAMPLES_FIRST, P_MAG_HOLD_WEIGHT, P_MAG_RESTART) = range(31)
+PARAM_SIZE = 31
 
 
 def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out_rest,
@@ -84,6 +89,14 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     rest_guard = params[P_REST_GUARD]
     tau_acc_rest = params[P_TAU_ACC_REST]
     cos_rest_tilt = math.cos(params[P_REST_TILT])
+    rest_time_first = params[P_REST_TIME_FIRST]
+    rest_guard_first = params[P_REST_GUARD_FIRST]
+    mag_confirm_turn = params[P_MAG_CONFIRM_TURN]
+    dt0 = 1e-3  # the weight of the first sample of a candidate [s]
+    cos_candidate = math.cos(2.0 * mag_dip_tol)
+    rest_min_samples_first = params[P_REST_MIN_SAMPLES_FIRST]
+    mag_hold_weight = params[P_MAG_HOLD_WEIGHT]
+    mag_restart = params[P_MAG_HOLD_WEIGHT + 1]
 
     gw, gx, gy, gz = state[0], state[1], state[2], state[3]
     cw, cx, cy, cz = state[4], state[5], state[6], state[7]
@@ -109,6 +122,8 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     z0, z1, z2 = state[60], state[61], state[62]
     lmx, lmy, lmz, m_started = state[63], state[64], state[65], state[66]
     srx, sry, srz = state[67], state[68], state[69]
+    cex, cey, cez, cand_turn, ref_turn = state[70], state[71], state[72], state[73], state[74]
+    t_mag_start, cand_time = state[75], state[76]
 
     for i in range(t.shape[0]):
         ax, ay, az = acc[i, 0], acc[i, 1], acc[i, 2]
@@ -147,6 +162,8 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
                 delta = math.atan2(mex, mey)
                 ref_norm = math.sqrt(mx * mx + my * my + mz * mz)
                 ref_dip = math.atan2(-mez, math.sqrt(mex * mex + mey * mey))
+                cex, cey, cez, cand_turn, ref_turn, cand_time = mex, mey, mez, 0.0, 0.0, dt0
+                t_mag_start = t[i]
         else:
             dt = t[i] - t_last
             t_last = t[i]
@@ -186,9 +203,28 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
             else:
                 still_time = 0.0
                 px, py, pz, pending, pending_time = 0.0, 0.0, 0.0, 0.0, 0.0
-            if still_time >= rest_time_needed:
+            # A kit that starts still (on a table, held for a second) gives a provisional
+            # bias before its stillness is a rest: half a second gives it to a few mrad/s,
+            # where integrating an unknown one drifts by degrees a minute. Its samples
+            # count once the stillness has gone on rest_guard_first after them.
+            initial = still and bias_known == 0.0 and t[i] - still_time <= t_start + 2.0 * dt
+            if initial and still_time < rest_time_needed:
+                px += wx
+                py += wy
+                pz += wz
+                pending += 1.0
+                pending_time += dt
+                if pending_time >= rest_guard_first:
+                    sx += px
+                    sy += py
+                    sz += pz
+                    count += pending
+                    px, py, pz, pending, pending_time = 0.0, 0.0, 0.0, 0.0, 0.0
+                if still_time >= rest_time_first and count >= rest_min_samples_first:
+                    bx, by, bz = sx / count, sy / count, sz / count
+            elif still_time >= rest_time_needed:
                 at_rest = True
-                if still_time - dt < rest_time_needed:
+                if still_time - dt < rest_time_needed and not initial:
                     sx, sy, sz, count = 0.0, 0.0, 0.0, 0.0  # a new rest: a new mean
                 # Samples wait rest_guard seconds before they count, so that the slow
                 # start of the next movement never leaks into the bias.
@@ -311,6 +347,48 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
                 dip = math.atan2(-mez, horizontal)
                 disturbed = (abs(m_norm - ref_norm) > mag_norm_tol * ref_norm
                              or abs(dip - ref_dip) > mag_dip_tol or horizontal <= 0.0)
+                # The reference is the field that stays put in the earth frame while the
+                # sensor turns: near a laptop or a radiator the field changes as the sensor
+                # turns and moves, and a magnet on the sensor turns with it; the earth's
+                # field does neither. The field in E (before the heading correction: it
+                # turns only by the gyroscope's slow drift) is followed as a candidate,
+                # averaged, and the turn it has held through (norm within
+                # mag_norm_tolerance, direction within 2 mag_dip_tolerance) is summed; a
+                # candidate that held through mag_confirm_turn of turning replaces a
+                # reference that held through less. The reference's evidence also grows
+                # with the time it holds (mag_hold_weight rad a second): the field a kit
+                # started in on a table for a second is easily replaced, one that held
+                # through half a minute is not replaced by a magnet on the sensor.
+                turn = angle
+                c_norm = math.sqrt(cex * cex + cey * cey + cez * cez)
+                c_dot = cex * mex + cey * mey + cez * mez
+                if (abs(m_norm - c_norm) > mag_norm_tol * c_norm
+                        or c_dot < cos_candidate * c_norm * m_norm):
+                    cex, cey, cez, cand_turn, cand_time = mex, mey, mez, 0.0, dt
+                else:
+                    # the running mean since the candidate began (not a low-pass, which
+                    # would follow a field that turns slowly with the sensor)
+                    cand_time += dt
+                    k_c = dt / cand_time
+                    cex += k_c * (mex - cex)
+                    cey += k_c * (mey - cey)
+                    cez += k_c * (mez - cez)
+                    cand_turn += turn
+                if not disturbed:
+                    ref_turn += turn + mag_hold_weight * dt
+                elif cand_turn >= mag_confirm_turn and cand_turn > ref_turn:
+                    # a confirmed field: the new reference, and the heading starts again
+                    # from the running mean of its readings
+                    ref_norm = c_norm
+                    ref_dip = math.atan2(-cez, math.sqrt(cex * cex + cey * cey))
+                    ref_turn = cand_turn
+                    disturbed = (abs(m_norm - ref_norm) > mag_norm_tol * ref_norm
+                                 or abs(dip - ref_dip) > mag_dip_tol or horizontal <= 0.0)
+                    jump = math.atan2(cex, cey) - delta
+                    jump = (jump + math.pi) % (2.0 * math.pi) - math.pi
+                    if abs(jump) > mag_restart:
+                        t_mag_start = t[i]
+                    disturbed_time = 0.0
                 if disturbed:
                     # a window of the field's turning that the disturbance spoils is dropped
                     mw_time, m_started = 0.0, 0.0
@@ -318,7 +396,9 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
                     disturbed_time += dt
                     if disturbed_time > mag_reaccept:
                         ref_norm, ref_dip = m_norm, dip  # a new steady field: a new room
+                        ref_turn = 0.0
                         disturbed_time = 0.0
+                        t_mag_start = t[i]
                 else:
                     if bias_known == 0.0:
                         # Bias from how the field turns in the sensor frame: for a constant
@@ -380,7 +460,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
                     error = math.atan2(mex, mey) - delta
                     error = (error + math.pi) % (2.0 * math.pi) - math.pi
                     # warming up, the heading is the running mean of the first readings
-                    tau_m = min(tau_mag, max(t[i] - t_start, dt, 1e-3))
+                    tau_m = min(tau_mag, max(t[i] - t_mag_start, dt, 1e-3))
                     step = dt / (tau_m + dt) * error
                     delta += step
                     if not at_rest:
@@ -442,6 +522,8 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     state[60], state[61], state[62] = z0, z1, z2
     state[63], state[64], state[65], state[66] = lmx, lmy, lmz, m_started
     state[67], state[68], state[69] = srx, sry, srz
+    state[70], state[71], state[72], state[73], state[74] = cex, cey, cez, cand_turn, ref_turn
+    state[75], state[76] = t_mag_start, cand_time
     return -1
 
 

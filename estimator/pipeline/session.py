@@ -185,10 +185,11 @@ class Pipeline:
         present = {name: track for name, track in self._tracks.items()
                    if track.first_t < np.inf}
         self.calibration = calibrate(present, plan, self.config.side, final_time)
-        if not all(track.nine_axis for track in present.values()):
-            # 6-axis: keep the forearm's and hand's headings tied by the joints
-            self._constraints = {s: HeadingConstraint() for s in ("forearm", "hand")
-                                 if s in present}
+        # Every kit: the forearm's and hand's headings are tied by the joints (6-axis
+        # sensors drift apart; 9-axis ones see fields that differ from sensor to sensor
+        # near metal): the magnetometer is evidence, the joints decide.
+        self._constraints = {s: HeadingConstraint() for s in ("forearm", "hand")
+                             if s in present}
         return True
 
     def _estimate(self, final: bool) -> EstimateArrays | None:

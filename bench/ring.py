@@ -1,0 +1,304 @@
+"""Benchmark: armtrack on RING (real IMUs on a moving 5-segment chain, optical truth), beside
+VQF in the same run, scored as ``../shared/data/ring/README.md`` says. Run by hand (~1 min
+on 2 cores; the tests in ``tests/test_real_data.py`` assert the bars):
+
+    python bench/ring.py [--data DIR] [--out CSV] [--trials 1,2] [--no-vqf]
+
+Two parts:
+
+* **arm recordings** (``arm/ring_trial{1,2}_{rigid,nonrigid}_{9axis,6axis}.csv``): the whole
+  pipeline, ``estimate_recording`` (what ``armtrack estimate`` runs), each angle
+  interpolated to the truth's times; RMSE per angle over t ≥ 5 s, truth NaN skipped,
+  differences wrapped to ±180°.
+* **per joint** (``chain/trial{1,2}/imu_{rigid,nonrigid}.csv`` and ``omc.csv``): one sensor
+  at a time through the filter alone, as ``armtrack orient`` runs it
+  (``make_filter("qcf").update_batch``, causal), and VQF (``vqf.VQF(Ts).updateBatch``,
+  defaults, causal; 9D ``quat9D``, 6D ``quat6D``). Truth: the optical segment orientation
+  times A⁻¹, A the IMU→segment rotation fitted from gyroscope vs optical rate (Wahba/SVD,
+  first 40 % of the trial, |ω| > 0.3 rad/s). Relative orientation of each joint, error
+  ``2 acos|w|`` of ``q_rel,est⁻¹ ⊗ q_rel,true`` at the optical times (the estimate slerped
+  there), RMSE over t ≥ 5 s. 6D: the constant initial relative heading (circular mean of
+  the heading part of the error over the first 5 s) is removed first, and the heading
+  drift is the least-squares slope of the heading error over t ≥ 5 s [°/min]. The bar
+  counts the three hinge pairs (seg2–3, seg3–4, seg4–5) of the rigid IMUs; the spherical
+  seg1–2 pair and the foam-mounted IMUs are reported too.
+
+Writes ``bench/results/ring.csv`` (one row per item, filter and mode) and prints tables.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+DEFAULT_DATA = HERE.parent.parent / "shared" / "data" / "ring"
+DEFAULT_OUT = HERE / "results" / "ring.csv"
+ANGLES = ("elbow_flexion", "forearm_pronation", "wrist_flexion", "wrist_deviation")
+HINGES = ((2, 3), (3, 4), (4, 5))
+PAIRS = ((1, 2), *HINGES)
+SCORED_FROM_S = 5.0
+
+
+# --- quaternions (wxyz) -------------------------------------------------------------------
+
+def qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack([aw * bw - ax * bx - ay * by - az * bz,
+                     aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw], axis=-1)
+
+
+def qinv(q: np.ndarray) -> np.ndarray:
+    return q * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def qslerp(t: np.ndarray, q: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """``q`` (N, 4) at ``t`` slerped to ``times`` (held outside)."""
+    from scipy.spatial.transform import Rotation, Slerp
+    times = np.clip(times, t[0], t[-1])
+    return Slerp(t, Rotation.from_quat(q, scalar_first=True))(times).as_quat(scalar_first=True)
+
+
+def rotation_matrix(q: np.ndarray) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+    return Rotation.from_quat(q, scalar_first=True).as_matrix()
+
+
+# --- the chain ----------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Imu:
+    t: np.ndarray
+    acc: np.ndarray
+    gyr: np.ndarray
+    mag: np.ndarray  # a.u. as in the file (×49 ≈ µT)
+
+
+@dataclass(frozen=True)
+class ChainTrial:
+    name: str
+    imus: dict[int, Imu]
+    t_omc: np.ndarray
+    q_omc: dict[int, np.ndarray]  # segment → world, NaN rows where lost
+
+
+def _read(path: Path) -> tuple[float, dict[str, np.ndarray]]:
+    with open(path) as file:
+        rate = float(file.readline().split(":")[1])
+        file.readline()
+        columns = file.readline().strip().split(",")
+    data = np.genfromtxt(path, delimiter=",", skip_header=3, ndmin=2)
+    return rate, {c: data[:, k] for k, c in enumerate(columns)}
+
+
+def load_chain(data: Path, trial: int, mounting: str) -> ChainTrial:
+    rate, imu = _read(data / "chain" / f"trial{trial}" / f"imu_{mounting}.csv")
+    rate_omc, omc = _read(data / "chain" / f"trial{trial}" / "omc.csv")
+    n = len(imu["seg1_acc_x"])
+    t = np.arange(n) / rate
+    imus = {}
+    def cols(s: int, kind: str) -> np.ndarray:
+        return np.ascontiguousarray(np.column_stack([imu[f"seg{s}_{kind}_{a}"] for a in "xyz"]))
+
+    for s in range(1, 6):
+        imus[s] = Imu(t, cols(s, "acc"), cols(s, "gyr"), cols(s, "mag"))
+    m = len(omc["seg1_quat_w"])
+    q_omc = {s: np.column_stack([omc[f"seg{s}_quat_{c}"] for c in "wxyz"]) for s in range(1, 6)}
+    return ChainTrial(f"trial{trial} {mounting}", imus, np.arange(m) / rate_omc, q_omc)
+
+
+def imu_to_segment(imu: Imu, t_omc: np.ndarray, q_omc: np.ndarray) -> np.ndarray:
+    """A (3, 3), ``gyr ≈ A ω_optical`` (ω in the segment frame), fitted over the first 40 %
+    of the trial where |ω| > 0.3 rad/s (Wahba/SVD)."""
+    ok = np.isfinite(q_omc).all(axis=1)
+    dt = np.diff(t_omc)
+    q0, q1 = q_omc[:-1], q_omc[1:]
+    d = qmul(qinv(q0), q1)
+    d *= np.sign(d[:, :1] + (d[:, :1] == 0))
+    angle = 2.0 * np.arctan2(np.linalg.norm(d[:, 1:], axis=1), d[:, 0])
+    axis = d[:, 1:] / np.maximum(np.linalg.norm(d[:, 1:], axis=1), 1e-12)[:, None]
+    omega = axis * (angle / dt)[:, None]
+    t_mid = 0.5 * (t_omc[:-1] + t_omc[1:])
+    valid = ok[:-1] & ok[1:] & (t_mid < 0.4 * t_omc[-1])
+    gyr = np.column_stack([np.interp(t_mid, imu.t, imu.gyr[:, k]) for k in range(3)])
+    use = valid & (np.linalg.norm(omega, axis=1) > 0.3)
+    B = gyr[use].T @ omega[use]
+    U, _, Vt = np.linalg.svd(B)
+    D = np.diag([1.0, 1.0, np.linalg.det(U @ Vt)])
+    return U @ D @ Vt
+
+
+def truth_sensor(trial: ChainTrial, segment: int) -> np.ndarray:
+    """q_world_sensor at the optical times: q_world_segment ⊗ A⁻¹ (NaN where lost)."""
+    from scipy.spatial.transform import Rotation
+    A = imu_to_segment(trial.imus[segment], trial.t_omc, trial.q_omc[segment])
+    # gyr_sensor = A ω_segment: A maps segment → sensor coordinates, so R_segment_sensor = Aᵀ
+    qa = Rotation.from_matrix(A.T).as_quat(scalar_first=True)
+    return qmul(trial.q_omc[segment], qa)
+
+
+def pair_errors(t: np.ndarray, q_parent: np.ndarray, q_child: np.ndarray,
+                true_parent: np.ndarray, true_child: np.ndarray, six_axis: bool
+                ) -> tuple[float, float, float]:
+    """(RMSE [°], heading drift [°/min] or NaN, inclination RMSE [°]) of one joint's
+    relative orientation at times ``t`` (all rows NaN-free)."""
+    rel_true = qmul(qinv(true_parent), true_child)
+    E = qmul(qmul(q_child, qinv(rel_true)), qinv(q_parent))
+    heading = 2.0 * np.arctan2(E[:, 3], E[:, 0])
+    drift = float("nan")
+    if six_axis:
+        first = t < SCORED_FROM_S
+        h0 = np.arctan2(np.mean(np.sin(heading[first])), np.mean(np.cos(heading[first])))
+        turn = np.column_stack([np.full_like(t, np.cos(-h0 / 2)), 0 * t, 0 * t,
+                                np.full_like(t, np.sin(-h0 / 2))])
+        q_child = qmul(turn, q_child)
+        E = qmul(qmul(q_child, qinv(rel_true)), qinv(q_parent))
+        heading = np.unwrap(2.0 * np.arctan2(E[:, 3], E[:, 0]))
+    scored = t >= SCORED_FROM_S
+    rel_est = qmul(qinv(q_parent), q_child)
+    e = qmul(qinv(rel_est), rel_true)
+    err = 2.0 * np.arccos(np.clip(np.abs(e[:, 0]), 0.0, 1.0))
+    incl = 2.0 * np.arccos(np.clip(np.sqrt(E[:, 0] ** 2 + E[:, 3] ** 2), 0.0, 1.0))
+    if six_axis:
+        slope = np.polyfit(t[scored] / 60.0, np.rad2deg(heading[scored]), 1)[0]
+        drift = float(slope)
+    return (float(np.rad2deg(np.sqrt(np.mean(err[scored] ** 2)))), drift,
+            float(np.rad2deg(np.sqrt(np.mean(incl[scored] ** 2)))))
+
+
+def orient_armtrack(imu: Imu, nine: bool) -> np.ndarray:
+    """``armtrack orient``'s estimate (µT for the magnetometer)."""
+    from armtrack.estimator.orientation import make_filter
+    return make_filter("qcf").update_batch(imu.t, imu.acc, imu.gyr,
+                                           imu.mag * 49.0 if nine else None).q
+
+
+def orient_vqf(imu: Imu, nine: bool) -> np.ndarray:
+    from vqf import VQF
+    v = VQF(float(imu.t[1] - imu.t[0]))
+    if nine:
+        return v.updateBatch(imu.gyr, imu.acc, np.ascontiguousarray(imu.mag * 49.0))["quat9D"]
+    return v.updateBatch(imu.gyr, imu.acc)["quat6D"]
+
+
+FILTERS = {"armtrack": orient_armtrack, "vqf": orient_vqf}
+
+
+def score_chain(trial: ChainTrial, filters: dict) -> list[dict]:
+    """Rows: filter, mode, pair, rmse, drift, inclination."""
+    truth = {s: truth_sensor(trial, s) for s in range(1, 6)}
+    rows = []
+    for name, orient in filters.items():
+        for mode in ("9D", "6D"):
+            est = {s: qslerp(trial.imus[s].t, orient(trial.imus[s], mode == "9D"), trial.t_omc)
+                   for s in range(1, 6)}
+            for parent, child in PAIRS:
+                ok = np.isfinite(truth[parent]).all(axis=1) & np.isfinite(truth[child]).all(axis=1)
+                rmse, drift, incl = pair_errors(trial.t_omc[ok], est[parent][ok], est[child][ok],
+                                                truth[parent][ok], truth[child][ok], mode == "6D")
+                rows.append(dict(part="pair", item=f"{trial.name} seg{parent}-seg{child}",
+                                 hinge=(parent, child) in HINGES, filter=name, mode=mode,
+                                 rmse=rmse, drift=drift, inclination=incl))
+    return rows
+
+
+# --- the arm recordings -------------------------------------------------------------------
+
+def arm_recordings(data: Path, trials=(1, 2)) -> list[tuple[str, Path, Path]]:
+    out = []
+    for trial in trials:
+        for mounting in ("rigid", "nonrigid"):
+            for axes in ("9axis", "6axis"):
+                name = f"ring_trial{trial}_{mounting}_{axes}"
+                out.append((name, data / "arm" / f"{name}.csv",
+                            data / "arm" / f"ring_trial{trial}_{mounting}.truth.csv"))
+    return out
+
+
+def score_arm(recording: Path, truth: Path) -> tuple[dict[str, float], list[str]]:
+    """RMSE [°] per angle of ``estimate_recording`` against the truth, and the warnings."""
+    from armtrack.estimator.pipeline import estimate_recording
+    from armtrack.estimator.recording import read_recording
+    estimates, calibration = estimate_recording(read_recording(recording))
+    table = np.genfromtxt(truth, delimiter=",", names=True)
+    scored = table["t"] >= SCORED_FROM_S
+    out = {}
+    for angle in ANGLES:
+        est = np.interp(table["t"], estimates.t, np.unwrap(estimates.angles[angle]))
+        diff = np.rad2deg(est) - table[angle]
+        diff = (diff + 180.0) % 360.0 - 180.0
+        use = scored & np.isfinite(diff)
+        out[angle] = float(np.sqrt(np.mean(diff[use] ** 2)))
+    return out, [w.message for w in calibration.warnings]
+
+
+# --- the run ------------------------------------------------------------------------------
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
+    parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
+    parser.add_argument("--trials", default="1,2")
+    parser.add_argument("--no-vqf", action="store_true")
+    parser.add_argument("--skip", choices=("arm", "pairs"), default=None)
+    args = parser.parse_args(argv)
+    if not (args.data / "arm").is_dir():
+        print(f"no RING data at {args.data}", file=sys.stderr)
+        return 2
+    trials = tuple(int(x) for x in args.trials.split(","))
+    rows = []
+    start = time.perf_counter()
+    if args.skip != "arm":
+        print(f"{'arm recording (RMSE °)':<34}" + "".join(f"{a:>19}" for a in ANGLES))
+        for name, rec, truth in arm_recordings(args.data, trials):
+            scores, _ = score_arm(rec, truth)
+            print(f"{name:<34}" + "".join(f"{scores[a]:19.2f}" for a in ANGLES), flush=True)
+            for a in ANGLES:
+                rows.append(dict(part="arm", item=name, hinge="", filter="armtrack", mode="",
+                                 rmse=scores[a], drift="", inclination="", angle=a))
+    if args.skip != "pairs":
+        filters = dict(FILTERS)
+        if args.no_vqf:
+            del filters["vqf"]
+        print(f"\n{'pair':<34}{'filter':>9}{'mode':>5}{'RMSE °':>9}{'drift °/min':>12}"
+              f"{'incl. °':>9}")
+        for trial in trials:
+            for mounting in ("rigid", "nonrigid"):
+                chain = load_chain(args.data, trial, mounting)
+                for row in score_chain(chain, filters):
+                    rows.append(row)
+                    print(f"{row['item']:<34}{row['filter']:>9}{row['mode']:>5}"
+                          f"{row['rmse']:9.2f}{row['drift']:12.1f}{row['inclination']:9.2f}",
+                          flush=True)
+        print("\nmean over the rigid hinge pairs (the bar's six)")
+        for f in filters:
+            for mode in ("9D", "6D"):
+                sel = [r for r in rows if r["part"] == "pair" and r["hinge"] and r["filter"] == f
+                       and r["mode"] == mode and "nonrigid" not in r["item"]]
+                if not sel:
+                    continue
+                drift = np.mean([abs(r["drift"]) for r in sel]) if mode == "6D" else float("nan")
+                print(f"  {f:<9}{mode}  RMSE {np.mean([r['rmse'] for r in sel]):6.2f}  "
+                      f"drift {drift:5.1f}  incl {np.mean([r['inclination'] for r in sel]):5.2f}")
+    print(f"\n{time.perf_counter() - start:.0f} s")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    keys = ["part", "item", "hinge", "filter", "mode", "angle", "rmse", "drift", "inclination"]
+    with open(args.out, "w", newline="") as file:
+        writer = csv.DictWriter(file, keys)
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({k: row.get(k, "") for k in keys})
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
