@@ -221,8 +221,10 @@ def test_without_poses_the_default_mounting_is_used_and_said():
 def test_heading_constraint_recovers_a_forearm_heading_error():
     """A forearm turned 6° about the vertical against its upper arm: the elbow's constraint
     finds the turn once the elbow bends, and says nothing while it is straight. The
-    estimate is shrunk toward 0 by its prior (≈ prior / ∫D² dt, 5% here) and by the
-    linearisation: it must land within 15% of the turn, on the right side of 0."""
+    estimate is shrunk toward 0 by its prior (≈ prior / ∫D² dt, under 1% here) and by the
+    linearisation: it must land within 15% of the turn, on the right side of 0. While the
+    elbow is straight it stays within 0.1° (the prior is small, 0.05 s·rad², so that a
+    joint seen bent for a second already corrects: RING's wrist needs it)."""
     from armtrack.estimator.pipeline.constraints import HeadingConstraint
     from armtrack.estimator.rotations import elemental
 
@@ -233,7 +235,7 @@ def test_heading_constraint_recovers_a_forearm_heading_error():
     turned = elemental("z", np.deg2rad(6.0)) @ R["forearm"]
     whole = HeadingConstraint().update(t, R["upper_arm"][:, :, 2], turned[:, :, 1])
     straight = t < 10.0  # calibration poses: the elbow never bends
-    assert np.abs(whole[straight]).max() < np.deg2rad(0.05)
+    assert np.abs(whole[straight]).max() < np.deg2rad(0.1)
     late = t > 25.0
     print(f"heading constraint: {np.rad2deg(whole[late]).mean():.3f}° found for a -6° turn")
     assert np.all((whole[late] < np.deg2rad(-6.0 * 0.85)) & (whole[late] > np.deg2rad(-6.0)))

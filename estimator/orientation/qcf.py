@@ -168,6 +168,15 @@ class QuaternionComplementaryFilter:
             raise InvalidArgument(f"t at sample {bad} is not after the previous one")
         return OrientationOutput(q=q, gyr_bias=bias, rest=rest, mag_disturbed=disturbed)
 
+    def reference_field(self) -> tuple[float, float, float] | None:
+        """The reference field the filter has settled on: norm [µT], dip [rad], and its
+        evidence (the turn it held through plus its hold time, ``mag_hold_weight``)
+        [rad]; None before the first sample."""
+        v = self.state.vector
+        if not v[13]:
+            return None
+        return float(v[27]), float(v[28]), float(v[74])
+
     def update_batch(self, t, acc, gyr, mag=None) -> OrientationOutput:
         self.state = QcfState()
         return self.update(t, acc, gyr, mag)

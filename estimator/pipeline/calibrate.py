@@ -118,7 +118,8 @@ def calibrate(tracks: Mapping[str, SensorTrack], plan: CalibrationPlan, side: Si
             "no calibration pose: sensors are assumed in their default mounting "
             "(spec/recording.md); angles may be off by the mounting error"))
 
-    nine_axis = all(track.nine_axis for track in tracks.values())
+    nine_axis = all(track.nine_axis and not track.magnetometer_dropped
+                    for track in tracks.values())
     # A trunk that sways through the poses tilts the whole body with it: an arm sensor's
     # gravity then gives its segment's axes off by the sway's mean over each pose. The
     # trunk sensor sees the sway; its upright is the mean of its up direction over both

@@ -30,8 +30,8 @@ class HeadingConstraint:
 
     #: Forgetting time constant [s].
     tau: float = 20.0
-    #: Weight of "no correction" [s·rad²]: as much as 2 s with the joint bent 30°.
-    prior: float = 0.5
+    #: Weight of "no correction" [s·rad²]: as much as 0.2 s with the joint bent 30°.
+    prior: float = 0.05
     _numerator: float = field(default=0.0, init=False)
     _denominator: float = field(default=0.0, init=False)
     _t_last: float | None = field(default=None, init=False)

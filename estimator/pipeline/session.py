@@ -31,6 +31,7 @@ from ..rotations import elemental
 from .calibrate import Calibration, calibrate
 from .constraints import HeadingConstraint
 from .estimates import REFERENCE_ORDER, EstimateArrays, Estimates
+from .magnetic import disagreeing_sensors, disagreement_warning
 from .segment_kernel import segment_orientations
 from .tracks import SensorTrack
 from .wrist_points import MAX_POINTS_LAG_S, GammaElbow, WristTrack
@@ -184,7 +185,21 @@ class Pipeline:
             return False
         present = {name: track for name, track in self._tracks.items()
                    if track.first_t < np.inf}
+        field_warning = None
+        if all(track.nine_axis for track in present.values()):
+            disagreeing = disagreeing_sensors(present, final_time)
+            if disagreeing:
+                # the kit's magnetometers see different fields: one heading for all comes
+                # from the calibration and the joints instead (see ``magnetic``)
+                for track in present.values():
+                    track.drop_magnetometer()
+                field_warning = disagreement_warning(disagreeing, list(present))
         self.calibration = calibrate(present, plan, self.config.side, final_time)
+        for track in self._tracks.values():
+            track.forget_magnetometer()
+        if field_warning is not None:
+            self.calibration = replace(self.calibration, warnings=(
+                *self.calibration.warnings, field_warning))
         # Every kit: the forearm's and hand's headings are tied by the joints (6-axis
         # sensors drift apart; 9-axis ones see fields that differ from sensor to sensor
         # near metal): the magnetometer is evidence, the joints decide.

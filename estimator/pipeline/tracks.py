@@ -22,6 +22,8 @@ class SensorTrack:
     filter_name: str
     filter: OrientationFilter = field(init=False)
     nine_axis: bool | None = field(default=None, init=False)
+    #: The session left this 9-axis sensor's magnetometer out (``drop_magnetometer``).
+    magnetometer_dropped: bool = field(default=False, init=False)
     first_t: float = field(default=np.inf, init=False)
     last_t: float = field(default=-np.inf, init=False)
     #: Rows forgotten so far: a kept row's absolute index is its position plus this.
@@ -30,6 +32,8 @@ class SensorTrack:
     _acc: np.ndarray = field(default_factory=lambda: np.empty((1024, 3)), init=False)
     _gyr: np.ndarray = field(default_factory=lambda: np.empty((1024, 3)), init=False)
     _q: np.ndarray = field(default_factory=lambda: np.empty((1024, 4)), init=False)
+    #: The magnetometer's chunks until calibration (``forget_magnetometer``), [µT].
+    _mag: list | None = field(default_factory=list, init=False)
     _start: int = field(default=0, init=False)  # first kept row
     _end: int = field(default=0, init=False)  # one past the last row
 
@@ -48,7 +52,9 @@ class SensorTrack:
         if t[0] < self.last_t:
             raise InvalidArgument(
                 f"t goes backwards for sensor {self.name} ({t[0]} after {self.last_t})")
-        q = self.filter.update(t, acc, gyr, mag).q
+        q = self.filter.update(t, acc, gyr, None if self.magnetometer_dropped else mag).q
+        if mag is not None and self._mag is not None:
+            self._mag.append(np.array(mag, dtype=np.float64))
         if self._end + n > len(self._t):
             self._grow(n)
         end = self._end + n
@@ -85,13 +91,48 @@ class SensorTrack:
                 f"t goes backwards for sensor {self.name} ({first} after {self.last_t})")
         if self._end + n > len(self._t):
             self._grow(n)
-        if not append(rows, nine_axis, self._t, self._acc, self._gyr, self._q, self._end):
+        if nine_axis and self._mag is not None:
+            self._mag.append(rows[:, 7:10].copy())
+        if not append(rows, nine_axis and not self.magnetometer_dropped, self._t, self._acc,
+                      self._gyr, self._q, self._end):
             self.append(rows[:, 0], rows[:, 1:4], rows[:, 4:7], mag)  # no compiled kernel
             return
         self._end += n
         self.last_t = float(rows[n - 1, 0])
         if self.first_t == np.inf:
             self.first_t = first
+
+    def reference_field(self, until: float) -> tuple[float, float, float] | None:
+        """The reference field a fresh filter settles on over the samples up to ``until``
+        [s]: norm [µT], dip [rad] and its evidence [rad]; None for a 6-axis sensor, a
+        filter that learns none, or after ``forget_magnetometer``. The same whatever the
+        chunks the samples came in."""
+        if not self.nine_axis or self._mag is None or not self._mag:
+            return None
+        fresh = make_filter(self.filter_name)
+        if not hasattr(fresh, "reference_field"):
+            return None
+        t, acc, gyr, _ = self.arrays()
+        n = int(np.searchsorted(t, until, "right"))
+        if self.discarded or n == 0:
+            return None
+        fresh.update(t[:n], acc[:n], gyr[:n], np.concatenate(self._mag)[:n])
+        return fresh.reference_field()
+
+    def forget_magnetometer(self) -> None:
+        """Stop keeping the magnetometer's samples (they serve calibration only)."""
+        self._mag = None
+
+    def drop_magnetometer(self) -> None:
+        """From now on, and for every sample kept, orient this 9-axis sensor without its
+        magnetometer: a fresh filter re-runs over the kept samples (the caller does it
+        before anything was discarded, at calibration) and takes the later ones."""
+        self.magnetometer_dropped = True
+        self.filter = make_filter(self.filter_name)
+        kept = slice(self._start, self._end)
+        if self._end > self._start:
+            self._q[kept] = self.filter.update(self._t[kept], self._acc[kept],
+                                               self._gyr[kept], None).q
 
     def _grow(self, n: int) -> None:
         kept = slice(self._start, self._end)
