@@ -5,14 +5,15 @@ of the field below the horizontal), whatever its orientation. Near metal or elec
 (a steel table, a laptop, a radiator) the field changes from place to place: sensors a
 few decimetres apart see different ones, and their "north" differs by tens of degrees
 (on the RING chain by up to 60°). Each filter learns its own reference field (norm and
-dip, see ``QcfParams``); at calibration the kit's references are compared. Where they
-disagree the magnetometers are left out and the headings come from the calibration and
+dip, see ``QcfParams``); at calibration the kit's references are compared, and each with the
+field the sensor saw in the calibration poses (whose headings set the thorax's). Where
+they disagree the magnetometers are left out and the headings come from the calibration and
 the joints, as on a 6-axis kit: the magnetometer is evidence, never the arbiter.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
@@ -30,22 +31,32 @@ _PLACES = {"upper_arm": "upper arm", "forearm": "forearm", "hand": "hand", "trun
            "clavicle": "collarbone"}
 
 
-def disagreeing_sensors(tracks: Mapping[str, SensorTrack], until: float) -> list[str]:
+def disagreeing_sensors(tracks: Mapping[str, SensorTrack], until: float,
+                        poses: Sequence[tuple[float, float]]) -> list[str]:
     """The 9-axis sensors whose reference field (learnt from their samples up to
-    ``until`` [s], calibration's final time) departs from the kit's median; [] when they
-    agree or fewer than two sensors have a reference field."""
+    ``until`` [s], calibration's final time) departs from the kit's median, or whose
+    field during a calibration pose (``poses``: (start, end) [s]) departs from their own
+    reference (a kit calibrated beside a laptop: the headings the poses give are off);
+    [] when all agree or fewer than two sensors have a reference field."""
     references = {name: track.reference_field(until) for name, track in tracks.items()}
     references = {name: r for name, r in references.items() if r is not None}
     if len(references) < 2:
         return []
+    dip_spread = np.deg2rad(DIP_SPREAD_DEG)
     norms = np.array([r[0] for r in references.values()])
     dips = np.array([r[1] for r in references.values()])
     norm_median, dip_median = float(np.median(norms)), float(np.median(dips))
     out = [name for name, (norm, dip, _) in references.items()
            if abs(norm - norm_median) > NORM_SPREAD * norm_median
-           or abs(dip - dip_median) > np.deg2rad(DIP_SPREAD_DEG)]
+           or abs(dip - dip_median) > dip_spread]
     if len(references) == 2 and out:  # two that disagree: neither is the odd one out
         out = list(references)
+    for name, (norm, dip, _) in references.items():
+        for start, end in poses:
+            pose = tracks[name].pose_field(start, end)
+            if name not in out and pose is not None and (
+                    abs(pose[0] - norm) > NORM_SPREAD * norm or abs(pose[1] - dip) > dip_spread):
+                out.append(name)
     return out
 
 

@@ -187,7 +187,11 @@ class Pipeline:
                    if track.first_t < np.inf}
         field_warning = None
         if all(track.nine_axis for track in present.values()):
-            disagreeing = disagreeing_sensors(present, final_time)
+            if plan.method == "default":  # the first second stands in for the N-pose
+                poses = [(first, first + 1.0)]
+            else:
+                poses = [(p.start, p.end) for p in (plan.npose, plan.tpose) if p is not None]
+            disagreeing = disagreeing_sensors(present, final_time, poses)
             if disagreeing:
                 # the kit's magnetometers see different fields: one heading for all comes
                 # from the calibration and the joints instead (see ``magnetic``)

@@ -11,6 +11,7 @@ import numpy as np
 
 from ..errors import InvalidArgument
 from ..orientation import OrientationFilter, make_filter
+from ..rotations import quat_to_matrix
 
 
 @dataclass
@@ -118,6 +119,22 @@ class SensorTrack:
             return None
         fresh.update(t[:n], acc[:n], gyr[:n], np.concatenate(self._mag)[:n])
         return fresh.reference_field()
+
+    def pose_field(self, start: float, end: float) -> tuple[float, float] | None:
+        """The mean field's norm [µT] and dip [rad] over ``start…end`` [s], turned into
+        the world by the filter's orientations (only their tilt matters); None without
+        magnetometer samples there."""
+        if not self.nine_axis or self._mag is None or not self._mag or self.discarded:
+            return None
+        t, _, _, q = self.arrays()
+        a, b = np.searchsorted(t, start, "left"), np.searchsorted(t, end, "right")
+        if b <= a:
+            return None
+        mag = np.concatenate(self._mag)[a:b]
+        world = np.einsum("nij,nj->ni", quat_to_matrix(q[a:b]), mag)
+        norm = np.linalg.norm(world, axis=1)
+        dip = np.arctan2(-world[:, 2], np.hypot(world[:, 0], world[:, 1]))
+        return float(norm.mean()), float(dip.mean())
 
     def forget_magnetometer(self) -> None:
         """Stop keeping the magnetometer's samples (they serve calibration only)."""

@@ -8,15 +8,23 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..arm.forward import POINTS, forward_kinematics
-from ..arm.joints import ANGLE_NAMES, ELEVATION
+from ..arm.joints import ANGLE_NAMES, ELEVATION, SEGMENT_OF_SENSOR
 from ..body import SENSOR_NAMES, SegmentLengths, Side
 from ..errors import InvalidArgument
 from ..recording import Pose, Recording, SensorStream
 from ..rotations import angle_between, elemental
 from .body_motion import Stance, body_motion
-from .imu import Dipole, ImuErrors, MagneticEnvironment, Mount, default_mount, synthesize_imu
+from .imu import (
+    SEGMENT_ORIGIN,
+    Dipole,
+    ImuErrors,
+    MagneticEnvironment,
+    Mount,
+    default_mount,
+    synthesize_imu,
+)
 from .points import WRIST_SOURCES, wrist_points
-from .profiles import Motion
+from .profiles import Motion, Profile, Sine
 from .scenarios import NPOSE_WINDOW_S, TPOSE_WINDOW_S, exercise_motion
 
 
@@ -52,6 +60,10 @@ class SimulationConfig:
     magnet_near_hand: bool = False
     heading_deg: float = 30.0
     wrist_points: str | None = None
+    start_disturbance_s: tuple[float, float] | None = None
+    start_disturbance_ut: tuple[float, float] = (20.0, 50.0)
+    trunk_sway: tuple[float, float] | None = None
+    pack_size: int = 1
 
     def __post_init__(self) -> None:
         unknown = set(self.sensors) - set(SENSOR_NAMES)
@@ -64,6 +76,8 @@ class SimulationConfig:
         if self.wrist_points not in (None, *WRIST_SOURCES):
             raise InvalidArgument(f"wrist_points must be one of {', '.join(WRIST_SOURCES)}, "
                                   f"got {self.wrist_points!r}")
+        if not 1 <= self.pack_size <= 100:
+            raise InvalidArgument(f"pack_size must be within 1–100, got {self.pack_size}")
         if not 0.0 <= self.jitter_s < 0.5 / self.rate_hz:
             raise InvalidArgument(
                 f"jitter_s must be below half a sample period ({0.5 / self.rate_hz} s), "
@@ -111,6 +125,33 @@ def random_mount(sensor: str, config: SimulationConfig, lengths: SegmentLengths,
     return Mount(R @ mount.R_segment_sensor, mount.offset_m + rng.uniform(-0.01, 0.01, 3))
 
 
+def start_disturbances(motion: Motion, config: SimulationConfig, lengths: SegmentLengths,
+                       stance: Stance, rng: np.random.Generator) -> list[Dipole]:
+    """One magnet per sensor, 8 cm from where the sensor is at t = 0 (to its side, a
+    random axis), whose field at the sensor is drawn from ``start_disturbance_ut`` and
+    which is there from the start for a time drawn from ``start_disturbance_s``: sensors
+    a few decimetres apart see their own disturbance (a dipole fades with the cube of the
+    distance)."""
+    assert config.start_disturbance_s is not None
+    start = body_motion(motion, config.side, lengths, np.zeros(1), stance)
+    out = []
+    for sensor in (s for s in SENSOR_NAMES if s in config.sensors):
+        segment = SEGMENT_OF_SENSOR[sensor]
+        mount = default_mount(sensor, config.side, lengths)
+        where = start.points[SEGMENT_ORIGIN[segment]].offset(start.frames[segment],
+                                                            mount.offset_m).p[0]
+        direction = rng.normal(size=3)
+        direction /= np.linalg.norm(direction)
+        axis = rng.normal(size=3)
+        # |B| on the axis at 0.1 m is strength_ut; at 8 cm off at a random angle it is
+        # about (0.1 / 0.08)³ times that, times 1…2 by the angle: aim at the middle
+        field = rng.uniform(*config.start_disturbance_ut)
+        strength = field / (0.1 / 0.08) ** 3 / 1.5
+        out.append(Dipole(position_m=tuple(where + 0.08 * direction), strength_ut=strength,
+                          axis=tuple(axis), end_s=rng.uniform(*config.start_disturbance_s)))
+    return out
+
+
 def sample_times(duration: float, config: SimulationConfig, rng: np.random.Generator) -> np.ndarray:
     """One sensor's sample times [s]: nominal grid, jitter, lost samples."""
     n = int(np.floor(duration * config.rate_hz)) + 1
@@ -133,6 +174,12 @@ def simulate(config: SimulationConfig = SimulationConfig(), motion: Motion | Non
         motion = exercise_motion(config.exercise, repetitions_count=config.repetitions,
                                  amplitude_deg=config.amplitude_deg,
                                  calibration=config.calibration)
+        if config.trunk_sway is not None:
+            amplitude, frequency = config.trunk_sway
+            motion = replace(motion, trunk={
+                "trunk_flexion": Profile(sines=(Sine(np.deg2rad(amplitude), frequency),)),
+                "trunk_lateral": Profile(sines=(Sine(np.deg2rad(0.5 * amplitude),
+                                                     0.7 * frequency, 1.0),))})
     duration = max(motion.end_time(), 10.0 if config.calibration else 0.0) + config.tail_s
     stance = Stance(heading=np.deg2rad(config.heading_deg))
     environment = MagneticEnvironment()
@@ -147,6 +194,11 @@ def simulate(config: SimulationConfig = SimulationConfig(), motion: Motion | Non
             position_m=tuple(hand + 0.12 * outward), strength_ut=150.0, axis=(0.0, 1.0, 0.3),
             start_s=10.5 if config.calibration else 0.0),))
 
+    if config.start_disturbance_s is not None and config.nine_axis:
+        environment = replace(environment, disturbances=(
+            *environment.disturbances,
+            *start_disturbances(motion, config, lengths, stance, rng)))
+
     streams: dict[str, SensorStream] = {}
     mounts: dict[str, Mount] = {}
     R_world_sensor: dict[str, np.ndarray] = {}
@@ -158,7 +210,10 @@ def simulate(config: SimulationConfig = SimulationConfig(), motion: Motion | Non
         body = body_motion(motion, config.side, lengths, t, stance)
         signals = synthesize_imu(body, sensor, mount, nine_axis=config.nine_axis,
                                  errors=errors, environment=environment, rng=rng)
-        streams[sensor] = SensorStream(t=signals.t, acc=signals.acc, gyr=signals.gyr,
+        stamps = signals.t
+        if config.pack_size > 1:  # each pack stamped with its first sample's time
+            stamps = np.repeat(signals.t[::config.pack_size], config.pack_size)[:len(t)]
+        streams[sensor] = SensorStream(t=stamps, acc=signals.acc, gyr=signals.gyr,
                                        mag=signals.mag)
         mounts[sensor] = mount
         R_world_sensor[sensor] = signals.R_world_sensor
