@@ -144,7 +144,7 @@ def detect_repetitions(
     t, angle = as_series(t, angle)
     pieces = []
     for idx in stretches(t, select(t, include, exclude), np.isfinite(angle), p.max_gap_s):
-        if idx.size < 3:
+        if np.count_nonzero(np.diff(t[idx])) < 2:  # fewer than 3 distinct times
             continue
         grid, values, rate = uniform(t[idx], angle[idx])
         smooth = lowpass(values, rate, p.lowpass_hz)

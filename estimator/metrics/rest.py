@@ -35,6 +35,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InvalidArgument
+from ..sampling import sample_interval_s
 from .timebase import Windows, as_windows
 
 _MAX_ITERATIONS = 20
@@ -77,7 +78,9 @@ def rest_by_mode(t: np.ndarray, angle: np.ndarray, speed: np.ndarray, *, band: f
     if t.size < 2:
         return level
     block = np.floor((t - t[0]) / drift_window_s).astype(np.int64)  # non-decreasing
-    dt = float(np.median(np.diff(t)))
+    dt = sample_interval_s(t)
+    if not dt > 0:
+        return level
     min_count = max(3, int(_MIN_REST_FRACTION * drift_window_s / dt))
     for _ in range(_MAX_ITERATIONS):
         rest = np.flatnonzero(still & (np.abs(angle - level) < band))

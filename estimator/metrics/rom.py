@@ -37,6 +37,7 @@ import numpy as np
 
 from ..arm.joints import NORMAL_RANGE_DEG, PAPER_RANGE_DEG, REPORTED_ANGLES
 from ..errors import InvalidArgument
+from ..sampling import sample_interval_s
 from .timebase import Windows, as_series, select
 
 
@@ -127,7 +128,7 @@ def range_of_motion(
     if p.percentile is not None:
         q = p.percentile
     else:
-        dt = float(np.median(np.diff(t[use]))) if n > 1 else 0.0
+        dt = sample_interval_s(t[use]) if n > 1 else 0.0
         q = min(100.0 * p.spike_s / (n * dt), 49.0) if dt > 0 else 0.0
     low, high = (float(v) for v in np.percentile(values, [q, 100.0 - q]))
     span = high - low

@@ -114,9 +114,10 @@ def angular_speed_profile(angle: np.ndarray, t: np.ndarray, start_s: float, end_
     Returns the speed (M,) and the grid's rate [Hz]."""
     t, angle = as_series(t, angle)
     inside = (t >= start_s - 1e-9) & (t <= end_s + 1e-9) & np.isfinite(angle)
-    if np.count_nonzero(inside) < 3:
-        raise InvalidArgument(f"need at least 3 finite samples in [{start_s}, {end_s}] s, "
-                              f"got {np.count_nonzero(inside)}")
+    distinct = np.unique(t[inside]).size
+    if distinct < 3:
+        raise InvalidArgument(f"need finite samples at 3 distinct times at least in "
+                              f"[{start_s}, {end_s}] s, got {distinct}")
     _, values, rate = uniform(t[inside], angle[inside])
     return np.abs(angular_velocity(lowpass(values, rate, lowpass_hz), rate)), rate
 

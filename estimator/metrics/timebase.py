@@ -5,9 +5,16 @@ half-open interval ``[start_s, end_s)``; windows come as a sequence of pairs (or
 array of shape ``(W, 2)``), e.g. the calibration poses of a recording's header (to
 exclude) or a session's exercise marks (to include).
 
+Times may repeat (packed samples share a stamp, ``spec/recording.md``): a series'
+times are non-decreasing, and equal stamps are collapsed (their mean value) before a
+rate is estimated or a series interpolated.
+
 Repetitions, velocities and spectra need evenly spaced samples: a stretch of samples
 (no gap longer than ``max_gap_s``) is linearly interpolated onto a grid at the median
-rate of its timestamps, which absorbs timestamp jitter and short runs of lost samples.
+rate of its timestamps (``sampling.sample_interval_s``), which absorbs timestamp jitter
+and short runs of lost samples. A grid never has more than ``GRID_FACTOR`` points per
+sample it came from, whatever the stamps or a given rate say (issue 17: stamps 10 ns
+apart once asked for a 30 GiB grid).
 """
 
 from __future__ import annotations
@@ -17,14 +24,19 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..errors import InvalidArgument, InvalidShape
+from ..sampling import GRID_FACTOR, packets, sample_interval_s
+
+__all__ = ["GRID_FACTOR", "Windows", "as_series", "as_windows", "collapse_equal",
+           "in_windows", "median_rate_hz", "runs", "select", "stretches", "uniform"]
 
 #: Time windows: pairs ``(start_s, end_s)`` [s], half-open, shape ``(W, 2)``.
 Windows = Sequence[tuple[float, float]] | np.ndarray
 
 
 def as_series(t: np.ndarray, x: np.ndarray, what: str = "angle") -> tuple[np.ndarray, np.ndarray]:
-    """``t`` [s] and ``x`` as float arrays of the same shape ``(N,)``; ``t`` increasing
-    where finite. Raises InvalidShape / InvalidArgument naming what came."""
+    """``t`` [s] and ``x`` as float arrays of the same shape ``(N,)``; ``t`` finite and
+    non-decreasing (equal stamps are packed samples). Raises InvalidShape /
+    InvalidArgument naming what came."""
     t = np.asarray(t, dtype=float)
     x = np.asarray(x, dtype=float)
     if t.ndim != 1:
@@ -34,11 +46,23 @@ def as_series(t: np.ndarray, x: np.ndarray, what: str = "angle") -> tuple[np.nda
     if not np.all(np.isfinite(t)):
         raise InvalidArgument("t must be finite; a missing sample is a NaN value, not a NaN time")
     steps = np.diff(t)
-    if np.any(steps <= 0):
-        i = int(np.flatnonzero(steps <= 0)[0])
-        raise InvalidArgument(f"t must increase: sample {i + 1} at {t[i + 1]!r} s "
-                              f"after {t[i]!r} s")
+    if np.any(steps < 0):
+        i = int(np.flatnonzero(steps < 0)[0])
+        raise InvalidArgument(f"t must not go backwards: sample {i + 1} at "
+                              f"{float(t[i + 1])!r} s after {float(t[i])!r} s")
     return t, x
+
+
+def collapse_equal(t: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Non-decreasing times ``t`` [s] (N,) and values ``x`` (N,) with equal stamps merged:
+    the distinct times (G,) increasing, and the mean value of each (G,)."""
+    t = np.asarray(t, dtype=float)
+    x = np.asarray(x, dtype=float)
+    u, k = packets(t)
+    if u.size == t.size:
+        return t, x
+    starts = np.concatenate(([0], np.cumsum(k)[:-1]))
+    return u, np.add.reduceat(x, starts) / k
 
 
 def as_windows(windows: Windows | None, what: str = "windows") -> np.ndarray:
@@ -102,22 +126,32 @@ def stretches(t: np.ndarray, selected: np.ndarray, valid: np.ndarray,
 
 
 def median_rate_hz(t: np.ndarray) -> float:
-    """The median sample rate of times ``t`` [s], (N ≥ 2,) [Hz]."""
-    if np.size(t) < 2:
-        raise InvalidArgument(f"a rate needs at least 2 samples, got {np.size(t)}")
-    return float(1.0 / np.median(np.diff(t)))
+    """The median sample rate of non-decreasing times ``t`` [s] (N ≥ 2,) [Hz], equal
+    stamps counted as packed samples (``sampling.sample_interval_s``)."""
+    interval = sample_interval_s(t)
+    if not interval > 0:
+        raise InvalidArgument(f"a rate needs at least 2 distinct times, got "
+                              f"{np.unique(np.asarray(t, dtype=float)).size}")
+    return 1.0 / interval
 
 
 def uniform(t: np.ndarray, x: np.ndarray,
             rate_hz: float | None = None) -> tuple[np.ndarray, np.ndarray, float]:
-    """``x`` (N,) at times ``t`` [s] linearly interpolated onto an even grid from ``t[0]``.
+    """``x`` (N,) at non-decreasing times ``t`` [s] linearly interpolated onto an even grid
+    from ``t[0]`` (equal stamps collapsed to their mean first).
 
-    ``rate_hz``: the grid's rate [Hz], default the median rate of ``t``. Returns the grid
+    ``rate_hz``: the grid's rate [Hz], default the median rate of ``t``; either is capped
+    so that the grid has at most ``GRID_FACTOR × (N − 1) + 1`` points. Returns the grid
     times [s] (M,), the values (M,) and the rate [Hz]. The grid ends at or before ``t[-1]``.
     """
+    t = np.asarray(t, dtype=float)
+    u, v = collapse_equal(t, x)
+    if u.size < 2:
+        raise InvalidArgument(f"an even grid needs at least 2 distinct times, got {u.size}")
     rate = median_rate_hz(t) if rate_hz is None else float(rate_hz)
     if not rate > 0:
         raise InvalidArgument(f"rate_hz must be > 0, got {rate_hz!r}")
-    m = int(np.floor((t[-1] - t[0]) * rate + 1e-9)) + 1
-    grid = t[0] + np.arange(m) / rate
-    return grid, np.interp(grid, t, x), rate
+    rate = min(rate, GRID_FACTOR * (t.size - 1) / (u[-1] - u[0]))
+    m = int(np.floor((u[-1] - u[0]) * rate + 1e-9)) + 1
+    grid = u[0] + np.arange(m) / rate
+    return grid, np.interp(grid, u, v), rate

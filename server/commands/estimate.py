@@ -39,14 +39,18 @@ def run(args: argparse.Namespace) -> int:
     estimates, calibration = pipeline.finish(), pipeline.calibration
     assert calibration is not None
     columns, values = estimates.table()
+    poses = recording.calibration
+    exclude = ([(float(estimates.t[0]) if len(estimates) else 0.0,
+                 max(p.end for p in poses) + CALIBRATION_TAIL_S)] if poses else None)
+    # every step that can fail comes before the file is written: a failed command leaves
+    # no angles file behind
+    table = range_of_motion_table(estimates.angles, estimates.t, exclude=exclude)
+    repetitions = (repetitions_by_angle({k: estimates.angles[k] for k in table},
+                                        estimates.t, exclude=exclude) if table else {})
     with open_output(args.output) as out:
         write_angles_csv(out, columns, values)
 
     report = sys.stderr if args.output is None else sys.stdout
-    poses = recording.calibration
-    exclude = ([(float(estimates.t[0]) if len(estimates) else 0.0,
-                 max(p.end for p in poses) + CALIBRATION_TAIL_S)] if poses else None)
-    table = range_of_motion_table(estimates.angles, estimates.t, exclude=exclude)
     print(f"{args.recording}: {len(estimates)} estimates, filter {args.filter}, calibration "
           f"{calibration.method}" + (f", written to {args.output}" if args.output else ""),
           file=report)
@@ -65,8 +69,6 @@ def run(args: argparse.Namespace) -> int:
     if not table:
         print("  no joint moved more than the noise", file=report)
         return 0
-    repetitions = repetitions_by_angle({k: estimates.angles[k] for k in table}, estimates.t,
-                                       exclude=exclude)
     print(f"  {'range of motion (deg)':<24}{'min':>8}{'max':>8}{'range':>8}{'normal':>12}"
           f"{'% normal':>10}{'reps':>6}", file=report)
     for name, rom in table.items():

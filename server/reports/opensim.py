@@ -36,6 +36,7 @@ from __future__ import annotations
 import io
 
 import numpy as np
+from armtrack.estimator.sampling import sample_interval_s
 
 from .content import SessionData
 
@@ -93,7 +94,8 @@ def sto(data: SessionData) -> str:
     for q in quats:
         ok &= np.all(np.isfinite(q), axis=1)
     t = data.t[ok]
-    rate = 1.0 / float(np.median(np.diff(t))) if t.size > 1 else 0.0
+    step = sample_interval_s(t)
+    rate = 1.0 / step if step > 0 else 0.0
     out = io.StringIO()
     out.write(f"DataRate={rate:.6f}\nDataType=Quaternion\nversion=3\nOpenSimVersion=4.4\n"
               "endheader\n")

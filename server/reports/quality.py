@@ -1,12 +1,13 @@
 """Data quality of a session: sensors, sample rates, lost samples, magnetometer
 disturbances, the calibration used and the warnings.
 
-* **Lost samples** per sensor, from its time stamps: with ``dt`` the median interval,
-  a gap of ``g`` seconds holds ``round(g / dt) − 1`` missing samples (jitter of a fraction
-  of ``dt`` counts nothing).
-* **Gaps** per sensor: intervals between time stamps over ``GAP_STEPS`` median intervals
-  (data lost in bulk, a sensor that stalled, or a clock that jumped forward), each with
-  its start and end, and a warning naming them.
+* **Lost samples** per sensor, from its time stamps (``estimator.sampling``): with
+  ``dt`` the typical interval per sample, a gap of ``g`` seconds after a packet of ``k``
+  samples (equal stamps: packed samples) holds ``round(g / dt) − k`` missing samples
+  (jitter of a fraction of ``dt`` counts nothing).
+* **Gaps** per sensor: intervals between time stamps over ``k − 1 + GAP_STEPS`` typical
+  intervals (data lost in bulk, a sensor that stalled, or a clock that jumped forward),
+  each with its start and end, and a warning naming them.
 * **Magnetometer disturbance** (9-axis sensors): the field strength ``|m|`` against its
   median over the session; a sample is disturbed when it is more than
   ``MAG_TOLERANCE`` (15%) off (the Earth's field is 25–65 µT and steady; iron or a motor
@@ -19,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 from armtrack.estimator.metrics.timebase import runs
+from armtrack.estimator.sampling import packets, sample_interval_s, summarise_sampling
 
 from .content import (
     CalibrationQuality,
@@ -43,26 +45,21 @@ ESTIMATE_GAP_S = 0.25
 
 
 def lost_samples(t: np.ndarray) -> tuple[int, float | None]:
-    """Missing samples of a sensor's time stamps ``t`` [s] (N,), and its median rate [Hz]."""
-    if t.size < 2:
-        return 0, None
-    dt = np.diff(t)
-    step = float(np.median(dt))
-    if step <= 0:
-        return 0, None
-    return int(np.sum(np.maximum(np.round(dt / step) - 1, 0))), 1.0 / step
+    """Missing samples of a sensor's time stamps ``t`` [s] (N,), and its rate [Hz]
+    (``None`` without two distinct stamps)."""
+    timing = summarise_sampling(t)
+    return timing.lost, (timing.rate_hz or None)
 
 
 def time_gaps(t: np.ndarray) -> list[tuple[float, float]]:
-    """Gaps ``(start_s, end_s)`` of a sensor's time stamps ``t`` [s] (N,): intervals over
-    ``GAP_STEPS`` times the median one."""
-    if t.size < 2:
+    """Gaps ``(start_s, end_s)`` of a sensor's time stamps ``t`` [s] (N,): intervals after
+    a packet of ``k`` samples over ``k − 1 + GAP_STEPS`` typical intervals."""
+    step = sample_interval_s(t)
+    if not step > 0:
         return []
-    dt = np.diff(t)
-    step = float(np.median(dt))
-    if step <= 0:
-        return []
-    return [(float(t[i]), float(t[i + 1])) for i in np.flatnonzero(dt > GAP_STEPS * step)]
+    u, k = packets(t)
+    far = np.flatnonzero(np.diff(u) > (k[:-1] - 1 + GAP_STEPS) * step)
+    return [(float(u[i]), float(u[i + 1])) for i in far]
 
 
 def magnetic_disturbances(t: np.ndarray, mag: np.ndarray) -> list[tuple[float, float]]:
@@ -120,7 +117,7 @@ def quality(data: SessionData) -> Quality:
                 if data.exclude else None)
     return Quality(
         sensors=sensors, estimates=int(t.size),
-        estimate_rate_hz=finite(1.0 / float(np.median(np.diff(t))), 2) if t.size > 1 else None,
+        estimate_rate_hz=finite(1.0 / step, 2) if (step := sample_interval_s(t)) > 0 else None,
         estimate_gaps=gaps,
         calibration=CalibrationQuality(
             method=calibration.get("method"),
