@@ -18,6 +18,7 @@ from . import heap
 from .api import (
     admin,
     auth_routes,
+    imports,
     lifecycle,
     live_status,
     patients,
@@ -78,6 +79,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(auth_routes.router)
     app.include_router(patients.router)
     app.include_router(sessions.router)
+    app.include_router(imports.router)
     app.include_router(reports.router)
     app.include_router(programs.router)
     app.include_router(endpoint.router)

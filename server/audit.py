@@ -49,6 +49,8 @@ def action_of(method: str, route: str) -> str:
         return "exported" if route.endswith(EXPORT_ENDINGS) else "viewed"
     if route == "/api/recordings":
         return "uploaded"
+    if route == "/api/recordings/inspect":
+        return "viewed"  # files looked into, nothing stored
     if route == "/api/viewer":
         return "viewed_3d"
     if route == "/api/admin/patients/{patient_id}/reassign":

@@ -22,7 +22,7 @@ from .settings import Settings
 #: Where the dashboard's pages live (their inline scripts are allowed by hash).
 PAGES = Path(__file__).resolve().parents[1] / "web" / "pages" / "static"
 #: Routes that take a recording upload (``ARMTRACK_MAX_UPLOAD_BYTES``).
-UPLOAD_PATHS = ("/api/recordings",)
+UPLOAD_PATHS = ("/api/recordings", "/api/recordings/inspect")
 
 BASE_HEADERS = ((b"x-content-type-options", b"nosniff"),
                 (b"referrer-policy", b"no-referrer"),

@@ -20,7 +20,7 @@ import numpy as np
 
 from .base import ImportFailure, ReadOptions, Signal, SourceFile
 from .text import numeric_columns, split_line, text_lines
-from .units import unit_factor
+from .units import seconds, unit_factor
 
 NAME = "generic"
 TITLE = "CSV with a column map (--columns)"
@@ -95,7 +95,10 @@ def _read_one(source, entries, sensor_col) -> list[Signal]:
         wanted[key] = index[column]
     values, numbers = numeric_columns(source, lines, header + 1, delimiter, len(names), wanted,
                                       names={k: c for k, (c, _, _) in entries.items()})
-    scaled = {k: values[k] * sign * factor for k, (_, sign, factor) in entries.items()}
+    scaled = {k: values[k] * sign * factor for k, (_, sign, factor) in entries.items()
+              if k != "t"}
+    column, sign, factor = entries["t"]
+    scaled["t"] = sign * seconds(values["t"], factor)
     groups = {"": np.arange(len(numbers))}
     if sensor_col:
         if sensor_col not in index:

@@ -18,7 +18,7 @@ import numpy as np
 
 from .base import ImportFailure, ReadOptions, Signal, SourceFile
 from .text import head_text, numeric_columns, split_line, text_lines
-from .units import unit_factor
+from .units import seconds, unit_factor
 
 NAME = "shimmer"
 TITLE = "Shimmer Consensys CSV"
@@ -113,8 +113,10 @@ def _device(source, lines, units_row, delimiter, width, names, units, device, co
     notes = [f"{source.basename}: {device} accelerometer "
              + ("low-noise (Accel_LN)" if accel == "Accel_LN" else "wide-range (Accel_WR)")]
     stamps = values["t"]
-    return Signal(format=NAME, label=device, files=(source.name,), epoch=stamps[0] * factors["t"],
-                  t=(stamps - stamps[0]) * factors["t"], acc=vector(accel), gyr=vector("Gyro"),
+    return Signal(format=NAME, label=device, files=(source.name,),
+                  epoch=float(seconds(stamps[0], factors["t"])),
+                  t=seconds(stamps - stamps[0], factors["t"]), acc=vector(accel),
+                  gyr=vector("Gyro"),
                   mag=vector("Mag") if has_mag else None, clock="unix", lines=numbers,
                   notes=notes)
 

@@ -64,6 +64,16 @@ def unit_factor(text: str, quantity: str) -> float | None:
     return found[1]
 
 
+def seconds(counts, factor: float):
+    """Time stamps in a unit of ``factor`` s (ms: 1e-3) → s, by dividing by the whole number
+    of counts per second where there is one (``k / 1000`` is the float nearest k ms;
+    ``k * 0.001`` can be one bit off, and estimates feel a time's last bit at window edges)."""
+    per_second = 1.0 / factor
+    if factor < 1.0 and abs(per_second - round(per_second)) < 1e-9 * per_second:
+        return np.asarray(counts, dtype=np.float64) / round(per_second)
+    return np.asarray(counts, dtype=np.float64) * factor
+
+
 def g_to_ms2(values) -> np.ndarray:
     """Specific force in g → m/s²."""
     return np.asarray(values, dtype=np.float64) * STANDARD_GRAVITY

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import io
-from typing import Annotated
+from typing import Annotated, Literal
 
 from armtrack.estimator.errors import EstimatorError
 from armtrack.estimator.orientation import DEFAULT_FILTER
@@ -98,15 +98,35 @@ def uploader(db: Db, token: Annotated[str | None, Depends(oauth2)], request: Req
     return current_therapist(db, token, request)
 
 
-@router.post("/recordings", response_model=SessionOut, status_code=status.HTTP_201_CREATED)
+@router.post("/recordings", response_model=SessionOut, status_code=status.HTTP_201_CREATED,
+             responses={202: {"model": SessionOut,
+                              "description": "stored; processing follows (wait=false)"}})
 def upload_recording(db: Db, who: Annotated[models.Therapist | models.Device,
                                             Depends(uploader)],
-                     file: UploadFile,
                      svc: Annotated[Services, Depends(get_services)],
+                     response: Response,
+                     file: UploadFile | None = None,
                      patient_id: Annotated[int | None, Form(ge=1, le=MAX_ID)] = None,
+                     files: list[UploadFile] | None = None,
+                     sensors: Annotated[str | None, Form(max_length=20_000)] = None,
+                     format: Annotated[str | None, Form(max_length=40)] = None,
+                     calibration: Annotated[str | None, Form(max_length=500)] = None,
+                     side: Annotated[Literal["right", "left"] | None, Form()] = None,
+                     height_m: Annotated[float | None, Form(gt=0.5, lt=2.6)] = None,
+                     options: Annotated[str | None, Form(max_length=2000)] = None,
+                     wait: Annotated[bool, Form()] = True,
                      ) -> SessionOut:
     """A recording file (``spec/recording.md``) recorded offline: stored as a new closed
-    session and estimated. With a device token the patient is the device's own."""
+    session and estimated. With a device token the patient is the device's own.
+
+    Extension (docs/extensions/recordings-upload.md): vendor exports as ``files`` with a
+    ``sensors`` map instead of ``file``; ``wait=false`` answers 202 once the session is
+    stored, its processing followed at ``Location`` (``/api/recordings/{id}/progress``)."""
+    from . import imports  # vendor importers load only when used
+
+    if (file is None) == (not files):
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            "give either file (a recording) or files with a sensors map")
     if isinstance(who, models.Device):
         if patient_id is not None and patient_id != who.patient_id:
             raise HTTPException(status.HTTP_404_NOT_FOUND, f"no patient {patient_id}")
@@ -119,16 +139,28 @@ def upload_recording(db: Db, who: Annotated[models.Therapist | models.Device,
         patient = own_patient(db, who, patient_id)
         device_id = None
     assert patient is not None
-    try:
-        recording = parse_recording(file.file.read())
-    except EstimatorError as exc:
-        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                            f"{file.filename or 'file'}: {exc}") from None
+    if file is not None:
+        try:
+            recording = parse_recording(file.file.read())
+        except EstimatorError as exc:
+            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                                f"{file.filename or 'file'}: {exc}") from None
+    else:
+        if not sensors:
+            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                                "files need a sensors map (JSON: sensor → file name)")
+        recording = imports.import_upload(files, sensors, patient, format, calibration, side,
+                                          height_m, options)
     session = add_recording(db, patient, recording, device_id)
     db.commit()
     audit.note(patient_id=patient.id, session_id=session.id)
-    # estimated where closed sessions are (store.background); this thread waits for it
-    svc.processing.submit(session.id, DEFAULT_FILTER).result()
+    # estimated where closed sessions are (store.background)
+    job = imports.start_processing(svc, session.id)
+    if not wait:
+        response.status_code = status.HTTP_202_ACCEPTED
+        response.headers["Location"] = f"/api/recordings/{session.id}/progress"
+        return session_out(session)
+    job.result()  # this thread waits for it
     db.refresh(session)
     return session_out(session)
 
