@@ -354,7 +354,7 @@ def test_sensor_logger_without_gravity_refused():
     files = sensor_logger_files(sim.recording.sensors["forearm"],
                                 sim.truth.R_world_sensor["forearm"])
     del files["Gravity.csv"]
-    with pytest.raises(ImportFailure, match=r"Gyroscope\.csv, line \d+: sensor Pixel 7: \|a\| "
+    with pytest.raises(ImportFailure, match=r"Accelerometer\.csv, line \d+: sensor Pixel 7: \|a\| "
                        r"at rest is 0\.\d+ m/s², not near 9\.81 \(the accelerometer excludes "
                        r"gravity\)"):
         import_recording([Assignment("forearm", [SourceFile(n, d) for n, d in files.items()])],
@@ -432,6 +432,34 @@ def test_damaged_mixed_rates():
     with pytest.raises(ImportFailure, match=r"f\.csv, line \d+: the sample rate changes from "
                        r"60 Hz to 120 Hz"):
         import_recording([Assignment("forearm", [SourceFile("f.csv", data)])], "right", 1.75)
+
+
+def test_damaged_metamotion_header_that_lies_and_zip_bomb():
+    """A MetaMotion accelerometer whose header says g over values in m/s² reads |a| ≈ 96
+    at rest and is refused; a zip that unpacks past the limit is refused unopened."""
+    import io
+    import zipfile
+
+    from armtrack.estimator.importers.sources import expand_upload
+
+    rec = session(100.0).recording
+    files = metamotion_csvs(rec.sensors["forearm"])
+    name = next(n for n in files if "_Accelerometer_" in n)
+    lines = files[name].decode().splitlines()
+    lied = [lines[0]] + [",".join(c.split(",")[:3] + [f"{float(v) * 9.80665:.10g}"
+                                                         for v in c.split(",")[3:]])
+                         for c in lines[1:]]
+    files[name] = ("\n".join(lied) + "\n").encode()
+    with pytest.raises(ImportFailure, match=r"_Accelerometer_.*, line \d+: sensor C8CF7A2F32A7: "
+                       r"\|a\| at rest is 96\.\d m/s², not near 9\.81 \(the unit is wrong\)"):
+        import_recording([Assignment("forearm", [SourceFile(n, d) for n, d in files.items()])],
+                         "right", 1.75)
+    packed = io.BytesIO()
+    with zipfile.ZipFile(packed, "w", zipfile.ZIP_DEFLATED) as z:
+        z.writestr("Gyroscope.csv", b"0" * 5_000_000)
+    with pytest.raises(ImportFailure, match=r"bomb\.zip: unpacks to 5000000 bytes, more than "
+                       "1000000"):
+        expand_upload("bomb.zip", packed.getvalue(), limit=1_000_000)
 
 
 def test_refused_import_writes_nothing(tmp_path, capsys):

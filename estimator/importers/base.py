@@ -78,6 +78,10 @@ class Signal:
     metadata: dict[str, str] = field(default_factory=dict)
     #: True where acc/mag were interpolated onto the gyroscope's times (rates differed)
     resampled: bool = False
+    #: where the accelerometer's samples came from when not ``files[0]`` (signals merged
+    #: from files per signal): its file and, per sample, its nearest line there
+    acc_file: str | None = None
+    acc_lines: np.ndarray | None = None
     #: the clock time [s] ``t`` counts from
     epoch: float = 0.0
     #: what ``lines`` count: ``line`` of a text file, or ``sample`` of a binary one

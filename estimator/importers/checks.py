@@ -97,5 +97,8 @@ def check_gravity(signal: Signal) -> None:
         hint = ("values look like g, not m/s²" if 0.6 < typical < 1.6 else
                 "the accelerometer excludes gravity" if typical < 0.6 else
                 "the unit is wrong")
-        raise failure(signal, f"sensor {signal.label}: |a| at rest is {typical:.3g} m/s², "
-                      f"not near 9.81 ({hint})", first)
+        problem = (f"sensor {signal.label}: |a| at rest is {typical:.3g} m/s², not near 9.81 "
+                   f"({hint})")
+        if signal.acc_file and signal.acc_lines is not None:
+            raise ImportFailure(signal.acc_file, problem, int(signal.acc_lines[first]) or None)
+        raise failure(signal, problem, first)

@@ -109,6 +109,8 @@ def _merge(device: str, parts: dict[str, tuple]) -> Signal:
     t, gyr, lines = t[keep], gyr[keep], lines[keep]
     notes, resampled = [], False
     merged = {}
+    acc_source, acc_t, _, acc_numbers, _ = parts["acc"]
+    acc_lines = np.round(np.interp(t, acc_t, acc_numbers)).astype(np.int64)
     for kind in ("acc", "mag"):
         if kind not in parts:
             continue
@@ -125,7 +127,7 @@ def _merge(device: str, parts: dict[str, tuple]) -> Signal:
     signal = Signal(format=NAME, label=device, files=files, t=t, epoch=float(ref) / 1000.0,
                     acc=merged["acc"], gyr=gyr,
                     mag=merged.get("mag"), clock="unix", lines=lines, notes=notes,
-                    resampled=resampled)
+                    resampled=resampled, acc_file=acc_source.name, acc_lines=acc_lines)
     if offset:
         signal.metadata["local_time_offset"] = offset
     return signal

@@ -122,6 +122,7 @@ def read(sources: list[SourceFile], options: ReadOptions) -> list[Signal]:
     keep = (t >= start) & (t <= end)
     t, gyr, lines = t[keep], gyr[keep], lines[keep]
     force = sum(_onto(t, parts[n][0], parts[n][1]) for n in used)
+    acc_lines = np.round(np.interp(t, parts[used[0]][0], parts[used[0]][2])).astype(np.int64)
     notes = [f"Sensor Logger {platform}{' (standardised frames)' if standardised else ''}: "
              f"specific force from {' + '.join(by_name[n].basename for n in used)}"]
     if platform == "ios" and not standardised:
@@ -136,4 +137,5 @@ def read(sources: list[SourceFile], options: ReadOptions) -> list[Signal]:
     return [Signal(format=NAME, label=label, files=tuple(files), t=t, epoch=float(ref) / 1e9,
                    acc=force, gyr=gyr,
                    mag=mag, clock="unix", lines=lines, notes=notes, resampled=True,
+                   acc_file=by_name[used[0]].name, acc_lines=acc_lines,
                    metadata={"platform": platform})]

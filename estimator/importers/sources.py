@@ -51,6 +51,7 @@ def expand(path: Path) -> list[SourceFile]:
     return [SourceFile(str(path), data)]
 
 
-def expand_upload(name: str, data: bytes) -> list[SourceFile]:
-    """An uploaded file's files: itself, or a zip's members."""
-    return unzip(name, data) if is_zip(data) else [SourceFile(name, data)]
+def expand_upload(name: str, data: bytes, limit: int = MAX_UNPACKED_BYTES) -> list[SourceFile]:
+    """An uploaded file's files: itself, or a zip's members (unpacking to at most
+    ``limit`` bytes)."""
+    return unzip(name, data, limit) if is_zip(data) else [SourceFile(name, data)]

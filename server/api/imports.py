@@ -115,14 +115,25 @@ def suggest(label: str, file_name: str) -> str | None:
     return None
 
 
-def uploaded(files: list[UploadFile]) -> list:
+def uploaded(files: list[UploadFile], limit: int) -> list:
+    """The uploaded files, zips unpacked; all of them together at most ``limit`` bytes
+    unpacked (the upload limit: a zip may not grow past what an upload may be)."""
     if len(files) > MAX_FILES:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
                             f"at most {MAX_FILES} files in one upload, got {len(files)}")
-    out = []
+    out, total = [], 0
     for f in files:
         name = (f.filename or "file").replace("\\", "/").rsplit("/", 1)[-1]
-        out.extend(expand_upload(name, f.file.read()))
+        try:
+            sources = expand_upload(name, f.file.read(), max(limit - total, 0))
+        except ImportFailure as exc:
+            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from None
+        total += sum(len(s.data) for s in sources)
+        if total > limit:
+            raise HTTPException(status.HTTP_413_CONTENT_TOO_LARGE,
+                                f"{name}: the files unpack to more than {limit} bytes "
+                                "(ARMTRACK_MAX_UPLOAD_BYTES)")
+        out.extend(sources)
     return out
 
 
@@ -141,6 +152,7 @@ def patient_for(db, who, patient_id: int | None) -> models.Patient:
 
 @router.post("/inspect", response_model=Inspection)
 def inspect_files(db: Db, who: Annotated[models.Therapist | models.Device, Depends(uploader)],
+                  svc: Annotated[Services, Depends(get_services)],
                   files: list[UploadFile],
                   patient_id: Annotated[int | None, Form(ge=1, le=MAX_ID)] = None,
                   options: Annotated[str | None, Form(max_length=2000)] = None) -> Inspection:
@@ -151,7 +163,7 @@ def inspect_files(db: Db, who: Annotated[models.Therapist | models.Device, Depen
     read_options = _options(options)
     out, suggested = [], {}
     groups: dict[str, list] = {}
-    for source in uploaded(files):
+    for source in uploaded(files, svc.settings.max_upload_bytes):
         top = source.name.split("/", 1)[0]
         groups.setdefault(top, []).append(source)
     # formats of one file per signal (MetaMotion, loose Sensor Logger files) are read
@@ -276,9 +288,9 @@ def assignments(sources: list, sensor_map: str, fmt: str | None) -> list[Assignm
 
 def import_upload(files: list[UploadFile], sensor_map: str, patient: models.Patient,
                   fmt: str | None, calibration: str | None, side: str | None,
-                  height_m: float | None, options: str | None) -> Recording:
+                  height_m: float | None, options: str | None, limit: int) -> Recording:
     """The recording of vendor files (refused whole, naming file, line and problem)."""
-    sources = uploaded(files)
+    sources = uploaded(files, limit)
     chosen = assignments(sources, sensor_map, fmt)
     problems = body_mismatch(patient.side, patient.height_m, side, height_m)
     if problems:

@@ -150,7 +150,7 @@ def upload_recording(db: Db, who: Annotated[models.Therapist | models.Device,
             raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
                                 "files need a sensors map (JSON: sensor → file name)")
         recording = imports.import_upload(files, sensors, patient, format, calibration, side,
-                                          height_m, options)
+                                          height_m, options, svc.settings.max_upload_bytes)
     session = add_recording(db, patient, recording, device_id)
     db.commit()
     audit.note(patient_id=patient.id, session_id=session.id)
