@@ -47,7 +47,7 @@ NAMED = ("numpy", "scipy", "numba", "llvmlite", "pyarrow", "sqlalchemy", "alembi
 def _git_commit(python: str) -> str:
     """The commit of the checkout ``python``'s armtrack comes from (``?`` if unknown)."""
     where = subprocess.run([python, "-c", "import armtrack.server, os; "
-                            "print(os.path.dirname(armtrack.server.__path__[0]))"],
+                            "print(os.path.dirname(os.path.realpath(armtrack.server.__path__[0])))"],
                            capture_output=True, text=True).stdout.strip()
     out = subprocess.run(["git", "-C", where or ".", "rev-parse", "--short", "HEAD"],
                          capture_output=True, text=True)

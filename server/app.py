@@ -39,6 +39,16 @@ from .store.processing import estimator_version
 log = logging.getLogger("armtrack.retention")
 
 
+def has_accounts(db) -> bool:
+    """Whether any therapist can sign in (an enabled account exists)."""
+    from sqlalchemy import select
+
+    from .db import models
+
+    return db.scalar(select(models.Therapist.id)
+                     .where(models.Therapist.disabled_at.is_(None)).limit(1)) is not None
+
+
 async def retention_loop(services: Services) -> None:
     """Erase closed sessions past ``ARMTRACK_RETENTION_DAYS`` now and then (audited)."""
     settings = services.settings
@@ -59,6 +69,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         services = Services(settings)
         services.migrate()
         app.state.services = services
+        if not settings.demo_mode and not await services.run_db(has_accounts):
+            logging.getLogger("armtrack").warning(
+                "no therapist account yet: make one with `armtrack create-user NAME` "
+                "(same --data-dir/ARMTRACK_DATABASE_URL as this server), then sign in at "
+                "/signin")
         await services.start()
         heap.settle()  # what start-up loaded is out of the collector's way from now on
         retention = (asyncio.create_task(retention_loop(services))

@@ -30,7 +30,7 @@ T = TypeVar("T")
 class Services:
     def __init__(self, settings: Settings):
         self.settings = settings
-        settings.data_dir.mkdir(parents=True, exist_ok=True)
+        settings.data_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
         self.engine = make_engine(settings.resolved_database_url())
         self.db = make_sessionmaker(self.engine)
         self.hub = make_hub(settings.broker_url)  # in-process, or through the broker

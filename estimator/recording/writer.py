@@ -85,11 +85,12 @@ def format_recording(recording: Recording) -> bytes:
 
 
 def write_recording(recording: Recording, path: str | os.PathLike[str]) -> None:
-    """Write the recording file at ``path`` atomically (temporary file, then rename)."""
+    """Write the recording file at ``path`` atomically (temporary file, then rename),
+    readable by its owner only (0600): a recording is a patient's data."""
     parts = _parts(recording)
     path = Path(path)
     tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
     try:
         with open(fd, "wb", closefd=True) as f:
             for part in parts:

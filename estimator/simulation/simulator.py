@@ -245,8 +245,13 @@ def simulate(config: SimulationConfig = SimulationConfig(), motion: Motion | Non
 
 
 def write_truth(truth: Truth, path) -> None:
-    """Write the truth table as CSV (the columns of ``shared``'s ``*.truth.csv``)."""
+    """Write the truth table as CSV (the columns of ``shared``'s ``*.truth.csv``), owner-only
+    (0600) like the recording it describes."""
+    import os
+
     columns, values = truth.table()
-    with open(path, "w", encoding="utf-8", newline="\n") as file:
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    os.fchmod(fd, 0o600)  # an older file of that name keeps no wider mode
+    with open(fd, "w", encoding="utf-8", newline="\n") as file:
         file.write(",".join(columns) + "\n")
         np.savetxt(file, values, delimiter=",", fmt="%.6f")

@@ -38,7 +38,7 @@ def _database(args: argparse.Namespace):
     from armtrack.server.db.migrate import ensure_current
 
     settings = settings_from(args)
-    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    settings.data_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
     engine = make_engine(settings.resolved_database_url())
     ensure_current(engine)
     return make_sessionmaker(engine), engine

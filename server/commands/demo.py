@@ -28,6 +28,10 @@ DESCRIPTION = ("Starts the server (SQLite in ./armtrack-demo), makes a demo ther
                "real protocol in real time. Prints the address and the sign-in; Ctrl-C stops.")
 #: Pause between two sessions [s].
 PAUSE_S = 5.0
+#: Most sessions the demo keeps (two rounds of the default exercises, ~12 minutes, some
+#: 15 MB): older closed ones are erased as new ones come, so a demo left running for days
+#: holds no more than this.
+KEEP_SESSIONS = 12
 #: How often the demo kit reports battery and signal [s].
 STATUS_EVERY_S = 5.0
 
@@ -45,6 +49,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="playback speed of the simulated patient (default 1: real time)")
     parser.add_argument("--once", action="store_true",
                         help="stream each exercise once, then keep serving")
+    parser.add_argument("--keep", type=int, default=KEEP_SESSIONS, metavar="N",
+                        help="sessions kept; older ones are erased (default %(default)s)")
 
 
 def _settings(args: argparse.Namespace):
@@ -135,8 +141,26 @@ def _demo_kit_class():
     return DemoKit
 
 
+def _prune(services, patient_id: int, keep: int) -> list[int]:
+    """Erase the demo patient's closed sessions beyond the newest ``keep``; their ids."""
+    from armtrack.server.api.erase import erase_session
+    from armtrack.server.db import models
+    from sqlalchemy import select
+
+    with services.db() as db:
+        old = db.scalars(select(models.Session.id)
+                         .where(models.Session.patient_id == patient_id)
+                         .order_by(models.Session.id.desc()).offset(keep)).all()
+        closed = [i for i in old if db.get(models.Session, i).status == "closed"]
+        for session_id in closed:
+            erase_session(db, session_id)
+    return closed
+
+
 async def _patient_loop(url: str, token: str, exercises: list[str], speed: float,
-                        once: bool, side: str, height_m: float) -> None:
+                        once: bool, side: str, height_m: float,
+                        services=None, patient_id: int | None = None,
+                        keep: int = KEEP_SESSIONS) -> None:
     import asyncio
 
     from armtrack.server.emulator import KitError
@@ -162,6 +186,11 @@ async def _patient_loop(url: str, token: str, exercises: list[str], speed: float
                 print(f"demo: the kit stopped: {exc}", file=sys.stderr, flush=True)
                 await asyncio.sleep(PAUSE_S)
             await asyncio.sleep(PAUSE_S)
+            if services is not None:
+                erased = await asyncio.to_thread(_prune, services, patient_id, keep)
+                if erased:
+                    print(f"demo: erased the oldest session(s) {', '.join(map(str, erased))}"
+                          f" (the demo keeps the newest {keep})", flush=True)
         if once:
             next_recording.cancel()
             print("demo: every exercise streamed once; still serving (Ctrl-C stops)",
@@ -183,17 +212,27 @@ async def _main(args: argparse.Namespace) -> int:
         print(f"armtrack demo: unknown exercise(s) {', '.join(unknown) or '(none given)'}; "
               f"choose from {', '.join(sorted(EXERCISES))}", file=sys.stderr)
         return 2
+    from armtrack.server.listen import CannotListen, bind_socket
+
+    if args.keep < 1:
+        print(f"armtrack demo: --keep must be at least 1, got {args.keep}", file=sys.stderr)
+        return 2
+    try:
+        sock = bind_socket(settings.host, settings.port, "demo")
+    except CannotListen as exc:
+        print(f"armtrack demo: {exc}", file=sys.stderr)
+        return 2
     app = create_app(settings)
     server = uvicorn.Server(uvicorn.Config(app, host=settings.host, port=settings.port,
                                            ws_max_size=settings.max_message_bytes,
                                            log_level="warning"))
-    serving = asyncio.create_task(server.serve())
+    serving = asyncio.create_task(server.serve(sockets=[sock]))
     while not server.started:
         if serving.done():
             serving.result()
-            print(f"armtrack demo: could not listen on {settings.host}:{settings.port} "
-                  "(in use? try --port)", file=sys.stderr)
-            return 1
+            print("armtrack demo: the server stopped while starting (see the messages "
+                  "above)", file=sys.stderr)
+            return 3
         await asyncio.sleep(0.05)
     services = app.state.services
     password, patient_id, token = await services.run_db(lambda _db: _setup(services))
@@ -212,7 +251,7 @@ Ctrl-C stops.
 """, flush=True)
     patient = asyncio.create_task(_patient_loop(
         f"ws://{host}:{port}/ws/ingest", token, exercises, args.speed, args.once,
-        "right", 1.72))
+        "right", 1.72, services, patient_id, args.keep))
     try:
         await serving  # until Ctrl-C (uvicorn handles the signal)
     finally:
@@ -230,5 +269,6 @@ def run(args: argparse.Namespace) -> int:
         code = asyncio.run(_main(args))
     except KeyboardInterrupt:
         code = 0
-    print("armtrack demo: stopped", flush=True)
+    if code != 2:
+        print("armtrack demo: stopped", flush=True)
     return code

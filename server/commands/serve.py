@@ -54,7 +54,7 @@ def demo_account_present(settings) -> bool:
     from armtrack.server.db.migrate import upgrade
     from sqlalchemy import select
 
-    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    settings.data_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
     engine = make_engine(settings.resolved_database_url())
     try:
         upgrade(engine)
@@ -80,9 +80,17 @@ def run(args: argparse.Namespace) -> int:
         for problem in problems:
             print(f"armtrack serve: refusing to start: {problem}", file=sys.stderr)
         return 2
+    from armtrack.server.listen import CannotListen, bind_socket
+
+    try:
+        sock = bind_socket(settings.host, settings.port, "serve")
+    except CannotListen as exc:
+        print(f"armtrack serve: {exc}", file=sys.stderr)
+        return 2
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
     scheme = "https" if settings.tls_cert else "http"
-    print(f"armtrack: serving on {scheme}://{settings.host}:{settings.port} "
+    port = sock.getsockname()[1]
+    print(f"armtrack: serving on {scheme}://{settings.host}:{port} "
           f"(database {settings.resolved_database_url()})", flush=True)
     tls = ({"ssl_certfile": str(settings.tls_cert), "ssl_keyfile": str(settings.tls_key)}
            if settings.tls_cert else {})
@@ -95,5 +103,5 @@ def run(args: argparse.Namespace) -> int:
     server = uvicorn.Server(config)  # its logging is set up here, so the filter stays
     for name in ("uvicorn.access", "uvicorn.error"):
         logging.getLogger(name).addFilter(RedactTokens())
-    server.run()
-    return 0
+    server.run(sockets=[sock])
+    return 0 if server.started else 3

@@ -5,11 +5,24 @@ patient's data is overwritten in the file); any other SQLAlchemy URL
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from sqlalchemy import Engine, create_engine, event
 from sqlalchemy.engine import make_url
 from sqlalchemy.orm import sessionmaker
+
+
+def owner_only_file(path: Path) -> None:
+    """The SQLite file readable and writable by its owner only (0600), made empty if
+    missing (SQLite gives its -wal and -shm files the database's mode); its folder is made
+    if missing, 0700 when new. A wider mode of an existing file is narrowed: the database
+    holds patients' data."""
+    if not path.parent.exists():
+        path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+    os.close(os.open(path, os.O_RDWR | os.O_CREAT, 0o600))
+    if path.stat().st_mode & 0o077:
+        os.chmod(path, 0o600)
 
 
 def make_engine(url: str) -> Engine:
@@ -18,7 +31,7 @@ def make_engine(url: str) -> Engine:
     if parsed.get_backend_name() != "sqlite":
         return create_engine(url, pool_pre_ping=True)
     if parsed.database and parsed.database != ":memory:":
-        Path(parsed.database).parent.mkdir(parents=True, exist_ok=True)
+        owner_only_file(Path(parsed.database))
     engine = create_engine(url, connect_args={"check_same_thread": False, "timeout": 30})
 
     @event.listens_for(engine, "connect")

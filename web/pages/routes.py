@@ -7,8 +7,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from fastapi import APIRouter, HTTPException
-from fastapi.responses import FileResponse, RedirectResponse
+from fastapi import APIRouter, HTTPException, Request
+from fastapi.responses import FileResponse, HTMLResponse, RedirectResponse, Response
 
 STATIC = Path(__file__).resolve().parent / "static"
 TYPES = {".css": "text/css", ".js": "text/javascript", ".svg": "image/svg+xml",
@@ -27,9 +27,24 @@ def home() -> RedirectResponse:
     return RedirectResponse("/patients")
 
 
+#: The sign-in page's first-run hint, hidden until the server has no account.
+FIRST_RUN_HIDDEN = '<div id="first-run" class="notice" hidden>'
+
+
 @router.get("/signin")
-def signin() -> FileResponse:
-    return _page("signin.html")
+def signin(request: Request) -> Response:
+    """The sign-in page; on a server with no account yet it shows how to make one."""
+    from armtrack.server.app import has_accounts
+
+    services = getattr(request.app.state, "services", None)
+    if services is None:
+        return _page("signin.html")
+    with services.db() as db:
+        if has_accounts(db):
+            return _page("signin.html")
+    html = (STATIC / "signin.html").read_text("utf-8")
+    return HTMLResponse(html.replace(FIRST_RUN_HIDDEN, FIRST_RUN_HIDDEN.replace(" hidden", "")),
+                        headers={"Cache-Control": "no-cache"})
 
 
 @router.get("/patients")

@@ -1,0 +1,131 @@
+"""A newcomer's first run: a fresh server says how to make an account (log and sign-in
+page), a second server on a busy port says which port and what to do (exit code 2, no
+traceback), the demo keeps a bounded number of sessions, and files holding patients' data
+are readable by their owner only. Real processes throughout."""
+
+from __future__ import annotations
+
+import socket
+import stat
+import subprocess
+import sys
+import time
+
+import httpx
+import pytest
+from server_support import ServerProcess, armtrack
+
+
+@pytest.fixture
+def fresh_server(tmp_path):
+    server = ServerProcess(tmp_path / "data").start(timeout=120)
+    yield server
+    server.stop()
+
+
+def first_run_hint_shown(html: str) -> bool:
+    return '<div id="first-run" class="notice">' in html
+
+
+def test_a_fresh_server_says_how_to_make_an_account(fresh_server):
+    log = fresh_server.log.read_text()
+    assert "no therapist account yet" in log and "armtrack create-user NAME" in log
+    page = httpx.get(fresh_server.url + "/signin").text
+    assert first_run_hint_shown(page)
+    assert "armtrack create-user NAME" in page
+
+    fresh_server.create_user("ada")
+    page = httpx.get(fresh_server.url + "/signin").text
+    assert not first_run_hint_shown(page)
+    assert '<div id="first-run" class="notice" hidden>' in page
+
+
+def test_a_server_with_an_account_logs_no_hint(tmp_path):
+    server = ServerProcess(tmp_path / "data")
+    server.create_user("ada")
+    server.start(timeout=120)
+    try:
+        assert "no therapist account yet" not in server.log.read_text()
+    finally:
+        server.stop()
+
+
+@pytest.mark.parametrize("command", ["serve", "demo"])
+def test_a_busy_port_is_named_with_what_to_do(tmp_path, command):
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        done = armtrack(command, "--port", str(port), "--data-dir", str(tmp_path / "d"),
+                        timeout=120)
+    assert done.returncode == 2, done.stderr
+    assert f"port {port} on 127.0.0.1 is already in use" in done.stderr
+    assert f"armtrack {command} --port {port + 1}" in done.stderr
+    assert "Traceback" not in done.stderr and "Errno" not in done.stderr
+    print(done.stderr)
+
+
+def test_the_demo_keeps_a_bounded_number_of_sessions(tmp_path):
+    """A demo left running erases its oldest sessions: with --keep 2, after four sessions
+    the database holds at most two closed ones (plus the one streaming)."""
+    from server_support import free_port
+
+    port = free_port()
+    data = tmp_path / "demo"
+    log = open(tmp_path / "demo.log", "w")
+    demo = subprocess.Popen([sys.executable, "-m", "armtrack.server.cli", "demo", "--port",
+                             str(port), "--data-dir", str(data), "--speed", "25",
+                             "--exercises", "elbow_flexion", "--keep", "2"],
+                            stdout=log, stderr=subprocess.STDOUT)
+    try:
+        deadline = time.monotonic() + 240
+        text = ""
+        while time.monotonic() < deadline and text.count("demo: erased") < 2:
+            time.sleep(1)
+            text = (tmp_path / "demo.log").read_text()
+            assert demo.poll() is None, text
+        assert text.count("demo: erased") >= 2, text
+        server = ServerProcess(data)
+        rows = server.sql("SELECT id, status FROM sessions ORDER BY id")
+        closed = [r for r in rows if r[1] == "closed"]
+        print(rows)
+        assert len(closed) <= 2 and len(rows) <= 3
+        assert rows[-1][0] >= 4  # older sessions were made, then erased
+    finally:
+        demo.terminate()
+        demo.wait(30)
+        log.close()
+
+
+def test_files_with_patients_data_are_owner_only(tmp_path, fresh_server):
+    """The database (and its folder), a simulated recording and its truth, an estimate's
+    output: 0600, whatever the umask."""
+    def mode(path):
+        return stat.S_IMODE(path.stat().st_mode)
+
+    db = fresh_server.data_dir / "armtrack.db"
+    assert mode(db) == 0o600
+    for extra in ("armtrack.db-wal", "armtrack.db-shm"):
+        if (fresh_server.data_dir / extra).exists():
+            assert mode(fresh_server.data_dir / extra) == 0o600, extra
+    rec = tmp_path / "rec.csv"
+    done = armtrack("simulate", "--reps", "1", "-o", str(rec))
+    assert done.returncode == 0, done.stderr
+    assert mode(rec) == 0o600
+    assert mode(tmp_path / "rec.truth.csv") == 0o600
+    out = tmp_path / "angles.csv"
+    done = armtrack("estimate", str(rec), "-o", str(out))
+    assert done.returncode == 0, done.stderr
+    assert mode(out) == 0o600
+
+
+def test_an_existing_world_readable_database_is_narrowed(tmp_path):
+    data = tmp_path / "data"
+    data.mkdir()
+    db = data / "armtrack.db"
+    db.touch(mode=0o644)
+    db.chmod(0o644)
+    done = armtrack("create-user", "ada", "--password", "long-enough-1", "--data-dir",
+                    str(data))
+    assert done.returncode == 0, done.stderr
+    assert stat.S_IMODE(db.stat().st_mode) == 0o600
