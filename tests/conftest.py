@@ -1,5 +1,9 @@
-"""Shared fixtures. Tests that need ``../shared`` (the spec's data, beside the repo) skip
-with a clear reason when it is absent, as in a user's clone; CI has it."""
+"""Shared fixtures. Tests that need a recording with its ground truth use
+``recordings_dir``: the independent simulator's set in ``../shared/data/recordings`` where
+it is (CI has it: the independent check), else the same ten sessions made by the project's
+own simulator (a user's clone), so every such test runs everywhere. Tests that need the
+real-data sets (``../shared/data/broad``, ``ring``) or the shared files' own facts skip
+with a clear reason when ``../shared`` is absent."""
 
 import os
 import secrets
@@ -60,6 +64,59 @@ def shared_dir() -> Path:
         pytest.skip(f"needs the shared data folder beside the repo ({SHARED_DIR}); "
                     "a user's clone has none, CI has it")
     return SHARED_DIR
+
+
+#: The shared recordings' sessions (README of shared/data/recordings), as the project's
+#: simulator makes them: name → SimulationConfig's arguments. Same side, height, rate,
+#: axes, sensors, exercise (amplitudes and repetition counts), losses and jitter; another
+#: simulator, other mountings, biases and noise draws.
+STAND_INS: dict[str, dict] = {
+    "elbow_flexion": {"exercise": "elbow_flexion", "height_m": 1.80},
+    "shoulder_abduction": {"exercise": "shoulder_abduction", "height_m": 1.74},
+    "shoulder_flexion": {"exercise": "shoulder_flexion", "height_m": 1.66},
+    "wrist_flexion": {"exercise": "wrist_flexion", "height_m": 1.83},
+    "pronation": {"exercise": "pronation", "height_m": 1.78},
+    "left_reach_50hz": {"exercise": "reach", "side": "left", "height_m": 1.70,
+                        "rate_hz": 50.0},
+    "elbow_6axis": {"exercise": "elbow_wrist", "height_m": 1.80, "nine_axis": False},
+    "elbow_6axis_long": {"exercise": "long_session", "height_m": 1.76, "nine_axis": False,
+                         "gyro_bias_walk": 2e-4},
+    "trunk_reach": {"exercise": "trunk_reach", "height_m": 1.69,
+                    "sensors": ("trunk", "upper_arm", "forearm", "hand")},
+    "abduction_120": {"exercise": "abduction_120", "height_m": 1.72, "lost_fraction": 0.02,
+                      "jitter_s": 0.001},
+}
+
+
+def make_stand_ins(folder: Path) -> Path:
+    """``NAME.csv`` and ``NAME.truth.csv`` for every name of :data:`STAND_INS` in
+    ``folder``, by the project's simulator (about 10 s)."""
+    import dataclasses
+
+    from armtrack.estimator.recording import write_recording
+    from armtrack.estimator.simulation import SimulationConfig, simulate, write_truth
+
+    for seed, (name, given) in enumerate(sorted(STAND_INS.items()), start=1):
+        given = dict(given)
+        walk = given.pop("gyro_bias_walk", 0.0)
+        config = SimulationConfig(seed=seed, **given)
+        if walk:
+            config = dataclasses.replace(
+                config, errors=dataclasses.replace(config.errors, gyro_bias_walk=walk))
+        result = simulate(config)
+        write_recording(result.recording, folder / f"{name}.csv")
+        write_truth(result.truth, folder / f"{name}.truth.csv")
+    return folder
+
+
+@pytest.fixture(scope="session")
+def recordings_dir(tmp_path_factory) -> Path:
+    """A folder of simulated recordings with their truth (see :data:`STAND_INS`): the shared
+    set where present, else the project's simulator's stand-ins."""
+    shared = SHARED_DIR / "data" / "recordings"
+    if shared.is_dir():
+        return shared
+    return make_stand_ins(tmp_path_factory.mktemp("recordings"))
 
 
 @pytest.fixture

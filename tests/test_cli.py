@@ -59,8 +59,8 @@ def test_bad_input_exits_2_with_a_clear_message(args, message):
     assert "Traceback" not in result.stderr
 
 
-def test_pose_from_truth_angles_csv_reproduces_truth_positions(shared_dir, tmp_path):
-    truth_csv = shared_dir / "data" / "recordings" / "left_reach_50hz.truth.csv"
+def test_pose_from_truth_angles_csv_reproduces_truth_positions(recordings_dir, tmp_path):
+    truth_csv = recordings_dir / "left_reach_50hz.truth.csv"
     out = tmp_path / "positions.csv"
     run("pose", "--angles-csv", truth_csv, "--side", "left", "--height", "1.70", "-o", out)
     got = np.genfromtxt(out, delimiter=",", names=True)
@@ -70,8 +70,8 @@ def test_pose_from_truth_angles_csv_reproduces_truth_positions(shared_dir, tmp_p
     assert worst < 1e-5
 
 
-def test_check_summarises_a_shared_recording(shared_dir):
-    out = json.loads(run("check", shared_dir / "data" / "recordings" / "elbow_6axis.csv",
+def test_check_summarises_a_shared_recording(recordings_dir):
+    out = json.loads(run("check", recordings_dir / "elbow_6axis.csv",
                          "--json").stdout)
     assert out["side"] == "right" and out["height_m"] == 1.8
     assert set(out["sensors"]) == {"upper_arm", "forearm", "hand"}

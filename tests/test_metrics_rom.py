@@ -36,13 +36,13 @@ MOVED = {
 
 
 @pytest.fixture(scope="module")
-def truth(shared_dir):
+def truth(recordings_dir):
     cache = {}
 
     def read(name):
         if name not in cache:
             cache[name] = np.genfromtxt(
-                shared_dir / "data" / "recordings" / f"{name}.truth.csv", delimiter=",",
+                recordings_dir / f"{name}.truth.csv", delimiter=",",
                 names=True)
         return cache[name]
     return read

@@ -72,8 +72,8 @@ def test_angle_variant_on_the_reference_profile():
     assert result.ldlj == pytest.approx(-5.81636, abs=1e-3)
 
 
-def test_repetition_smoothness_on_truth(shared_dir):
-    table = np.genfromtxt(shared_dir / "data" / "recordings" / "elbow_flexion.truth.csv",
+def test_repetition_smoothness_on_truth(recordings_dir):
+    table = np.genfromtxt(recordings_dir / "elbow_flexion.truth.csv",
                           delimiter=",", names=True)
     angle, t = table["elbow_flexion"] * DEG, table["t"]
     reps = detect_repetitions(angle, t, include=[(10.5, np.inf)])

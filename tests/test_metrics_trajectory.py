@@ -55,9 +55,9 @@ def test_positions_against_numpy_one_liners(estimate, truth, lost):
         (d1.mean(), d1.max(), np.sqrt((d1 ** 2).mean())), rel=1e-12, abs=1e-12)
 
 
-def test_truth_positions_shifted(shared_dir):
+def test_truth_positions_shifted(recordings_dir):
     """Every point of a truth file moved by (0.01, 0.02, 0.02) m is 0.03 m off everywhere."""
-    table = np.genfromtxt(shared_dir / "data" / "recordings" / "elbow_flexion.truth.csv",
+    table = np.genfromtxt(recordings_dir / "elbow_flexion.truth.csv",
                           delimiter=",", names=True)
     for point in POINTS:
         truth = np.stack([table[f"{point}_{a}"] for a in "xyz"], axis=-1)

@@ -51,9 +51,9 @@ def score(estimates, truth_t, truth_angles, truth_positions, scored_from=SCORED_
 @pytest.mark.parametrize("name", [
     pytest.param(n, marks=pytest.mark.xfail(strict=True, reason=KNOWN_GAPS[n]))
     if n in KNOWN_GAPS else n for n in SHARED])
-def test_shared_recordings_meet_the_bar(shared_dir, name):
-    recording = read_recording(shared_dir / "data" / "recordings" / f"{name}.csv")
-    truth = np.genfromtxt(shared_dir / "data" / "recordings" / f"{name}.truth.csv",
+def test_shared_recordings_meet_the_bar(recordings_dir, name):
+    recording = read_recording(recordings_dir / f"{name}.csv")
+    truth = np.genfromtxt(recordings_dir / f"{name}.truth.csv",
                           delimiter=",", names=True)
     estimates, calibration = estimate_recording(recording)
     positions = {p: np.stack([truth[f"{p}_{a}"] for a in "xyz"], -1)
@@ -246,11 +246,11 @@ def test_heading_constraint_recovers_a_forearm_heading_error():
 
 
 @pytest.mark.parametrize("name", ["elbow_6axis", "trunk_reach"])
-def test_shared_recording_streamed_in_chunks_equals_batch(shared_dir, name):
+def test_shared_recording_streamed_in_chunks_equals_batch(recordings_dir, name):
     """A 6-axis kit (heading constraints) and one with a trunk sensor, chunked at random."""
     from armtrack.estimator.pipeline import Estimates
 
-    recording = read_recording(shared_dir / "data" / "recordings" / f"{name}.csv")
+    recording = read_recording(recordings_dir / f"{name}.csv")
     batch, _ = estimate_recording(recording)
     stream = Estimates.concatenate(feed_in_chunks(recording, np.random.default_rng(7)))
     np.testing.assert_array_equal(stream.t, batch.t)
@@ -317,11 +317,11 @@ REPETITIONS = {
 
 
 @pytest.mark.parametrize("name", sorted(REPETITIONS))
-def test_repetitions_counted_on_the_estimates_match_the_shared_readme(shared_dir, name):
+def test_repetitions_counted_on_the_estimates_match_the_shared_readme(recordings_dir, name):
     from armtrack.estimator.metrics import repetitions_by_angle
     from armtrack.server.commands.estimate import CALIBRATION_TAIL_S
 
-    recording = read_recording(shared_dir / "data" / "recordings" / f"{name}.csv")
+    recording = read_recording(recordings_dir / f"{name}.csv")
     estimates, _ = estimate_recording(recording)
     calibration_end = max(p.end for p in recording.calibration) + CALIBRATION_TAIL_S
     counted = repetitions_by_angle({k: estimates.angles[k] for k in REPETITIONS[name]},

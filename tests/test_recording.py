@@ -339,8 +339,8 @@ def _recordings_dir(shared_dir: Path) -> Path:
     return shared_dir / "data" / "recordings"
 
 
-def test_every_shared_recording_reads_and_is_described(shared_dir):
-    files = sorted(p for p in _recordings_dir(shared_dir).glob("*.csv")
+def test_every_shared_recording_reads_and_is_described(recordings_dir):
+    files = sorted(p for p in recordings_dir.glob("*.csv")
                    if not p.name.endswith(".truth.csv"))
     assert files, "no recordings in shared/data/recordings"
     for path in files:
@@ -351,6 +351,9 @@ def test_every_shared_recording_reads_and_is_described(shared_dir):
 
 @pytest.mark.parametrize("name", sorted(SHARED))
 def test_shared_recording_matches_its_readme(shared_dir, name):
+    """The independent simulator's files themselves, against their README (skipped without
+    ../shared: the stand-ins of tests/conftest.py are checked against their own
+    configuration in test_stand_ins_are_the_shared_sessions)."""
     side, height, rate, nine_axis, sensors, duration = SHARED[name]
     rec = read_recording(_recordings_dir(shared_dir) / f"{name}.csv")
     assert (rec.side, rec.height_m, rec.rate_hz) == (side, height, rate)
@@ -375,9 +378,9 @@ def test_shared_recording_matches_its_readme(shared_dir, name):
 
 
 @pytest.mark.parametrize("name", ["elbow_flexion", "elbow_6axis", "abduction_120"])
-def test_shared_numbers_equal_python_float_of_their_text(shared_dir, name):
+def test_shared_numbers_equal_python_float_of_their_text(recordings_dir, name):
     """Every number of the file, against float() of its text, bit for bit."""
-    path = _recordings_dir(shared_dir) / f"{name}.csv"
+    path = recordings_dir / f"{name}.csv"
     rec = read_recording(path)
     expected: dict[str, list[list[float]]] = {}
     for text in path.read_text().splitlines():
@@ -393,21 +396,50 @@ def test_shared_numbers_equal_python_float_of_their_text(shared_dir, name):
         got = np.column_stack([s.t, s.acc, s.gyr, mag])
         assert got.tobytes() == np.array(rows).tobytes(), sensor
     # a few by hand, as written in the file
-    if name == "elbow_flexion":
+    if name == "elbow_flexion" and rec.metadata == {"scenario": name}:  # the shared file
         first = rec.sensors["forearm"]
         assert first.acc[0].tolist() == [float("-0.1720"), float("9.8394"), float("-0.6257")]
         assert first.mag[0].tolist() == [float("22.797"), float("-41.296"), float("12.093")]
 
 
-def test_reading_equals_parsing(shared_dir, tmp_path):
-    path = _recordings_dir(shared_dir) / "trunk_reach.csv"
+def test_reading_equals_parsing(recordings_dir, tmp_path):
+    path = recordings_dir / "trunk_reach.csv"
     assert_same(read_recording(path), parse_recording(path.read_bytes()))
     assert_same(read_recording(path), read_recording(str(path)))
     assert_same(read_recording(path), read_recording(memoryview(path.read_bytes())))
 
 
-def test_shared_recording_rewrites_to_the_same_numbers(shared_dir, tmp_path):
-    path = _recordings_dir(shared_dir) / "left_reach_50hz.csv"
+def test_shared_recording_rewrites_to_the_same_numbers(recordings_dir, tmp_path):
+    path = recordings_dir / "left_reach_50hz.csv"
     rec = read_recording(path)
     write_recording(rec, tmp_path / "copy.csv")
     assert_same(rec, read_recording(tmp_path / "copy.csv"))
+
+
+@pytest.mark.parametrize("name", sorted(SHARED))
+def test_stand_ins_are_the_shared_sessions(tmp_path_factory, name):
+    """The project's simulator's stand-ins (tests/conftest.py, used where ../shared is
+    absent) have the shared files' side, height, rate, axes, sensors, calibration windows,
+    sampling and losses (their length differs: the shared files end at 40-45 s)."""
+    from conftest import STAND_INS, make_stand_ins
+
+    folder = tmp_path_factory.getbasetemp() / "stand-ins-checked"
+    if not (folder / "elbow_flexion.csv").exists():
+        folder.mkdir(exist_ok=True)
+        make_stand_ins(folder)
+    side, height, rate, nine_axis, sensors, _ = SHARED[name]
+    rec = read_recording(folder / f"{name}.csv")
+    assert (rec.side, rec.height_m, rec.rate_hz) == (side, height, rate)
+    assert tuple(rec.sensors) == sensors
+    assert all(s.nine_axis == nine_axis for s in rec.sensors.values())
+    assert rec.calibration == (Pose("npose", 0.5, 3.0), Pose("tpose", 5.5, 8.0))
+    assert rec.metadata["scenario"] == STAND_INS[name]["exercise"]
+    for sensor, s in rec.sensors.items():
+        assert np.median(np.diff(s.t)) == pytest.approx(1.0 / rate, rel=1e-3), sensor
+        expected = round(rec.duration * rate) + 1
+        if name == "abduction_120":
+            assert 0.95 * expected < len(s) < expected, sensor
+        else:
+            assert len(s) == expected, sensor
+        g = np.linalg.norm(s.acc[: int(rate)], axis=1).mean()
+        assert g == pytest.approx(9.81, abs=0.2), f"{name} {sensor}: |a| at rest {g:.3f}"

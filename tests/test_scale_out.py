@@ -162,7 +162,7 @@ async def _watch(url: str, token: str, poses: list, stop: asyncio.Event,
 
 
 def test_a_stream_moves_to_another_instance_without_loss_and_is_watched_across(
-        tmp_path, shared_dir, postgres_url, redis_url):
+        tmp_path, recordings_dir, postgres_url, redis_url):
     env = {"ARMTRACK_DATABASE_URL": fresh_postgres_database(postgres_url),
            "ARMTRACK_BROKER_URL": redis_url}
     a = ServerProcess(tmp_path / "a", env)
@@ -172,7 +172,7 @@ def test_a_stream_moves_to_another_instance_without_loss_and_is_watched_across(
     b.start()
     try:
         api_a, api_b = a.client("alice"), b.client("alice")
-        recording = read_recording(shared_dir / "data" / "recordings" / "elbow_flexion.csv")
+        recording = read_recording(recordings_dir / "elbow_flexion.csv")
         patient = api_a.patient("Moving", recording.side, recording.height_m or 1.75)
         token = api_a.device(patient["id"])["token"]
 

@@ -50,8 +50,8 @@ def srv(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def recording(shared_dir):
-    return shared_dir / "data" / "recordings" / RECORDING
+def recording(recordings_dir):
+    return recordings_dir / RECORDING
 
 
 def upload(api, patient_id, path):

@@ -199,7 +199,7 @@ def normalised(answer: httpx.Response, values: list) -> tuple[int, str]:
 
 
 @pytest.fixture(scope="module")
-def world(tmp_path_factory, shared_dir):
+def world(tmp_path_factory, recordings_dir):
     server = ServerProcess(tmp_path_factory.mktemp("matrix"))
     for name in ("alice", "bob"):
         server.create_user(name)
@@ -207,7 +207,7 @@ def world(tmp_path_factory, shared_dir):
                     "--data-dir", str(server.data_dir))
     assert done.returncode == 0, done.stderr
     server.start()
-    yield World(server, shared_dir / "data" / "recordings" / RECORDING)
+    yield World(server, recordings_dir / RECORDING)
     server.stop()
 
 

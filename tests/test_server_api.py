@@ -94,10 +94,10 @@ def test_a_device_token_is_shown_once_and_stored_hashed(module_server, alice):
     assert created["token"] not in stored and len(stored[-1]) == 64
 
 
-def test_a_device_token_uploads_only_for_its_own_patient(module_server, alice, shared_dir):
+def test_a_device_token_uploads_only_for_its_own_patient(module_server, alice, recordings_dir):
     mine, other = alice.patient("Mine"), alice.patient("Other")
     token = alice.device(mine["id"])["token"]
-    path = shared_dir / "data" / "recordings" / "left_reach_50hz.csv"
+    path = recordings_dir / "left_reach_50hz.csv"
     kit = httpx.Client(base_url=module_server.url, timeout=60,
                        headers={"Authorization": f"Bearer {token}"})
     with open(path, "rb") as f:
@@ -126,8 +126,8 @@ def upload(api, patient_id, path):
     return answer.json()
 
 
-def test_erasing_a_session_and_a_patient_leaves_nothing(module_server, alice, shared_dir):
-    path = shared_dir / "data" / "recordings" / "left_reach_50hz.csv"
+def test_erasing_a_session_and_a_patient_leaves_nothing(module_server, alice, recordings_dir):
+    path = recordings_dir / "left_reach_50hz.csv"
     patient = alice.patient("Erase me")
     alice.device(patient["id"])
     first, second = (upload(alice, patient["id"], path) for _ in range(2))
@@ -150,8 +150,8 @@ def test_erasing_a_session_and_a_patient_leaves_nothing(module_server, alice, sh
 
 
 def test_reprocess_recomputes_a_session_with_the_current_estimator(
-        module_server, alice, shared_dir):
-    path = shared_dir / "data" / "recordings" / "elbow_6axis.csv"
+        module_server, alice, recordings_dir):
+    path = recordings_dir / "elbow_6axis.csv"
     session = upload(alice, alice.patient()["id"], path)
     before = alice.http.get(f"/api/sessions/{session['id']}/angles.csv").text
     done = module_server.armtrack("reprocess", str(session["id"]))

@@ -38,10 +38,10 @@ def assert_same_samples(stored, original):
 
 
 def test_streamed_recordings_are_stored_exactly_and_estimated_as_the_cli_does(
-        server, shared_dir, tmp_path):
+        server, recordings_dir, tmp_path):
     api = server.client("alice")
     for name in SHARED:
-        path = shared_dir / "data" / "recordings" / f"{name}.csv"
+        path = recordings_dir / f"{name}.csv"
         recording = read_recording(path)
         patient = api.patient(name, recording.side, recording.height_m or 1.75)
         token = api.device(patient["id"])["token"]
@@ -67,10 +67,10 @@ def test_streamed_recordings_are_stored_exactly_and_estimated_as_the_cli_does(
               f"ack p99 {1000 * stats.latency_percentiles((99,))[99]:.1f} ms, identical")
 
 
-def test_uploaded_recording_becomes_a_processed_session(server, shared_dir):
+def test_uploaded_recording_becomes_a_processed_session(server, recordings_dir):
     api = server.client("alice")
     patient = api.patient()
-    path = shared_dir / "data" / "recordings" / "elbow_6axis.csv"
+    path = recordings_dir / "elbow_6axis.csv"
     with open(path, "rb") as f:
         answer = api.http.post("/api/recordings", data={"patient_id": patient["id"]},
                                files={"file": ("elbow_6axis.csv", f, "text/csv")})
