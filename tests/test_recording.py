@@ -260,13 +260,15 @@ def test_write_is_atomic_when_the_rename_fails(tmp_path, monkeypatch):
     assert os.listdir(tmp_path) == ["out.csv"]
 
 
-def test_written_file_mode_follows_umask(tmp_path):
-    old = os.umask(0o022)
-    try:
-        write_recording(_bad(), tmp_path / "out.csv")
-    finally:
-        os.umask(old)
-    assert (tmp_path / "out.csv").stat().st_mode & 0o777 == 0o644
+def test_written_file_is_owner_only_whatever_the_umask(tmp_path):
+    """A recording is a patient's data: 0600 (issue 24: it followed the umask, 0644)."""
+    for umask in (0o022, 0o000):
+        old = os.umask(umask)
+        try:
+            write_recording(_bad(), tmp_path / "out.csv")
+        finally:
+            os.umask(old)
+        assert (tmp_path / "out.csv").stat().st_mode & 0o777 == 0o600
 
 
 # ---------------------------------------------------------------------------------------
@@ -435,7 +437,7 @@ def test_stand_ins_are_the_shared_sessions(tmp_path_factory, name):
     assert rec.calibration == (Pose("npose", 0.5, 3.0), Pose("tpose", 5.5, 8.0))
     assert rec.metadata["scenario"] == STAND_INS[name]["exercise"]
     for sensor, s in rec.sensors.items():
-        assert np.median(np.diff(s.t)) == pytest.approx(1.0 / rate, rel=1e-3), sensor
+        assert np.median(np.diff(s.t)) == pytest.approx(1.0 / rate, rel=0.01), sensor  # jitter
         expected = round(rec.duration * rate) + 1
         if name == "abduction_120":
             assert 0.95 * expected < len(s) < expected, sensor
