@@ -9,4 +9,5 @@ DEFAULT_FILTER = "qcf"
 #: Simulated exercises (``estimator.simulation.EXERCISES``).
 EXERCISE_NAMES = ("elbow_flexion", "shoulder_abduction", "shoulder_flexion", "abduction_120",
                   "shoulder_rotation", "wrist_flexion", "pronation", "wrist_deviation", "reach",
-                  "trunk_reach", "elbow_wrist", "drinking", "shrug", "long_session", "still")
+                  "trunk_reach", "elbow_wrist", "drinking", "shrug", "long_session",
+                  "shoulder_sets", "still")
