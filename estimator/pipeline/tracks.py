@@ -35,6 +35,12 @@ class SensorTrack:
     _q: np.ndarray = field(default_factory=lambda: np.empty((1024, 4)), init=False)
     #: The magnetometer's chunks until calibration (``forget_magnetometer``), [µT].
     _mag: list | None = field(default_factory=list, init=False)
+    # Packed samples (equal stamps): the first stamp, samples seen, and the current run
+    # of equal stamps (its stamp and the index of its first sample), see ``_retime``.
+    _t0: float = field(default=np.nan, init=False)
+    _seen: int = field(default=0, init=False)
+    _run_stamp: float = field(default=np.nan, init=False)
+    _run_start: int = field(default=0, init=False)
     _start: int = field(default=0, init=False)  # first kept row
     _end: int = field(default=0, init=False)  # one past the last row
 
@@ -50,9 +56,10 @@ class SensorTrack:
             self.nine_axis = mag is not None
         elif self.nine_axis != (mag is not None):
             raise InvalidArgument(f"sensor {self.name} changed between 6 and 9 axes mid-stream")
-        if t[0] < self.last_t:
+        if t[0] < self._run_stamp:  # (the last stamp as given, before ``_retime``)
             raise InvalidArgument(
-                f"t goes backwards for sensor {self.name} ({t[0]} after {self.last_t})")
+                f"t goes backwards for sensor {self.name} ({t[0]} after {self._run_stamp})")
+        t = self._retime(np.asarray(t, dtype=np.float64))
         q = self.filter.update(t, acc, gyr, None if self.magnetometer_dropped else mag).q
         if mag is not None and self._mag is not None:
             self._mag.append(np.array(mag, dtype=np.float64))
@@ -87,13 +94,17 @@ class SensorTrack:
         elif self.nine_axis != nine_axis:
             raise InvalidArgument(f"sensor {self.name} changed between 6 and 9 axes mid-stream")
         first = float(rows[0, 0])
-        if first < self.last_t:
+        if first < self._run_stamp:
             raise InvalidArgument(
-                f"t goes backwards for sensor {self.name} ({first} after {self.last_t})")
+                f"t goes backwards for sensor {self.name} ({first} after {self._run_stamp})")
         if self._end + n > len(self._t):
             self._grow(n)
         if nine_axis and self._mag is not None:
             self._mag.append(rows[:, 7:10].copy())
+        retimed = self._retime(rows[:, 0])
+        if retimed is not rows[:, 0]:
+            rows = rows.copy()
+            rows[:, 0] = retimed
         if not append(rows, nine_axis and not self.magnetometer_dropped, self._t, self._acc,
                       self._gyr, self._q, self._end):
             self.append(rows[:, 0], rows[:, 1:4], rows[:, 4:7], mag)  # no compiled kernel
@@ -102,6 +113,36 @@ class SensorTrack:
         self.last_t = float(rows[n - 1, 0])
         if self.first_t == np.inf:
             self.first_t = first
+
+    def _retime(self, t: np.ndarray) -> np.ndarray:
+        """Samples that share a stamp (kits that pack several samples stamp them alike,
+        ``spec/recording.md``) spread at the mean interval so far after it: the k-th of
+        a run at ``stamp + k · (stamp − first stamp) / (samples before it)``, so the
+        filter integrates each over its own interval and estimates come at distinct
+        times. Causal and independent of chunking; ``t`` itself when no stamp repeats."""
+        n = len(t)
+        if n == 0 or not (np.diff(t) >= 0).all():  # the filter says what is wrong
+            return t
+        if np.isnan(self._t0):
+            self._t0 = float(t[0])
+        index = self._seen + np.arange(n)
+        same = np.empty(n, dtype=bool)
+        same[0] = t[0] == self._run_stamp
+        same[1:] = t[1:] == t[:-1]
+        starts = np.where(same, -1, index)
+        run_start = np.maximum.accumulate(np.maximum(starts, np.where(
+            np.arange(n) == 0, self._run_start if same[0] else index[0], -1)))
+        self._seen += n
+        self._run_stamp = float(t[-1])
+        self._run_start = int(run_start[-1])
+        if not same.any():
+            return t
+        k = index - run_start
+        with np.errstate(invalid="ignore", divide="ignore"):
+            interval = np.where(run_start > 0, (t - self._t0) / run_start, 0.0)
+        # never past the next stamp: at most nine tenths of the mean interval each
+        retimed = t + 0.9 * k * interval
+        return np.maximum.accumulate(np.maximum(retimed, self.last_t))
 
     def reference_field(self, until: float) -> tuple[float, float, float] | None:
         """The reference field a fresh filter settles on over the samples up to ``until``

@@ -120,10 +120,10 @@ def _sets(default_sets: int):
     return build
 
 
-def _shoulder_sets(default_rounds: int):
-    """A long session of the shoulder: rounds of flexion to 120° ×8, abduction to 90° ×8,
+def _shoulder_sets(default_rounds: int, rest_s: float = 20.0):
+    """A long session of the shoulder: rounds of flexion to 120° ×8, abduction to 75° ×8,
     rotation ±45° ×6 with the elbow at 90°, and elbow flexion to 110° ×8, with 20 s rests
-    in the N-pose after each set (3 rounds: 11 minutes)."""
+    in the N-pose after each set (3 rounds: 11 minutes); ``rest_s`` 0: set after set."""
     def build(reps: int | None, amplitude_deg: float | None, start: float):
         rounds = default_rounds if reps is None else reps
         scale = 1.0 if amplitude_deg is None else amplitude_deg / 120.0
@@ -132,16 +132,16 @@ def _shoulder_sets(default_rounds: int):
         t = start
         for _ in range(rounds):
             joints = _merge(joints, {"shoulder_flexion": repetitions(t, 8, 120 * scale * DEG)})
-            t += 8 * period + 20.0
-            joints = _merge(joints, {"shoulder_abduction": repetitions(t, 8, 90 * scale * DEG)})
-            t += 8 * period + 20.0
+            t += 8 * period + rest_s
+            joints = _merge(joints, {"shoulder_abduction": repetitions(t, 8, 75 * scale * DEG)})
+            t += 8 * period + rest_s
             joints = _merge(joints, {
                 "elbow_flexion": hold_and_return(t, 90 * DEG, 1.5, 12 * period + 1.0),
                 "shoulder_rotation": repetitions(t + 2.0, 6, 45 * scale * DEG)
                 + repetitions(t + 2.0 + 6 * period, 6, -45 * scale * DEG)})
-            t += 2.0 + 12 * period + 3.0 + 20.0
+            t += 2.0 + 12 * period + 3.0 + rest_s
             joints = _merge(joints, {"elbow_flexion": repetitions(t, 8, 110 * scale * DEG)})
-            t += 8 * period + 20.0
+            t += 8 * period + rest_s
         return joints, {}
     return build
 
@@ -166,6 +166,7 @@ EXERCISES: dict[str, ExerciseBuilder] = {
     "shrug": _single("clavicle_elevation", 25.0, 5),
     "long_session": _sets(4),
     "shoulder_sets": _shoulder_sets(3),
+    "shoulder_sets_no_rest": _shoulder_sets(4, rest_s=0.0),
     "still": lambda reps, amplitude, start: ({}, {}),
 }
 

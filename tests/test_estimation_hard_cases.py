@@ -1,0 +1,116 @@
+"""The simulator's harder cases (issue 18), several seeds and bodies each, against the
+accuracy bar of issue 4 (every angle 1°, 6-axis 2°; wrist 1 cm): a field disturbed
+differently per sensor from the first sample; packed samples with equal stamps; a trunk
+swaying several degrees slowly, with jitter; long sessions with a drifting gyroscope bias
+(6-axis with rests, and 9-axis without: there the magnetometer must help)."""
+
+import functools
+
+import numpy as np
+import pytest
+from armtrack.estimator.pipeline import estimate_recording
+from armtrack.estimator.simulation import ImuErrors, SimulationConfig, simulate
+from test_pipeline import ANGLE_BAR_DEG, WRIST_BAR_CM, score, sim_truth_deg
+
+EXERCISES = ("elbow_flexion", "drinking", "reach", "pronation")
+
+
+def body(seed: int) -> float:
+    """A body height [m] per seed, 1.55–1.95 m."""
+    return float(np.random.default_rng(1000 + seed).uniform(1.55, 1.95))
+
+
+def run(config: SimulationConfig):
+    sim = simulate(config)
+    estimates, calibration = estimate_recording(sim.recording)
+    worst, worst_deg, wrist_cm = score(estimates, sim.truth.t, sim_truth_deg(sim),
+                                       sim.truth.positions)
+    return worst, worst_deg, wrist_cm, calibration
+
+
+def drifting(seed: int) -> ImuErrors:
+    """Noise as the shared recordings, and a bias random walk of 2–3·10⁻⁴ rad/s/√s."""
+    walk = float(np.random.default_rng(2000 + seed).uniform(2e-4, 3e-4))
+    return ImuErrors(gyro_noise=0.004, acc_noise=0.04, mag_noise=0.4, gyro_bias_walk=walk)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_field_disturbed_per_sensor_from_the_first_sample(seed):
+    """Each sensor starts beside its own magnet (20–50 µT at the sensor, for 20–30 s,
+    calibration included): the kit's magnetometers are left out, said in plain words."""
+    config = SimulationConfig(exercise=EXERCISES[seed % 4], seed=seed, height_m=body(seed),
+                              start_disturbance_s=(20.0, 30.0))
+    worst, worst_deg, wrist_cm, calibration = run(config)
+    print(f"disturbed from t=0, seed {seed}: {worst} {worst_deg:.2f}°, wrist {wrist_cm:.2f} cm")
+    assert [w.code for w in calibration.warnings] == ["magnetic-field-disturbed"]
+    assert "magnetic field" in calibration.warnings[0].message
+    assert worst_deg <= ANGLE_BAR_DEG[True] and wrist_cm <= WRIST_BAR_CM
+
+
+@pytest.mark.parametrize("seed, pack", [(1, 4), (2, 2), (3, 4)])
+def test_packed_samples_with_equal_stamps(seed, pack):
+    config = SimulationConfig(exercise=EXERCISES[seed % 4], seed=seed, height_m=body(seed),
+                              pack_size=pack)
+    worst, worst_deg, wrist_cm, _ = run(config)
+    print(f"packs of {pack}, seed {seed}: {worst} {worst_deg:.2f}°, wrist {wrist_cm:.2f} cm")
+    assert worst_deg <= ANGLE_BAR_DEG[True] and wrist_cm <= WRIST_BAR_CM
+
+
+@pytest.mark.parametrize("seed", [
+    pytest.param(1, marks=pytest.mark.xfail(
+        strict=True, reason="measured forearm pronation 1.25°, wrist 0.90 cm (9.7° sway at "
+        "0.18 Hz, 60 Hz): the sway through the poses tilts the calibration")),
+    2,
+    pytest.param(3, marks=pytest.mark.xfail(
+        strict=True, reason="measured shoulder abduction 2.11°, wrist 1.42 cm (6.2° sway at "
+        "0.19 Hz, 60 Hz)"))])
+def test_trunk_sway_slow_and_large_with_jitter(seed):
+    rng = np.random.default_rng(3000 + seed)
+    config = SimulationConfig(exercise="reach", seed=seed, height_m=body(seed),
+                              rate_hz=(50.0, 60.0)[seed % 2],
+                              sensors=("trunk", "upper_arm", "forearm", "hand"),
+                              trunk_sway=(float(rng.uniform(6, 10)), float(rng.uniform(0.1, 0.2))),
+                              jitter_s=float(rng.uniform(0.001, 0.003)))
+    worst, worst_deg, wrist_cm, _ = run(config)
+    print(f"trunk sway {config.trunk_sway}, seed {seed}: {worst} {worst_deg:.2f}°, "
+          f"wrist {wrist_cm:.2f} cm")
+    assert worst_deg <= ANGLE_BAR_DEG[True] and wrist_cm <= WRIST_BAR_CM
+
+
+@pytest.mark.xfail(strict=True, reason="measured shoulder rotation 8.2° (seed 1, 50 Hz) and "
+                   "6.4° (seed 2, 100 Hz): a 6-axis upper arm's heading drift in motion "
+                   "is the shoulder's rotation and nothing without a trunk sensor sees it")
+@pytest.mark.parametrize("seed", [1, 2])
+def test_long_six_axis_session_with_drifting_bias_and_rests(seed):
+    config = SimulationConfig(exercise="shoulder_sets", seed=seed, height_m=body(seed),
+                              nine_axis=False, rate_hz=(100.0, 50.0)[seed % 2],
+                              gyro_bias_max=0.02, errors=drifting(seed))
+    worst, worst_deg, wrist_cm, _ = run(config)
+    print(f"11 min 6-axis, seed {seed}: {worst} {worst_deg:.2f}°, wrist {wrist_cm:.2f} cm")
+    assert worst_deg <= ANGLE_BAR_DEG[False] and wrist_cm <= WRIST_BAR_CM
+
+
+@functools.cache
+def no_rests(seed: int, nine_axis: bool):
+    """14 minutes of shoulder sets one after the other, a drifting bias, a clean field."""
+    return run(SimulationConfig(exercise="shoulder_sets_no_rest", seed=seed,
+                                height_m=body(seed), rate_hz=(100.0, 50.0)[seed % 2],
+                                gyro_bias_max=0.02, errors=drifting(seed),
+                                nine_axis=nine_axis))
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_nine_axis_beats_six_axis_in_a_clean_field_without_rests(seed):
+    """The magnetometer holds the headings the gyroscopes lose (not won by ignoring it)."""
+    nine, six = no_rests(seed, True), no_rests(seed, False)
+    print(f"no rests, seed {seed}: 9-axis {nine[0]} {nine[1]:.2f}°, {nine[2]:.2f} cm; "
+          f"6-axis {six[0]} {six[1]:.2f}°, {six[2]:.2f} cm")
+    assert not nine[3].warnings
+    assert nine[1] < six[1] / 4 and nine[2] < six[2] / 4
+
+
+@pytest.mark.parametrize("seed", [1, pytest.param(2, marks=pytest.mark.xfail(
+    strict=True, reason="measured shoulder rotation 1.01° (bar 1°)"))])
+def test_nine_axis_without_rests_meets_the_bar(seed):
+    nine = no_rests(seed, True)
+    assert nine[1] <= ANGLE_BAR_DEG[True] and nine[2] <= WRIST_BAR_CM

@@ -1,0 +1,80 @@
+"""Estimation on real data (issue 18): the RING arm recordings and BROAD against their bars.
+
+Real data cannot be generated: these tests skip without ``../shared`` (a user's clone has
+none). Scoring as ``../shared/data/ring/README.md`` and ``bench/ring.py`` (the same
+functions): RMSE of each angle over t ≥ 5 s. Trial 1 was used for tuning, trial 2 was not.
+"""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+
+RING_BAR_DEG = 3.0
+#: 9-axis may be worse than 6-axis by this much per angle, at most [deg].
+NINE_VS_SIX_DEG = 0.2
+#: Recordings that miss the bar today, with the measured figure (strict: remove when met).
+RING_GAPS = {("ring_trial2_nonrigid", "wrist_flexion"):
+             "4.33° on the foam-mounted trial 2 (the held-out trial): the foam lets the "
+             "hand sensor turn against the hinge the wrist constraint assumes"}
+
+
+@pytest.fixture(scope="module")
+def ring_dir(shared_dir) -> Path:
+    path = shared_dir / "data" / "ring"
+    if not (path / "arm").is_dir():
+        pytest.skip(f"needs the RING data ({path})")
+    return path
+
+
+@pytest.fixture(scope="module")
+def ring_scores(ring_dir):
+    import ring
+    return {name: ring.score_arm(rec, truth)
+            for name, rec, truth in ring.arm_recordings(ring_dir, (1, 2))}
+
+
+@pytest.mark.parametrize("trial", [1, 2])
+@pytest.mark.parametrize("mounting", ["rigid", "nonrigid"])
+def test_ring_arm_recordings_meet_the_bar_and_nine_axis_is_no_worse(ring_scores, trial,
+                                                                     mounting):
+    import ring
+    base = f"ring_trial{trial}_{mounting}"
+    nine, warnings = ring_scores[f"{base}_9axis"]
+    six, _ = ring_scores[f"{base}_6axis"]
+    print(f"{base}: 9-axis " + ", ".join(f"{a} {nine[a]:.2f}" for a in ring.ANGLES)
+          + " | 6-axis " + ", ".join(f"{a} {six[a]:.2f}" for a in ring.ANGLES))
+    for angle in ring.ANGLES:
+        assert nine[angle] <= six[angle] + NINE_VS_SIX_DEG, (angle, nine[angle], six[angle])
+    # the chain's sensors see different fields: the kit is told in plain words
+    assert any("magnetic field" in w for w in warnings), warnings
+    missed = {a: six[a] for a in ring.ANGLES if six[a] > RING_BAR_DEG}
+    expected = {a for (b, a) in RING_GAPS if b == base}
+    assert set(missed) == expected, missed
+
+
+@pytest.mark.xfail(strict=True, reason="measured 9D 2.51° (bar 2.3°) and 6D inclination "
+                   "0.93° (bar 0.72°): qcf's in-motion tilt is not yet VQF's")
+def test_broad_meets_the_bars(shared_dir):
+    """BROAD (the 30 shared trials, BROAD's own metric over the movement phase, mean of
+    the per-trial RMSE): qcf 9D total ≤ 2.3°, 6D inclination ≤ 0.72°."""
+    import broad
+    from armtrack.estimator.orientation import make_filter
+    path = shared_dir / "data" / "broad"
+    files = sorted(path.glob("*.mat"))
+    if not files:
+        pytest.skip(f"needs the BROAD subset ({path})")
+    total, inclination = [], []
+    for file in files:
+        trial = broad.load_trial(file, ())
+        q9 = make_filter("qcf").update_batch(trial.t, trial.acc, trial.gyr, trial.mag).q
+        q6 = make_filter("qcf").update_batch(trial.t, trial.acc, trial.gyr, None).q
+        total.append(broad.broad_errors(q9, trial.opt_quat, trial.movement)[0])
+        inclination.append(broad.broad_errors(q6, trial.opt_quat, trial.movement)[2])
+    print(f"BROAD {len(files)} trials: 9D {np.mean(total):.2f}°, "
+          f"6D inclination {np.mean(inclination):.2f}°")
+    assert np.mean(total) <= 2.3
+    assert np.mean(inclination) <= 0.72
