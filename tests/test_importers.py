@@ -505,3 +505,51 @@ def test_cli_import_proposes_calibration_then_check_passes(tmp_path, capsys):
     assert main(["check", str(out)]) == 0
     checked = capsys.readouterr().out
     assert "a valid recording" in checked and "npose" in checked
+
+
+def test_cli_one_file_several_sensors_by_label(tmp_path, capsys):
+    """APDM: --inspect lists the labels; SENSOR=FILE:LABEL picks them; --calibration auto
+    takes the proposal; armtrack check passes on the output."""
+    pytest.importorskip("h5py")
+    from armtrack.server.cli import main
+
+    rec = session(128.0).recording
+    path = tmp_path / "walk.h5"
+    apdm_h5(path, {"1234": ("Right Upper Arm", rec.sensors["upper_arm"]),
+                   "2345": ("Right Forearm", rec.sensors["forearm"]),
+                   "3456": ("Right Hand", rec.sensors["hand"])})
+    assert main(["import", "--inspect", str(path)]) == 0
+    listed = capsys.readouterr().out
+    print(listed)
+    assert "Right Upper Arm (1234) (apdm), 9 axes, 128 Hz" in listed
+    out = tmp_path / "rec.csv"
+    assert main(["import", f"upper_arm={path}:Right Upper Arm", f"forearm={path}:2345",
+                 f"hand={path}:Hand", "--side", "right", "--height", "1.75",
+                 "--calibration", "auto", "-o", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "calibration: npose" in printed
+    assert main(["check", str(out)]) == 0
+    assert main(["import", f"upper_arm={path}", "--side", "right", "--height", "1.75",
+                 "-o", str(out)]) == 2
+    assert "holds 3 sensors (Right Upper Arm (1234), Right Forearm (2345), Right Hand " \
+        "(3456)); name one with FILE:LABEL" in capsys.readouterr().err
+
+
+def test_declared_rate_that_lies_refused():
+    rec = session().recording
+    data = xsens_dot_csv(rec.sensors["forearm"], "f", rate_hz=120)  # stamps are 60 Hz apart
+    with pytest.raises(ImportFailure, match=r"f\.csv: the file declares 120 Hz but its time "
+                       r"stamps are 60 Hz apart"):
+        import_recording([Assignment("forearm", [SourceFile("f.csv", data)])], "right", 1.75)
+
+
+def test_body_mismatch_said_once_for_every_caller():
+    from armtrack.estimator.recording.mismatch import body_mismatch
+
+    assert body_mismatch("right", 1.75, "right", 1.755) == []  # within 1.5 cm
+    assert body_mismatch("right", 1.75, None, None) == []  # vendor files say nothing
+    assert body_mismatch("left", 1.75, "right", 1.80) == [
+        "the file records the right arm; left is the patient's treated arm on record",
+        "the file's body height is 1.80 m; the patient's record says 1.75 m (segment "
+        "lengths follow the height)"]
+    assert body_mismatch("left", 1.75, "left", 1.80, has_lengths=True) == []
