@@ -18,6 +18,7 @@ from . import heap
 from .api import (
     admin,
     auth_routes,
+    clinic,
     imports,
     lifecycle,
     live_status,
@@ -105,12 +106,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(pages.router)
     app.include_router(admin.router)
     app.include_router(lifecycle.router)
+    app.include_router(clinic.router)
 
     # outermost last: headers on every answer, then body limits, CORS, the audit log
     app.add_middleware(AuditMiddleware)
     if settings.cors_origin_list():
         app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origin_list(),
-                           allow_methods=["GET", "POST", "PUT", "DELETE"],
+                           allow_methods=["GET", "POST", "PUT", "PATCH", "DELETE"],
                            allow_headers=["Authorization", "Content-Type"])
     app.add_middleware(BodyLimit, settings=settings)
     app.add_middleware(SecurityHeaders, settings=settings)

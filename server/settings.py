@@ -7,8 +7,9 @@ The defaults need nothing: an SQLite file ``armtrack.db`` in the data folder.
 from __future__ import annotations
 
 from pathlib import Path
+from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
-from pydantic import Field
+from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 
@@ -75,9 +76,29 @@ class Settings(BaseSettings):
     audit_repeat_s: float = Field(60.0, ge=0, description="a repeated view of the same data "
                                   "by the same person within this time is logged once [s]")
 
+    # -- the clinic (pages, reports; README "Settings") ----------------------------------
+    clinic_name: str = Field("", max_length=200, description="the clinic's name, printed "
+                             "on reports and shown on pages")
+    clinic_address: str = Field("", max_length=500, description="the clinic's address, "
+                                "printed on reports (lines separated by ', ' or '\\n')")
+    clinic_timezone: str = Field("UTC", description="the clinic's IANA time zone "
+                                 "(Europe/Paris): pages and reports show local times in it")
+
+    @field_validator("clinic_timezone")
+    @classmethod
+    def _known_zone(cls, value: str) -> str:
+        try:
+            ZoneInfo(value)
+        except (ZoneInfoNotFoundError, ValueError):
+            raise ValueError(f"ARMTRACK_CLINIC_TIMEZONE: unknown time zone {value!r}; give an "
+                             "IANA name such as Europe/Paris or America/New_York") from None
+        return value
+
+    def clinic_zone(self) -> ZoneInfo:
+        """The clinic's time zone."""
+        return ZoneInfo(self.clinic_timezone)
+
     # -- programs (docs/programs.md) ------------------------------------------------------
-    clinic_timezone: str = Field("UTC", description="the clinic's time zone (IANA name, "
-                                 "e.g. Europe/Zurich): days and ISO weeks of adherence")
     flag_no_session_days: int = Field(3, ge=1, le=365, description="flag a patient with a "
                                       "program after this many days without a session")
     flag_window_days: int = Field(14, ge=2, le=365, description="days (counting today) of "

@@ -48,20 +48,30 @@ def truth(recordings_dir):
     return read
 
 
-def test_percent_of_normal_is_range_over_the_normal_span():
-    """api.md: range ÷ (normal_max − normal_min) × 100, by hand."""
-    assert percent_of(120.0, (0.0, 150.0)) == pytest.approx(80.0)
-    assert percent_of(110.0, (-70.0, 80.0)) == pytest.approx(110 / 150 * 100)
-    assert percent_of(30.0, None) is None
+def test_percent_of_normal_is_the_share_of_the_side_moved():
+    """api.md: max(max ÷ normal_max, min ÷ normal_min) × 100, the second term only where
+    normal_min < 0, clamped at 0; by hand."""
+    # the spec's example: shoulder flexion to 150° of AAOS −60…180° reads 83 %, not 63 %
+    assert percent_of(0.0, 150.0, (-60.0, 180.0)) == pytest.approx(150 / 180 * 100)
+    assert percent_of(0.0, 120.0, (0.0, 150.0)) == pytest.approx(80.0)
+    # extension is the side moved most: −45 of −60 = 75 % beats 30 of 180 = 17 %
+    assert percent_of(-45.0, 30.0, (-60.0, 180.0)) == pytest.approx(75.0)
+    # min ÷ normal_min only where normal_min < 0: a negative min of a 0…150 joint adds
+    # nothing, and a session that stayed on the wrong side reads 0, not a negative share
+    assert percent_of(-10.0, 60.0, (0.0, 150.0)) == pytest.approx(40.0)
+    assert percent_of(-8.0, -2.0, (0.0, 150.0)) == 0.0
+    # a reference with only a negative side (a target of −30…0) uses the min
+    assert percent_of(-15.0, 5.0, (-30.0, 0.0)) == pytest.approx(50.0)
+    assert percent_of(30.0, 60.0, None) is None
     t = np.arange(0, 10, 0.01)
     angle = np.interp(t, [0, 5, 10], [-40.0, 80.0, -40.0]) * DEG
     rom = range_of_motion("forearm_pronation", angle, t, params=RomParams(percentile=0))
     assert (rom.min_deg, rom.max_deg, rom.range_deg) == pytest.approx((-40.0, 80.0, 120.0))
-    assert rom.percent_of_normal == pytest.approx(120 / 160 * 100)  # AAOS −80…80
-    assert rom.percent_of_paper == pytest.approx(120 / 180 * 100)  # Table 2 −90…90
+    assert rom.percent_of_normal == pytest.approx(100.0)  # AAOS −80…80: 80 of 80
+    assert rom.percent_of_paper == pytest.approx(80 / 90 * 100)  # Table 2 −90…90
     assert rom.to_report() == pytest.approx({
         "min": -40.0, "max": 80.0, "range": 120.0, "normal_min": -80.0, "normal_max": 80.0,
-        "percent_of_normal": 75.0})
+        "percent_of_normal": 100.0})
 
 
 def test_a_short_spike_does_not_make_the_range():
@@ -138,10 +148,17 @@ def test_truth_files_moved_angles_and_their_range(truth, name):
         assert r.max_deg == pytest.approx(high, abs=bound(high))
         normal = NORMAL_RANGE_DEG[angle]
         assert (r.normal_min_deg, r.normal_max_deg) == normal
-        assert r.percent_of_normal == pytest.approx(r.range_deg / (normal[1] - normal[0]) * 100)
+        # the side rule from the truth's own extremes (shoulder flexion 0…150 of −60…180:
+        # 83.3 %), within what the robust extremes may miss of them
+        def side_rule(reference, low=low, high=high):
+            shares = [high / reference[1]] + ([low / reference[0]] if reference[0] < 0 else [])
+            return max(0.0, *shares) * 100
+
+        assert r.percent_of_normal == pytest.approx(
+            side_rule(normal), abs=100 * max(bound(low), bound(high)) / 10)
         paper = PAPER_RANGE_DEG.get(angle)
-        assert r.percent_of_paper == (
-            None if paper is None else pytest.approx(r.range_deg / (paper[1] - paper[0]) * 100))
+        assert r.percent_of_paper == (None if paper is None else pytest.approx(
+            side_rule(paper), abs=100 * max(bound(low), bound(high)) / 10))
     report = rom_report(rom)
     assert all(set(v) == {"min", "max", "range", "normal_min", "normal_max",
                           "percent_of_normal"} for v in report.values())

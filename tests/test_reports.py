@@ -113,8 +113,11 @@ def test_report_rom_matches_the_truth_and_repetitions_the_readme(
               f"{rom['range']:.2f}), truth {lo:.2f}…{hi:.2f}; errors min {errors[0]:+.2f} "
               f"max {errors[1]:+.2f} range {errors[2]:+.2f}°, bar {bar}°")
         assert max(map(abs, errors)) <= bar, (angle, errors)
-        normal = rom["normal_max"] - rom["normal_min"]
-        assert rom["percent_of_normal"] == pytest.approx(rom["range"] / normal * 100, abs=0.06)
+        # api.md's side rule: the share of the normal range on the side moved most
+        shares = [rom["max"] / rom["normal_max"]]
+        if rom["normal_min"] < 0:
+            shares.append(rom["min"] / rom["normal_min"])
+        assert rom["percent_of_normal"] == pytest.approx(max(0.0, *shares) * 100, abs=0.06)
 
     counted: dict[str, int] = {}
     for exercise in report["exercises"]:
@@ -161,8 +164,11 @@ def test_the_report_is_the_therapists_own(module_server, streamed):
         "/api/sessions/999999/report").status_code == 404
 
 
-def test_targets_are_set_shown_in_the_report_and_removed(alice, streamed):
-    session_id, patient_id, _ = streamed["elbow_flexion"]  # elbow 0→120°
+def test_targets_are_set_shown_in_the_report_and_removed(module_server, alice, streamed):
+    """A target is compared with the sessions recorded while it was in force (the side
+    rule: max ÷ target_max); a target set later shows beside, never rewriting the
+    report of an earlier session."""
+    session_id, patient_id, recording = streamed["elbow_flexion"]  # elbow 0→120°
     base = f"/api/patients/{patient_id}/targets"
     assert alice.http.get(base).json() == []
     bad = alice.http.put(f"{base}/elbow_flexion", json={"min_deg": 90, "max_deg": 10})
@@ -173,25 +179,47 @@ def test_targets_are_set_shown_in_the_report_and_removed(alice, streamed):
                          json={"min_deg": 0, "max_deg": 100, "note": "week 2"})
     assert put.status_code == 200, put.text
     assert put.json()["angle"] == "elbow_flexion" and put.json()["note"] == "week 2"
-    alice.http.put(f"{base}/elbow_flexion", json={"min_deg": 5, "max_deg": 140})  # replaces
+    alice.http.put(f"{base}/elbow_flexion", json={"min_deg": 5, "max_deg": 140,
+                                                  "note": "week 3"})  # replaces
     targets = alice.http.get(base).json()
     assert [(t["angle"], t["min_deg"], t["max_deg"]) for t in targets] == [
         ("elbow_flexion", 5, 140)]
+    history = alice.http.get(f"{base}/history").json()
+    assert [(v["min_deg"], v["max_deg"], v["note"]) for v in history] == [
+        (0, 100, "week 2"), (5, 140, "week 3")]
 
-    rom = alice.http.get(f"/api/sessions/{session_id}/report").json()["rom"]["elbow_flexion"]
+    # the session was recorded before any target: its report keeps none, today's beside
+    report = alice.http.get(f"/api/sessions/{session_id}/report").json()
+    assert report["rom"]["elbow_flexion"]["target_min"] is None
+    assert report["targets"] == []
+    assert [(t["max_deg"], t["note"]) for t in report["current_targets"]] == [
+        (140, "week 3")]
+
+    # a session recorded now is judged against 5…140
+    token = alice.device(patient_id, "kit-later")["token"]
+    later = stream(module_server, token, recording)
+    assert alice.wait_processed(later, timeout=120)["processing_error"] is None
+    report = alice.http.get(f"/api/sessions/{later}/report").json()
+    rom = report["rom"]["elbow_flexion"]
     assert (rom["target_min"], rom["target_max"]) == (5, 140)
-    assert rom["percent_of_target"] == pytest.approx(rom["range"] / 135 * 100, abs=0.06)
+    # side rule: 0…120 of 5…140 is 120 / 140 (the target's min is not a negative side)
+    assert rom["percent_of_target"] == pytest.approx(rom["max"] / 140 * 100, abs=0.06)
     assert rom["target_reached"] is False  # 120° of flexion, 140° prescribed
+    assert [t["note"] for t in report["targets"]] == ["week 3"]
     alice.http.put(f"{base}/elbow_flexion", json={"min_deg": 5, "max_deg": 110})
-    rom = alice.http.get(f"/api/sessions/{session_id}/report").json()["rom"]["elbow_flexion"]
-    assert rom["target_reached"] is True
-    csv = alice.http.get(f"/api/sessions/{session_id}/report.csv").text
-    assert "elbow_flexion" in csv and ",110.0," in csv
+    report = alice.http.get(f"/api/sessions/{later}/report").json()
+    assert report["rom"]["elbow_flexion"]["target_max"] == 140  # the record stands
+    assert report["current_targets"][0]["max_deg"] == 110
+    csv = alice.http.get(f"/api/sessions/{later}/report.csv").text
+    assert "elbow_flexion" in csv and ",140.0," in csv
 
     assert alice.http.delete(f"{base}/elbow_flexion").status_code == 204
     assert alice.http.delete(f"{base}/elbow_flexion").status_code == 404
-    rom = alice.http.get(f"/api/sessions/{session_id}/report").json()["rom"]["elbow_flexion"]
-    assert rom["target_min"] is None and rom["target_reached"] is None
+    report = alice.http.get(f"/api/sessions/{later}/report").json()
+    assert report["rom"]["elbow_flexion"]["target_max"] == 140
+    assert report["current_targets"] == []
+    history = alice.http.get(f"{base}/history").json()
+    assert (history[-1]["min_deg"], history[-1]["max_deg"]) == (None, None)
 
 
 def test_progress_shows_each_session_against_the_target_with_a_trend(
@@ -200,11 +228,14 @@ def test_progress_shows_each_session_against_the_target_with_a_trend(
     120°): the trend is +10° of elbow range."""
     patient = alice.patient("Progress", "right", 1.80)
     token = alice.device(patient["id"])["token"]
-    for name in ("elbow_6axis", "elbow_flexion"):
+    for name, target in (("elbow_6axis", 115), ("elbow_flexion", 130)):
         recording = read_recording(recordings_dir / f"{name}.csv")
+        alice.http.put(f"/api/patients/{patient['id']}/targets/elbow_flexion",
+                       json={"min_deg": 0, "max_deg": target})
         alice.wait_processed(stream(module_server, token, recording), timeout=120)
+    # today's target, set after both: beside, not in their rows
     alice.http.put(f"/api/patients/{patient['id']}/targets/elbow_flexion",
-                   json={"min_deg": 0, "max_deg": 115})
+                   json={"min_deg": 0, "max_deg": 150, "note": "today"})
     answer = alice.http.get(f"/api/patients/{patient['id']}/progress")
     assert answer.status_code == 200, answer.text
     progress = answer.json()
@@ -214,7 +245,11 @@ def test_progress_shows_each_session_against_the_target_with_a_trend(
     print(f"progress: elbow range {first['range']:.1f} → {last['range']:.1f}°, reached "
           f"{first['target_reached']} → {last['target_reached']}; trend "
           f"{progress['trend']['elbow_flexion']}")
-    assert first["target_reached"] is False and last["target_reached"] is True
+    # each against the target in force when it was recorded: 110 of 115, 120 of 130
+    assert (first["target_max"], last["target_max"]) == (115, 130)
+    assert first["target_reached"] is False and last["target_reached"] is False
+    assert last["percent_of_target"] == pytest.approx(last["max"] / 130 * 100, abs=0.06)
+    assert [(t["max_deg"], t["note"]) for t in progress["targets"]] == [(150, "today")]
     assert [s["repetitions"]["elbow_flexion"] for s in sessions] == [7, 5]
     trend = progress["trend"]["elbow_flexion"]
     assert trend["sessions"] == 2

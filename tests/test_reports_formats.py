@@ -40,6 +40,9 @@ def sessions(alice, recordings_dir):
         path = recordings_dir / f"{name}.csv"
         recording = read_recording(path)
         patient = alice.patient(name, recording.side, recording.height_m or 1.75)
+        if name == "left_reach_50hz":  # a target in force when the session is recorded
+            alice.http.put(f"/api/patients/{patient['id']}/targets/shoulder_flexion",
+                           json={"min_deg": 0, "max_deg": 120, "note": "week 2"})
         out[name] = (upload(alice, patient["id"], path.name, path.read_bytes()), recording)
     return out
 
@@ -169,7 +172,7 @@ def test_fhir_bundle_validates_as_r4(alice, sessions):
         assert [float(c.valueQuantity.value) for c in o.component[:2]] == [rom["min"],
                                                                            rom["max"]]
     target = by_angle["shoulder_flexion"].referenceRange
-    assert target[-1].type.coding[0].code == "treatment"  # set by the PDF test
+    assert target[-1].type.coding[0].code == "treatment"  # in force when recorded
     print(answer.text[:1500])
 
 

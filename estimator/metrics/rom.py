@@ -19,9 +19,14 @@ report's ``rom`` object is in degrees.
   which costs a fifth of the amplitude of a single 5-second repetition. ``percentile=0``
   gives the exact min and max. The extremes are those of the samples as given: noise on
   them widens the range by about its own peak values (smooth the angles first if noisy).
-* ``range = max − min``; ``percent_of_normal = range ÷ (normal_max − normal_min) × 100``
-  (``spec/api.md``), against AAOS; ``percent_of_paper`` the same against the paper's
-  Table 2. Angles without a normal range (the clavicle's) have ``None`` there.
+* ``range = max − min``. ``percent_of_normal`` (``spec/api.md``): how far the session
+  reached in the direction it moved most, as a share of the normal range on that side of
+  zero, ``max(max ÷ normal_max, min ÷ normal_min) × 100``, a term only for a side the
+  normal range has (``normal_max > 0``, ``normal_min < 0``), clamped at 0 (shoulder
+  flexion to 150° of AAOS −60…180° → 83 %, not the 63 % of the whole span). Against AAOS;
+  ``percent_of_paper`` the same against the paper's Table 2, and a target's percentage
+  (server reports) the same against the target. Angles without a normal range (the
+  clavicle's) have ``None`` there.
 * **Moved**: an angle moved when its (robust) range is at least ``moved_threshold``,
   10° by default: above the noise, drift and crosstalk of a good estimate on an idle joint
   (the shared recordings' peer build: worst-angle RMSE up to 1.4°, so ±3σ ≈ 8°), below
@@ -93,11 +98,24 @@ class RangeOfMotion:
                 "percent_of_normal": self.percent_of_normal}
 
 
-def percent_of(range_deg: float, normal: tuple[float, float] | None) -> float | None:
-    """``range ÷ (normal_max − normal_min) × 100`` [%]; ``None`` without a normal range."""
-    if normal is None:
+def percent_of(min_deg: float, max_deg: float,
+               reference: tuple[float, float] | None) -> float | None:
+    """How far ``min_deg…max_deg`` reached on the side it went furthest, as a share of
+    ``reference`` (low, high) [deg] on that side of zero [%]:
+    ``max(max ÷ high, min ÷ low) × 100``, the first term only where ``high > 0``, the
+    second only where ``low < 0``, clamped at 0 (``spec/api.md``). ``None`` without a
+    reference, or when it has no side away from zero."""
+    if reference is None:
         return None
-    return float(range_deg / (normal[1] - normal[0]) * 100.0)
+    low, high = reference
+    shares = []
+    if high > 0:
+        shares.append(max_deg / high)
+    if low < 0:
+        shares.append(min_deg / low)
+    if not shares:
+        return None
+    return float(max(0.0, *shares) * 100.0)
 
 
 def range_of_motion(
@@ -138,10 +156,10 @@ def range_of_motion(
         angle=name, min_deg=low, max_deg=high, range_deg=span,
         normal_min_deg=normal[0] if normal else None,
         normal_max_deg=normal[1] if normal else None,
-        percent_of_normal=percent_of(span, normal),
+        percent_of_normal=percent_of(low, high, normal),
         paper_min_deg=paper[0] if paper else None,
         paper_max_deg=paper[1] if paper else None,
-        percent_of_paper=percent_of(span, paper),
+        percent_of_paper=percent_of(low, high, paper),
         moved=bool(span >= np.rad2deg(p.moved_threshold)), samples=n, percentile=float(q),
     )
 

@@ -30,6 +30,7 @@ class TherapistOut(BaseModel):
     model_config = ConfigDict(from_attributes=True)
     id: int
     username: str
+    full_name: str | None = None
     is_admin: bool
     disabled_at: datetime | None
     created_at: datetime
@@ -41,6 +42,7 @@ class TherapistIn(BaseModel):
     username: str = Field(min_length=1, max_length=128, pattern=r"^[^\s]+$")
     password: str = Field(min_length=MIN_PASSWORD, max_length=1000)
     is_admin: bool = False
+    full_name: str | None = Field(None, max_length=200, description="as reports print it")
 
 
 class ResetOut(BaseModel):
@@ -87,7 +89,8 @@ def create_therapist(body: TherapistIn, db: Db, admin: Admin) -> TherapistOut:
     if db.scalar(select(models.Therapist).where(models.Therapist.username == body.username)):
         raise HTTPException(status.HTTP_409_CONFLICT, f"user {body.username!r} exists already")
     therapist = models.Therapist(username=body.username, is_admin=body.is_admin,
-                                 password_hash=hash_password(body.password))
+                                 password_hash=hash_password(body.password),
+                                 full_name=(body.full_name or "").strip() or None)
     db.add(therapist)
     db.commit()
     return _out(db, therapist)

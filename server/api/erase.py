@@ -54,6 +54,8 @@ def erase_patient(db: DbSession, patient_id: int) -> None:
         models.ProgramExercise.version_id.in_(versions)))
     db.execute(delete(models.ProgramVersion).where(models.ProgramVersion.id.in_(versions)))
     db.execute(delete(models.Program).where(models.Program.patient_id == patient_id))
+    db.execute(delete(models.PatientTargetVersion)
+               .where(models.PatientTargetVersion.patient_id == patient_id))
     db.execute(delete(models.Device).where(models.Device.patient_id == patient_id))
     db.execute(delete(models.Patient).where(models.Patient.id == patient_id))
     db.commit()

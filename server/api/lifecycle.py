@@ -22,7 +22,7 @@ from ..commands.output import write_angles_csv
 from ..db import models
 from ..reports import content
 from ..reports.content import NoEstimates
-from ..reports.targets import patient_targets
+from ..reports.targets import current_targets, target_history
 from ..store.processing import stored_estimates
 from ..store.recordings import session_recording
 from .deps import Db, Page, Therapist, own_patient
@@ -59,7 +59,8 @@ def _entries(patient_id: int) -> Select:
 
 
 def patient_archive(db: DbSession, patient: models.Patient) -> bytes:
-    """patient.json, devices.json (no tokens), targets.json, sessions.json, and per
+    """patient.json, devices.json (no tokens), targets.json, target_history.json
+    (every setting and removal), sessions.json, and per
     session ``sessions/<id>/recording.csv``, ``angles.csv`` and ``report.json`` (when
     estimated), and audit.json: every logged access to the patient's data."""
     out = io.BytesIO()
@@ -70,9 +71,13 @@ def patient_archive(db: DbSession, patient: models.Patient) -> bytes:
                              .order_by(models.Device.id))
         archive.writestr("devices.json", _json(
             [DeviceOut.model_validate(d).model_dump(mode="json") for d in devices]))
-        targets = patient_targets(db, patient.id)
+        targets = current_targets(db, patient.id)
         archive.writestr("targets.json", _json(
             [content.target_out(t).model_dump(mode="json") for t in targets.values()]))
+        archive.writestr("target_history.json", _json(
+            [{"angle": v.angle, "min_deg": v.min_deg, "max_deg": v.max_deg, "note": v.note,
+              "set_at": v.set_at.isoformat(), "set_by": v.set_by}
+             for v in target_history(db, patient.id)]))
         sessions = list(db.scalars(select(models.Session)
                                    .where(models.Session.patient_id == patient.id)
                                    .order_by(models.Session.started_at, models.Session.id)))
@@ -90,7 +95,7 @@ def patient_archive(db: DbSession, patient: models.Patient) -> bytes:
                 write_angles_csv(text, columns[:width], values[:, :width])
                 archive.writestr(folder + "angles.csv", text.getvalue())
                 try:
-                    report = content.session_report(db, session, targets)
+                    report = content.session_report(db, session, current=targets)
                     archive.writestr(folder + "report.json", report.model_dump_json(indent=2))
                 except NoEstimates:
                     pass

@@ -24,6 +24,7 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session as DbSession
 
 from ..db import models
+from ..live.motion import MotionWatch, current_exercise, watch, watching
 from ..services import Services
 from ..store.blocks import SAMPLE_COLUMNS, unpack_many
 from .deps import Therapist, own_patient
@@ -143,6 +144,7 @@ def calibration_progress(db: DbSession, session_id: int, now_t: float | None
     poses: list[dict[str, Any]] = []
     open_: dict[str, dict[str, Any]] = {}
     exercise = None
+    exercise_t = None
     for t, label in marks:
         if label in POSES:
             pose = {"name": label, "start": t, "end": None}
@@ -151,9 +153,9 @@ def calibration_progress(db: DbSession, session_id: int, now_t: float | None
         elif label.startswith("end:") and label[4:] in open_:
             open_.pop(label[4:])["end"] = t
         elif label.startswith("exercise:"):
-            exercise = label.split(":", 1)[1]
+            exercise, exercise_t = label.split(":", 1)[1], t
         elif label.startswith("end:exercise:"):
-            exercise = None
+            exercise = exercise_t = None
     holding = None
     for pose in poses:
         if pose["end"] is not None:
@@ -166,7 +168,7 @@ def calibration_progress(db: DbSession, session_id: int, now_t: float | None
                 pose.update(_stillness(window))
             holding = pose
     return {"poses": poses, "holding": holding, "instructions": POSES, "exercise": exercise,
-            "stream_time_s": now_t}
+            "exercise_since_s": exercise_t, "stream_time_s": now_t}
 
 
 def _snapshot(svc: Services, patient_id: int) -> dict[int, dict[str, Any]]:
@@ -194,7 +196,8 @@ def _snapshot(svc: Services, patient_id: int) -> dict[int, dict[str, Any]]:
 
 
 def live_status(svc: Services, db: DbSession, patient_id: int,
-                streams: dict[int, dict[str, Any]]) -> dict[str, Any]:
+                streams: dict[int, dict[str, Any]],
+                motion: MotionWatch | None = None) -> dict[str, Any]:
     session = db.scalar(select(models.Session)
                         .where(models.Session.patient_id == patient_id)
                         .order_by(models.Session.started_at.desc(), models.Session.id.desc())
@@ -229,6 +232,9 @@ def live_status(svc: Services, db: DbSession, patient_id: int,
         if name in totals:
             now_t = max(now_t or -np.inf, totals[name]["t_last"])
     latest = svc.hub.latest.get(patient_id)
+    calibration = calibration_progress(db, session.id, now_t)
+    mark = ({"name": calibration["exercise"], "t": calibration["exercise_since_s"]}
+            if calibration["exercise"] else None)
     return {
         "patient_id": patient_id,
         "session": {"id": session.id, "status": session.status,
@@ -236,7 +242,9 @@ def live_status(svc: Services, db: DbSession, patient_id: int,
                     "device": (session.meta or {}).get("device"), "rate_hz": session.rate_hz},
         "connected": open_stream is not None,
         "sensors": sensors,
-        "calibration": calibration_progress(db, session.id, now_t),
+        "calibration": calibration,
+        "exercise": (current_exercise(motion, session.id, mark, now_t)
+                     if motion is not None else None),
         "estimating": bool(latest and latest.get("session_id") == session.id),
         "normal_ranges": NORMAL_RANGE_DEG,
         "server_time": now_wall,
@@ -248,10 +256,17 @@ async def get_live_status(patient_id: Id, therapist: Therapist,
                           svc: Annotated[Services, Depends(get_services)]) -> dict[str, Any]:
     """The patient's newest live (or interrupted) session: per-sensor connection, samples
     per second, lost-sample rate, last seen, battery and signal; the calibration poses so
-    far and the one being held. ``session`` is null when nothing is streaming."""
+    far and the one being held; the exercise going on (``exercise``: its name, in words,
+    and its repetitions so far, ``server/live/motion.py``). ``session`` is null when
+    nothing is streaming."""
     streams = _snapshot(svc, patient_id)
+
+    motion = watching(svc.hub, patient_id)  # started once the patient is known as theirs
 
     def read(db: DbSession) -> dict[str, Any]:
         own_patient(db, therapist, patient_id)
-        return live_status(svc, db, patient_id, streams)
-    return await svc.run_db(read)
+        return live_status(svc, db, patient_id, streams, motion)
+    answer = await svc.run_db(read)
+    if motion is None:
+        watch(svc.hub, patient_id)
+    return answer

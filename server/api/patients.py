@@ -5,15 +5,23 @@ from __future__ import annotations
 from datetime import UTC, datetime
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, status
-from sqlalchemy import select
+from fastapi import APIRouter, Depends, HTTPException, status
+from sqlalchemy import func, select
 
 from ..auth import new_token
 from ..db import models
 from ..services import Services
 from .deps import Db, Page, Therapist, own_device, own_patient, services
 from .erase import erase_patient
-from .schemas import DeviceCreated, DeviceIn, DeviceOut, Id, PatientIn, PatientOut
+from .schemas import (
+    DeviceCreated,
+    DeviceIn,
+    DeviceOut,
+    Id,
+    PatientIn,
+    PatientOut,
+    PatientUpdate,
+)
 
 router = APIRouter(prefix="/api", tags=["patients"])
 
@@ -28,13 +36,48 @@ def create_patient(body: PatientIn, db: Db, therapist: Therapist) -> models.Pati
 
 @router.get("/patients", response_model=list[PatientOut])
 def list_patients(db: Db, therapist: Therapist, page: Annotated[Page, Depends()],
-                  q: str | None = None) -> list[models.Patient]:
-    """The therapist's patients by name; ``q`` keeps those whose name contains it."""
-    query = select(models.Patient).where(models.Patient.therapist_id == therapist.id)
+                  q: str | None = None) -> list[PatientOut]:
+    """The therapist's patients by name, each with when their latest session started;
+    ``q`` keeps those whose name contains it."""
+    last = (select(models.Session.patient_id,
+                   func.max(models.Session.started_at).label("last"))
+            .group_by(models.Session.patient_id).subquery())
+    query = (select(models.Patient, last.c.last)
+             .outerjoin(last, last.c.patient_id == models.Patient.id)
+             .where(models.Patient.therapist_id == therapist.id))
     if q:
         query = query.where(models.Patient.name.icontains(q, autoescape=True))
-    return list(db.scalars(query.order_by(models.Patient.name, models.Patient.id)
-                           .limit(page.limit).offset(page.offset)))
+    rows = db.execute(query.order_by(models.Patient.name, models.Patient.id)
+                      .limit(page.limit).offset(page.offset)).all()
+    return [PatientOut.model_validate(patient).model_copy(
+                update={"last_session_at": _aware(at)}) for patient, at in rows]
+
+
+def _aware(moment):
+    """An aggregate's datetime comes back without the column's type: naive on SQLite."""
+    if moment is None or getattr(moment, "tzinfo", None) is not None:
+        return moment
+    if isinstance(moment, str):  # SQLite's max() of a DATETIME column is its text
+        moment = datetime.fromisoformat(moment)
+    return moment if moment.tzinfo else moment.replace(tzinfo=UTC)
+
+
+@router.patch("/patients/{patient_id}", response_model=PatientOut)
+def update_patient(patient_id: Id, body: PatientUpdate, db: Db,
+                   therapist: Therapist) -> models.Patient:
+    """Change a patient's record: name, side, height, clinic number, date of birth (the
+    fields given; ``null`` clears the clinic number or date of birth). Sessions already
+    recorded keep the side and height they were estimated with."""
+    patient = own_patient(db, therapist, patient_id)
+    changes = body.model_dump(exclude_unset=True)
+    for required in ("name", "side", "height_m"):
+        if required in changes and changes[required] is None:
+            raise HTTPException(status.HTTP_422_UNPROCESSABLE_ENTITY,
+                                f"{required} cannot be cleared, only changed")
+    for key, value in changes.items():
+        setattr(patient, key, value)
+    db.commit()
+    return patient
 
 
 @router.get("/patients/{patient_id}", response_model=PatientOut)

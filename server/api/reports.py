@@ -4,10 +4,12 @@ patient's progress across sessions, and the therapist's targets per joint
 
 from __future__ import annotations
 
+from datetime import datetime
 from typing import Annotated
 
 from fastapi import APIRouter, HTTPException, Path, status
 from fastapi.responses import JSONResponse, Response
+from pydantic import BaseModel, Field
 from sqlalchemy import select
 from sqlalchemy.orm import Session as DbSession
 
@@ -16,10 +18,17 @@ from ..reports import content, fhir, opensim, pdf
 from ..reports import csv as report_csv
 from ..reports import progress as progress_mod
 from ..reports.content import AngleName, NoEstimates, SessionReport, TargetOut
-from ..reports.targets import TargetIn, delete_target, patient_targets, set_target
+from ..reports.targets import (
+    TargetIn,
+    current_targets,
+    delete_target,
+    set_target,
+    target_history,
+)
 from .deps import Db, Therapist, own_patient, own_session
 
 router = APIRouter(prefix="/api", tags=["reports"], responses={
+    400: {"description": "the body is not JSON"},
     401: {"description": "not signed in: a valid bearer token is required"},
     404: {"description": "no such session or patient of this therapist's"}})
 
@@ -35,8 +44,7 @@ def _report(db: DbSession, therapist: models.Therapist, session_id: int
             ) -> tuple[models.Session, SessionReport]:
     session = own_session(db, therapist, session_id)
     try:
-        return session, content.session_report(db, session,
-                                               patient_targets(db, session.patient_id))
+        return session, content.session_report(db, session)
     except NoEstimates as exc:
         raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from None
 
@@ -83,8 +91,7 @@ def get_report_pdf(session_id: Id, db: Db, therapist: Therapist) -> Response:
         data = content.load_session(db, session)
     except NoEstimates as exc:
         raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from None
-    report = content.session_report(db, session, patient_targets(db, session.patient_id),
-                                    data)
+    report = content.session_report(db, session, data=data)
     return _attachment(pdf.report_pdf(report, data), "application/pdf",
                        f"session-{session_id}-report.pdf")
 
@@ -125,14 +132,15 @@ def get_report_fhir(session_id: Id, db: Db, therapist: Therapist) -> JSONRespons
 def _progress(db: DbSession, therapist: models.Therapist, patient_id: int
               ) -> progress_mod.Progress:
     patient = own_patient(db, therapist, patient_id)
-    targets = patient_targets(db, patient_id)
+    targets = current_targets(db, patient_id)
     sessions = list(db.scalars(select(models.Session)
                                .where(models.Session.patient_id == patient_id)
                                .order_by(models.Session.started_at, models.Session.id)))
     reports = {}
     for session in sessions:
         try:
-            reports[session.id] = content.session_report(db, session, targets)
+            # each session against the targets in force at its time; today's beside
+            reports[session.id] = content.session_report(db, session, current=targets)
         except NoEstimates:
             continue
     return progress_mod.progress(patient, sessions, reports,
@@ -157,7 +165,29 @@ def get_progress_csv(patient_id: Id, db: Db, therapist: Therapist) -> Response:
 def get_targets(patient_id: Id, db: Db, therapist: Therapist) -> list[TargetOut]:
     """The patient's target range per angle [deg]."""
     own_patient(db, therapist, patient_id)
-    return [content.target_out(t) for t in patient_targets(db, patient_id).values()]
+    return [content.target_out(t) for t in current_targets(db, patient_id).values()]
+
+
+class TargetVersionOut(BaseModel):
+    """One setting (or, with ``min_deg`` and ``max_deg`` null, removal) of a target."""
+
+    angle: AngleName
+    min_deg: float | None
+    max_deg: float | None
+    note: str | None
+    set_at: datetime
+    set_by: int | None = Field(description="the therapist who set it")
+
+
+@router.get("/patients/{patient_id}/targets/history", response_model=list[TargetVersionOut])
+def get_target_history(patient_id: Id, db: Db, therapist: Therapist
+                       ) -> list[TargetVersionOut]:
+    """Every setting and removal of the patient's targets, oldest first: a session's
+    report compares it with the targets in force when it started."""
+    own_patient(db, therapist, patient_id)
+    return [TargetVersionOut(angle=v.angle, min_deg=v.min_deg, max_deg=v.max_deg,
+                             note=v.note, set_at=v.set_at, set_by=v.set_by)
+            for v in target_history(db, patient_id)]
 
 
 @router.put("/patients/{patient_id}/targets/{angle}", response_model=TargetOut)
@@ -166,7 +196,8 @@ def put_target(patient_id: Id, angle: AngleName, body: TargetIn, db: Db,
     """Set (or replace) the patient's target range for one angle [deg], in the signs of
     ``spec/kinematics.md``."""
     own_patient(db, therapist, patient_id)
-    return content.target_out(set_target(db, patient_id, angle, body))
+    set_target(db, patient_id, angle, body, set_by=therapist.id)
+    return content.target_out(current_targets(db, patient_id)[angle])
 
 
 @router.delete("/patients/{patient_id}/targets/{angle}",
@@ -174,6 +205,6 @@ def put_target(patient_id: Id, angle: AngleName, body: TargetIn, db: Db,
 def remove_target(patient_id: Id, angle: AngleName, db: Db, therapist: Therapist) -> None:
     """Remove the patient's target for one angle."""
     own_patient(db, therapist, patient_id)
-    if not delete_target(db, patient_id, angle):
+    if not delete_target(db, patient_id, angle, set_by=therapist.id):
         raise HTTPException(status.HTTP_404_NOT_FOUND,
                             f"patient {patient_id} has no target for {angle}")

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from datetime import datetime
+from datetime import date, datetime
 from typing import Annotated, Any, Literal
 
 from armtrack.estimator.body import HEIGHT_RANGE_M
@@ -29,6 +29,20 @@ class PatientIn(BaseModel):
     side: Literal["right", "left"] = Field(description="the arm followed")
     height_m: float = Field(ge=HEIGHT_RANGE_M[0], le=HEIGHT_RANGE_M[1],
                             description="body height [m], for segment lengths")
+    clinic_number: str | None = Field(None, max_length=64,
+                                      description="the clinic's own patient number")
+    date_of_birth: date | None = Field(None, description="ISO date, YYYY-MM-DD")
+
+
+class PatientUpdate(BaseModel):
+    """The fields to change; those left out stay (``null`` clears an optional one)."""
+
+    model_config = ConfigDict(extra="forbid")
+    name: str | None = Field(None, min_length=1, max_length=200)
+    side: Literal["right", "left"] | None = None
+    height_m: float | None = Field(None, ge=HEIGHT_RANGE_M[0], le=HEIGHT_RANGE_M[1])
+    clinic_number: str | None = Field(None, max_length=64)
+    date_of_birth: date | None = None
 
 
 class PatientOut(BaseModel):
@@ -38,6 +52,10 @@ class PatientOut(BaseModel):
     side: Literal["right", "left"]
     height_m: float
     created_at: datetime
+    clinic_number: str | None = None
+    date_of_birth: date | None = None
+    last_session_at: datetime | None = Field(
+        None, description="when the patient's latest session started (lists only)")
 
 
 class DeviceIn(BaseModel):
@@ -76,3 +94,7 @@ class SessionOut(BaseModel):
     calibration: dict[str, Any] | None
     estimator: dict[str, Any] | None
     processing_error: str | None
+    dated: Literal["recorded", "uploaded", "streamed"] = Field(
+        "streamed", description="what started_at is: when the file was recorded (its "
+        "start_time header, docs/extensions/start-time.md), when it was uploaded (no such "
+        "header), or when the kit's stream started")

@@ -1,8 +1,9 @@
-"""Session summaries for the dashboard (read-only): the exercise marks, the duration, the
-range of motion of the angles that moved against normal values (calibration poses left
-out), a one-line ROM headline and the data quality (lost samples per sensor, calibration
-warnings). Computed from the stored samples and estimates; kept in memory per session
-until its data or estimates change."""
+"""Session summaries for the dashboard (read-only): the exercises (the marks; without
+marks, those the report detected, with their repetitions), the duration, the range of
+motion of the angles that moved against normal values (calibration poses left out), a
+one-line ROM headline and the data quality (lost samples per sensor, calibration
+warnings, a session too short to judge). Computed from the stored samples and estimates;
+kept in memory per session until its data or estimates change."""
 
 from __future__ import annotations
 
@@ -29,6 +30,10 @@ router = APIRouter(prefix="/api", tags=["sessions"])
 POSE_TAIL_S = 2.5
 #: Lost-sample share above which the data quality is ``fair``, and ``poor``.
 LOST_FAIR, LOST_POOR = 0.01, 0.05
+#: A finished session shorter than this [s] is at best ``fair``: calibration poses
+#: alone take ~10 s, so it was cut off before much exercise (a 13-s session is not
+#: "good data").
+SHORT_S = 30.0
 
 _cache: dict[int, tuple[tuple, dict[str, Any]]] = {}
 
@@ -82,6 +87,20 @@ def _rom(db: DbSession, session: models.Session, poses: list[tuple[float, float]
     return {name: {**rom.to_report(), "moved": rom.moved} for name, rom in table.items()}
 
 
+def detected_exercises(db: DbSession, session: models.Session) -> list[dict[str, Any]]:
+    """The exercises the session's report detected (no marks), with their repetitions;
+    none while it has no estimates."""
+    from ..reports import content
+
+    try:
+        report = content.session_report(db, session, targets={}, current={})
+    except content.NoEstimates:
+        return []
+    return [{"name": e.name, "start": e.start_s, "end": e.end_s, "source": e.source,
+             "repetitions": max((a.repetitions for a in e.angles), default=0)}
+            for e in report.exercises]
+
+
 def headline(rom: dict[str, dict[str, Any]]) -> str | None:
     """The largest range of motion in words: ``elbow flexion 0–118° (79% of normal)``."""
     rated = [(v["percent_of_normal"] or 0.0, v["range"], k) for k, v in rom.items()]
@@ -105,7 +124,11 @@ def summarise(db: DbSession, session: models.Session) -> dict[str, Any]:
     end_t = max((v["t_last"] for v in totals.values()), default=None)
     start_t = min((v["t_first"] for v in totals.values()), default=None)
     exercises, poses = _periods(_marks(db, session.id), end_t)
+    for exercise in exercises:
+        exercise["source"] = "marks"
     rom = _rom(db, session, poses) if session.estimate_columns else {}
+    if not exercises and session.estimate_columns and session.status == "closed":
+        exercises = detected_exercises(db, session)
     sensors = {name: {"samples": v["samples"],
                       "lost_fraction": lost_fraction(v, session.rate_hz)}
                for name, v in totals.items()}
@@ -113,9 +136,11 @@ def summarise(db: DbSession, session: models.Session) -> dict[str, Any]:
     worst = max(lost, default=None)
     warnings = list((session.calibration or {}).get("warnings", []))
     missing = [s for s in session.sensors if s not in totals]
+    duration = (end_t - start_t) if end_t is not None and start_t is not None else None
+    short = (session.status == "closed" and duration is not None and duration < SHORT_S)
     if session.processing_error or missing or (worst is not None and worst > LOST_POOR):
         grade = "poor"
-    elif warnings or (worst is not None and worst > LOST_FAIR):
+    elif warnings or short or (worst is not None and worst > LOST_FAIR):
         grade = "fair"
     else:
         grade = "good"
@@ -123,13 +148,14 @@ def summarise(db: DbSession, session: models.Session) -> dict[str, Any]:
         "id": session.id, "patient_id": session.patient_id, "status": session.status,
         "source": session.source, "started_at": session.started_at.isoformat(),
         "ended_at": session.ended_at.isoformat() if session.ended_at else None,
-        "duration_s": (end_t - start_t) if end_t is not None and start_t is not None else None,
+        "duration_s": duration,
         "exercises": exercises,
         "calibration_poses": [{"start": a, "end": b} for a, b in poses],
         "rom": rom, "headline": headline(rom), "processed": bool(session.estimate_columns),
         "processing_error": session.processing_error,
         "quality": {"grade": grade, "worst_lost_fraction": worst, "sensors": sensors,
                     "missing_sensors": missing, "calibration_warnings": warnings,
+                    "short": short,
                     "calibration_method": (session.calibration or {}).get("method")},
     }
     if session.status == "closed":

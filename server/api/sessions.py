@@ -7,7 +7,7 @@ import contextlib
 import io
 from typing import Annotated, Literal
 
-from armtrack.estimator.errors import EstimatorError
+from armtrack.estimator.errors import EstimatorError, InvalidArgument
 from armtrack.estimator.orientation import DEFAULT_FILTER
 from armtrack.estimator.recording import format_recording, parse_recording
 from fastapi import APIRouter, Depends, Form, HTTPException, Request, UploadFile, status
@@ -24,7 +24,7 @@ from ..store.processing import (
     mark_closed,
     stored_estimates,
 )
-from ..store.recordings import add_recording, session_recording
+from ..store.recordings import add_recording, dated_by, session_recording
 from .deps import Db, Page, Therapist, current_therapist, oauth2, own_patient, own_session
 from .deps import services as get_services
 from .erase import erase_session
@@ -44,7 +44,8 @@ def session_out(session: models.Session) -> SessionOut:
         nine_axis={k: bool(v.get("nine_axis")) for k, v in session.sensors.items()},
         samples=session.samples, rate_hz=session.rate_hz, metadata=dict(session.meta or {}),
         processed=bool(session.estimate_columns), calibration=session.calibration,
-        estimator=session.estimator, processing_error=session.processing_error)
+        estimator=session.estimator, processing_error=session.processing_error,
+        dated=dated_by(session))
 
 
 @router.get("/patients/{patient_id}/sessions", response_model=list[SessionOut])
@@ -151,7 +152,13 @@ def upload_recording(db: Db, who: Annotated[models.Therapist | models.Device,
                                 "files need a sensors map (JSON: sensor → file name)")
         recording = imports.import_upload(files, sensors, patient, format, calibration, side,
                                           height_m, options, svc.settings.max_upload_bytes)
-    session = add_recording(db, patient, recording, device_id)
+    try:
+        session = add_recording(db, patient, recording, device_id)
+    except InvalidArgument as exc:
+        db.rollback()
+        name = file.filename if file is not None else "files"
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            f"{name or 'file'}: {exc}") from None
     db.commit()
     audit.note(patient_id=patient.id, session_id=session.id)
     # estimated where closed sessions are (store.background)

@@ -22,6 +22,7 @@ DESCRIPTION = ("Creates a therapist who can sign in; the password comes from --p
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("name", help="the therapist's user name")
     parser.add_argument("--password", help="the password (default: read from standard input)")
+    parser.add_argument("--full-name", help="the name reports print (\"Dr Jane Doe\")")
     parser.add_argument("--admin", action="store_true",
                         help="a clinic admin (manages therapists, reassigns patients)")
     parser.add_argument("--disable", action="store_true",
@@ -67,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
                       file=sys.stderr)
                 return 2
             db.add(models.Therapist(username=args.name, password_hash=hash_password(password),
-                                    is_admin=args.admin))
+                                    is_admin=args.admin, full_name=args.full_name or None))
             db.commit()
     finally:
         engine.dispose()

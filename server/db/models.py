@@ -23,6 +23,7 @@ from sqlalchemy import (
     Integer,
     LargeBinary,
     String,
+    TypeDecorator,
     UniqueConstraint,
     false,
 )
@@ -33,8 +34,23 @@ def utcnow() -> datetime:
     return datetime.now(UTC)
 
 
+class UtcDateTime(TypeDecorator):
+    """A moment stored in UTC and always read back with its time zone: SQLite keeps no
+    zone and gave naive datetimes back, which the API then sent without one
+    (``DateTime(timezone=True)`` in the schema, unchanged)."""
+
+    impl = DateTime(timezone=True)
+    cache_ok = True
+
+    def process_result_value(self, value: datetime | None, dialect) -> datetime | None:
+        if value is None or value.tzinfo is not None:
+            return value
+        return value.replace(tzinfo=UTC)
+
+
 class Base(DeclarativeBase):
-    type_annotation_map: ClassVar = {dict[str, Any]: JSON, list[Any]: JSON}
+    type_annotation_map: ClassVar = {dict[str, Any]: JSON, list[Any]: JSON,
+                                     datetime: UtcDateTime}
 
 
 class Therapist(Base):
@@ -43,11 +59,13 @@ class Therapist(Base):
     id: Mapped[int] = mapped_column(primary_key=True)
     username: Mapped[str] = mapped_column(String(128), unique=True)
     password_hash: Mapped[str] = mapped_column(String(256))
-    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+    created_at: Mapped[datetime] = mapped_column(UtcDateTime, default=utcnow)
     #: a clinic admin manages therapists (and reassigns patients); not their patients' data
     is_admin: Mapped[bool] = mapped_column(Boolean, default=False, server_default=false())
     #: a disabled therapist cannot sign in, and their tokens stop working at once
-    disabled_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+    disabled_at: Mapped[datetime | None] = mapped_column(UtcDateTime)
+    #: the name reports and pages show ("Dr Jane Doe"); the user name when unset
+    full_name: Mapped[str | None] = mapped_column(String(200))
 
 
 class AccessToken(Base):
@@ -59,7 +77,7 @@ class AccessToken(Base):
     therapist_id: Mapped[int] = mapped_column(
         ForeignKey("therapists.id", ondelete="CASCADE"), index=True)
     token_hash: Mapped[str] = mapped_column(String(64), unique=True)
-    expires_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
+    expires_at: Mapped[datetime] = mapped_column(UtcDateTime)
 
 
 class Patient(Base):
@@ -71,7 +89,10 @@ class Patient(Base):
     name: Mapped[str] = mapped_column(String(200))
     side: Mapped[str] = mapped_column(String(5))
     height_m: Mapped[float] = mapped_column(Float)
-    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+    created_at: Mapped[datetime] = mapped_column(UtcDateTime, default=utcnow)
+    #: the clinic's own patient number (its records' identifier), optional
+    clinic_number: Mapped[str | None] = mapped_column(String(64))
+    date_of_birth: Mapped[date | None] = mapped_column(Date)
 
 
 class Device(Base):
@@ -84,8 +105,8 @@ class Device(Base):
         ForeignKey("patients.id", ondelete="CASCADE"), index=True)
     name: Mapped[str] = mapped_column(String(200))
     token_hash: Mapped[str] = mapped_column(String(64), unique=True)
-    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
-    revoked_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+    created_at: Mapped[datetime] = mapped_column(UtcDateTime, default=utcnow)
+    revoked_at: Mapped[datetime | None] = mapped_column(UtcDateTime)
 
 
 class Session(Base):
@@ -111,8 +132,8 @@ class Session(Base):
     rate_hz: Mapped[float | None] = mapped_column(Float)
     sensors: Mapped[dict[str, Any]] = mapped_column(JSON)
     meta: Mapped[dict[str, Any]] = mapped_column("metadata", JSON, default=dict)
-    started_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
-    ended_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+    started_at: Mapped[datetime] = mapped_column(UtcDateTime, default=utcnow)
+    ended_at: Mapped[datetime | None] = mapped_column(UtcDateTime)
     samples: Mapped[int] = mapped_column(BigInteger, default=0)
     calibration: Mapped[dict[str, Any] | None] = mapped_column(JSON)
     estimator: Mapped[dict[str, Any] | None] = mapped_column(JSON)
@@ -136,7 +157,7 @@ class Stream(Base):
         ForeignKey("devices.id", ondelete="SET NULL"))
     next_seq: Mapped[int] = mapped_column(BigInteger, default=0)
     last_t: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
-    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+    created_at: Mapped[datetime] = mapped_column(UtcDateTime, default=utcnow)
 
     session: Mapped[Session] = relationship(back_populates="streams")
 
@@ -202,7 +223,30 @@ class PatientTarget(Base):
     min_deg: Mapped[float] = mapped_column(Float)
     max_deg: Mapped[float] = mapped_column(Float)
     note: Mapped[str | None] = mapped_column(String(500))
-    updated_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+    updated_at: Mapped[datetime] = mapped_column(UtcDateTime, default=utcnow)
+
+
+class PatientTargetVersion(Base):
+    """Every setting and removal of a patient's target, never changed afterwards: the
+    target in force at a moment is the angle's last version set at or before it
+    (``reports/targets.py``), so a report of last month keeps last month's target.
+    ``min_deg``/``max_deg`` ``None``: the target was removed then."""
+
+    __tablename__ = "patient_target_versions"
+    __table_args__ = (Index("ix_patient_target_versions_patient_angle_set", "patient_id",
+                            "angle", "set_at"),
+                      {"sqlite_autoincrement": True})
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    patient_id: Mapped[int] = mapped_column(
+        ForeignKey("patients.id", ondelete="CASCADE"))
+    angle: Mapped[str] = mapped_column(String(40))
+    min_deg: Mapped[float | None] = mapped_column(Float)
+    max_deg: Mapped[float | None] = mapped_column(Float)
+    note: Mapped[str | None] = mapped_column(String(500))
+    set_at: Mapped[datetime] = mapped_column(UtcDateTime, default=utcnow)
+    #: the therapist who set it (an id only: the version outlives the account)
+    set_by: Mapped[int | None] = mapped_column(Integer)
 
 
 class PasswordReset(Base):
@@ -215,8 +259,8 @@ class PasswordReset(Base):
         ForeignKey("therapists.id", ondelete="CASCADE"), index=True)
     token_hash: Mapped[str] = mapped_column(String(64), unique=True)
     issued_by: Mapped[int | None] = mapped_column(Integer)
-    expires_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
-    used_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+    expires_at: Mapped[datetime] = mapped_column(UtcDateTime)
+    used_at: Mapped[datetime | None] = mapped_column(UtcDateTime)
 
 
 class AuditEntry(Base):
@@ -227,7 +271,7 @@ class AuditEntry(Base):
     __tablename__ = "audit_log"
 
     id: Mapped[int] = mapped_column(primary_key=True)
-    at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow, index=True)
+    at: Mapped[datetime] = mapped_column(UtcDateTime, default=utcnow, index=True)
     therapist_id: Mapped[int | None] = mapped_column(Integer, index=True)
     device_id: Mapped[int | None] = mapped_column(Integer)
     action: Mapped[str] = mapped_column(String(24))
@@ -250,8 +294,8 @@ class Program(Base):
     patient_id: Mapped[int] = mapped_column(
         ForeignKey("patients.id", ondelete="CASCADE"), index=True)
     name: Mapped[str] = mapped_column(String(120))
-    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
-    ended_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True))
+    created_at: Mapped[datetime] = mapped_column(UtcDateTime)
+    ended_at: Mapped[datetime | None] = mapped_column(UtcDateTime)
 
     versions: Mapped[list[ProgramVersion]] = relationship(
         back_populates="program", order_by="ProgramVersion.number",
@@ -272,7 +316,7 @@ class ProgramVersion(Base):
     program_id: Mapped[int] = mapped_column(
         ForeignKey("programs.id", ondelete="CASCADE"), index=True)
     number: Mapped[int] = mapped_column(Integer)
-    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
+    created_at: Mapped[datetime] = mapped_column(UtcDateTime)
     #: the therapist who saved it (no foreign key: the record outlives the account)
     created_by: Mapped[int | None] = mapped_column(Integer)
     start_date: Mapped[date] = mapped_column(Date)
@@ -337,4 +381,4 @@ class SessionRating(Base):
     t: Mapped[float | None] = mapped_column(Float)
     effort: Mapped[float | None] = mapped_column(Float)
     pain: Mapped[int | None] = mapped_column(Integer)
-    received_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
+    received_at: Mapped[datetime] = mapped_column(UtcDateTime)

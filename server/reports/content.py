@@ -40,6 +40,7 @@ from armtrack.estimator.metrics import (
     Repetition,
     consistency,
     detect_repetitions,
+    percent_of,
     range_of_motion_table,
     repetition_smoothness,
 )
@@ -51,6 +52,7 @@ from ..commands.estimate import CALIBRATION_TAIL_S
 from ..db import models
 from ..store.processing import stored_estimates
 from ..store.recordings import session_recording
+from .targets import Target
 
 #: The angle names of ``spec/kinematics.md`` and ``shoulder_elevation``.
 AngleName = Literal[REPORTED_ANGLES]  # type: ignore[valid-type]
@@ -89,16 +91,24 @@ class RomEntry(BaseModel):
     normal_min: float | None = Field(description="AAOS normal minimum [deg]")
     normal_max: float | None = Field(description="AAOS normal maximum [deg]")
     percent_of_normal: float | None = Field(
-        description="range ÷ (normal_max − normal_min) × 100 [%]")
+        description="how far the session reached on the side it moved most, as a share of "
+        "the normal range on that side of zero: max(max ÷ normal_max, min ÷ normal_min) × "
+        "100, the second term only where normal_min < 0, clamped at 0 [%]")
     paper_min: float | None = Field(description="seed paper's Table 2 minimum [deg]")
     paper_max: float | None = Field(description="seed paper's Table 2 maximum [deg]")
-    percent_of_paper: float | None = Field(description="range ÷ paper range × 100 [%]")
-    target_min: float | None = Field(None, description="the patient's target minimum [deg]")
-    target_max: float | None = Field(None, description="the patient's target maximum [deg]")
+    percent_of_paper: float | None = Field(
+        description="the same side rule against the paper's Table 2 range [%]")
+    target_min: float | None = Field(
+        None, description="the patient's target minimum in force when the session started "
+        "[deg]")
+    target_max: float | None = Field(
+        None, description="the patient's target maximum in force when the session started "
+        "[deg]")
     percent_of_target: float | None = Field(
-        None, description="range ÷ (target_max − target_min) × 100 [%]")
+        None, description="the same side rule against the target: max(max ÷ target_max, "
+        "min ÷ target_min) × 100, a term only for a side the target has, clamped at 0 [%]")
     target_reached: bool | None = Field(
-        None, description="min ≤ target_min and max ≥ target_max")
+        None, description="percent_of_target ≥ 100")
     samples: int = Field(description="estimates the range was taken from")
 
 
@@ -202,7 +212,7 @@ class TargetOut(BaseModel):
     min_deg: float
     max_deg: float
     note: str | None
-    updated_at: datetime
+    updated_at: datetime = Field(description="when this target was set")
 
 
 class SessionInfo(BaseModel):
@@ -228,7 +238,11 @@ class SessionReport(BaseModel):
         description="the angles that moved, calibration poses excluded")
     exercises: list[Exercise]
     quality: Quality
-    targets: list[TargetOut]
+    targets: list[TargetOut] = Field(
+        description="the targets in force when the session started (what rom's target_* "
+        "fields compare with): a target set later does not rewrite the report")
+    current_targets: list[TargetOut] = Field(
+        default_factory=list, description="the patient's targets today, shown beside")
 
 
 # --- computing it ------------------------------------------------------------------
@@ -274,7 +288,7 @@ def load_session(db: DbSession, session: models.Session) -> SessionData:
                        t=t, angles=angles, quats=quats, recording=recording, exclude=exclude)
 
 
-def rom_entry(rom: RangeOfMotion, target: models.PatientTarget | None) -> RomEntry:
+def rom_entry(rom: RangeOfMotion, target: Target | None) -> RomEntry:
     entry = RomEntry(
         min=finite(rom.min_deg), max=finite(rom.max_deg), range=finite(rom.range_deg),
         normal_min=rom.normal_min_deg, normal_max=rom.normal_max_deg,
@@ -284,17 +298,20 @@ def rom_entry(rom: RangeOfMotion, target: models.PatientTarget | None) -> RomEnt
     return apply_target(entry, target)
 
 
-def apply_target(entry: RomEntry, target: models.PatientTarget | None) -> RomEntry:
+def apply_target(entry: RomEntry, target: Target | None) -> RomEntry:
+    """``entry`` against ``target``, by the side rule of ``percent_of_normal``."""
     if target is None:
         return entry
+    share = percent_of(entry.min, entry.max, (target.min_deg, target.max_deg))
+    percent = finite(share, 1)
     return entry.model_copy(update={
         "target_min": target.min_deg, "target_max": target.max_deg,
-        "percent_of_target": finite(entry.range / (target.max_deg - target.min_deg) * 100, 1),
-        "target_reached": bool(entry.min <= target.min_deg and entry.max >= target.max_deg)})
+        "percent_of_target": percent,
+        "target_reached": None if percent is None else bool(share >= 100.0 - 1e-9)})
 
 
 def rom_table(data: SessionData, include: Sequence[tuple[float, float]] | None,
-              targets: Mapping[str, models.PatientTarget]) -> dict[str, RomEntry]:
+              targets: Mapping[str, Target]) -> dict[str, RomEntry]:
     if not len(data.t):
         return {}
     try:
@@ -379,7 +396,7 @@ def detected_name(angles: Sequence[str]) -> str:
 
 
 def exercises(data: SessionData, moved: Sequence[str],
-              targets: Mapping[str, models.PatientTarget]) -> list[Exercise]:
+              targets: Mapping[str, Target]) -> list[Exercise]:
     if not len(data.t):
         return []
     rad = data.angles_rad
@@ -445,9 +462,9 @@ def detected_groups(found: Mapping[str, Sequence[Repetition]]) -> list[tuple[flo
     return [(a, b) for a, b, _ in groups]
 
 
-def target_out(target: models.PatientTarget) -> TargetOut:
+def target_out(target: Target) -> TargetOut:
     return TargetOut(angle=target.angle, min_deg=target.min_deg, max_deg=target.max_deg,
-                     note=target.note, updated_at=utc(target.updated_at))
+                     note=target.note, updated_at=utc(target.set_at))
 
 
 def session_info(data: SessionData) -> SessionInfo:
@@ -460,7 +477,7 @@ def session_info(data: SessionData) -> SessionInfo:
         duration_s=finite(float(data.t[-1] - data.t[0]) if len(data.t) > 1 else 0.0, 2))
 
 
-def build_report(data: SessionData, targets: Mapping[str, models.PatientTarget]
+def build_report(data: SessionData, targets: Mapping[str, Target]
                  ) -> SessionReport:
     """The report of a loaded session, against the patient's ``targets`` (angle → row)."""
     from .quality import quality
@@ -471,9 +488,10 @@ def build_report(data: SessionData, targets: Mapping[str, models.PatientTarget]
         quality=quality(data), targets=[target_out(t) for t in targets.values()])
 
 
-def with_targets(report: SessionReport, targets: Mapping[str, models.PatientTarget]
-                 ) -> SessionReport:
-    """The report against ``targets`` (angle → row) instead of those it was made with."""
+def with_targets(report: SessionReport, targets: Mapping[str, Target],
+                 current: Mapping[str, Target] | None = None) -> SessionReport:
+    """The report against ``targets`` (angle → target: those in force at the session's
+    time) instead of those it was made with; ``current``: today's, shown beside."""
     def table(rom: Mapping[str, RomEntry]) -> dict[str, RomEntry]:
         cleared = {"target_min": None, "target_max": None, "percent_of_target": None,
                    "target_reached": None}
@@ -483,7 +501,8 @@ def with_targets(report: SessionReport, targets: Mapping[str, models.PatientTarg
     return report.model_copy(update={
         "rom": table(report.rom),
         "exercises": [e.model_copy(update={"rom": table(e.rom)}) for e in report.exercises],
-        "targets": [target_out(t) for t in targets.values()]})
+        "targets": [target_out(t) for t in targets.values()],
+        "current_targets": [target_out(t) for t in (current or {}).values()]})
 
 
 #: Reports of recent sessions without targets, by what identifies their estimates.
@@ -500,11 +519,19 @@ def _cache_key(session: models.Session) -> tuple:
 
 
 def session_report(db: DbSession, session: models.Session,
-                   targets: Mapping[str, models.PatientTarget],
-                   data: SessionData | None = None) -> SessionReport:
-    """The session's report against ``targets`` (from ``data`` when loaded already);
-    raises NoEstimates. The computed report is kept for the next request while the
-    session's estimates stay the same."""
+                   targets: Mapping[str, Target] | None = None,
+                   data: SessionData | None = None,
+                   current: Mapping[str, Target] | None = None) -> SessionReport:
+    """The session's report (from ``data`` when loaded already) against ``targets``
+    (default: the patient's targets in force when the session started), with ``current``
+    (default: today's) beside; raises NoEstimates. The computed report is kept for the
+    next request while the session's estimates stay the same."""
+    from .targets import current_targets, targets_at
+
+    if targets is None:
+        targets = targets_at(db, session.patient_id, utc(session.started_at))
+    if current is None:
+        current = current_targets(db, session.patient_id)
     key = _cache_key(session)
     with _CACHE_LOCK:
         base = _CACHE.get(key)
@@ -516,4 +543,4 @@ def session_report(db: DbSession, session: models.Session,
             _CACHE[key] = base
             while len(_CACHE) > _CACHE_SIZE:
                 _CACHE.popitem(last=False)
-    return with_targets(base, targets)
+    return with_targets(base, targets, current)

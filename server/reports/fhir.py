@@ -101,7 +101,8 @@ def observation(report: SessionReport, angle: str, rom: RomEntry, obs_id: str,
             "text": f"AAOS normal {rom.normal_min:g}° to {rom.normal_max:g}° "
                     f"(arc {rom.normal_max - rom.normal_min:g}°)"})
     if rom.percent_of_normal is not None:
-        components.append({"code": {"text": "arc as a percentage of the AAOS normal arc"},
+        components.append({"code": {"text": "reach on the side moved most as a percentage of "
+                                            "the AAOS normal limit on that side"},
                            "valueQuantity": _percent(rom.percent_of_normal)})
     if rom.target_min is not None and rom.target_max is not None:
         ranges.append({

@@ -5,6 +5,7 @@ export reads back to exactly them."""
 from __future__ import annotations
 
 from collections.abc import Iterable
+from datetime import UTC, datetime, timedelta
 
 import numpy as np
 from armtrack.estimator.body import SegmentLengths
@@ -22,6 +23,38 @@ from .blocks import SAMPLE_COLUMNS, pack, unpack_many
 POSE_LABELS = frozenset({"npose", "end:npose", "tpose", "end:tpose"})
 #: Rows per stored block of an uploaded file.
 UPLOAD_BLOCK_ROWS = 1000
+#: The header that dates a recording (``docs/extensions/start-time.md``).
+START_TIME_KEY = "start_time"
+
+
+def recorded_start(recording: Recording) -> datetime | None:
+    """When the recording's ``t = 0`` was, from its ``start_time`` header (ISO 8601 with a
+    time zone; ``docs/extensions/start-time.md``), in UTC; ``None`` without the header.
+    Raises InvalidArgument naming the header when it is not such a moment."""
+    text = recording.metadata.get(START_TIME_KEY)
+    if text is None:
+        return None
+    try:
+        moment = datetime.fromisoformat(text.strip())
+    except ValueError:
+        raise InvalidArgument(f"header {START_TIME_KEY}: {text!r} is not an ISO 8601 date "
+                              "and time (2026-12-01T09:30:00+01:00)") from None
+    if moment.tzinfo is None:
+        raise InvalidArgument(f"header {START_TIME_KEY}: {text!r} has no time zone; add "
+                              "one (+01:00, or Z for UTC)")
+    moment = moment.astimezone(UTC)
+    if moment > datetime.now(UTC) + timedelta(days=1):
+        raise InvalidArgument(f"header {START_TIME_KEY}: {text!r} is in the future")
+    return moment
+
+
+def dated_by(session: models.Session) -> str:
+    """What the session's ``started_at`` is: ``recorded`` (the file's ``start_time``
+    header), ``uploaded`` (an upload without one: the time it arrived) or ``streamed``
+    (when the kit's stream started)."""
+    if session.source != "upload":
+        return "streamed"
+    return "recorded" if START_TIME_KEY in (session.meta or {}) else "uploaded"
 
 
 def sensor_rows(stream: SensorStream) -> np.ndarray:
@@ -37,7 +70,10 @@ def pose_marks(poses: Iterable[Pose]) -> list[Mark]:
 
 def add_recording(db: DbSession, patient: models.Patient, recording: Recording,
                   device_id: int | None = None) -> models.Session:
-    """Store an uploaded recording as a new closed session (not committed)."""
+    """Store an uploaded recording as a new closed session (not committed), dated when it
+    was recorded (``start_time`` header), else when it arrived. Raises InvalidArgument
+    for a ``start_time`` that is not an ISO 8601 moment with a zone."""
+    start = recorded_start(recording)
     session = models.Session(
         patient_id=patient.id, device_id=device_id, source="upload", status="closed",
         side=recording.side, height_m=recording.height_m,
@@ -46,6 +82,8 @@ def add_recording(db: DbSession, patient: models.Patient, recording: Recording,
         sensors={n: {"nine_axis": s.nine_axis} for n, s in recording.sensors.items()},
         meta=dict(recording.metadata),
         samples=sum(len(s) for s in recording.sensors.values()))
+    if start is not None:
+        session.started_at = start
     db.add(session)
     db.flush()
     blocks = []
@@ -60,7 +98,9 @@ def add_recording(db: DbSession, patient: models.Patient, recording: Recording,
         db.execute(models.SampleBlock.__table__.insert(), blocks)
     for mark in (*pose_marks(recording.calibration), *recording.marks):
         db.add(models.Mark(session_id=session.id, t=mark.t, label=mark.label))
-    session.ended_at = session.started_at
+    ends = [float(s.t[-1] - s.t[0]) for s in recording.sensors.values() if len(s)]
+    session.ended_at = (session.started_at + timedelta(seconds=max(ends))
+                        if start is not None and ends else session.started_at)
     return session
 
 

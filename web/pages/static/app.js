@@ -38,7 +38,21 @@ class ApiError extends Error {
   constructor(status, detail) { super(detail); this.status = status; }
 }
 
+// The clinic (name, address, IANA time zone): pages show times in its zone. Loaded once
+// per page, before any other API answer is drawn.
+let CLINIC = null;
+let clinicPromise = null;
+function clinic() {
+  if (!clinicPromise) {
+    clinicPromise = fetch("/api/clinic", { headers: { Authorization: "Bearer " + token() } })
+      .then((r) => (r.ok ? r.json() : null)).catch(() => null)
+      .then((c) => { CLINIC = c; return c; });
+  }
+  return clinicPromise;
+}
+
 async function api(path, options = {}) {
+  if (path !== "/api/clinic") await clinic();
   const headers = Object.assign({ Authorization: "Bearer " + token() }, options.headers || {});
   let body = options.body;
   if (body !== undefined && !(body instanceof FormData) && typeof body !== "string") {
@@ -82,11 +96,25 @@ function el(tag, attrs, ...children) {
 
 function clear(node, ...children) { node.replaceChildren(...children.flat(Infinity).filter((c) => c != null)); return node; }
 
-function fmtDate(iso) {
+// The clinic's time zone, and whether this browser is elsewhere (then times say their zone).
+function clinicZone() {
+  const zone = CLINIC && CLINIC.time_zone;
+  if (!zone) return { timeZone: undefined, elsewhere: false };
+  let here;
+  try { here = Intl.DateTimeFormat().resolvedOptions().timeZone; } catch (_) { here = null; }
+  return { timeZone: zone, elsewhere: here !== zone };
+}
+
+// A moment from the API (always with its zone) in the clinic's local time.
+function fmtDate(iso, options = {}) {
   if (!iso) return "—";
-  const d = new Date(iso.endsWith("Z") || iso.includes("+") ? iso : iso + "Z");
-  return d.toLocaleString(undefined, { weekday: "short", day: "numeric", month: "short",
-    year: "numeric", hour: "2-digit", minute: "2-digit" });
+  const d = new Date(/[zZ]|[+-]\d\d:?\d\d$/.test(iso) ? iso : iso + "Z");
+  const { timeZone, elsewhere } = clinicZone();
+  const parts = options.dateOnly ? { day: "numeric", month: "short", year: "numeric" }
+    : { weekday: "short", day: "numeric", month: "short", year: "numeric", hour: "2-digit", minute: "2-digit" };
+  if (timeZone) parts.timeZone = timeZone;
+  if (elsewhere && !options.dateOnly) parts.timeZoneName = "short";
+  return d.toLocaleString(undefined, parts);
 }
 
 function fmtDuration(seconds) {
@@ -112,6 +140,13 @@ function exerciseLabel(name) {
   return name.replace(/_/g, " ").replace(/^./, (c) => c.toUpperCase());
 }
 
+// An exercise of a summary: its name in words, with the repetitions the report found.
+function exerciseChipText(e) {
+  const name = e.name.split(" + ").map(exerciseLabel).join(" + ");
+  return e.source === "detected" && e.repetitions
+    ? `${name} × ${e.repetitions}` : name;
+}
+
 function qualityBadge(quality) {
   const text = { good: "Good data", fair: "Fair data", poor: "Poor data" }[quality.grade] || quality.grade;
   const why = [];
@@ -121,6 +156,7 @@ function qualityBadge(quality) {
     why.push("no data from " + quality.missing_sensors.join(", "));
   if (quality.calibration_warnings && quality.calibration_warnings.length)
     why.push(`${quality.calibration_warnings.length} calibration warning(s)`);
+  if (quality.short) why.push("cut short: too little data to judge the exercise");
   return el("span", { class: "badge q-" + quality.grade, title: why.join("; ") }, text);
 }
 
@@ -154,6 +190,16 @@ function romBar(min, max, normalMin, normalMax) {
   return bar;
 }
 
+// api.md's percent of normal: how far the range reached on the side it moved most, as a
+// share of the normal range on that side of zero (flexion to 150° of −60…180° → 83 %).
+function percentOfNormal(min, max, normalMin, normalMax) {
+  if (normalMin === null || normalMin === undefined || normalMax === null || normalMax === undefined) return null;
+  const shares = [];
+  if (normalMax > 0) shares.push(max / normalMax);
+  if (normalMin < 0) shares.push(min / normalMin);
+  return shares.length ? Math.max(0, ...shares) * 100 : null;
+}
+
 function percentClass(p) {
   if (p === null || p === undefined) return "";
   return p >= 80 ? "pct-good" : p >= 50 ? "pct-mid" : "pct-low";
@@ -170,9 +216,17 @@ function frame(crumbs) {
     el("nav", { class: "crumbs" }, crumbs.map((c, i) => [
       i ? el("span", { class: "sep" }, "›") : null,
       c.href ? el("a", { href: c.href }, c.text) : el("span", { id: c.id || null }, c.text)])),
-    el("div", { class: "who" }, el("span", {}, sessionStorage.getItem(USER_KEY) || ""),
+    el("div", { class: "who" }, el("span", { id: "who-name" }, sessionStorage.getItem(USER_KEY) || ""),
       el("button", { class: "link", onclick: signOut }, "Sign out")));
   document.body.prepend(bar);
+  clinic().then((c) => {
+    if (c && c.name) bar.querySelector(".brand").append(el("span", { class: "clinic-name", id: "clinic-name" }, c.name));
+  });
+  api("/api/me").then((me) => {
+    document.getElementById("who-name").textContent = me.full_name || me.username;
+    window.ME = me;
+    document.dispatchEvent(new CustomEvent("armtrack:me", { detail: me }));
+  }).catch(() => {});
   document.body.append(el("footer", { class: "disclaimer", id: "disclaimer" }, DISCLAIMER));
 }
 

@@ -145,7 +145,7 @@ function renderPose() {
         b.append(el("div", { class: "now", style: `left:${Math.min(100, Math.max(0, (now - lo) / (hi - lo) * 100))}%` }));
       }
       clear(bar, b);
-      const p = normal ? rom.range / (normal[1] - normal[0]) * 100 : null;
+      const p = normal ? percentOfNormal(rom.min, rom.max, normal[0], normal[1]) : null;
       pct.textContent = p === null ? "" : Math.round(p) + " %";
       pct.className = "num pct " + percentClass(p);
       row.classList.toggle("moving", rom.range >= 10);
@@ -176,18 +176,34 @@ function connectLive() {
   socket.onclose = () => { if (!ended) setTimeout(connectLive, 1000); };
 }
 
+// One poll at a time, and never an answer older (by the stream's own clock) than the one
+// shown: a busy browser whose polls bunch up must not show "relax" in the middle of a pose.
+let pollInFlight = false;
+let shownStreamT = -Infinity;
+
 async function pollLive() {
+  if (pollInFlight) return;
+  pollInFlight = true;
+  let status;
   try {
-    liveStatus = await api(`/api/patients/${session.patient_id}/live`);
-  } catch (_) { return; }
+    status = await api(`/api/patients/${session.patient_id}/live`);
+  } catch (_) { return; } finally { pollInFlight = false; }
+  const streamT = status.calibration ? status.calibration.stream_time_s : null;
+  if (status.session && status.session.id === session.id && streamT !== null && streamT !== undefined) {
+    if (streamT < shownStreamT) return;  // older than what is shown
+    shownStreamT = streamT;
+  }
+  liveStatus = status;
   normals = liveStatus.normal_ranges || normals;
   if (liveStatus.session && liveStatus.session.id === session.id) {
     if (liveStatus.session.status !== session.status) { session.status = liveStatus.session.status; setStatus(); }
     document.getElementById("sensors-card").hidden = false;
     clear(document.getElementById("sensors"), sensorTable(liveStatus));
     renderCalibration(liveStatus);
+    LiveFollow.live(liveStatus);
   } else if (!liveStatus.session || liveStatus.session.id !== session.id) {
     // a newer session, or this one was closed
+    LiveFollow.newer(liveStatus);
     const fresh = await api(`/api/sessions/${session.id}`);
     if (fresh.status === "closed") finishLive();
   }
@@ -305,6 +321,9 @@ async function finishLive() {
   ended = true;
   calibrationParts = null;
   if (socket) socket.close();
+  document.getElementById("exercise-now")?.remove();
+  LiveFollow.watch();
+  LiveFollow.history().catch(() => {});
   clear(document.getElementById("calibration"), el("div", { class: "calib done", id: "calibration-box" },
     el("div", { class: "icon" }, "✓"), el("div", { class: "what" },
       el("div", { class: "title" }, "The session has ended"),
@@ -361,7 +380,9 @@ function romTable(summary) {
 async function showReplay() {
   const summary = await api(`/api/sessions/${session.id}/summary`);
   document.getElementById("facts").replaceChildren(
-    fmtDate(summary.started_at), " · ", fmtDuration(summary.duration_s), " · ",
+    session.dated === "uploaded" ? "uploaded " + fmtDate(summary.started_at) + " (recording time unknown)"
+      : (session.dated === "recorded" ? "recorded " : "") + fmtDate(summary.started_at),
+    " · ", fmtDuration(summary.duration_s), " · ",
     session.source === "upload" ? "uploaded recording" : "streamed by " + (session.metadata.device || "a kit"),
     " · ", qualityBadge(summary.quality));
   clear(document.getElementById("angles-card"),
@@ -374,8 +395,8 @@ async function showReplay() {
   clear(card,
     el("h2", {}, "Exercises"),
     summary.exercises.length ? el("div", { id: "exercises" }, summary.exercises.map((e) => el("span", { class: "chip" },
-      `${exerciseLabel(e.name)} · ${e.start.toFixed(0)}–${e.end === null ? "…" : e.end.toFixed(0)} s`)))
-      : el("p", { class: "muted" }, "No exercise was marked in this session."),
+      exerciseChipText(e) + ` · ${e.start.toFixed(0)}–${e.end === null ? "…" : e.end.toFixed(0)} s`)))
+      : el("p", { class: "muted" }, "No exercise was marked or found in this session."),
     el("h3", {}, "Calibration"),
     el("p", { style: "margin:4px 0" }, summary.calibration_poses.length
       ? `${summary.calibration_poses.length} pose(s)` + (q.calibration_method ? ` · method: ${q.calibration_method}` : "")
@@ -416,9 +437,11 @@ async function start() {
   document.getElementById("title").textContent = `${patient.name} — ${session.status === "closed" ? "session" : "live session"} ${session.id}`;
   document.title = `${patient.name} · session ${session.id} · armtrack`;
   setStatus();
+  LiveFollow.start(session);
   if (session.status === "closed") {
     openViewer("replay");
     await showReplay();
+    LiveFollow.watch();
   } else {
     document.getElementById("facts").textContent =
       `started ${fmtDate(session.started_at)} · ${session.sensors.length} sensors · ${patient.side} arm`;

@@ -1,0 +1,183 @@
+"""The current exercise and its repetitions while a patient streams, for the dashboard's
+live page (``GET /api/patients/{id}/live`` → ``exercise``).
+
+A ``MotionWatch`` per watched patient listens to the live hub's poses (only while a page
+polls that patient: it stops ``IDLE_S`` after the last poll) and keeps the session's
+angles of the last ``BUFFER_S`` seconds. On a poll the repetitions are counted on a
+worker thread with the report's own rules (``estimator.metrics.detect_repetitions``;
+without an exercise mark, the report's grouping of detected movements), so the count on
+the live page is the count the report will give:
+
+* an exercise mark open (``exercise:<name>``): its repetitions since the mark, of the
+  angle it names (``exercise:elbow_flexion``) or else of its leading angle;
+* no mark: the latest detected movement (``reports.content.detected_groups``) still
+  going on (its last repetition less than ``GROUP_GAP_S`` ago), named as the report
+  names it.
+
+Angles [deg] as the poses carry them; times are the session's [s].
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import threading
+import time
+from collections import deque
+from typing import Any
+
+import numpy as np
+from armtrack.estimator.arm.joints import REPORTED_ANGLES
+from armtrack.estimator.metrics import detect_repetitions
+
+#: Seconds of poses kept per watched patient.
+BUFFER_S = 600.0
+#: A watch stops this long after the last poll [s].
+IDLE_S = 30.0
+#: Angles that name a movement (the shoulder's elevation only when nothing else moved).
+NAMING = tuple(a for a in REPORTED_ANGLES if not a.startswith("clavicle"))
+
+
+class MotionWatch:
+    """The poses of one patient's live session, fed from the hub."""
+
+    def __init__(self, hub: Any, patient_id: int):
+        self.hub = hub
+        self.patient_id = patient_id
+        self.session_id: int | None = None
+        self.calibrated_from: float | None = None
+        self._t: deque[float] = deque()
+        self._angles: deque[np.ndarray] = deque()
+        self._lock = threading.Lock()
+        self.last_poll = time.monotonic()
+        self.task: asyncio.Task | None = None
+
+    def add(self, update: Any) -> None:
+        """One hub update (on the event loop: appends only)."""
+        if update.get("kind") != "pose":
+            return
+        session_id = update.get("session_id")
+        t = float(update["t"])
+        angles = update.get("angles_deg") or {}
+        row = np.array([np.nan if angles.get(k) is None else float(angles[k])
+                        for k in REPORTED_ANGLES])
+        with self._lock:
+            if session_id != self.session_id:
+                self.session_id, self.calibrated_from = session_id, None
+                self._t.clear()
+                self._angles.clear()
+            if self._t and t <= self._t[-1]:
+                return
+            if self.calibrated_from is None and update.get("rom_deg"):
+                self.calibrated_from = t  # the running range starts after the poses
+            self._t.append(t)
+            self._angles.append(row)
+            while self._t and self._t[0] < t - BUFFER_S:
+                self._t.popleft()
+                self._angles.popleft()
+
+    def series(self) -> tuple[int | None, float | None, np.ndarray, np.ndarray]:
+        """A copy: session id, calibrated-from time, t (N,) [s], angles (N, A) [deg]."""
+        with self._lock:
+            t = np.fromiter(self._t, float, len(self._t))
+            angles = (np.vstack(self._angles) if self._angles
+                      else np.empty((0, len(REPORTED_ANGLES))))
+            return self.session_id, self.calibrated_from, t, angles
+
+    async def run(self) -> None:
+        with self.hub.subscribe(self.patient_id) as subscription:
+            latest = self.hub.latest.get(self.patient_id)
+            if latest is not None:
+                self.add(latest)
+            while time.monotonic() - self.last_poll < IDLE_S:
+                with contextlib.suppress(TimeoutError):
+                    update = await asyncio.wait_for(subscription.get(), IDLE_S)
+                    if update is None:
+                        return
+                    self.add(update)
+
+
+_watches: dict[tuple[int, int], MotionWatch] = {}
+
+
+def watch(hub: Any, patient_id: int) -> MotionWatch:
+    """The patient's watch (started on first use, kept alive by each call); call on the
+    event loop."""
+    key = (id(hub), patient_id)
+    current = _watches.get(key)
+    if current is None or current.task is None or current.task.done():
+        current = MotionWatch(hub, patient_id)
+        current.task = asyncio.get_running_loop().create_task(current.run())
+        _watches[key] = current
+        for old_key, old in list(_watches.items()):  # forget the stopped ones
+            if old.task is not None and old.task.done():
+                del _watches[old_key]
+    current.last_poll = time.monotonic()
+    return current
+
+
+def watching(hub: Any, patient_id: int) -> MotionWatch | None:
+    """The patient's running watch, kept alive; None when there is none."""
+    current = _watches.get((id(hub), patient_id))
+    if current is None or current.task is None or current.task.done():
+        return None
+    current.last_poll = time.monotonic()
+    return current
+
+
+def words(name: str) -> str:
+    """An exercise or angle name in words: ``elbow_flexion`` → ``Elbow flexion``."""
+    text = " + ".join(part.strip().replace("_", " ") for part in name.split("+"))
+    return text[:1].upper() + text[1:]
+
+
+def current_exercise(motion: MotionWatch, session_id: int, mark: dict[str, Any] | None,
+                     now_t: float | None) -> dict[str, Any] | None:
+    """The exercise going on and its repetitions so far (worker thread). ``mark``: the
+    open exercise mark ``{"name", "t"}`` or None. None before any pose after the
+    calibration, or when nothing is going on."""
+    from ..reports.content import GROUP_GAP_S, detected_groups, detected_name
+
+    sid, calibrated_from, t, angles = motion.series()
+    if sid != session_id or not len(t):
+        return ({"name": mark["name"], "label": words(mark["name"]), "source": "marks",
+                 "since_s": mark["t"], "repetitions": 0, "angle": None}
+                if mark else None)
+    rad = np.deg2rad(angles)
+    index = {a: i for i, a in enumerate(REPORTED_ANGLES)}
+    start = mark["t"] if mark else (calibrated_from if calibrated_from is not None else t[0])
+    include = [(start, float(t[-1]) + 1e-6)]
+    found = {}
+    for angle in NAMING:
+        column = rad[:, index[angle]]
+        if not np.isfinite(column).any():
+            continue
+        found[angle] = detect_repetitions(column, t, include=include)
+    if mark:
+        angle = mark["name"] if mark["name"] in found else _leading(found)
+        return {"name": mark["name"], "label": words(mark["name"]), "source": "marks",
+                "since_s": mark["t"], "angle": angle,
+                "repetitions": len(found.get(angle, ())) if angle else 0}
+    groups = detected_groups({k: v for k, v in found.items() if v})
+    if not groups:
+        return None
+    a, b = groups[-1]
+    latest = now_t if now_t is not None else float(t[-1])
+    if latest - b > GROUP_GAP_S:
+        return None  # the last movement is over
+    in_group = {k: [r for r in v if a <= r.start_s and r.end_s <= b]
+                for k, v in found.items()}
+    moved = [k for k in REPORTED_ANGLES if in_group.get(k)]
+    name = detected_name(moved)
+    angle = _leading({k: in_group[k] for k in moved})
+    return {"name": name, "label": words(name), "source": "detected", "since_s": a,
+            "angle": angle, "repetitions": len(in_group[angle]) if angle else 0}
+
+
+def _leading(found: dict[str, Any]) -> str | None:
+    """The angle with the largest total amplitude (the shoulder's elevation only when
+    nothing else repeated)."""
+    scored = {k: sum(abs(r.amplitude) for r in v) for k, v in found.items() if v}
+    others = {k: v for k, v in scored.items() if k != "shoulder_elevation"}
+    chosen = others or scored
+    return max(chosen, key=chosen.get) if chosen else None
