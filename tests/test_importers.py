@@ -553,3 +553,31 @@ def test_body_mismatch_said_once_for_every_caller():
         "the file's body height is 1.80 m; the patient's record says 1.75 m (segment "
         "lengths follow the height)"]
     assert body_mismatch("left", 1.75, "left", 1.80, has_lengths=True) == []
+
+
+@pytest.mark.parametrize("exercise,seed", [("elbow_flexion", 11), ("reach", 5)])
+def test_proposed_calibration_scores_like_the_true_windows(exercise, seed):
+    """The still periods proposed as poses give joint angles as close to the simulation's
+    truth as the simulator's own pose windows do."""
+    from dataclasses import replace
+
+    from armtrack.estimator.importers.poses import propose_calibration
+    from armtrack.estimator.recording.header import parse_calibration
+    from armtrack.estimator.simulation import SCORED_FROM_S
+
+    sim = simulate(SimulationConfig(rate_hz=60.0, seed=seed, exercise=exercise, repetitions=2))
+
+    def rms(recording):
+        est, _ = estimate_recording(recording)
+        got, scored = est.degrees(), est.t >= SCORED_FROM_S
+        return max(float(np.sqrt(np.mean((got[k] - np.rad2deg(np.interp(
+            est.t, sim.truth.t, sim.truth.angles[k])))[scored] ** 2)))
+            for k in ("elbow_flexion", "shoulder_flexion", "shoulder_abduction",
+                      "forearm_pronation"))
+
+    proposal = propose_calibration(sim.recording.sensors)
+    proposed = rms(replace(sim.recording, calibration=parse_calibration(proposal)))
+    true_windows = rms(sim.recording)
+    print(f"{exercise}: proposal {proposal!r}: RMS vs truth {proposed:.3f} deg "
+          f"(the simulator's windows: {true_windows:.3f} deg)")
+    assert proposed <= true_windows + 0.05
