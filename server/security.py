@@ -28,13 +28,10 @@ BASE_HEADERS = ((b"x-content-type-options", b"nosniff"),
                 (b"referrer-policy", b"no-referrer"),
                 (b"x-frame-options", b"SAMEORIGIN"))
 
-#: viser's client page (one bundle with inline module code, web workers, WebAssembly,
-#: data: fonts) in the dashboard's iframe: its own origin only, framed by our pages only.
-VIEWER_CSP = ("default-src 'self'; script-src 'self' 'unsafe-inline' 'unsafe-eval' "
-              "'wasm-unsafe-eval' blob:; worker-src 'self' blob:; style-src 'self' "
-              "'unsafe-inline'; img-src 'self' data: blob:; font-src 'self' data:; "
-              "connect-src 'self' ws: wss: data: blob:; frame-ancestors 'self'; "
-              "object-src 'none'; base-uri 'none'")
+#: Any other HTML under ``/viewer/`` (viser's page sets its own, ``web.viewer.page``):
+#: nothing runs, nothing loads.
+VIEWER_CSP = ("default-src 'none'; frame-ancestors 'self'; object-src 'none'; "
+              "base-uri 'none'; form-action 'none'")
 
 _INLINE_SCRIPT = re.compile(rb"<script(?![^>]*\bsrc=)[^>]*>(.*?)</script>", re.S)
 

@@ -1,10 +1,15 @@
 """The GUI panels of one viewer (``client.gui``): status, live plots of the joint angles
 (uPlot), the range of motion against AAOS normal values, the repetition count of the
-current exercise, and view options. Angles are shown in degrees, time in seconds."""
+current exercise, and view options. Angles are shown in degrees, time in seconds.
+
+viser's markdown renders raw HTML, so every text a user or a kit controls (the patient's
+name in the heading, status lines naming kits, processing errors) goes in as plain text
+through ``markdown_text``; only this module writes markdown syntax."""
 
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Mapping
 
 import numpy as np
@@ -30,6 +35,17 @@ BEYOND_DEG = 5.0
 
 DISCLAIMER = "*armtrack supports therapy; it is not a diagnostic device.*"
 
+_PUNCTUATION = re.compile(r"""([!"#$%&'()*+,\-./:;<=>?@\[\\\]^_`{|}~])""")
+_BREAKS = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028\u2029]+")
+
+
+def markdown_text(text: str) -> str:
+    """``text`` as markdown that shows exactly that text: every ASCII punctuation character
+    backslash-escaped (CommonMark: a literal character, so no tag, entity, emphasis,
+    link, code or math can start), line breaks and other control characters as one
+    space (no block can start)."""
+    return _PUNCTUATION.sub(r"\\\1", _BREAKS.sub(" ", str(text)))
+
 
 class Panels:
     """The panels; ``gui`` is the viewer's ``client.gui``.
@@ -47,8 +63,9 @@ class Panels:
         main.float(x=-8, y=8)
         if live:
             main.minimize()
-        self.status = gui.add_markdown(f"**{heading}**\n\nwaiting for data…\n\n{DISCLAIMER}")
-        self.heading = heading
+        self.heading = markdown_text(heading)
+        self.status = gui.add_markdown(f"**{self.heading}**\n\nwaiting for data…\n\n"
+                                       f"{DISCLAIMER}")
         self.replay_folder = gui.add_folder("Replay", expand_by_default=True)
         self.replay_folder.visible = False
         with gui.add_folder("Joint angles [deg]", expand_by_default=False):
@@ -69,7 +86,9 @@ class Panels:
             self.arcs = gui.add_checkbox("Range-of-motion arcs", initial_value=True)
 
     def show_status(self, lines: list[str]) -> None:
-        self.status.content = "\n\n".join([f"**{self.heading}**", *lines, DISCLAIMER])
+        """Plain-text ``lines`` under the heading (shown as written)."""
+        self.status.content = "\n\n".join([f"**{self.heading}**",
+                                            *map(markdown_text, lines), DISCLAIMER])
 
     def show_plot(self, t: np.ndarray, angles_deg: Mapping[str, np.ndarray]) -> None:
         """The angles [deg] at times ``t`` [s] (the last ``PLOT_WINDOW_S``)."""

@@ -9,7 +9,7 @@
   "closed"}``: whether the viewer's WebSocket is still to come, open, or over (then the
   page asks for a new grant); 404 once the grant is unknown (also after a restart).
 * ``GET /viewer/<grant>/`` — viser's client page, for a known, unexpired, unused grant;
-  else 404.
+  else 404. Served with its own strict policy (``page.viewer_csp``).
 * ``WebSocket /viewer/<grant>`` — the page's connection: it uses the grant up and is
   proxied to the loopback viser server; without a valid grant the handshake is refused
   (HTTP 403).
@@ -17,17 +17,14 @@
 
 from __future__ import annotations
 
-import gzip
-from functools import cache
-from pathlib import Path
 from typing import Literal
 
-import viser
 from armtrack.server.api.deps import Db, Therapist, own_patient, own_session
 from fastapi import APIRouter, HTTPException, Request, WebSocket, status
 from fastapi.responses import Response
 from pydantic import BaseModel, Field
 
+from .page import client_page, viewer_csp
 from .proxy import proxy
 
 router = APIRouter(tags=["viewer"])
@@ -54,13 +51,6 @@ class ViewerStateOut(BaseModel):
     state: Literal["waiting", "open", "closed"] = Field(
         description="waiting: the viewer page has not connected yet; open: it is connected; "
                     "closed: its connection is over (ask for a new grant)")
-
-
-@cache
-def client_page() -> tuple[bytes, bytes]:
-    """viser's client page (one self-contained file), plain and gzipped."""
-    page = (Path(viser.__file__).parent / "client" / "build" / "index.html").read_bytes()
-    return page, gzip.compress(page, 6)
 
 
 @router.post("/api/viewer", response_model=ViewerGrantOut)
@@ -99,7 +89,8 @@ def viewer_page(grant_id: str, request: Request) -> Response:
     plain, packed = client_page()
     zipped = "gzip" in request.headers.get("accept-encoding", "")
     headers = {"Cache-Control": "no-store", "Referrer-Policy": "no-referrer",
-               "X-Frame-Options": "SAMEORIGIN", "Vary": "Accept-Encoding"}
+               "X-Frame-Options": "SAMEORIGIN", "Vary": "Accept-Encoding",
+               "Content-Security-Policy": viewer_csp()}
     if zipped:
         headers["Content-Encoding"] = "gzip"
     return Response(packed if zipped else plain, media_type="text/html; charset=utf-8",

