@@ -101,8 +101,9 @@ class SensorTrack:
             self._grow(n)
         if nine_axis and self._mag is not None:
             self._mag.append(rows[:, 7:10].copy())
-        retimed = self._retime(rows[:, 0])
-        if retimed is not rows[:, 0]:
+        stamps = rows[:, 0]
+        retimed = self._retime(stamps)
+        if retimed is not stamps:
             rows = rows.copy()
             rows[:, 0] = retimed
         if not append(rows, nine_axis and not self.magnetometer_dropped, self._t, self._acc,
@@ -121,10 +122,23 @@ class SensorTrack:
         filter integrates each over its own interval and estimates come at distinct
         times. Causal and independent of chunking; ``t`` itself when no stamp repeats."""
         n = len(t)
-        if n == 0 or not (np.diff(t) >= 0).all():  # the filter says what is wrong
+        if n == 0:
             return t
-        if np.isnan(self._t0):
+        if self._seen == 0:
             self._t0 = float(t[0])
+        # the usual case, every stamp new: cheaply (a live stream's every message)
+        if n <= 32:  # (order is the filter's to check: here only repeats matter)
+            stamps = t.tolist()
+            fresh = stamps[0] != self._run_stamp and len(set(stamps)) == n
+        else:
+            fresh = bool(t[0] != self._run_stamp and (t[1:] > t[:-1]).all())
+        if fresh:
+            self._seen += n
+            self._run_stamp = stamps[-1] if n <= 32 else float(t[-1])
+            self._run_start = self._seen - 1
+            return t
+        if not (np.diff(t) >= 0).all():  # the filter says what is wrong
+            return t
         index = self._seen + np.arange(n)
         same = np.empty(n, dtype=bool)
         same[0] = t[0] == self._run_stamp
