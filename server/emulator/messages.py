@@ -56,12 +56,21 @@ def hello_message(recording: Recording, device: str, resume: str | None = None,
     """The ``hello`` for ``recording``: protocol 1, its side and sensors (in the
     recording's order), ``rate_hz`` [Hz] (default :func:`nominal_rate`), ``nine_axis``
     and ``resume`` (the stream id of an earlier connection, or None)."""
-    return {
+    hello = {
         "type": "hello", "protocol": PROTOCOL_VERSION, "device": device,
         "side": recording.side, "sensors": list(recording.sensors),
         "rate_hz": nominal_rate(recording) if rate_hz is None else float(rate_hz),
         "nine_axis": _nine_axis(recording), "resume": resume,
     }
+    if recording.points:  # docs/extensions/points.md
+        frame = recording.points_frame
+        assert frame is not None
+        hello["points"] = {"names": list(recording.points), "frame": frame.kind,
+                           **({"thorax_yaw_deg": frame.thorax_yaw_deg}
+                              if frame.thorax_yaw_deg is not None else {}),
+                           **({"shoulder_m": list(frame.shoulder_m)}
+                              if frame.shoulder_m is not None else {})}
+    return hello
 
 
 def _nine_axis(recording: Recording) -> bool:
@@ -112,6 +121,19 @@ class MessagePlan:
             index.append(np.full(len(start), k))
             starts.append(start)
             stops.append(stop)
+        self.total_rows = int(sum(len(t) for t in self._tables))  # IMU rows
+        # wrist points (docs/extensions/points.md): sent like samples, as ``points``
+        self.points: tuple[str, ...] = tuple(recording.points)
+        for j, points in enumerate(recording.points.values()):
+            table = np.column_stack([points.t, points.p])
+            self._tables.append(table)
+            start = np.arange(0, len(table), rows_per_message)
+            stop = np.minimum(start + rows_per_message, len(table))
+            times.append(points.t[stop - 1])
+            kinds.append(np.full(len(start), _SAMPLES))
+            index.append(np.full(len(start), len(self.sensors) + j))
+            starts.append(start)
+            stops.append(stop)
         n_marks = len(self.marks)
         times.append(np.array([m.t for m in self.marks], dtype=np.float64))
         kinds.append(np.full(n_marks, _MARK))
@@ -127,7 +149,6 @@ class MessagePlan:
         self._index = index_all[order]
         self._start = np.concatenate(starts).astype(np.int64)[order]
         self._stop = np.concatenate(stops).astype(np.int64)[order]
-        self.total_rows = int(sum(len(t) for t in self._tables))
 
     def __len__(self) -> int:
         return len(self.times)
@@ -141,7 +162,9 @@ class MessagePlan:
         return min(firsts, default=0.0)
 
     def rows(self, seq: int) -> int:
-        """The number of sample rows message ``seq`` carries (0 for a mark)."""
+        """The number of sample rows message ``seq`` carries (0 for a mark or points)."""
+        if self._kind[seq] == _MARK or self._index[seq] >= len(self.sensors):
+            return 0
         return int(self._stop[seq] - self._start[seq])
 
     def message(self, seq: int) -> dict[str, Any]:
@@ -151,6 +174,9 @@ class MessagePlan:
             return {"type": "mark", "seq": seq, "t": mark.t, "label": mark.label}
         k = int(self._index[seq])
         block = self._tables[k][self._start[seq]:self._stop[seq]]
+        if k >= len(self.sensors):
+            return {"type": "points", "seq": seq, "point": self.points[k - len(self.sensors)],
+                    "rows": block.tolist()}
         if block.shape[1] == 10:
             rows = block.tolist()
         else:  # 6-axis: the magnetometer columns are null

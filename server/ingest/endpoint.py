@@ -265,7 +265,8 @@ class IngestConnection:
                                     sensors=hello.sensors)
             self.worker = LiveWorker(config, patient_id=self.patient_id, session_id=session_id,
                                      hub=services.hub, batcher=services.live,
-                                     max_rate_hz=self.settings.live_poses_hz)
+                                     max_rate_hz=self.settings.live_poses_hz,
+                                     points_frame=hello.points.frame if hello.points else None)
         except EstimatorError as exc:  # the data are still stored; only live view is off
             log.warning("no live estimates for session %s: %s", session_id, exc)
         services.hub.publish(self.patient_id, {"kind": "session", "session_id": session_id,
@@ -280,7 +281,8 @@ class IngestConnection:
             patient_id=patient.id, device_id=self.device_id, source="stream", status="live",
             side=hello.side, height_m=patient.height_m, rate_hz=hello.rate_hz,
             sensors={s: {"nine_axis": hello.nine_axis} for s in hello.sensors},
-            meta={"device": hello.device})
+            meta={"device": hello.device,
+                  **(hello.points.as_meta() if hello.points else {})})
         db.add(session)
         db.flush()
         db.add(models.Stream(id=stream_id, session_id=session.id, device_id=self.device_id,
@@ -361,7 +363,7 @@ class IngestConnection:
         try:
             message = protocol.parse(text)
             kind = message["type"]
-            if kind in ("samples", "mark"):
+            if kind in ("samples", "mark", "points"):
                 seq = protocol.check_seq(message)
                 if seq < state.next_seq:  # a duplicate: dropped, acked again
                     self._resend_ack = True
@@ -377,6 +379,11 @@ class IngestConnection:
                         state.last_t[item.sensor] = float(item.rows[-1, 0])
                         self.received += len(item.rows)
                         self._count(item.sensor, len(item.rows), received)
+                        self.services.writer.submit(Write(state, seq, samples=item))
+                    elif kind == "points":  # docs/extensions/points.md
+                        item = protocol.check_points(message, seq, self.hello, state.last_t,
+                                                    state.t_offset)
+                        state.last_t[item.sensor] = float(item.rows[-1, 0])
                         self.services.writer.submit(Write(state, seq, samples=item))
                     else:
                         item = protocol.check_mark(message, seq, state.t_offset)
@@ -401,7 +408,7 @@ class IngestConnection:
                 raise Refused("hello was already received on this connection")
             else:
                 raise Refused(f"unknown message type {kind!r} (expected samples, mark, "
-                              "status or bye)")
+                              "points, status or bye)")
         except Refused as error:
             await self.refuse(error)
         return not self._closed

@@ -25,6 +25,9 @@ from armtrack.estimator.body import SENSOR_NAMES
 from armtrack.estimator.recording.model import LABEL_PATTERN
 from armtrack.estimator.recording.rules import LIMITS, backwards_message, beyond_range
 
+from . import points as _points
+from .points import PointsDeclaration, check_declaration
+
 PROTOCOL_VERSION = 1
 MAX_ROWS = 1000
 ROW_WIDTH = 10
@@ -57,6 +60,8 @@ class Hello:
     resume: str | None
     #: extension: continue this (interrupted or live) session of the patient in a new stream
     session: int | None = None
+    #: extension (docs/extensions/points.md): the position points the kit sends
+    points: PointsDeclaration | None = None
 
 
 # the messages' records are plain slotted classes, not frozen ones: a frozen dataclass's
@@ -212,8 +217,16 @@ def check_hello(message: dict[str, Any]) -> Hello:
     if session is not None and resume is not None:
         raise bad("give resume (the same stream) or session (a new stream in that "
                   "session), not both")
+    points = None
+    if message.get("points") is not None:
+        try:
+            points = check_declaration(message["points"])
+        except ValueError as exc:
+            raise bad(str(exc)) from None
+        if "upper_arm" not in sensors:
+            raise bad("points need an upper_arm sensor (the γ elbow uses its tilt)")
     return Hello(device, side, tuple(sensors), None if rate is None else float(rate),
-                 nine_axis, resume, session)
+                 nine_axis, resume, session, points)
 
 
 def check_seq(message: dict[str, Any]) -> int:
@@ -391,6 +404,17 @@ def _explain(data: np.ndarray, sensor: str, seq: int, nine_axis: bool) -> None:
         i = int(back[0]) + 1
         raise Refused(f"row {i}: " + backwards_message(sensor, t[i], t[i - 1]), seq)
     raise AssertionError("_explain found nothing wrong with rows plausible_rows refused")
+
+
+def check_points(message: dict[str, Any], seq: int, hello: Hello, last_t: dict[str, float],
+                 t_offset: float = 0.0) -> Samples:
+    """A ``points`` message (``docs/extensions/points.md``) as the rows of its pseudo-sensor
+    ``point:<name>`` ([t, x, y, z] and six NaN), refused whole naming ``seq``."""
+    try:
+        name, data = _points.check_points(message, hello.points, last_t, t_offset)
+    except ValueError as exc:
+        raise Refused(str(exc), seq) from None
+    return Samples(seq, name, data)
 
 
 def check_mark(message: dict[str, Any], seq: int, t_offset: float = 0.0) -> MarkMessage:

@@ -34,6 +34,7 @@ from typing import Protocol
 
 import numpy as np
 from armtrack.estimator.pipeline import PipelineConfig
+from armtrack.estimator.recording.points import PointsFrame
 
 from .. import heap
 from ..ingest.protocol import ROW_WIDTH, MarkMessage, Samples
@@ -55,6 +56,8 @@ class Opening:
     config: PipelineConfig
     session_id: int
     max_rate_hz: float
+    #: the stream's wrist points' frame (docs/extensions/points.md), or None
+    points_frame: PointsFrame | None = None
 
 
 @dataclass(frozen=True)
@@ -108,7 +111,7 @@ def run_jobs(estimators: dict[int, LiveEstimator], jobs: Sequence[Job],
         try:
             if opening is not None:
                 estimators[key] = LiveEstimator(opening.config, opening.session_id,
-                                                opening.max_rate_hz)
+                                                opening.max_rate_hz, opening.points_frame)
             estimator = estimators.get(key)
             if estimator is None:
                 outcome = LiveFailure("the live estimation process stopped (a new one "

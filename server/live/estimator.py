@@ -11,8 +11,10 @@ from armtrack.estimator.arm.forward import POINTS
 from armtrack.estimator.arm.joints import REPORTED_ANGLES, SEGMENTS
 from armtrack.estimator.pipeline import Pipeline, PipelineConfig
 from armtrack.estimator.recording import Mark
+from armtrack.estimator.recording.points import PointsFrame
 from armtrack.estimator.scalar_rotations import quat_from_rows
 
+from ..ingest.points import POINT_PREFIX
 from ..ingest.protocol import MarkMessage, Samples
 from .encoded import EncodedPose
 
@@ -93,8 +95,9 @@ class LiveEstimator:
     """One streaming session's estimation, where the estimates are computed: its
     ``Pipeline``, running range of motion, and the sensors left out for silence."""
 
-    def __init__(self, config: PipelineConfig, session_id: int, max_rate_hz: float):
-        self.pipeline = Pipeline(config)
+    def __init__(self, config: PipelineConfig, session_id: int, max_rate_hz: float,
+                 points_frame: PointsFrame | None = None):
+        self.pipeline = Pipeline(config, points_frame=points_frame)
         self.session_id = session_id
         self._min_interval = 1.0 / max_rate_hz
         self._pose_end = -np.inf
@@ -123,6 +126,10 @@ class LiveEstimator:
                 rows = item.rows
                 if item.sensor in self._dropped:
                     continue  # it came too late for the live view; it is stored all the same
+                if item.sensor.startswith(POINT_PREFIX):  # docs/extensions/points.md
+                    pipeline.feed_points(item.sensor[len(POINT_PREFIX):], rows[:, 0],
+                                         rows[:, 1:4])
+                    continue
                 first = float(rows[0, 0])
                 if first < self._first_t:
                     self._first_t = first
@@ -155,4 +162,5 @@ class LiveEstimator:
             "rom_deg": self.rom.as_dict(),
             "estimates": self.estimates,
             "warnings": list(self.warnings),
+            **({"elbow_source": pipeline.elbow_source} if pipeline.gamma is not None else {}),
         })

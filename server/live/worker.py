@@ -20,6 +20,7 @@ import logging
 import time
 
 from armtrack.estimator.pipeline import PipelineConfig
+from armtrack.estimator.recording.points import PointsFrame
 
 from ..ingest.protocol import MarkMessage, Samples
 from .estimation import Estimation, LiveFailure, Opening, Outcome, to_wire
@@ -117,14 +118,15 @@ class LiveWorker:
     (``feed``), hands them to the batcher, publishes what its estimator returns."""
 
     def __init__(self, config: PipelineConfig, *, patient_id: int, session_id: int,
-                 hub: LiveHub, batcher: LiveBatcher, max_rate_hz: float):
+                 hub: LiveHub, batcher: LiveBatcher, max_rate_hz: float,
+                 points_frame: PointsFrame | None = None):
         self.patient_id = patient_id
         self.session_id = session_id
         self.key = batcher.new_key()
         self._hub = hub
         self._batcher = batcher
         #: what makes the estimator; sent with the first batch, then None
-        self._opening: Opening | None = Opening(config, session_id, max_rate_hz)
+        self._opening: Opening | None = Opening(config, session_id, max_rate_hz, points_frame)
         self._pending: list[Samples | MarkMessage] = []
         self._received = 0.0  # monotonic time the newest pending message arrived
         self._warned = 0

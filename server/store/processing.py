@@ -13,7 +13,7 @@ import numpy as np
 from armtrack.estimator.arm.joints import SEGMENTS
 from armtrack.estimator.errors import EstimatorError
 from armtrack.estimator.orientation import DEFAULT_FILTER
-from armtrack.estimator.pipeline import Calibration, Estimates, estimate_recording
+from armtrack.estimator.pipeline import Calibration, Estimates, run_recording
 from armtrack.estimator.pipeline.quality import residual_warnings
 from armtrack.estimator.recording import Recording
 from armtrack.estimator.rotations import matrix_to_quat
@@ -67,7 +67,7 @@ def process_session(db: DbSession, session_id: int, filter_name: str = DEFAULT_F
         return
     try:
         recording = session_recording(db, session)
-        calibration, columns, blocks, warnings = compute(
+        calibration, columns, blocks, warnings, elbow = compute(
             _estimated_blocks, recording, filter_name, session_id)
     except EstimatorError as exc:
         db.execute(delete(models.EstimateBlock)
@@ -87,17 +87,21 @@ def process_session(db: DbSession, session_id: int, filter_name: str = DEFAULT_F
                   for p in recording.calibration],
         "warnings": warnings,
     }
-    session.estimator = {"version": estimator_version(), "filter": filter_name}
+    session.estimator = {"version": estimator_version(), "filter": filter_name,
+                         **({"elbow": elbow} if elbow else {})}
     session.estimate_columns = columns
     session.processing_error = None
     db.commit()
 
 
 def _estimated_blocks(recording: Recording, filter_name: str, session_id: int
-                      ) -> tuple[Calibration, list[str], list[dict], list[str]]:
+                      ) -> tuple[Calibration, list[str], list[dict], list[str], dict | None]:
     """The CPU work of ``process_session``: the estimates of ``recording`` as the
-    estimate table's columns and packed blocks, with the calibration and its warnings."""
-    estimates, calibration = estimate_recording(recording, filter_name)
+    estimate table's columns and packed blocks, with the calibration and its warnings,
+    and (a session with wrist points) what made its elbow (:func:`elbow_source`)."""
+    pipeline = run_recording(recording, filter_name)
+    estimates, calibration = pipeline.finish(), pipeline.calibration
+    assert calibration is not None
     columns, values = estimate_table(estimates)
     blocks = [{"session_id": session_id, "ordinal": i, "n_rows": len(part), "data": pack(part)}
               for i, part in enumerate(np.array_split(
@@ -105,7 +109,22 @@ def _estimated_blocks(recording: Recording, filter_name: str, session_id: int
               if len(part)]
     warnings = [w.message for w in calibration.warnings]
     warnings += [w.message for w in residual_warnings(estimates, tuple(recording.sensors))]
-    return calibration, columns, blocks, warnings
+    return calibration, columns, blocks, warnings, elbow_source(pipeline)
+
+
+def elbow_source(pipeline) -> dict[str, Any] | None:
+    """What made a session's elbow when it had wrist points (``docs/extensions/points.md``):
+    ``source`` (``points`` or ``imu``), the shares of samples whose heading was held
+    (``held_share``) and without a point (``no_point_share``), and with a forearm IMU the
+    RMS difference of the two elbow flexions (``disagreement_deg``); None without points."""
+    gamma = pipeline.gamma
+    if gamma is None or not gamma.stats.samples:
+        return None
+    stats = gamma.stats
+    return {"source": gamma.source, "held_share": round(stats.flagged_share, 4),
+            "no_point_share": round(stats.no_point / stats.samples, 4),
+            "disagreement_deg": None if stats.disagreement_rms_deg is None
+            else round(stats.disagreement_rms_deg, 3)}
 
 
 def stored_estimates(db: DbSession, session: models.Session) -> tuple[list[str], np.ndarray]:

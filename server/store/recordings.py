@@ -13,10 +13,12 @@ from armtrack.estimator.calibration.plan import poses_from_marks
 from armtrack.estimator.errors import InvalidArgument
 from armtrack.estimator.recording import Mark, Pose, Recording, SensorStream
 from armtrack.estimator.recording.model import check_metadata
+from armtrack.estimator.recording.points import POINT_NAMES, POINTS_HEADER_KEYS, PointStream
 from sqlalchemy import select
 from sqlalchemy.orm import Session as DbSession
 
 from ..db import models
+from ..ingest.points import POINT_PREFIX, frame_from_meta, frame_to_meta
 from .blocks import SAMPLE_COLUMNS, pack, unpack_many
 
 #: Mark labels that delimit calibration poses (they become the ``calibration`` header).
@@ -63,6 +65,13 @@ def sensor_rows(stream: SensorStream) -> np.ndarray:
     return np.column_stack([stream.t, stream.acc, stream.gyr, mag])
 
 
+def point_rows(points: PointStream) -> np.ndarray:
+    """A point's positions as stored rows: t, x, y, z and six NaN (n, 10)."""
+    rows = np.full((len(points), len(SAMPLE_COLUMNS)), np.nan)
+    rows[:, 0], rows[:, 1:4] = points.t, points.p
+    return rows
+
+
 def pose_marks(poses: Iterable[Pose]) -> list[Mark]:
     """Calibration poses as the marks a stream would have sent."""
     return [m for p in poses for m in (Mark(p.start, p.name), Mark(p.end, f"end:{p.name}"))]
@@ -84,11 +93,15 @@ def add_recording(db: DbSession, patient: models.Patient, recording: Recording,
         samples=sum(len(s) for s in recording.sensors.values()))
     if start is not None:
         session.started_at = start
+    if recording.points_frame is not None:  # docs/extensions/points.md
+        session.meta = {**session.meta, **frame_to_meta(recording.points_frame)}
     db.add(session)
     db.flush()
     blocks = []
-    for name, stream in recording.sensors.items():
-        rows = sensor_rows(stream)
+    tables = [(name, sensor_rows(stream)) for name, stream in recording.sensors.items()]
+    tables += [(POINT_PREFIX + name, point_rows(points))
+               for name, points in recording.points.items()]
+    for name, rows in tables:
         for ordinal, start in enumerate(range(0, len(rows), UPLOAD_BLOCK_ROWS)):
             part = rows[start:start + UPLOAD_BLOCK_ROWS]
             blocks.append({"session_id": session.id, "sensor": name, "ordinal": ordinal,
@@ -109,16 +122,18 @@ def session_recording(db: DbSession, session: models.Session) -> Recording:
     its marks delimit and its exercise marks."""
     streams = {}
     for name, info in session.sensors.items():
-        blobs = db.scalars(
-            select(models.SampleBlock.data)
-            .where(models.SampleBlock.session_id == session.id,
-                   models.SampleBlock.sensor == name)
-            .order_by(models.SampleBlock.ordinal)).all()
-        rows = unpack_many(list(blobs), len(SAMPLE_COLUMNS))
+        rows = _stored_rows(db, session.id, name)
         if not len(rows):
             continue  # named by the kit but never sent a sample
         streams[name] = SensorStream(rows[:, 0], rows[:, 1:4], rows[:, 4:7],
                                      rows[:, 7:10] if info.get("nine_axis", True) else None)
+    frame = frame_from_meta(session.meta or {})
+    points = {}
+    if frame is not None:
+        for name in POINT_NAMES:
+            rows = _stored_rows(db, session.id, POINT_PREFIX + name)
+            if len(rows):
+                points[name] = PointStream(rows[:, 0], rows[:, 1:4])
     marks = [Mark(m.t, m.label) for m in db.scalars(
         select(models.Mark).where(models.Mark.session_id == session.id)
         .order_by(models.Mark.t, models.Mark.id))]
@@ -127,7 +142,17 @@ def session_recording(db: DbSession, session: models.Session) -> Recording:
         lengths=SegmentLengths(**session.lengths) if session.lengths else None,
         calibration=tuple(poses_from_marks(m for m in marks if m.label in POSE_LABELS)),
         marks=tuple(m for m in marks if m.label not in POSE_LABELS),
-        rate_hz=session.rate_hz, metadata=header_metadata(session.meta or {}))
+        rate_hz=session.rate_hz, metadata=header_metadata(session.meta or {}),
+        points=points, points_frame=frame if points else None)
+
+
+def _stored_rows(db: DbSession, session_id: int, sensor: str) -> np.ndarray:
+    """Every stored row of one sensor (or point) of a session, in order, (n, 10)."""
+    blobs = db.scalars(
+        select(models.SampleBlock.data)
+        .where(models.SampleBlock.session_id == session_id, models.SampleBlock.sensor == sensor)
+        .order_by(models.SampleBlock.ordinal)).all()
+    return unpack_many(list(blobs), len(SAMPLE_COLUMNS))
 
 
 def header_metadata(meta: dict) -> dict[str, str]:
@@ -137,6 +162,8 @@ def header_metadata(meta: dict) -> dict[str, str]:
     out."""
     out = {}
     for key, value in meta.items():
+        if key in POINTS_HEADER_KEYS:
+            continue  # the points extension's own header (docs/extensions/points.md)
         value = " ".join(str(value).split())
         try:
             check_metadata(key, value)
