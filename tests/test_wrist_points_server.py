@@ -49,7 +49,8 @@ def test_a_streamed_session_with_wrist_points_is_shown_live_stored_and_estimated
     async def scenario():
         watcher = asyncio.create_task(watch(module_server, api.token, patient["id"], enough))
         await asyncio.sleep(0.3)
-        stats = await KitEmulator(recording, module_server.ws_url, token, speed=2.0).run()
+        # real time: the live estimation process may still be starting on a busy machine
+        stats = await KitEmulator(recording, module_server.ws_url, token, speed=1.0).run()
         return stats, await watcher
 
     stats, updates = asyncio.run(scenario())
