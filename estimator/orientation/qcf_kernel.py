@@ -376,7 +376,12 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
                     cand_turn += turn
                 if not disturbed:
                     ref_turn += turn + mag_hold_weight * dt
-                elif cand_turn >= mag_confirm_turn and cand_turn > ref_turn:
+                elif (cand_turn >= mag_confirm_turn and cand_turn > ref_turn
+                      and (abs(c_norm - ref_norm) > mag_norm_tol * ref_norm
+                           or abs(math.atan2(-cez, math.sqrt(cex * cex + cey * cey))
+                                  - ref_dip) > mag_dip_tol)):
+                    # (a candidate that is the reference, seen through the estimate's
+                    # momentary tilt errors, changes nothing)
                     # a confirmed field: the new reference, and the heading starts again
                     # from the running mean of its readings
                     ref_norm = c_norm
