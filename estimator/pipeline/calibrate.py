@@ -111,12 +111,14 @@ def calibrate(tracks: Mapping[str, SensorTrack], plan: CalibrationPlan, side: Si
         warnings.append(CalibrationWarning(
             "default-mounting", None,
             f"the {', '.join(labels[p] for p in empty)} window holds no samples of some "
-            f"sensor: the default mounting is assumed"))
+            f"sensor: the sensors are taken to sit as the kit's guide shows them; redo the "
+            f"poses with every sensor on for exact angles"))
     elif method == "default":
         warnings.append(CalibrationWarning(
             "default-mounting", None,
-            "no calibration pose: sensors are assumed in their default mounting "
-            "(spec/recording.md); angles may be off by the mounting error"))
+            "no calibration pose: the sensors are taken to sit as the kit's guide shows "
+            "them and the arm to hang straight at the start; angles may be off by how far "
+            "they do not. Start the next session with the N-pose and T-pose"))
 
     nine_axis = all(track.nine_axis and not track.magnetometer_dropped
                     for track in tracks.values())
