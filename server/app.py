@@ -19,6 +19,7 @@ from .api import (
     admin,
     auth_routes,
     clinic,
+    device,
     imports,
     lifecycle,
     live_status,
@@ -94,6 +95,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                   "armtrack supports therapy; it is not a diagnostic device.")
     app.include_router(auth_routes.router)
     app.include_router(patients.router)
+    app.include_router(device.router)
     app.include_router(sessions.router)
     app.include_router(imports.router)
     app.include_router(reports.router)

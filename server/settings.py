@@ -58,6 +58,11 @@ class Settings(BaseSettings):
     tls_key: Path | None = Field(None, description="TLS private key (PEM) for uvicorn")
     behind_proxy: bool = Field(False, description="a reverse proxy in front terminates TLS: "
                                "a non-loopback host without ARMTRACK_TLS_CERT is allowed")
+    public_url: str | None = Field(
+        None, pattern=r"^https?://[^/?#\s]+(/[^?#\s]*)?$",
+        description="the address patients' phones reach this server by, e.g. "
+        "https://rehab.example.org (the phone kit's link and QR code); phones need https "
+        "for motion sensors. Unset: the address the therapist's browser used")
     cors_origins: str = Field("", description="comma-separated origins allowed to call the "
                               "API from a browser (CORS); empty: none (closed)")
     max_upload_bytes: int = Field(200 << 20, gt=0,

@@ -29,7 +29,7 @@ RECORDING = "left_reach_50hz.csv"
 #: owned — the owner only (others 404, as if it did not exist); list — every therapist,
 #: each their own; self — acts on the caller's own account; admin — clinic admins;
 #: upload — a therapist for their patient, or a kit for its own patient; reset — only a
-#: one-time reset token; public — sign-in.
+#: one-time reset token; public — sign-in; device — a kit's own token only (its patient's).
 KINDS = {
     ("POST", "/api/auth/token"): "public",
     ("POST", "/api/auth/password"): "self",
@@ -41,6 +41,7 @@ KINDS = {
     ("POST", "/api/viewer"): "owned",  # the patient is in the body
     ("GET", "/api/programs/catalogue"): "list",
     ("GET", "/api/flags"): "list",
+    ("GET", "/api/device/today"): "device",
 }
 
 
@@ -174,6 +175,8 @@ def expected(route_kind: str, identity: str, method: str, path: str) -> set[int]
         return {422}  # no form: the sign-in itself is tested elsewhere
     if route_kind == "reset":
         return {401}  # only a reset token opens it
+    if route_kind == "device":
+        return {200} if identity == "device" else {401}  # no therapist token opens it
     if identity in EXPECTED_REFUSAL:
         if route_kind == "upload" and identity == "device":
             return {201}  # a kit uploads for its own patient

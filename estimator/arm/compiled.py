@@ -11,7 +11,7 @@ of clavicle … hand (N, 4, 3, 3), both for the arm's own side.
 
 State (float64, ``STATE_SIZE``): ``[0:3]`` last shoulder flexion, abduction, rotation ·
 ``[3]`` has a last · ``[4]`` branch · ``[5]`` last sample in the singular zone ·
-``[6:12]`` last unwrapped clavicle protraction, elevation, elbow flexion, pronation,
+``[6:12]`` last clavicle protraction, elevation, elbow flexion, pronation,
 wrist flexion, deviation · ``[12]`` have those.
 """
 
@@ -41,10 +41,8 @@ def _kernel_python(rel, side_sign, lengths, zone_sin, normal, state, angles, res
         R = rel[n, 3]
         wf, dev_neg, twist = _tait_bryan(R, 0, 2, 1, -1.0)
         others = (prot, -elev_neg, ef, pron, wf, -dev_neg)
-        for i in range(6):
+        for i in range(6):  # on the principal branch (inverse.py's docstring)
             v = others[i]
-            if state[12] != 0.0:
-                v = _continue(state[6 + i], v)
             state[6 + i] = v
             angles[n, (0, 1, 5, 6, 7, 8)[i]] = v
         state[12] = 1.0

@@ -20,7 +20,12 @@ The shoulder (``Z·X·Y``) is singular at ±90° abduction, where only
   (at the very start: the one that strays less beyond the AAOS normal ranges, the
   principal one, ``|abduction| ≤ 90°``, on a tie), so abduction goes on past 90°
   instead of flexion and rotation flipping by 180°;
-* every angle is unwrapped over time, so a motion past ±180° stays continuous.
+* the shoulder's angles are unwrapped over time, so a motion past ±180° stays
+  continuous. The clavicle's, elbow's and wrist's angles stay on the principal branch,
+  (−180°, 180°], where every motion those joints can make lies: unwrapped, they would
+  carry a whole turn picked up where their chain is singular (the middle angle at ±90°:
+  a forearm-only kit's T-pose reads as the elbow turned 90° about X, as its upper arm is
+  assumed hanging) into the rest of the session.
 
 ``shoulder_elevation`` — the angle between the upper arm's distal axis and the thorax's
 inferior axis — has no singularity and is exact throughout.
@@ -95,7 +100,6 @@ class JointAngleSolver:
     side: Side
     params: JointAngleParams = field(default_factory=JointAngleParams)
     _shoulder: _ShoulderState = field(default_factory=_ShoulderState, init=False)
-    _last: dict[str, float] = field(default_factory=dict, init=False)
 
     def __post_init__(self) -> None:
         check_side(self.side)
@@ -123,26 +127,12 @@ class JointAngleSolver:
                     residuals[joint.residual] = value
                 else:
                     angles[name] = sign * value
-        for name in ANGLE_NAMES:
-            if name.startswith("shoulder_"):
-                continue  # unwrapped by the shoulder's own continuation
-            angles[name] = self._unwrap(name, angles[name])
+        # the others stay on their principal branch (the module's docstring)
         R_thorax_humerus = R_parent_child["clavicle"] @ R_parent_child["upper_arm"]
         down = np.array([0.0, -1.0, 0.0])
         angles[ELEVATION] = angle_between(R_thorax_humerus @ down, down)
         ordered = {name: angles[name] for name in (*ANGLE_NAMES, ELEVATION)}
         return JointAngles(angles=ordered, residuals=residuals)
-
-    def _unwrap(self, name: str, values: np.ndarray) -> np.ndarray:
-        if values.size == 0:
-            return values
-        previous = self._last.get(name)
-        if previous is not None:
-            values = np.unwrap(np.concatenate(([previous], values)))[1:]
-        else:
-            values = np.unwrap(values)
-        self._last[name] = float(values[-1])
-        return values
 
 
 def joint_angles(

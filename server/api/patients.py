@@ -5,11 +5,12 @@ from __future__ import annotations
 from datetime import UTC, datetime
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, HTTPException, status
+from fastapi import APIRouter, Depends, HTTPException, Request, status
 from sqlalchemy import func, select
 
 from ..auth import new_token
 from ..db import models
+from ..kit.link import kit_url, qr_svg_data_uri, secure_enough
 from ..services import Services
 from .deps import Db, Page, Therapist, own_device, own_patient, services
 from .erase import erase_patient
@@ -103,14 +104,21 @@ def _patient_devices(db, therapist, patient_id: int) -> list[int]:
 
 @router.post("/patients/{patient_id}/devices", response_model=DeviceCreated,
              status_code=status.HTTP_201_CREATED)
-def create_device(patient_id: Id, body: DeviceIn, db: Db, therapist: Therapist) -> dict:
-    """A new sensor kit for the patient; its token is in this answer only."""
+def create_device(patient_id: Id, body: DeviceIn, db: Db, therapist: Therapist,
+                  request: Request) -> dict:
+    """A new sensor kit for the patient; its token is in this answer only, with the phone
+    kit's link (the token in its fragment) and its QR code."""
     own_patient(db, therapist, patient_id)
     token, digest = new_token("dev_")
     device = models.Device(patient_id=patient_id, name=body.name, token_hash=digest)
     db.add(device)
     db.commit()
-    return {**DeviceOut.model_validate(device).model_dump(), "token": token}
+    base = (request.app.state.services.settings.public_url
+            or str(request.base_url).rstrip("/"))
+    url = kit_url(base, token)
+    return {**DeviceOut.model_validate(device).model_dump(), "token": token,
+            "kit_url": url, "kit_qr": qr_svg_data_uri(url),
+            "kit_url_secure": secure_enough(base)}
 
 
 @router.get("/patients/{patient_id}/devices", response_model=list[DeviceOut])

@@ -74,6 +74,11 @@ class DeviceOut(BaseModel):
 
 class DeviceCreated(DeviceOut):
     token: str = Field(description="the device token; shown this once, stored hashed")
+    kit_url: str = Field(description="the phone kit's link with the token in its fragment "
+                         "(docs/extensions/kit-link.md): shown this once")
+    kit_qr: str = Field(description="a QR code of kit_url, an SVG data: URI")
+    kit_url_secure: bool = Field(description="false when phones will not get motion "
+                                 "sensors at kit_url (not https): set ARMTRACK_PUBLIC_URL")
 
 
 class SessionOut(BaseModel):
@@ -90,6 +95,11 @@ class SessionOut(BaseModel):
     samples: int
     rate_hz: float | None
     metadata: dict[str, str]
+    measured_angles: list[str] = Field(
+        description="the angles this session's kit measures (docs/extensions/"
+        "measured-angles.md); the others stay 0 by the kinematics contract")
+    assumptions: dict[str, str] = Field(
+        description="what the measured angles assume, by name (e.g. upper_arm_still)")
     processed: bool = Field(description="estimates are stored for this session")
     calibration: dict[str, Any] | None
     estimator: dict[str, Any] | None

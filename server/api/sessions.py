@@ -20,6 +20,7 @@ from ..commands.output import write_angles_csv
 from ..db import models
 from ..services import Services
 from ..store.background import ProcessingFailed
+from ..store.coverage import plain_metadata, session_coverage
 from ..store.processing import (
     mark_closed,
     stored_estimates,
@@ -42,8 +43,9 @@ def session_out(session: models.Session) -> SessionOut:
         source=session.source, status=session.status, started_at=session.started_at,
         ended_at=session.ended_at, side=session.side, sensors=list(session.sensors),
         nine_axis={k: bool(v.get("nine_axis")) for k, v in session.sensors.items()},
-        samples=session.samples, rate_hz=session.rate_hz, metadata=dict(session.meta or {}),
-        processed=bool(session.estimate_columns), calibration=session.calibration,
+        samples=session.samples, rate_hz=session.rate_hz, metadata=plain_metadata(session),
+        **session_coverage(session), processed=bool(session.estimate_columns),
+        calibration=session.calibration,
         estimator=session.estimator, processing_error=session.processing_error,
         dated=dated_by(session))
 

@@ -27,6 +27,7 @@ import time
 from collections import deque
 from typing import Any
 
+from armtrack.estimator.arm.coverage import coverage, measured_angles
 from armtrack.estimator.body import SegmentLengths
 from armtrack.estimator.errors import EstimatorError
 from armtrack.estimator.orientation import DEFAULT_FILTER
@@ -39,9 +40,11 @@ from starlette.websockets import WebSocketDisconnect, WebSocketState
 from ..auth import hash_token
 from ..db import models
 from ..live.worker import LiveWorker
+from ..programs.today import exercise_bands
 from ..services import Services
 from ..store.processing import mark_closed
 from . import protocol
+from .feedback import FEEDBACK_EXTENSION, Band, FeedbackTracker
 from .protocol import Hello, Refused
 from .writer import (
     MAX_PENDING_PER_STREAM,
@@ -106,6 +109,7 @@ class IngestConnection:
         self.ended = asyncio.Event()  # set once _end is through
         self.received = 0
         self.sensor_stats: dict[str, dict[str, Any]] = {}
+        self.feedback: FeedbackTracker | None = None
 
     # -- sending ------------------------------------------------------------------------
     async def send(self, message: dict[str, Any]) -> None:
@@ -269,10 +273,28 @@ class IngestConnection:
                                      points_frame=hello.points.frame if hello.points else None)
         except EstimatorError as exc:  # the data are still stored; only live view is off
             log.warning("no live estimates for session %s: %s", session_id, exc)
+        if FEEDBACK_EXTENSION in hello.extensions:
+            bands, marks = await services.run_db(_feedback_start, self.patient_id, session_id)
+            self.feedback = FeedbackTracker({k: Band(*v) for k, v in bands.items()},
+                                            measured_angles(hello.sensors))
+            for t, label in marks:  # a resumed stream: the exercise under way goes on
+                self.feedback.mark(t, label)
+            extra["extensions"] = [FEEDBACK_EXTENSION]
+            if self.worker is not None:
+                self.worker.on_pose = self._send_feedback
+        elif hello.extensions:
+            extra["extensions"] = []
         services.hub.publish(self.patient_id, {"kind": "session", "session_id": session_id,
                                                "status": "live"})
         return {"type": "ready", "stream": stream_id, "session": session_id,
                 "next_seq": state.next_seq, **extra}
+
+    def _send_feedback(self, pose: Any) -> None:
+        """A live pose of this stream's session: its feedback message, when one is due."""
+        assert self.feedback is not None
+        message = self.feedback.pose(pose, time.monotonic())
+        if message is not None and not self._closed:
+            asyncio.get_running_loop().create_task(self.send(message))
 
     def _create_session(self, db: DbSession, hello: Hello, stream_id: str) -> tuple[int, float]:
         patient = db.get(models.Patient, self.patient_id)
@@ -281,7 +303,7 @@ class IngestConnection:
             patient_id=patient.id, device_id=self.device_id, source="stream", status="live",
             side=hello.side, height_m=patient.height_m, rate_hz=hello.rate_hz,
             sensors={s: {"nine_axis": hello.nine_axis} for s in hello.sensors},
-            meta={"device": hello.device,
+            meta={"device": hello.device, **coverage(hello.sensors),
                   **(hello.points.as_meta() if hello.points else {})})
         db.add(session)
         db.flush()
@@ -388,6 +410,8 @@ class IngestConnection:
                     else:
                         item = protocol.check_mark(message, seq, state.t_offset)
                         self.services.writer.submit(Write(state, seq, mark=item))
+                        if self.feedback is not None:
+                            self.feedback.mark(item.t, item.label)
                 except Refused:
                     self.services.writer.submit(Write(state, seq))  # the number is used up
                     raise
@@ -458,6 +482,17 @@ class IngestConnection:
         if self.websocket.application_state != WebSocketState.DISCONNECTED:
             with contextlib.suppress(Exception):
                 await self.websocket.close(1000)
+
+
+def _feedback_start(db: DbSession, patient_id: int, session_id: int
+                    ) -> tuple[dict[str, tuple[str, float, float]], list[tuple[float, str]]]:
+    """What a stream's feedback starts from: the patient's exercise bands, and the
+    session's exercise marks stored so far (in time order)."""
+    marks = db.execute(select(models.Mark.t, models.Mark.label)
+                       .where(models.Mark.session_id == session_id,
+                              models.Mark.label.contains("exercise:"))
+                       .order_by(models.Mark.t, models.Mark.id)).all()
+    return exercise_bands(db, patient_id), [(float(t), label) for t, label in marks]
 
 
 def _interrupt_session(db: DbSession, session_id: int, stream_id: str | None = None,

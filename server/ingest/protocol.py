@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import dataclass
 from itertools import chain
 from typing import Any, Literal
@@ -29,6 +30,9 @@ from . import points as _points
 from .points import PointsDeclaration, check_declaration
 
 PROTOCOL_VERSION = 1
+#: ``hello``'s optional ``extensions``: at most this many ``name/version`` strings.
+MAX_EXTENSIONS = 16
+EXTENSION_PATTERN = re.compile(r"[a-z][a-z0-9_-]{0,39}/[1-9][0-9]{0,3}")
 MAX_ROWS = 1000
 ROW_WIDTH = 10
 
@@ -62,6 +66,9 @@ class Hello:
     session: int | None = None
     #: extension (docs/extensions/points.md): the position points the kit sends
     points: PointsDeclaration | None = None
+    #: extension (``docs/extensions/README.md``): the versioned extensions the kit speaks,
+    #: as ``name/version`` (``feedback/1``); the server answers those it speaks in ``ready``
+    extensions: tuple[str, ...] = ()
 
 
 # the messages' records are plain slotted classes, not frozen ones: a frozen dataclass's
@@ -225,8 +232,14 @@ def check_hello(message: dict[str, Any]) -> Hello:
             raise bad(str(exc)) from None
         if "upper_arm" not in sensors:
             raise bad("points need an upper_arm sensor (the γ elbow uses its tilt)")
+    extensions = message.get("extensions", [])
+    if (not isinstance(extensions, list) or len(extensions) > MAX_EXTENSIONS
+            or not all(isinstance(e, str) and EXTENSION_PATTERN.fullmatch(e)
+                       for e in extensions)):
+        raise bad(f"extensions must be a list of at most {MAX_EXTENSIONS} names "
+                  "'name/version' (like 'feedback/1')")
     return Hello(device, side, tuple(sensors), None if rate is None else float(rate),
-                 nine_axis, resume, session, points)
+                 nine_axis, resume, session, points, tuple(extensions))
 
 
 def check_seq(message: dict[str, Any]) -> int:

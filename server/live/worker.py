@@ -18,6 +18,8 @@ import contextlib
 import itertools
 import logging
 import time
+from collections.abc import Callable, Mapping
+from typing import Any
 
 from armtrack.estimator.pipeline import PipelineConfig
 from armtrack.estimator.recording.points import PointsFrame
@@ -132,6 +134,8 @@ class LiveWorker:
         self._warned = 0
         self._batch = 0  # number of the batch whose outcome was published last
         self.error: str | None = None
+        #: called with each published pose (the kit feedback extension); None: nobody
+        self.on_pose: Callable[[Mapping[str, Any]], None] | None = None
 
     def feed(self, item: Samples | MarkMessage, received: float) -> None:
         """An accepted message; ``received`` [s, ``time.monotonic``] when it arrived."""
@@ -170,3 +174,5 @@ class LiveWorker:
             self._warned = len(outcome.warnings)
             # newest sample received → published
             self._hub.publish(self.patient_id, outcome.with_field("latency_s", now - received))
+            if self.on_pose is not None:
+                self.on_pose(outcome)

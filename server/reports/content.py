@@ -50,6 +50,7 @@ from sqlalchemy.orm import Session as DbSession
 
 from ..commands.estimate import CALIBRATION_TAIL_S
 from ..db import models
+from ..store.coverage import session_coverage
 from ..store.processing import stored_estimates
 from ..store.recordings import session_recording
 from .targets import Target
@@ -227,6 +228,11 @@ class SessionInfo(BaseModel):
     ended_at: datetime | None
     kit: str | None = Field(description="the device (sensor kit) that sent the session")
     sensors: list[str]
+    measured_angles: list[str] = Field(
+        default_factory=list, description="the angles the kit measures; the report shows "
+        "only these (docs/extensions/measured-angles.md)")
+    assumptions: dict[str, str] = Field(
+        default_factory=dict, description="what the measured angles assume, by name")
     duration_s: float
 
 
@@ -278,7 +284,8 @@ def load_session(db: DbSession, session: models.Session) -> SessionData:
     device = db.get(models.Device, session.device_id) if session.device_id else None
     index = {c: i for i, c in enumerate(columns)}
     t = values[:, index["t"]]
-    angles = {k: values[:, index[k]] for k in REPORTED_ANGLES if k in index}
+    measured = set(session_coverage(session)["measured_angles"])  # the others stay 0
+    angles = {k: values[:, index[k]] for k in REPORTED_ANGLES if k in index and k in measured}
     quats = {c[:-3]: values[:, index[c]:index[c] + 4] for c in columns if c.endswith("_qw")}
     recording = session_recording(db, session)
     poses = (session.calibration or {}).get("poses") or []
@@ -473,7 +480,7 @@ def session_info(data: SessionData) -> SessionInfo:
         session_id=s.id, patient_id=s.patient_id, patient_name=data.patient.name,
         side=s.side, height_m=s.height_m, status=s.status, source=s.source,
         started_at=utc(s.started_at), ended_at=utc(s.ended_at), kit=data.kit,
-        sensors=list(s.sensors),
+        sensors=list(s.sensors), **session_coverage(s),
         duration_s=finite(float(data.t[-1] - data.t[0]) if len(data.t) > 1 else 0.0, 2))
 
 

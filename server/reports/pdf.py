@@ -57,6 +57,12 @@ def _page(title: str, report: SessionReport, page: int, pages: int) -> Figure:
     return fig
 
 
+#: Short words for the kit's assumptions (docs/extensions/measured-angles.md).
+ASSUMPTION_WORDS = {"trunk_still": "trunk upright and still",
+                    "upper_arm_still": "upper arm hanging still",
+                    "forearm_still": "forearm still"}
+
+
 def _header(fig: Figure, report: SessionReport) -> None:
     s, q = report.session, report.quality
     started = s.started_at if s.started_at.tzinfo else s.started_at.replace(tzinfo=UTC)
@@ -67,7 +73,9 @@ def _header(fig: Figure, report: SessionReport) -> None:
                     + (f", height {s.height_m:.2f} m" if s.height_m else "")),
         ("Date", started.strftime("%Y-%m-%d %H:%M UTC") + f", {s.duration_s / 60:.1f} min"),
         ("Side", f"{s.side} arm"),
-        ("Kit", f"{s.kit or '(uploaded file)'} · sensors: {', '.join(s.sensors)}"),
+        ("Kit", f"{s.kit or '(uploaded file)'} · sensors: {', '.join(s.sensors)}"
+                + (" · assumes: " + ", ".join(ASSUMPTION_WORDS.get(a, a) for a in s.assumptions)
+                   if s.assumptions else "")),
         ("Calibration", f"{cal.method or '–'}"
                         + (" (default mounting)" if cal.default_mounting else "")
                         + f"; poses: {poses}"),

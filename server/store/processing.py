@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 from armtrack.estimator.arm.joints import SEGMENTS
 from armtrack.estimator.errors import EstimatorError
+from armtrack.estimator.metrics.assumptions import assumption_warnings
 from armtrack.estimator.orientation import DEFAULT_FILTER
 from armtrack.estimator.pipeline import Calibration, Estimates, run_recording
 from armtrack.estimator.pipeline.quality import residual_warnings
@@ -21,6 +22,7 @@ from sqlalchemy import delete, select
 from sqlalchemy.orm import Session as DbSession
 from sqlalchemy.orm import sessionmaker
 
+from ..commands.estimate import CALIBRATION_TAIL_S
 from ..db import models
 from .blocks import pack, unpack_many
 from .recordings import session_recording
@@ -109,6 +111,9 @@ def _estimated_blocks(recording: Recording, filter_name: str, session_id: int
               if len(part)]
     warnings = [w.message for w in calibration.warnings]
     warnings += [w.message for w in residual_warnings(estimates, tuple(recording.sensors))]
+    warnings += assumption_warnings(estimates.t, estimates.residuals,
+                                    tuple(recording.sensors),
+                                    calibration.final_time_s + CALIBRATION_TAIL_S)
     return calibration, columns, blocks, warnings, elbow_source(pipeline)
 
 

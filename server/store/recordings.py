@@ -8,6 +8,7 @@ from collections.abc import Iterable
 from datetime import UTC, datetime, timedelta
 
 import numpy as np
+from armtrack.estimator.arm.coverage import coverage
 from armtrack.estimator.body import SegmentLengths
 from armtrack.estimator.calibration.plan import poses_from_marks
 from armtrack.estimator.errors import InvalidArgument
@@ -89,7 +90,7 @@ def add_recording(db: DbSession, patient: models.Patient, recording: Recording,
         lengths=recording.lengths.as_dict() if recording.lengths else None,
         rate_hz=recording.rate_hz,
         sensors={n: {"nine_axis": s.nine_axis} for n, s in recording.sensors.items()},
-        meta=dict(recording.metadata),
+        meta={**recording.metadata, **coverage(recording.sensors)},
         samples=sum(len(s) for s in recording.sensors.values()))
     if start is not None:
         session.started_at = start
@@ -164,6 +165,8 @@ def header_metadata(meta: dict) -> dict[str, str]:
     for key, value in meta.items():
         if key in POINTS_HEADER_KEYS:
             continue  # the points extension's own header (docs/extensions/points.md)
+        if isinstance(value, dict | list):  # the server's own notes (measured angles)
+            continue
         value = " ".join(str(value).split())
         try:
             check_metadata(key, value)

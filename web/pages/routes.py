@@ -62,6 +62,26 @@ def session(session_id: int) -> FileResponse:
     return _page("session.html")
 
 
+@router.get("/kit")
+def kit() -> FileResponse:
+    """The phone kit (``docs/phone-kit.md``): the patient's page; its device token comes
+    in the URL fragment (``/kit#token=…``), which never reaches the server."""
+    return _page("kit.html")
+
+
+@router.get("/kit.webmanifest")
+def kit_manifest() -> FileResponse:
+    return FileResponse(STATIC / "kit.webmanifest", media_type="application/manifest+json",
+                        headers={"Cache-Control": "no-cache"})
+
+
+@router.get("/kit-sw.js")
+def kit_service_worker() -> FileResponse:
+    """The kit's service worker, served from the root so that its scope covers ``/kit``."""
+    return FileResponse(STATIC / "kit-sw.js", media_type="text/javascript",
+                        headers={"Cache-Control": "no-cache"})
+
+
 @router.get("/assets/{name}")
 def asset(name: str) -> FileResponse:
     path = STATIC / name

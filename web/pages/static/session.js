@@ -114,14 +114,25 @@ function liveAnglesCard() {
     el("table", { id: "angles-table", style: "margin-top:6px" },
       el("thead", {}, el("tr", {}, el("th", {}, "Angle"), el("th", { class: "num" }, "Now"),
         el("th", {}, "Range so far vs normal"), el("th", { class: "num" }, "% normal"))),
-      el("tbody", {}, ANGLES.map((name) => el("tr", { dataset: { angle: name } },
+      el("tbody", {}, measuredAngles().map((name) => el("tr", { dataset: { angle: name } },
         el("td", { class: "name" }, ANGLE_LABELS[name]),
         el("td", { class: "now" }, "—"), el("td", { class: "bar" }), el("td", { class: "num pct" }, "")))),
     ),
     el("div", { class: "legend" }, el("span", {}, el("i", { style: "background:#d6dde5" }), "normal range (AAOS)"),
       el("span", {}, el("i", { style: "background:var(--accent)" }), "range so far"),
       el("span", {}, el("i", { style: "background:#e8590c;width:4px" }), "now"),
-      el("span", {}, "calibration poses are not counted")));
+      el("span", {}, "calibration poses are not counted")),
+    assumptionsNote());
+}
+
+// the angles this session's kit measures, and what they assume (docs/extensions/measured-angles.md)
+function measuredAngles() {
+  const measured = session && session.measured_angles;
+  return measured ? ANGLES.filter((name) => measured.includes(name)) : ANGLES;
+}
+function assumptionsNote() {
+  const assumed = Object.values((session && session.assumptions) || {});
+  return assumed.length ? el("p", { class: "muted small", id: "assumptions" }, "Assumes " + assumed.join("; ") + ".") : null;
 }
 
 function renderPose() {

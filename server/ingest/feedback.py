@@ -1,0 +1,107 @@
+"""The ``feedback`` extension of the ingest socket (``docs/extensions/kit-feedback.md``):
+for a kit that announced ``feedback/1`` in its hello, the server sends, from the live
+estimates it computes anyway, the current exercise's angle, its target band and the
+repetitions counted so far, at most ``FEEDBACK_HZ`` times a second. Display only: what is
+stored and reported comes from the stored samples, as for any kit.
+
+A repetition is counted when the exercise's angle, having been in the lower part of its
+band (below ``LOW``, or at the exercise's start), rises into the upper part (above
+``HIGH``): fractions of the band from its ``min_deg`` to its ``max_deg``, so a patient who
+stops short of the top still gets their repetitions counted past two thirds of the way.
+It is counted on the live poses (up to ``ARMTRACK_LIVE_POSES_HZ``, 30 a second): a kit
+streaming in real time gives a hundred or more per repetition.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+#: Extension name/version as a kit announces it in hello.
+FEEDBACK_EXTENSION = "feedback/1"
+#: Most feedback messages a second.
+FEEDBACK_HZ = 10.0
+#: Fractions of the band: below LOW arms a repetition, above HIGH counts it.
+LOW, HIGH = 0.35, 0.65
+
+
+@dataclass(frozen=True)
+class Band:
+    """An exercise's measuring angle and target band [deg]."""
+
+    angle: str
+    min_deg: float
+    max_deg: float
+
+
+class RepetitionCounter:
+    """Counts rises from the lower third of a band into its upper third (hysteresis)."""
+
+    def __init__(self, band: Band):
+        span = band.max_deg - band.min_deg
+        self.low = band.min_deg + LOW * span
+        self.high = band.min_deg + HIGH * span
+        self.count = 0
+        self._armed = True  # an exercise starts from rest (its instruction says so)
+
+    def update(self, value: float) -> int:
+        if value <= self.low:
+            self._armed = True
+        elif value >= self.high and self._armed:
+            self._armed = False
+            self.count += 1
+        return self.count
+
+
+class FeedbackTracker:
+    """One stream's feedback: the exercise marks as they come, the poses as they are
+    estimated; ``pose`` gives the message to send (or None while rate-limited)."""
+
+    def __init__(self, bands: Mapping[str, Band], measured: tuple[str, ...]):
+        self.bands = dict(bands)
+        self.measured = measured
+        self._marks: list[tuple[float, str]] = []  # (t, label) not yet passed by a pose
+        self.exercise: str | None = None
+        self.counter: RepetitionCounter | None = None
+        self._last_sent_t = -math.inf
+
+    def mark(self, t: float, label: str) -> None:
+        """A stream mark (stream time ``t`` [s]); it takes effect at the first pose at or
+        after ``t``."""
+        if label.startswith("exercise:") or label.startswith("end:exercise:"):
+            self._marks.append((t, label))
+
+    def _pass_marks(self, t: float) -> None:
+        while self._marks and self._marks[0][0] <= t:
+            _, label = self._marks.pop(0)
+            if label.startswith("exercise:"):
+                self.exercise = label.removeprefix("exercise:")
+                band = self.bands.get(self.exercise)
+                self.counter = RepetitionCounter(band) if band is not None else None
+            elif self.exercise is not None and label == f"end:exercise:{self.exercise}":
+                self.exercise, self.counter = None, None
+
+    def pose(self, pose: Mapping[str, Any], now: float) -> dict[str, Any] | None:
+        """The feedback message for a live ``pose`` update (``now``: monotonic [s])."""
+        t = float(pose["t"])
+        self._pass_marks(t)
+        angles = pose.get("angles_deg") or {}
+        band = self.bands.get(self.exercise) if self.exercise else None
+        value = angles.get(band.angle) if band is not None else None
+        if self.counter is not None and value is not None and math.isfinite(value):
+            self.counter.update(value)
+        if now - self._last_sent_t < 1.0 / FEEDBACK_HZ:
+            return None
+        self._last_sent_t = now
+        return {
+            "type": "feedback", "t": t, "exercise": self.exercise,
+            "angle": None if band is None else band.angle,
+            "angle_deg": value if value is not None and math.isfinite(value) else None,
+            "target": None if band is None else [band.min_deg, band.max_deg],
+            "repetitions": 0 if self.counter is None else self.counter.count,
+            "angles_deg": {k: v for k, v in angles.items() if k in self.measured
+                           and v is not None and math.isfinite(v)},
+            "warnings": list(pose.get("warnings") or ()),
+        }

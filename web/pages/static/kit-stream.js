@@ -1,0 +1,338 @@
+// armtrack phone kit: the phone's motion sensors as a 6-axis sensor streamed per the
+// stream protocol (docs: ingest protocol version 1, docs/phone-kit.md), with every message
+// kept in IndexedDB until the server acks it. No framework, no build step.
+//
+// Axes (docs/phone-kit.md): the phone is strapped screen out (away from the skin), its top
+// toward the joint above (the elbow for the forearm, the shoulder for the upper arm), on
+// the arm's outer side. The W3C device frame (x right of the screen, y toward the top,
+// z out of the screen) is then the recording's default sensor frame on that segment
+// (+Y proximal along the long axis, +Z out of the skin), so:
+//   ax, ay, az = accelerationIncludingGravity.x, .y, .z            [m/s²]
+//   gx, gy, gz = rotationRate.beta, .gamma, .alpha × π/180         [rad/s]
+// (rotationRate.alpha/beta/gamma are the rates about z/x/y).
+"use strict";
+
+const TAIL_KEY = "armtrack.kit.tail";
+
+const KitAxes = {
+  /** One DeviceMotionEvent's reading as a row's 6 numbers, or null when incomplete. */
+  row(event) {
+    const a = event.accelerationIncludingGravity, r = event.rotationRate;
+    if (!a || !r || a.x == null || a.y == null || a.z == null
+        || r.alpha == null || r.beta == null || r.gamma == null) return null;
+    const k = Math.PI / 180;
+    const values = [a.x, a.y, a.z, r.beta * k, r.gamma * k, r.alpha * k];
+    return values.every(Number.isFinite) ? values : null;
+  },
+};
+
+// -- storage: IndexedDB "armtrack-kit": "outbox" (seq → message text), "state" (key → value)
+const KitStore = {
+  db: null,
+  async open() {
+    if (this.db) return this.db;
+    this.db = await new Promise((resolve, reject) => {
+      const request = indexedDB.open("armtrack-kit", 1);
+      request.onupgradeneeded = () => {
+        const db = request.result;
+        db.createObjectStore("outbox");
+        db.createObjectStore("state");
+      };
+      request.onsuccess = () => resolve(request.result);
+      request.onerror = () => reject(request.error);
+    });
+    return this.db;
+  },
+  async tx(stores, mode, work) {
+    const db = await this.open();
+    return new Promise((resolve, reject) => {
+      const tx = db.transaction(stores, mode);
+      let result;
+      Promise.resolve(work(tx)).then((r) => { result = r; });
+      tx.oncomplete = () => resolve(result);
+      tx.onerror = () => reject(tx.error);
+      tx.onabort = () => reject(tx.error || new Error("storage transaction aborted"));
+    });
+  },
+  req(request) {
+    return new Promise((resolve, reject) => {
+      request.onsuccess = () => resolve(request.result);
+      request.onerror = () => reject(request.error);
+    });
+  },
+  async getState(key) {
+    return this.tx(["state"], "readonly", (tx) => this.req(tx.objectStore("state").get(key)));
+  },
+  async setState(key, value) {
+    return this.tx(["state"], "readwrite", (tx) => { tx.objectStore("state").put(value, key); });
+  },
+  /** Store messages [seq, text] and the state in one transaction (both or neither). */
+  async append(messages, state) {
+    return this.tx(["outbox", "state"], "readwrite", (tx) => {
+      const box = tx.objectStore("outbox");
+      for (const [seq, text] of messages) box.put(text, seq);
+      tx.objectStore("state").put(state, "stream");
+    });
+  },
+  async dropThrough(seq) {
+    return this.tx(["outbox"], "readwrite", (tx) => {
+      tx.objectStore("outbox").delete(IDBKeyRange.upperBound(seq));
+    });
+  },
+  async pending(fromSeq) {
+    return this.tx(["outbox"], "readonly", async (tx) => {
+      const store = tx.objectStore("outbox");
+      const range = IDBKeyRange.lowerBound(fromSeq);
+      const [keys, values] = await Promise.all([this.req(store.getAllKeys(range)),
+                                                this.req(store.getAll(range))]);
+      return keys.map((k, i) => [k, values[i]]);
+    });
+  },
+  async count() {
+    return this.tx(["outbox"], "readonly", (tx) => this.req(tx.objectStore("outbox").count()));
+  },
+  async clear() {
+    return this.tx(["outbox", "state"], "readwrite", (tx) => {
+      tx.objectStore("outbox").clear();
+      tx.objectStore("state").delete("stream");
+    });
+  },
+};
+
+/**
+ * One recording session of the phone: samples and marks numbered by seq, saved to the
+ * outbox before they are sent, sent over /ws/ingest, dropped once acked; reconnects with
+ * resume after a lost connection; survives a reload (the state is in IndexedDB).
+ *
+ * Times: t [s] = (performance.timeOrigin + event.timeStamp) / 1000 − the session's start
+ * (epoch seconds kept with the state), so a reload continues the same clock; a reading
+ * older than the last kept one is stamped with the last time (t never goes back).
+ */
+class KitStream {
+  constructor({ token, sensor, side, device, onChange, onFeedback, onClose }) {
+    this.token = token;
+    this.sensor = sensor;
+    this.side = side;
+    this.device = device;
+    this.onChange = onChange || (() => {});
+    this.onFeedback = onFeedback || (() => {});
+    this.onClose = onClose || (() => {});
+    this.state = null;     // {stream, session, nextSeq, startEpoch, lastT, sensor, side, acked}
+    this.rows = [];        // readings not yet in a message
+    this.ws = null;
+    this.connected = false;
+    this.unsent = 0;       // messages in the outbox (not acked)
+    this.closes = 0;       // connections lost (for the page and the tests)
+    this.samples = 0;      // readings taken this page load
+    this.ended = false;
+    this.error = null;
+    this._saving = Promise.resolve();
+    this._retry = 500;
+    this._flushTimer = null;
+    this._sent = -1;       // highest seq sent on the current connection
+    this._unsaved = new Map();  // seq → message queued, not yet in IndexedDB
+  }
+
+  /** The page is going away (reload, closed tab): what is not in IndexedDB yet — the
+   * queued messages and the readings of the last 0.1 s — goes to localStorage at once
+   * (it is synchronous); the next start takes it back. */
+  keepTail() {
+    if (!this.state || this.state.finished) return;
+    const tail = [...this._unsaved.entries()].sort((a, b) => a[0] - b[0]);
+    let seq = tail.length ? tail[tail.length - 1][0] + 1 : this.state.nextSeq;
+    for (let i = 0; i < this.rows.length; i += 1000) {
+      tail.push([seq, { type: "samples", seq, sensor: this.sensor, rows: this.rows.slice(i, i + 1000) }]);
+      seq += 1;
+    }
+    if (tail.length) localStorage.setItem(TAIL_KEY, JSON.stringify(tail));
+  }
+
+  /** The tail a page going away kept: the messages IndexedDB does not hold yet, again. */
+  _takeTail() {
+    const kept = JSON.parse(localStorage.getItem(TAIL_KEY) || "[]");
+    localStorage.removeItem(TAIL_KEY);
+    for (const [seq, message] of kept) {
+      if (seq < this.state.nextSeq) continue;  // its save completed after all
+      if (message.type === "samples" && message.rows.length) {
+        this.state.lastT = Math.max(this.state.lastT, message.rows[message.rows.length - 1][0]);
+      }
+      this._queue((n) => ({ ...message, seq: n }));
+    }
+  }
+
+  /** Start a new session, or continue the one kept on the phone. */
+  async start({ resume = false } = {}) {
+    const kept = await KitStore.getState("stream");
+    if (resume && kept && !kept.finished) {
+      this.state = kept;
+      this.sensor = kept.sensor;
+      this.side = kept.side;
+      this.ended = Boolean(kept.ended);
+      this._takeTail();
+    } else {
+      localStorage.removeItem(TAIL_KEY);
+      await KitStore.clear();
+      this.state = { stream: null, session: null, nextSeq: 0, acked: -1,
+                     startEpoch: (performance.timeOrigin + performance.now()) / 1000,
+                     lastT: 0, sensor: this.sensor, side: this.side, finished: false };
+      await KitStore.setState("stream", this.state);
+    }
+    this.unsent = await KitStore.count();
+    this._flushTimer = setInterval(() => this.flush(), 100);
+    this.connect();
+    return this.state;
+  }
+
+  /** Seconds on the session's clock of an event's time stamp [ms since timeOrigin]. */
+  time(timeStampMs) {
+    const t = (performance.timeOrigin + timeStampMs) / 1000 - this.state.startEpoch;
+    return Math.max(t, this.state.lastT);
+  }
+
+  /** A DeviceMotionEvent: its reading joins the next message. */
+  reading(event) {
+    if (!this.state || this.ended) return null;
+    const values = KitAxes.row(event);
+    if (!values) return null;
+    const t = this.time(event.timeStamp);
+    this.state.lastT = t;
+    this.rows.push([t, ...values, null, null, null]);
+    this.samples += 1;
+    return [t, ...values];
+  }
+
+  /** The session clock now [s]. */
+  now() { return this.time(performance.now()); }
+
+  /** A mark (npose, end:npose, exercise:<name>, …) at `t` [s, session clock], now by
+   * default; a mark may name a time already passed (ingest.md: sent when the clock has
+   * passed it). */
+  mark(label, t = null) {
+    if (!this.state || this.ended) return Promise.resolve();
+    this.flush();  // the readings before it go first
+    const at = t == null ? this.now() : t;
+    this.state.lastT = Math.max(this.state.lastT, at);
+    return this._queue((seq) => ({ type: "mark", seq, t: at, label }));
+  }
+
+  /** The readings so far as one samples message (at most 1000 rows each). */
+  flush() {
+    while (this.rows.length) {
+      const rows = this.rows.splice(0, 1000);
+      this._queue((seq) => ({ type: "samples", seq, sensor: this.sensor, rows }));
+    }
+    return this._saving;
+  }
+
+  _queue(make) {
+    const seq = this.state.nextSeq++;
+    const message = make(seq);
+    const text = JSON.stringify(message);
+    const state = { ...this.state };
+    this._unsaved.set(seq, message);
+    // saved before it is sent, in order; a failed save is shown and retried by the next
+    this._saving = this._saving.then(() => KitStore.append([[seq, text]], state)).then(() => {
+      this._unsaved.delete(seq);
+      this.unsent += 1;
+      if (this.connected && seq === this._sent + 1) this._send(seq, text);
+      this.onChange(this);
+    }).catch((error) => { this.error = "could not save on this phone: " + error; this.onChange(this); });
+    return this._saving;
+  }
+
+  _send(seq, text) {
+    try {
+      this.ws.send(text);
+      this._sent = seq;
+    } catch (_) { /* the close handler reconnects */ }
+  }
+
+  connect() {
+    if (this.ended || (this.ws && this.ws.readyState <= 1)) return;
+    const scheme = location.protocol === "https:" ? "wss:" : "ws:";
+    const ws = new WebSocket(`${scheme}//${location.host}/ws/ingest?token=${encodeURIComponent(this.token)}`);
+    this.ws = ws;
+    ws.onopen = () => {
+      ws.send(JSON.stringify({
+        type: "hello", protocol: 1, device: this.device, side: this.side,
+        sensors: [this.sensor], rate_hz: 60, nine_axis: false,
+        resume: this.state.stream, extensions: ["feedback/1"] }));
+    };
+    ws.onmessage = (event) => this._message(ws, JSON.parse(event.data));
+    ws.onclose = (event) => {
+      if (this.ws !== ws) return;
+      const wasConnected = this.connected;
+      this.connected = false;
+      if (wasConnected) this.closes += 1;
+      this.onClose(event);
+      this.onChange(this);
+      if (event.code === 4401) { this.error = "this link was revoked: ask your therapist for a new one"; return; }
+      if (event.code === 4400) { this.error = "the server refused the stream: " + event.reason; return; }
+      if (!this.state.finished) {
+        setTimeout(() => this.connect(), this._retry);
+        this._retry = Math.min(this._retry * 2, 5000);
+      }
+    };
+  }
+
+  async _message(ws, message) {
+    if (message.type === "ready") {
+      this.state.stream = message.stream;
+      this.state.session = message.session;
+      this._retry = 500;
+      // in the save chain: what is saved before goes out now, what is saved after follows
+      this._saving = this._saving.then(async () => {
+        await KitStore.setState("stream", { ...this.state });
+        // everything below next_seq is stored: drop it; send the rest again, in order
+        if (message.next_seq > 0) await KitStore.dropThrough(message.next_seq - 1);
+        const pending = await KitStore.pending(message.next_seq);
+        if (this.ws !== ws) return;
+        this.unsent = pending.length;
+        this._sent = message.next_seq - 1;
+        this.connected = true;
+        for (const [seq, text] of pending) this._send(seq, text);
+        this.onChange(this);
+        if (this.ended) this._byeWhenDone();
+      }).catch((error) => { this.error = "could not read this phone's storage: " + error; });
+    } else if (message.type === "ack") {
+      this.state.acked = Math.max(this.state.acked, message.seq);
+      await this._saving;
+      await KitStore.dropThrough(message.seq);
+      this.unsent = await KitStore.count();
+      this.onChange(this);
+      if (this.ended) this._byeWhenDone();
+    } else if (message.type === "error") {
+      if (message.seq == null && /resume|session/.test(message.reason || "")) {
+        this.error = message.reason;
+      }
+      // a refused message uses up its number: it is dropped with the next ack
+    } else if (message.type === "feedback") {
+      this.onFeedback(message);
+    }
+  }
+
+  /** The end of the session: everything is sent, then bye (now or once back online). */
+  async finish() {
+    this.flush();
+    await this._saving;
+    this.ended = true;
+    this.state.ended = true;  // kept: a reload sends the rest, then says bye
+    await KitStore.setState("stream", { ...this.state });
+    clearInterval(this._flushTimer);
+    this._byeWhenDone();
+    this.connect();
+  }
+
+  _byeWhenDone() {
+    if (this.connected && this.unsent === 0 && this.ws.readyState === 1) {
+      this.ws.send(JSON.stringify({ type: "bye" }));
+      this.state.finished = true;
+      KitStore.setState("stream", { ...this.state });
+      this.onChange(this);
+    }
+  }
+}
+
+window.KitAxes = KitAxes;
+window.KitStore = KitStore;
+window.KitStream = KitStream;

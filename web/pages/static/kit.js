@@ -1,0 +1,489 @@
+// armtrack phone kit: the guided home session (/kit). The phone is the sensor: strap it,
+// hold the two calibration poses, then do the day's exercises with the live angle, the
+// target band and the repetitions from the server (docs/phone-kit.md). Every text the
+// server or the page shows is set as text (textContent), never as HTML.
+"use strict";
+
+const TOKEN_KEY = "armtrack.kit.token";
+const TODAY_KEY = "armtrack.kit.today";
+const STEP_KEY = "armtrack.kit.step";
+const SEGMENT_KEY = "armtrack.kit.segment";
+const G = 9.81;
+/** Stillness: over the last STILL_S, gyroscope under STILL_GYRO [rad/s] and |a| within
+ * STILL_ACC [m/s²] of g. A calibration pose is held HOLD_S once still. */
+const STILL_S = 0.5, STILL_GYRO = 0.25, STILL_ACC = 0.8, HOLD_S = 2.5;
+
+/** Used when the server cannot be asked (offline, first start) — the catalogue's defaults. */
+const FALLBACK_EXERCISES = [
+  { name: "elbow_flexion", title: "Bend the elbow", angle: "elbow_flexion", sensor: "forearm", repetitions: 10,
+    instruction: "Arm along your side, thumb forward: bend the elbow to bring the hand up toward the shoulder, then straighten it fully.",
+    picture: "elbow_flexion", target: { min_deg: 0, max_deg: 120 } },
+  { name: "pronation", title: "Turn the palm", angle: "forearm_pronation", sensor: "forearm", repetitions: 10,
+    instruction: "Elbow bent at a right angle by your side: turn the palm down, then up, as far as is comfortable.",
+    picture: "pronation", target: { min_deg: -70, max_deg: 70 } },
+  { name: "shoulder_flexion", title: "Raise the arm forward", angle: "shoulder_elevation", sensor: "upper_arm", repetitions: 10,
+    instruction: "Arm straight, thumb up: raise it forward and up as high as is comfortable, then lower it slowly.",
+    picture: "shoulder_flexion", target: { min_deg: 0, max_deg: 150 } },
+  { name: "shoulder_abduction", title: "Raise the arm to the side", angle: "shoulder_elevation", sensor: "upper_arm", repetitions: 10,
+    instruction: "Arm straight, palm down: raise it out to the side up to shoulder height, then lower it slowly.",
+    picture: "shoulder_abduction", target: { min_deg: 0, max_deg: 90 } },
+];
+const SEGMENT_WORDS = { forearm: "forearm", upper_arm: "upper arm" };
+const TOP_TOWARD = { forearm: "your elbow", upper_arm: "your shoulder" };
+
+function el(tag, attrs, ...children) {
+  const node = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs || {})) {
+    if (k === "onclick") node.addEventListener("click", v);
+    else if (k === "class") node.className = v;
+    else node.setAttribute(k, v);
+  }
+  for (const c of children.flat()) if (c != null) node.append(c instanceof Node ? c : String(c));
+  return node;
+}
+
+const kit = {
+  token: null, today: null, sensor: null, side: "right", stream: null,
+  recent: [],            // [t, |gyro|, |acc|, ay] of the last readings (stillness, strap check)
+  lastReading: null, motionSeen: false, listening: false,
+  feedback: null, feedbackAt: 0, phase: null, exerciseIndex: 0, timers: [],
+  wakeLock: null, hiddenAt: null, gaps: [],
+};
+
+// -- speech, vibration, wake lock ----------------------------------------------------------
+function say(text) {
+  try {
+    if (!("speechSynthesis" in window)) return;
+    speechSynthesis.cancel();
+    speechSynthesis.speak(new SpeechSynthesisUtterance(text));
+  } catch (_) { /* no voice on this phone: the screen says it */ }
+}
+function buzz(pattern) { try { if (navigator.vibrate) navigator.vibrate(pattern); } catch (_) { /* none */ } }
+async function keepAwake() {
+  try {
+    if ("wakeLock" in navigator && !kit.wakeLock && document.visibilityState === "visible") {
+      kit.wakeLock = await navigator.wakeLock.request("screen");
+      kit.wakeLock.addEventListener("release", () => { kit.wakeLock = null; });
+    }
+  } catch (_) { /* refused (battery saver): the page says to keep the screen on */ }
+}
+
+// -- sensors -------------------------------------------------------------------------------
+async function askMotionPermission() {
+  const D = window.DeviceMotionEvent;
+  if (D && typeof D.requestPermission === "function") {
+    const answer = await D.requestPermission();  // iOS: only from a tap
+    if (answer !== "granted") throw new Error("motion sensors were not allowed");
+  }
+}
+
+function onMotion(event) {
+  const values = KitAxes.row(event);
+  if (!values) return;
+  kit.motionSeen = true;
+  if (kit.stream && kit.stream.state && !kit.stream.ended) kit.stream.reading(event);
+  const t = event.timeStamp / 1000;  // this page load's clock: the stillness check's
+  const [ax, ay, az, gx, gy, gz] = values;
+  kit.lastReading = values;
+  kit.recent.push([t, Math.hypot(gx, gy, gz), Math.hypot(ax, ay, az), ay]);
+  while (kit.recent.length && kit.recent[0][0] < t - 2) kit.recent.shift();
+}
+
+function listen() {
+  if (kit.listening) return;
+  kit.listening = true;
+  window.addEventListener("devicemotion", onMotion);
+}
+
+/** Whether the phone has been still for the last STILL_S (and the readings cover it). */
+function still(condition = () => true) {
+  const r = kit.recent;
+  if (r.length < 5) return false;
+  const end = r[r.length - 1][0];
+  if (end - r[0][0] < STILL_S) return false;
+  for (let i = r.length - 1; i >= 0 && r[i][0] >= end - STILL_S; i--) {
+    const [, g, a, ay] = r[i];
+    if (g > STILL_GYRO || Math.abs(a - G) > STILL_ACC || !condition(ay)) return false;
+  }
+  return true;
+}
+const hanging = (ay) => ay > 8.3;          // long axis vertical, top up (arm down)
+const horizontal = (ay) => Math.abs(ay) < 3; // long axis level (arm out to the side)
+
+// -- layout -------------------------------------------------------------------------------
+function screen(...children) {
+  for (const id of kit.timers.splice(0)) clearInterval(id);
+  const main = document.getElementById("screen");
+  main.replaceChildren(...children.flat().filter((c) => c != null));
+  main.scrollTop = 0;
+  window.scrollTo(0, 0);
+}
+function every(ms, fn) { const id = setInterval(fn, ms); kit.timers.push(id); fn(); return id; }
+function picture(name) { return el("div", { class: "picture" }, KitPictures.named(name, kit.sensor)); }
+function big(text, attrs = {}) { return el("button", { class: "big", ...attrs }, text); }
+
+function status() {
+  const bar = document.getElementById("status");
+  const s = kit.stream;
+  let text, kind;
+  if (!s || !s.state) { text = navigator.onLine ? "Ready" : "Offline"; kind = "idle"; }
+  else if (s.error) { text = s.error; kind = "bad"; }
+  else if (s.state.finished) { text = "All sent ✓"; kind = "good"; }
+  else if (s.connected) {
+    text = s.unsent > 30 ? `Sending… ${s.unsent} to go` : "Connected · sending live";
+    kind = "good";
+  } else {
+    text = "Offline · saved on this phone, will send when online";
+    kind = "warn";
+  }
+  bar.textContent = text;
+  bar.className = "status " + kind;
+  bar.dataset.connected = s && s.connected ? "yes" : "no";
+}
+
+// -- the steps ----------------------------------------------------------------------------
+function noLink() {
+  screen(el("h1", {}, "Open your link"),
+    el("p", { class: "lead" }, "This page is your arm exercise kit. Open it from the link or QR code your therapist gave you."));
+}
+
+function welcome() {
+  kit.phase = "welcome";
+  const count = kit.today.exercises.length;
+  screen(el("h1", {}, "Your arm exercises"),
+    el("p", { class: "lead" }, `Today: ${count ? [...new Set(kit.today.exercises.map((e) => e.title))].join(", ") : "your exercises"}.`),
+    el("p", {}, "Your phone measures your arm. It takes about 10 minutes. You need a strap or a sports armband for the phone."),
+    kit.today.offline ? el("p", { class: "note" }, "Offline: using the exercises saved on this phone.") : null,
+    big("Start", { id: "start", onclick: chooseSegment }));
+}
+
+function chooseSegment() {
+  kit.phase = "segment";
+  const choose = (segment) => async () => {
+    try { await askMotionPermission(); } catch (error) { return sensorProblem(String(error.message || error)); }
+    listen();
+    kit.sensor = segment;
+    localStorage.setItem(SEGMENT_KEY, segment);
+    strap();
+  };
+  const usable = (segment) => kit.today.exercises.some((e) => e.sensor === segment);
+  screen(el("h1", {}, "Where will you wear the phone?"),
+    el("div", { class: "choices" },
+      ["forearm", "upper_arm"].filter(usable).map((segment) => el("button", {
+        class: "choice", id: "segment-" + segment, onclick: choose(segment) },
+        el("div", { class: "picture small" }, KitPictures.named("segment:" + segment)),
+        el("span", {}, "On my " + SEGMENT_WORDS[segment])))));
+}
+
+function sensorProblem(reason) {
+  screen(el("h1", {}, "The phone's motion sensors"),
+    el("p", { class: "lead" }, reason),
+    el("p", {}, "Open this page in Chrome or Safari, from the https link, and allow motion sensors when asked."),
+    big("Try again", { onclick: chooseSegment }));
+}
+
+function strap() {
+  kit.phase = "strap";
+  const check = el("p", { class: "check", id: "strap-check" }, "Waiting for the phone's motion sensors…");
+  screen(el("h1", {}, `Strap the phone on your ${SEGMENT_WORDS[kit.sensor]}`),
+    picture("segment:" + kit.sensor),
+    el("ol", { class: "steps" },
+      el("li", {}, `On the outside of your ${kit.side} ${SEGMENT_WORDS[kit.sensor]}.`),
+      el("li", {}, "Screen facing out, away from your skin."),
+      el("li", {}, `The top of the phone toward ${TOP_TOWARD[kit.sensor]}.`),
+      el("li", {}, "Firm, so it does not slide.")),
+    check,
+    big("I'm ready", { id: "ready", onclick: beginSession }));
+  say(`Strap the phone on the outside of your ${SEGMENT_WORDS[kit.sensor]}, screen out, top toward ${TOP_TOWARD[kit.sensor]}.`);
+  const started = Date.now();
+  every(250, () => {
+    if (!kit.motionSeen) {
+      if (Date.now() - started > 4000) check.textContent = "No motion readings yet. Is this a phone, in Chrome or Safari, over https?";
+      return;
+    }
+    const ay = kit.lastReading[1];
+    if (ay > 8.3) { check.textContent = "✓ The phone is the right way up."; check.className = "check good"; }
+    else if (ay < -6) { check.textContent = `Turn the phone round: its top toward ${TOP_TOWARD[kit.sensor]}.`; check.className = "check warn"; }
+    else { check.textContent = "Let your arm hang by your side to check the phone."; check.className = "check"; }
+  });
+}
+
+async function beginSession() {
+  kit.stream = new KitStream({
+    token: kit.token, sensor: kit.sensor, side: kit.side, device: "phone " + (navigator.platform || "web").slice(0, 60),
+    onChange: status, onFeedback: (f) => { kit.feedback = f; kit.feedbackAt = Date.now(); },
+  });
+  await kit.stream.start();
+  await keepAwake();
+  saveStep("npose", 0);
+  calibrationPose("npose");
+}
+
+function saveStep(phase, index) {
+  kit.phase = phase;
+  kit.exerciseIndex = index;
+  localStorage.setItem(STEP_KEY, JSON.stringify({ phase, index, sensor: kit.sensor }));
+}
+
+/** N-pose, then T-pose: both held HOLD_S once still. Their marks go out together when
+ * the T-pose is done (the N-pose's in the past): until then the server has no pose and
+ * waits (kinematics.md: with no pose, calibration waits 60 s), so it never calibrates
+ * from the N-pose alone while the T-pose is being held. The T-pose must begin within
+ * 5 s of the N-pose's end (the spec's grace), else both are held again. */
+const POSES = {
+  npose: { title: "Arm down, hold still", condition: hanging,
+    text: "Stand tall, arm hanging by your side, thumb forward." },
+  tpose: { title: "Arm out to the side, hold still", condition: horizontal,
+    text: "Raise your arm straight out to the side, palm down, at shoulder height." },
+};
+const TPOSE_WITHIN_S = 4.8;
+
+function calibrationPose(name) {
+  const pose = POSES[name];
+  saveStep(name, 0);
+  const count = el("div", { class: "count", id: "count" }, "");
+  const hint = el("p", { class: "check", id: "hold" }, "Get into position…");
+  screen(el("h1", {}, pose.title), picture(name), el("p", { class: "lead" }, pose.text), count, hint);
+  say(pose.text + " Then hold still.");
+  let holdStart = null;
+  every(100, () => {
+    const s = kit.stream;
+    if (!still(pose.condition)) {
+      if (holdStart !== null) { hint.textContent = "Hold still…"; buzz(80); }
+      else hint.textContent = "Get into position…";
+      holdStart = null;
+      count.textContent = "";
+      return;
+    }
+    const now = s.now();
+    if (holdStart === null) { holdStart = now; hint.textContent = "Hold still…"; }
+    const left = HOLD_S - (now - holdStart);
+    count.textContent = String(Math.max(1, Math.ceil(left)));
+    if (left > 0) return;
+    buzz(200);
+    if (name === "npose") {
+      kit.npose = [holdStart, now];
+      say("Good.");
+      calibrationPose("tpose");
+    } else if (!kit.npose || holdStart - kit.npose[1] > TPOSE_WITHIN_S) {
+      kit.npose = null;
+      say("A little quicker: arm down again.");
+      calibrationPose("npose");
+    } else {
+      s.mark("npose", kit.npose[0]);
+      s.mark("end:npose", kit.npose[1]);
+      s.mark("tpose", holdStart);
+      s.mark("end:tpose", now);
+      say("Good.");
+      lowerArm();
+    }
+  });
+}
+
+function lowerArm() {
+  saveStep("lower", 0);
+  screen(el("h1", {}, "Lower your arm"), picture("npose"),
+    el("p", { class: "lead" }, "Let it hang by your side. Calibration is done."),
+    el("p", { class: "check", id: "hold" }, "…"));
+  say("Lower your arm.");
+  every(100, () => { if (still(hanging)) exerciseIntro(0); });
+}
+
+function exercisesForKit() {
+  return kit.today.exercises.filter((e) => e.sensor === kit.sensor);
+}
+
+function exerciseIntro(index) {
+  const list = exercisesForKit();
+  if (index >= list.length) return finished();
+  const ex = list[index];
+  saveStep("intro", index);
+  const count = el("div", { class: "count", id: "count" }, "");
+  screen(el("p", { class: "kicker" }, `Exercise ${index + 1} of ${list.length}`),
+    el("h1", {}, ex.title), picture(ex.picture),
+    el("p", { class: "lead" }, ex.instruction),
+    el("p", {}, `${ex.repetitions} times.`), count,
+    big("Start now", { id: "start-exercise", onclick: () => exercise(index) }));
+  say(`${ex.title}. ${ex.instruction} ${ex.repetitions} times.`);
+  let left = 5;
+  every(1000, () => {
+    count.textContent = String(left);
+    if (left-- <= 0) exercise(index);
+  });
+}
+
+function exercise(index, resumed = false) {
+  const list = exercisesForKit();
+  const ex = list[index];
+  if (!resumed) kit.stream.mark("exercise:" + ex.name);
+  saveStep("exercise", index);
+  kit.feedback = null;
+  const lo = ex.target.min_deg, hi = ex.target.max_deg;
+  const span = Math.max(hi - lo, 1), pad = 0.25 * span;
+  const scaleLo = lo - pad, scaleHi = hi + pad;
+  const pos = (v) => `${Math.min(100, Math.max(0, 100 * (v - scaleLo) / (scaleHi - scaleLo)))}%`;
+  const angle = el("div", { class: "angle", id: "angle" }, "—");
+  const marker = el("div", { class: "marker" });
+  const band = el("div", { class: "band" },
+    el("div", { class: "zone", style: `left:${pos(lo)};width:calc(${pos(hi)} - ${pos(lo)})` }), marker);
+  const reps = el("div", { class: "reps", id: "reps" }, `0 of ${ex.repetitions}`);
+  const note = el("p", { class: "note", id: "live-note" }, "");
+  const clock = el("div", { class: "timer", id: "timer" }, "0:00");
+  const next = big(index + 1 < list.length ? "Next exercise" : "Finish", { id: "next", class: "big secondary" });
+  screen(el("p", { class: "kicker" }, `Exercise ${index + 1} of ${list.length} · `, clock),
+    el("h1", {}, ex.title),
+    el("div", { class: "live" }, angle, el("div", { class: "target" }, `target ${Math.round(lo)}° to ${Math.round(hi)}°`)),
+    band, reps, note, next);
+  const started = Date.now();
+  let done = false, spoken = 0, base = 0, counted = 0;
+  const end = () => {
+    if (done) return;
+    done = true;
+    kit.stream.mark("end:exercise:" + ex.name);
+    exerciseIntro(index + 1);
+  };
+  next.addEventListener("click", end);
+  every(100, () => {
+    const secs = Math.floor((Date.now() - started) / 1000);
+    clock.textContent = `${Math.floor(secs / 60)}:${String(secs % 60).padStart(2, "0")}`;
+    const f = kit.feedback;
+    const fresh = f && Date.now() - kit.feedbackAt < 3000 && f.exercise === ex.name;
+    if (fresh && f.angle_deg != null) {
+      angle.textContent = `${Math.round(f.angle_deg)}°`;
+      marker.style.left = pos(f.angle_deg);
+      marker.hidden = false;
+      // a reconnect counts again from 0 (docs/extensions/kit-feedback.md): add them up
+      if (f.repetitions < counted) base += counted;
+      counted = f.repetitions;
+      const n = base + counted;
+      reps.textContent = `${n} of ${ex.repetitions}`;
+      if (n > spoken) { spoken = n; buzz(60); if (n < ex.repetitions) say(String(n)); }
+      note.textContent = f.warnings && f.warnings.length ? f.warnings[f.warnings.length - 1] : "";
+      if (n >= ex.repetitions && !done) {
+        done = true;
+        kit.stream.mark("end:exercise:" + ex.name);
+        wellDone(index);
+      }
+    } else {
+      angle.textContent = "—";
+      marker.hidden = true;
+      note.textContent = kit.stream.connected
+        ? "Measuring… (the angle shows once the phone is calibrated)"
+        : `Offline: keep going — your movements are saved on this phone (${kit.stream.unsent} messages waiting) and sent when it is back online.`;
+    }
+  });
+}
+
+function wellDone(index) {
+  saveStep("welldone", index);
+  buzz([120, 80, 120]);
+  say("Well done!");
+  screen(el("h1", { class: "welldone" }, "Well done!"),
+    el("p", { class: "lead" }, "Rest a moment. The next exercise starts in a few seconds."),
+    big("Next", { id: "next", onclick: () => exerciseIntro(index + 1) }));
+  let left = 4;
+  every(1000, () => { if (left-- <= 0) exerciseIntro(index + 1); });
+}
+
+async function finished() {
+  saveStep("finished", 0);
+  const info = el("p", { class: "lead", id: "sent" }, "Sending your session…");
+  screen(el("h1", { class: "welldone" }, "Session finished"),
+    el("p", {}, "Thank you. Your therapist will see it."), info,
+    big("Start another session", { id: "again", class: "big secondary", onclick: () => { localStorage.removeItem(STEP_KEY); welcome(); } }));
+  say("Session finished. Well done!");
+  await kit.stream.finish();
+  every(300, () => {
+    const s = kit.stream;
+    info.textContent = s.state.finished ? "All sent ✓"
+      : s.connected ? `Sending… ${s.unsent} to go`
+        : "Saved on this phone, will send when online.";
+    if (s.state.finished) { localStorage.removeItem(STEP_KEY); if (kit.wakeLock) kit.wakeLock.release(); }
+  });
+}
+
+// -- start, resume -----------------------------------------------------------------------
+async function loadToday() {
+  try {
+    const answer = await fetch("/api/device/today", { headers: { Authorization: "Bearer " + kit.token } });
+    if (answer.status === 401) return { revoked: true };
+    if (!answer.ok) throw new Error(answer.statusText);
+    const today = await answer.json();
+    localStorage.setItem(TODAY_KEY, JSON.stringify(today));
+    return today;
+  } catch (_) {
+    const kept = localStorage.getItem(TODAY_KEY);
+    return { ...(kept ? JSON.parse(kept) : { exercises: FALLBACK_EXERCISES, side: "right" }), offline: true };
+  }
+}
+
+async function resume(kept) {
+  kit.sensor = kept.sensor;
+  kit.side = kept.side;
+  const step = JSON.parse(localStorage.getItem(STEP_KEY) || "null") || { phase: "npose", index: 0 };
+  kit.stream = new KitStream({ token: kit.token, sensor: kit.sensor, side: kit.side, device: "phone",
+    onChange: status, onFeedback: (f) => { kit.feedback = f; kit.feedbackAt = Date.now(); } });
+  await kit.stream.start({ resume: true });
+  const go = async () => {
+    try { await askMotionPermission(); } catch (error) { return sensorProblem(String(error.message || error)); }
+    listen();
+    await keepAwake();
+    if (kit.stream.ended || step.phase === "finished") return finished();
+    if (step.phase === "exercise") return exercise(step.index, true);
+    if (step.phase === "intro" || step.phase === "welldone") return exerciseIntro(step.index);
+    if (step.phase === "lower") return lowerArm();
+    return calibrationPose(step.phase === "tpose" ? "tpose" : "npose");
+  };
+  const needsTap = window.DeviceMotionEvent && typeof DeviceMotionEvent.requestPermission === "function";
+  if (needsTap) {
+    screen(el("h1", {}, "Continue your session"),
+      el("p", { class: "lead" }, "Your session was interrupted. Nothing recorded is lost."),
+      big("Continue", { id: "continue", onclick: go }));
+  } else {
+    await go();
+  }
+}
+
+async function main() {
+  const fragment = new URLSearchParams(location.hash.slice(1));
+  if (fragment.get("token")) {
+    localStorage.setItem(TOKEN_KEY, fragment.get("token"));
+    history.replaceState(null, "", location.pathname);  // the token leaves the address bar
+  }
+  kit.token = localStorage.getItem(TOKEN_KEY);
+  if ("serviceWorker" in navigator) {
+    navigator.serviceWorker.register("/kit-sw.js", { scope: "/kit" }).catch(() => {});
+  }
+  window.addEventListener("pagehide", () => { if (kit.stream) kit.stream.keepTail(); });
+  window.addEventListener("online", status);
+  window.addEventListener("offline", status);
+  document.addEventListener("visibilitychange", () => {
+    if (document.visibilityState === "hidden") kit.hiddenAt = Date.now();
+    else {
+      if (kit.hiddenAt && kit.stream && kit.stream.state && !kit.stream.ended) {
+        const gap = (Date.now() - kit.hiddenAt) / 1000;
+        kit.gaps.push(gap);
+        const bar = document.getElementById("gap");
+        bar.textContent = `Paused for ${Math.round(gap)} s while the screen was off. Everything before is saved; keep the screen on during the exercises.`;
+        bar.hidden = false;
+      }
+      kit.hiddenAt = null;
+      keepAwake();
+    }
+  });
+  status();
+  if (!kit.token) return noLink();
+  const kept = await KitStore.getState("stream");
+  kit.today = await loadToday();
+  if (kit.today.revoked) {
+    return screen(el("h1", {}, "This link no longer works"),
+      el("p", { class: "lead" }, "Your therapist has replaced or removed it. Ask them for a new link."));
+  }
+  kit.side = kit.today.side || "right";
+  if (kept && !kept.finished && kept.stream !== undefined) return resume(kept);
+  welcome();
+}
+
+main().catch((error) => {
+  screen(el("h1", {}, "Something went wrong"), el("p", { class: "lead" }, String(error.message || error)));
+});
