@@ -390,11 +390,18 @@ def test_a_reload_mid_session_loses_nothing(kit_server, phone, shots):
     # the phone is reloaded between two readings: those taken so far must all arrive
     consumed = phone.evaluate("clearTimeout(window.__feed.timer), window.__feed.i")
     before = phone.evaluate("kit.stream.samples")
+    shown = (phone.locator("#reps").inner_text(), phone.locator("#timer").inner_text())
     phone.reload()  # readings not yet acked are in IndexedDB; the page resumes
     # a phone asks again for the motion sensors after a reload: one tap
     phone.click("#continue")
     sync_api.expect(phone.locator("#reps")).to_be_visible(timeout=20_000)
     phone.screenshot(path=str(shots / "b3-after-reload.png"))
+    # the exercise goes on where it was: its repetitions and its clock
+    def seconds(text: str) -> int:
+        minutes, secs = text.split(":")
+        return 60 * int(minutes) + int(secs)
+    assert int(phone.locator("#reps").inner_text().split()[0]) >= int(shown[0].split()[0])
+    assert seconds(phone.locator("#timer").inner_text()) >= seconds(shown[1])
     rest = events[consumed:consumed + 600]  # 10 s more
     phone.evaluate(FEEDER, rest)
     _wait(lambda: phone.evaluate("window.__feed.i >= window.__feed.rows.length"), 60,

@@ -219,10 +219,10 @@ async function beginSession() {
   calibrationPose("npose");
 }
 
-function saveStep(phase, index) {
+function saveStep(phase, index, extra = {}) {
   kit.phase = phase;
   kit.exerciseIndex = index;
-  localStorage.setItem(STEP_KEY, JSON.stringify({ phase, index, sensor: kit.sensor }));
+  localStorage.setItem(STEP_KEY, JSON.stringify({ phase, index, sensor: kit.sensor, ...extra }));
 }
 
 /** N-pose, then T-pose: both held HOLD_S once still. Their marks go out together when
@@ -315,8 +315,11 @@ function exerciseIntro(index) {
 function exercise(index, resumed = false) {
   const list = exercisesForKit();
   const ex = list[index];
+  // after a reload the exercise goes on: its clock and the repetitions shown so far
+  const kept = resumed ? JSON.parse(localStorage.getItem(STEP_KEY) || "{}") : {};
   if (!resumed) kit.stream.mark("exercise:" + ex.name);
-  saveStep("exercise", index);
+  const started = kept.started || Date.now();
+  saveStep("exercise", index, { started, reps: kept.reps || 0 });
   kit.feedback = null;
   const lo = ex.target.min_deg, hi = ex.target.max_deg;
   const span = Math.max(hi - lo, 1), pad = 0.25 * span;
@@ -326,7 +329,7 @@ function exercise(index, resumed = false) {
   const marker = el("div", { class: "marker" });
   const band = el("div", { class: "band" },
     el("div", { class: "zone", style: `left:${pos(lo)};width:calc(${pos(hi)} - ${pos(lo)})` }), marker);
-  const reps = el("div", { class: "reps", id: "reps" }, `0 of ${ex.repetitions}`);
+  const reps = el("div", { class: "reps", id: "reps" }, `${kept.reps || 0} of ${ex.repetitions}`);
   const note = el("p", { class: "note", id: "live-note" }, "");
   const clock = el("div", { class: "timer", id: "timer" }, "0:00");
   const next = big(index + 1 < list.length ? "Next exercise" : "Finish", { id: "next", class: "big secondary" });
@@ -334,8 +337,7 @@ function exercise(index, resumed = false) {
     el("h1", {}, ex.title),
     el("div", { class: "live" }, angle, el("div", { class: "target" }, `target ${Math.round(lo)}° to ${Math.round(hi)}°`)),
     band, reps, note, next);
-  const started = Date.now();
-  let done = false, spoken = 0, base = 0, counted = 0;
+  let done = false, spoken = kept.reps || 0, base = kept.reps || 0, counted = 0;
   const end = () => {
     if (done) return;
     done = true;
@@ -357,7 +359,12 @@ function exercise(index, resumed = false) {
       counted = f.repetitions;
       const n = base + counted;
       reps.textContent = `${n} of ${ex.repetitions}`;
-      if (n > spoken) { spoken = n; buzz(60); if (n < ex.repetitions) say(String(n)); }
+      if (n > spoken) {
+        spoken = n;
+        buzz(60);
+        if (n < ex.repetitions) say(String(n));
+        saveStep("exercise", index, { started, reps: n });
+      }
       note.textContent = f.warnings && f.warnings.length ? f.warnings[f.warnings.length - 1] : "";
       if (n >= ex.repetitions && !done) {
         done = true;
@@ -368,7 +375,7 @@ function exercise(index, resumed = false) {
       angle.textContent = "—";
       marker.hidden = true;
       note.textContent = kit.stream.connected
-        ? "Measuring… (the angle shows once the phone is calibrated)"
+        ? "Measuring… (the angle shows once the server has estimated it)"
         : `Offline: keep going — your movements are saved on this phone (${kit.stream.unsent} messages waiting) and sent when it is back online.`;
     }
   });
