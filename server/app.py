@@ -12,6 +12,7 @@ from contextlib import asynccontextmanager
 from armtrack.web.pages import routes as pages
 from armtrack.web.viewer import routes as viewer_routes
 from fastapi import FastAPI
+from fastapi.exceptions import RequestValidationError
 from fastapi.middleware.cors import CORSMiddleware
 
 from . import heap
@@ -33,6 +34,7 @@ from .api.erase import erase_expired
 from .audit import AuditMiddleware
 from .ingest import endpoint
 from .live import endpoint as live_endpoint
+from .plain_text import validation_error
 from .security import BodyLimit, SecurityHeaders
 from .services import Services
 from .settings import Settings
@@ -93,6 +95,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                   description="Remote arm rehabilitation: IMU streams in (`/ws/ingest`, "
                   "spec/ingest.md), joint angles, sessions and reports out (spec/api.md). "
                   "armtrack supports therapy; it is not a diagnostic device.")
+    app.add_exception_handler(RequestValidationError, validation_error)
     app.include_router(auth_routes.router)
     app.include_router(patients.router)
     app.include_router(device.router)

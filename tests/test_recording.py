@@ -24,6 +24,7 @@ from armtrack.estimator.recording import (
     read_recording,
     write_recording,
 )
+from armtrack.estimator.recording.rules import STEP_LIMIT_S, T_LIMIT_S
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
@@ -47,17 +48,18 @@ def component(bound: float) -> st.SearchStrategy[float]:
 
 # Per-component bounds keep every 3-vector within the physical range (bound·√3 < limit).
 BOUNDS = {"acc": 92.0, "gyr": 20.0, "mag": 2886.0}
-times = st.one_of(
-    st.floats(allow_nan=False, allow_infinity=False, allow_subnormal=True),
-    st.sampled_from([0.0, 0.01, 0.02, 1.5]),  # ties, within and across sensors
-    st.integers(0, 2**64 - 1).map(_from_bits).filter(math.isfinite),
-)
+# Times within the bounds of docs/extensions/time-bounds.md: a start anywhere (so far that
+# n steps stay inside), then steps of 0 (ties) up to half the longest step allowed.
+starts = st.one_of(component(T_LIMIT_S - 12 * STEP_LIMIT_S),
+                   st.sampled_from([0.0, 0.01, 0.02, 1.5]))  # ties across sensors
+steps = st.one_of(st.sampled_from([0.0, 0.01]), component(STEP_LIMIT_S / 2).map(abs))
 
 
 @st.composite
 def streams(draw, n_max: int = 12) -> SensorStream:
     n = draw(st.integers(1, n_max))
-    t = np.sort(draw(arrays(np.float64, n, elements=times)))
+    t = draw(starts) + np.concatenate(([0.0], np.cumsum(
+        draw(arrays(np.float64, n - 1, elements=steps)))))
     acc = draw(arrays(np.float64, (n, 3), elements=component(BOUNDS["acc"])))
     gyr = draw(arrays(np.float64, (n, 3), elements=component(BOUNDS["gyr"])))
     mag = draw(st.none() | arrays(np.float64, (n, 3), elements=component(BOUNDS["mag"])))

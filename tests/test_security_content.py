@@ -202,3 +202,29 @@ def test_hostile_texts_are_shown_as_text_and_run_nothing(srv, hostile, browser, 
         assert any("198.51.100.7" in v and "connect" in v for v in violations)
     finally:
         page.close()
+
+
+def test_a_name_with_dollars_is_text_in_the_pdf(srv, tmp_path):
+    """matplotlib read "$…$" in a patient's name as a formula: a broken one failed the PDF."""
+    from armtrack.estimator.recording import format_recording
+    from armtrack.estimator.simulation import SimulationConfig, simulate
+
+    api = srv.client("alice")
+    name = "Ann $\\frac{1}{$ Lee $x$"
+    patient = api.patient(name=name)
+    recording = simulate(SimulationConfig(exercise="elbow_flexion", seed=3,
+                                          repetitions=2)).recording
+    answer = api.http.post("/api/recordings", data={"patient_id": str(patient["id"])},
+                           files={"file": ("dollars.csv", format_recording(recording))})
+    assert answer.status_code == 201, answer.text
+    pdf = api.http.get(f"/api/sessions/{answer.json()['id']}/report.pdf")
+    assert pdf.status_code == 200, pdf.text[:300]
+    if shutil.which("pdftotext") is None:
+        pytest.skip("needs poppler-utils' pdftotext to read the PDF back")
+    path = tmp_path / "report.pdf"
+    path.write_bytes(pdf.content)
+    import subprocess
+
+    text = subprocess.run(["pdftotext", str(path), "-"], capture_output=True, text=True,
+                          check=True).stdout
+    assert name in text, text[:500]

@@ -24,6 +24,7 @@ import numpy as np
 from ..body import SENSOR_NAMES, SIDES, SegmentLengths
 from ..errors import InvalidArgument, InvalidShape
 from .points import POINT_NAMES, POINTS_HEADER_KEYS, PointsFrame, PointStream
+from .rules import T_LIMIT_S, time_beyond_message
 
 #: The format versions this code reads and writes: 1, and 2 = 1 with the points extension
 #: (``docs/extensions/points.md``), written only for a recording that has a points frame.
@@ -82,6 +83,8 @@ class Pose:
             value = getattr(self, what)
             if not _is_finite(value):
                 raise InvalidArgument(f"{self.name} {what} must be a finite time, got {value!r}")
+            if abs(float(value)) > T_LIMIT_S:
+                raise InvalidArgument(time_beyond_message(f"{self.name} {what}", value))
             object.__setattr__(self, what, float(value))
         if not self.start < self.end:
             raise InvalidArgument(
@@ -100,6 +103,8 @@ class Mark:
     def __post_init__(self) -> None:
         if not _is_finite(self.t):
             raise InvalidArgument(f"mark time must be finite, got {self.t!r}")
+        if abs(float(self.t)) > T_LIMIT_S:
+            raise InvalidArgument(time_beyond_message("mark time", self.t))
         object.__setattr__(self, "t", float(self.t))
         if not isinstance(self.label, str) or not LABEL_PATTERN.fullmatch(self.label):
             raise InvalidArgument(

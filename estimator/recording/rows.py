@@ -11,7 +11,9 @@ Rules, checked in this order within a row:
    finite plain decimals;
 6. the norms of a, g and m are within the physical range (``rules.LIMITS``);
 7. a sensor is 6-axis in every row or 9-axis in every row;
-8. ``t`` does not go backwards for the row's sensor.
+8. ``t`` does not go backwards for the row's sensor;
+9. ``|t| ≤ T_LIMIT_S`` and ``t`` is at most ``STEP_LIMIT_S`` after the sensor's previous
+   ``t`` (``docs/extensions/time-bounds.md``).
 """
 
 from __future__ import annotations
@@ -26,11 +28,15 @@ from .model import SensorStream
 from .rules import (
     COLUMN_LINE,
     NUMERIC,
+    STEP_LIMIT_S,
+    T_LIMIT_S,
     backwards_message,
     beyond_range,
     decode_line,
     parse_number,
     range_message,
+    step_beyond_message,
+    time_beyond_message,
 )
 
 _SENSOR_INDEX = {name: k for k, name in enumerate(SENSOR_NAMES)}
@@ -105,6 +111,10 @@ class RowChecker:
         last = self._last_t.get(sensor)
         if last is not None and t < last:
             raise InvalidRecording(backwards_message(sensor, t, last), line)
+        if abs(t) > T_LIMIT_S:
+            raise InvalidRecording(time_beyond_message("t", t), line)
+        if last is not None and t - last > STEP_LIMIT_S:
+            raise InvalidRecording(step_beyond_message(sensor, t, last), line)
         self._last_t[sensor] = t
         return _SENSOR_INDEX[sensor], values
 
@@ -151,7 +161,10 @@ def first_bad_row(rows: Rows) -> int | None:
         if idx.size:
             bad[idx] |= every[idx] != every[idx[0]]
             t = values[0, idx]
-            bad[idx[1:]] |= t[1:] < t[:-1]
+            with np.errstate(over="ignore", invalid="ignore"):
+                bad[idx[1:]] |= (t[1:] < t[:-1]) | (t[1:] - t[:-1] > STEP_LIMIT_S)
+    with np.errstate(invalid="ignore"):
+        bad |= np.abs(values[0]) > T_LIMIT_S
     flagged = np.flatnonzero(bad)
     return int(flagged[0]) if flagged.size else None
 

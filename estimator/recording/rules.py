@@ -33,6 +33,26 @@ LIMITS: dict[str, tuple[str, float, str]] = {
 
 UTF8_BOM = b"\xef\xbb\xbf"
 
+#: Time bounds (``docs/extensions/time-bounds.md``), the same for recording files and
+#: streams: a sample's, mark's or pose's time ``t`` [s] is within ±``T_LIMIT_S`` (any
+#: uptime or Unix-epoch clock), and a sensor's sample comes at most ``STEP_LIMIT_S`` [s]
+#: after that sensor's previous one (a day: far beyond a session's pause, far below what
+#: breaks durations, rates and reports).
+T_LIMIT_S = 1e10
+STEP_LIMIT_S = 86_400.0
+
+
+def time_beyond_message(what: str, t: float) -> str:
+    return (f"{what} = {float(t)!r} s is beyond the time bounds (|t| ≤ {T_LIMIT_S:g} s, "
+            "docs/extensions/time-bounds.md)")
+
+
+def step_beyond_message(sensor: str, t: float, previous: float) -> str:
+    return (f"t = {float(t)!r} s of sensor {sensor} comes {float(t) - float(previous):.6g} s "
+            f"after its previous sample ({float(previous)!r} s): at most {STEP_LIMIT_S:g} s "
+            "after (docs/extensions/time-bounds.md; a kit that stopped for longer starts a "
+            "new session)")
+
 
 def parse_number(text: str, what: str, line: int | None) -> float:
     """The finite float64 a plain decimal ``text`` stands for; refuses anything else."""

@@ -16,6 +16,7 @@ from sqlalchemy.orm import Session as DbSession
 from .. import audit
 from ..auth import hash_password, new_token
 from ..db import models
+from ..plain_text import Line, Secret
 from ..services import Services
 from .auth_routes import MIN_PASSWORD
 from .deps import Admin, Db, Page, services
@@ -39,10 +40,10 @@ class TherapistOut(BaseModel):
 
 class TherapistIn(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    username: str = Field(min_length=1, max_length=128, pattern=r"^[^\s]+$")
-    password: str = Field(min_length=MIN_PASSWORD, max_length=1000)
+    username: Line = Field(min_length=1, max_length=128, pattern=r"^[^\s]+$")
+    password: Secret = Field(min_length=MIN_PASSWORD, max_length=1000)
     is_admin: bool = False
-    full_name: str | None = Field(None, max_length=200, description="as reports print it")
+    full_name: Line | None = Field(None, max_length=200, description="as reports print it")
 
 
 class ResetOut(BaseModel):

@@ -16,6 +16,7 @@ from sqlalchemy import delete, select
 
 from ..auth import hash_password, hash_token, new_token, verify_password
 from ..db import models
+from ..plain_text import Secret
 from ..security import LoginLimiter, login_keys
 from ..services import Services
 from .deps import DEMO_USER, Db, Therapist, aware_utc, oauth2, services, unauthorized
@@ -29,13 +30,13 @@ WRONG = "wrong user name or password"
 
 class PasswordChange(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    old_password: str = Field(max_length=1000)
-    new_password: str = Field(min_length=MIN_PASSWORD, max_length=1000)
+    old_password: Secret = Field(max_length=1000)
+    new_password: Secret = Field(min_length=MIN_PASSWORD, max_length=1000)
 
 
 class PasswordReset(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    new_password: str = Field(min_length=MIN_PASSWORD, max_length=1000)
+    new_password: Secret = Field(min_length=MIN_PASSWORD, max_length=1000)
 
 
 def limiter(request: Request) -> LoginLimiter:

@@ -9,6 +9,8 @@ from armtrack.estimator.body import HEIGHT_RANGE_M
 from fastapi import Path, Query
 from pydantic import BaseModel, ConfigDict, Field
 
+from ..plain_text import Line
+
 #: Row ids fit a 32-bit integer on every database the server runs on; a path or query id
 #: beyond that is refused (422) before it reaches the database (SQLite raised
 #: OverflowError on it: a 500).
@@ -25,7 +27,7 @@ class TokenOut(BaseModel):
 
 class PatientIn(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    name: str = Field(min_length=1, max_length=200)
+    name: Line = Field(min_length=1, max_length=200)
     side: Literal["right", "left"] = Field(description="the arm followed")
     height_m: float = Field(ge=HEIGHT_RANGE_M[0], le=HEIGHT_RANGE_M[1],
                             description="body height [m], for segment lengths")
@@ -60,7 +62,7 @@ class PatientOut(BaseModel):
 
 class DeviceIn(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    name: str = Field(min_length=1, max_length=200)
+    name: Line = Field(min_length=1, max_length=200)
 
 
 class DeviceOut(BaseModel):

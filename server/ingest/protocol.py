@@ -24,7 +24,17 @@ import numpy as np
 import orjson
 from armtrack.estimator.body import SENSOR_NAMES
 from armtrack.estimator.recording.model import LABEL_PATTERN
-from armtrack.estimator.recording.rules import LIMITS, backwards_message, beyond_range
+from armtrack.estimator.recording.rules import (
+    LIMITS,
+    STEP_LIMIT_S,
+    T_LIMIT_S,
+    backwards_message,
+    beyond_range,
+    step_beyond_message,
+    time_beyond_message,
+)
+
+from ..plain_text import text_problem
 
 from . import points as _points
 from .points import PointsDeclaration, check_declaration
@@ -197,6 +207,9 @@ def check_hello(message: dict[str, Any]) -> Hello:
     device = message.get("device")
     if not isinstance(device, str) or not 0 < len(device) <= 200:
         raise bad("device must be a name of 1 to 200 characters")
+    problem = text_problem(device)
+    if problem:
+        raise bad(f"device must be valid text: {problem}")
     side = message.get("side")
     if side not in ("right", "left"):
         raise bad(f"side must be 'right' or 'left', got {side!r}")
@@ -216,7 +229,8 @@ def check_hello(message: dict[str, Any]) -> Hello:
     if not isinstance(nine_axis, bool):
         raise bad(f"nine_axis must be true or false, got {nine_axis!r}")
     resume = message.get("resume")
-    if resume is not None and (not isinstance(resume, str) or not 0 < len(resume) <= 40):
+    if resume is not None and (not isinstance(resume, str) or not 0 < len(resume) <= 40
+                               or text_problem(resume)):
         raise bad("resume must be null or the stream id of an earlier connection")
     session = message.get("session")
     if session is not None and not (_is_int(session) and 0 < session < 2**31):
@@ -279,7 +293,24 @@ def check_samples(message: dict[str, Any], seq: int, hello: Hello,
                       + ": the clock went back; a kit whose clock restarted starts a new "
                       "stream in this session (hello with resume null and session = its id)",
                       seq)
+    _check_time_bounds(t, sensor, previous, seq)
     return Samples(seq, sensor, data)
+
+
+def _check_time_bounds(t: np.ndarray, sensor: str, previous: float | None, seq: int) -> None:
+    """``docs/extensions/time-bounds.md``: ``|t| ≤ T_LIMIT_S``, and each ``t`` at most
+    ``STEP_LIMIT_S`` after the sensor's previous one (rows already non-decreasing)."""
+    if t[0] < -T_LIMIT_S or t[-1] > T_LIMIT_S:
+        row = int(np.argmax(np.abs(t) > T_LIMIT_S))
+        raise Refused(f"row {row}: " + time_beyond_message("t", t[row]), seq)
+    if previous is not None and t[0] - previous > STEP_LIMIT_S:
+        raise Refused("row 0: " + step_beyond_message(sensor, t[0], previous), seq)
+    if t.size > 1 and t[-1] - t[0] > STEP_LIMIT_S:
+        steps = np.diff(t)
+        if (steps > STEP_LIMIT_S).any():
+            row = int(np.argmax(steps > STEP_LIMIT_S)) + 1
+            raise Refused(f"row {row}: " + step_beyond_message(sensor, t[row], t[row - 1]),
+                          seq)
 
 
 _NUMBER_TYPES = frozenset((float, int, type(None)))
@@ -439,8 +470,8 @@ def check_mark(message: dict[str, Any], seq: int, t_offset: float = 0.0) -> Mark
         raise Refused(f"mark: label must be npose, tpose, exercise:<name> or end:<label>, "
                       f"got {label!r}", seq)
     t = float(t) + t_offset if t_offset else float(t)
-    if not math.isfinite(t):
-        raise Refused("mark: t is too large", seq)
+    if not abs(t) <= T_LIMIT_S:
+        raise Refused("mark: " + time_beyond_message("t", t), seq)
     return MarkMessage(seq, t, label)
 
 

@@ -15,11 +15,18 @@ from __future__ import annotations
 import io
 from datetime import UTC
 
+import matplotlib
 import numpy as np
 from matplotlib.backends.backend_pdf import PdfPages
 from matplotlib.figure import Figure
 
 from .content import SessionData, SessionReport
+
+# Names and notes are a user's text: "$…$" in a patient's name is no formula (mathtext made
+# such a name fail the whole PDF, issue 17). Set once for the process, not per call with
+# rc_context (reports are drawn on several threads; rcParams are global). The reports
+# use no mathtext.
+matplotlib.rcParams["text.parse_math"] = False
 
 A4 = (8.27, 11.69)
 #: Rows of the repetitions table that fit on page 3.

@@ -21,6 +21,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session as DbSession
 
 from ..db import models
+from ..plain_text import Note
 
 #: Angles can be set within this [deg].
 LIMIT_DEG = 180.0
@@ -32,7 +33,7 @@ class TargetIn(BaseModel):
     model_config = ConfigDict(extra="forbid")
     min_deg: float = Field(ge=-LIMIT_DEG, le=LIMIT_DEG, allow_inf_nan=False)
     max_deg: float = Field(ge=-LIMIT_DEG, le=LIMIT_DEG, allow_inf_nan=False)
-    note: str | None = Field(None, max_length=500)
+    note: Note | None = Field(None, max_length=500)
 
     @model_validator(mode="after")
     def _ordered(self) -> TargetIn:

@@ -1,0 +1,80 @@
+"""What the server takes as text from users and kits: names, notes, a kit's device name.
+
+Text must be valid Unicode that UTF-8 can hold (JSON's ``\\ud800`` escape gives a lone
+surrogate, which every later encoding — SQLite, PostgreSQL, CSV, PDF, a JSON answer —
+refuses: the routes that showed it answered 500 for good) and holds no control character
+(U+0000–U+001F, U+007F–U+009F: PostgreSQL refuses NUL, and the others only break lines of
+logs, CSV files and pages); a note may hold line breaks and tabs. Refused where it comes
+in, with the field named: 422 in REST, an ``error`` (close 4400) for a ``hello``.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Annotated
+
+from fastapi.encoders import jsonable_encoder
+from fastapi.responses import JSONResponse
+from pydantic import AfterValidator
+
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
+_CONTROL_BUT_LINES = re.compile(r"[\x00-\x08\x0b-\x1f\x7f-\x9f]")
+
+
+def text_problem(text: str, *, lines: bool = False) -> str | None:
+    """Why ``text`` is not acceptable text (words to follow "must be valid text: "), or
+    None. ``lines``: line breaks and tabs are allowed (notes)."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError as exc:
+        return (f"character {exc.start} is a lone surrogate (U+{ord(text[exc.start]):04X}), "
+                "which is no character")
+    found = (_CONTROL_BUT_LINES if lines else _CONTROL).search(text)
+    if found:
+        return f"character {found.start()} is a control character (U+{ord(found[0]):04X})"
+    return None
+
+
+def _check(lines: bool):
+    def check(text: str) -> str:
+        problem = text_problem(text, lines=lines)
+        if problem:
+            raise ValueError(f"must be valid text: {problem}")
+        return text
+    return check
+
+
+def _check_secret(text: str) -> str:
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        raise ValueError("must be valid text: it holds a lone surrogate, which is no "
+                         "character") from None
+    return text
+
+
+#: A name or other one-line text (no control characters).
+Line = Annotated[str, AfterValidator(_check(lines=False))]
+#: A note: line breaks and tabs allowed.
+Note = Annotated[str, AfterValidator(_check(lines=True))]
+#: A password: anything UTF-8 can hold.
+Secret = Annotated[str, AfterValidator(_check_secret)]
+
+
+def printable(value):
+    """``value`` (JSON-like: dicts, lists, strings, numbers) with every lone surrogate
+    replaced by U+FFFD, so that it can be encoded (an error that echoes a client's input)."""
+    if isinstance(value, str):
+        return value.encode("utf-16", "surrogatepass").decode("utf-16", "replace")
+    if isinstance(value, dict):
+        return {printable(k): printable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [printable(v) for v in value]
+    return value
+
+
+async def validation_error(request, exc) -> JSONResponse:
+    """FastAPI's 422 answer, with the echoed input made encodable: a lone surrogate in a
+    body made the answer itself fail (a 500 instead of the 422 naming the field)."""
+    return JSONResponse(status_code=422,
+                        content={"detail": printable(jsonable_encoder(exc.errors()))})
