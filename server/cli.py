@@ -26,7 +26,7 @@ from armtrack.estimator.errors import EstimatorError
 #: The sub-commands, in the order ``armtrack --help`` lists them; ``create-user`` is the
 #: module ``commands/create_user.py``.
 COMMANDS = ("pose", "check", "simulate", "estimate", "orient", "stream", "serve", "demo",
-            "create-user", "import", "reprocess")
+            "create-user", "import", "reprocess", "backup")
 #: Commands whose module is not their name (``import`` is a Python keyword).
 COMMAND_MODULES = {"import": "import_files"}
 

@@ -20,18 +20,18 @@ NAMES = ["abduction_120", "elbow_6axis", "elbow_6axis_long", "elbow_flexion", "l
 POSITION_TOLERANCE_M = 1e-5
 
 
-def read_truth(recordings_dir, name):
-    recording = (recordings_dir / f"{name}.csv").read_text()[:1000]
+def read_truth(shared_dir, name):
+    recording = (shared_dir / "data" / "recordings" / f"{name}.csv").read_text()[:1000]
     header = dict(line[2:].split(": ", 1) for line in recording.splitlines()
                   if line.startswith("# "))
-    table = np.genfromtxt(recordings_dir / f"{name}.truth.csv",
+    table = np.genfromtxt(shared_dir / "data" / "recordings" / f"{name}.truth.csv",
                           delimiter=",", names=True)
     return header["side"], float(header["height_m"]), table
 
 
 @pytest.mark.parametrize("name", NAMES)
-def test_truth_angles_give_truth_positions_and_back(recordings_dir, name):
-    side, height, truth = read_truth(recordings_dir, name)
+def test_truth_angles_give_truth_positions_and_back(shared_dir, name):
+    side, height, truth = read_truth(shared_dir, name)
     angles = {k: np.deg2rad(truth[k]) for k in ANGLE_NAMES}
     pose = forward_kinematics(angles, side, SegmentLengths.from_height(height))
     worst_p = max(

@@ -41,14 +41,14 @@ TRUTH_AMPLITUDE_TOL_DEG = 0.2
 
 
 @pytest.fixture(scope="module")
-def truth(recordings_dir):
+def truth(shared_dir):
     cache = {}
 
     def read(name):
         if name not in cache:
-            table = np.genfromtxt(recordings_dir / f"{name}.truth.csv",
+            table = np.genfromtxt(shared_dir / "data" / "recordings" / f"{name}.truth.csv",
                                   delimiter=",", names=True)
-            header = (recordings_dir / f"{name}.csv").read_text()[:1000]
+            header = (shared_dir / "data" / "recordings" / f"{name}.csv").read_text()[:1000]
             poses = next(line for line in header.splitlines()
                          if line.startswith("# calibration: "))[len("# calibration: "):]
             windows = {p.split()[0]: (float(p.split()[1]), float(p.split()[2]))

@@ -36,13 +36,13 @@ MOVED = {
 
 
 @pytest.fixture(scope="module")
-def truth(recordings_dir):
+def truth(shared_dir):
     cache = {}
 
     def read(name):
         if name not in cache:
             cache[name] = np.genfromtxt(
-                recordings_dir / f"{name}.truth.csv", delimiter=",",
+                shared_dir / "data" / "recordings" / f"{name}.truth.csv", delimiter=",",
                 names=True)
         return cache[name]
     return read

@@ -58,11 +58,11 @@ def alice(module_server):
 
 
 @pytest.fixture(scope="module")
-def streamed(module_server, alice, recordings_dir):
+def streamed(module_server, alice, shared_dir):
     """name → (session id, patient id, recording), every shared recording streamed in."""
     out = {}
     for name in SHARED:
-        recording = read_recording(recordings_dir / f"{name}.csv")
+        recording = read_recording(shared_dir / "data" / "recordings" / f"{name}.csv")
         patient = alice.patient(name, recording.side, recording.height_m or 1.75)
         token = alice.device(patient["id"], f"kit-{name}")["token"]
         session_id = stream(module_server, token, recording)
@@ -71,9 +71,9 @@ def streamed(module_server, alice, recordings_dir):
     return out
 
 
-def truth_rom(recordings_dir, name, t_estimates, calibration_end):
+def truth_rom(shared_dir, name, t_estimates, calibration_end):
     """Exact extremes of the truth over the estimates' times after the calibration."""
-    truth = np.genfromtxt(recordings_dir / f"{name}.truth.csv",
+    truth = np.genfromtxt(shared_dir / "data" / "recordings" / f"{name}.truth.csv",
                           delimiter=",", names=True)
     t = t_estimates[t_estimates >= calibration_end]
     out = {}
@@ -90,7 +90,7 @@ def angles_csv_times(alice, session_id):
 
 @pytest.mark.parametrize("name", SHARED)
 def test_report_rom_matches_the_truth_and_repetitions_the_readme(
-        alice, streamed, recordings_dir, name):
+        alice, streamed, shared_dir, name):
     session_id, _, recording = streamed[name]
     answer = alice.http.get(f"/api/sessions/{session_id}/report")
     assert answer.status_code == 200, answer.text
@@ -101,7 +101,7 @@ def test_report_rom_matches_the_truth_and_repetitions_the_readme(
     calibration_end = max(p.end for p in recording.calibration) + CALIBRATION_TAIL_S
     assert report["quality"]["calibration"]["excluded"]["end_s"] == pytest.approx(
         calibration_end)
-    truth = truth_rom(recordings_dir, name, angles_csv_times(alice, session_id), calibration_end)
+    truth = truth_rom(shared_dir, name, angles_csv_times(alice, session_id), calibration_end)
     moved = {a for a, (lo, hi) in truth.items() if hi - lo >= MOVED_DEG}
     assert set(report["rom"]) == moved, (sorted(report["rom"]), sorted(moved))
     worst = 0.0
@@ -223,13 +223,13 @@ def test_targets_are_set_shown_in_the_report_and_removed(module_server, alice, s
 
 
 def test_progress_shows_each_session_against_the_target_with_a_trend(
-        module_server, alice, recordings_dir):
+        module_server, alice, shared_dir):
     """Two sessions of one patient: elbow 6-axis (elbow to 110°), then elbow_flexion (to
     120°): the trend is +10° of elbow range."""
     patient = alice.patient("Progress", "right", 1.80)
     token = alice.device(patient["id"])["token"]
     for name, target in (("elbow_6axis", 115), ("elbow_flexion", 130)):
-        recording = read_recording(recordings_dir / f"{name}.csv")
+        recording = read_recording(shared_dir / "data" / "recordings" / f"{name}.csv")
         alice.http.put(f"/api/patients/{patient['id']}/targets/elbow_flexion",
                        json={"min_deg": 0, "max_deg": target})
         alice.wait_processed(stream(module_server, token, recording), timeout=120)

@@ -33,11 +33,11 @@ def upload(api, patient_id, name, data):
 
 
 @pytest.fixture(scope="module")
-def sessions(alice, recordings_dir):
+def sessions(alice, shared_dir):
     """name → (session, recording), uploaded."""
     out = {}
     for name in RECORDINGS:
-        path = recordings_dir / f"{name}.csv"
+        path = shared_dir / "data" / "recordings" / f"{name}.csv"
         recording = read_recording(path)
         patient = alice.patient(name, recording.side, recording.height_m or 1.75)
         if name == "left_reach_50hz":  # a target in force when the session is recorded
@@ -176,7 +176,7 @@ def test_fhir_bundle_validates_as_r4(alice, sessions):
     print(answer.text[:1500])
 
 
-def test_exercises_come_from_marks_when_the_file_has_them(alice, sessions, recordings_dir):
+def test_exercises_come_from_marks_when_the_file_has_them(alice, sessions, shared_dir):
     """elbow_6axis with its detected exercise's span marked: the same repetitions, now from
     the marks; a second mark around nothing gives an exercise without repetitions."""
     session, recording = sessions["elbow_6axis"]
