@@ -10,6 +10,9 @@ import secrets
 from argon2 import PasswordHasher
 from argon2.exceptions import InvalidHashError, VerificationError
 
+#: The account ``armtrack demo`` makes; it signs in only in demo mode.
+DEMO_USER = "demo"
+
 _hasher = PasswordHasher()
 
 

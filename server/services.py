@@ -17,6 +17,7 @@ from .db import models
 from .db.engine import make_engine, make_sessionmaker
 from .db.migrate import upgrade
 from .ingest.writer import GroupWriter, StreamState
+from .live.access import AccessWatch
 from .live.broker import make_hub
 from .live.estimation import make_estimation
 from .live.worker import LiveBatcher
@@ -56,6 +57,9 @@ class Services:
         self.connections: dict[str, Any] = {}  # stream id → open IngestConnection
         self.sensor_status: dict[int, dict[str, dict[str, Any]]] = {}  # patient → sensor
         self.background: set[asyncio.Future] = set()
+        #: the open live feeds and 3D views, closed once their right is gone (live/access)
+        self.access = AccessWatch(self.run_db, settings.demo_mode)
+        self._access_task: asyncio.Task | None = None
 
     def migrate(self) -> None:
         """Bring the schema to the newest version, and mark sessions left live by a
@@ -72,8 +76,13 @@ class Services:
         await self.live_estimation.start()
         self.live.start()
         await self.viewer.start()
+        self._access_task = asyncio.create_task(
+            self.access.run(self.settings.access_check_s), name="armtrack-access-check")
 
     async def stop(self) -> None:
+        if self._access_task is not None:
+            self._access_task.cancel()
+            await asyncio.gather(self._access_task, return_exceptions=True)
         await self.viewer.stop()
         for connection in list(self.connections.values()):
             await connection.close(1001, "server shutting down")

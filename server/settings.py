@@ -78,6 +78,9 @@ class Settings(BaseSettings):
                                          "this long after they ended; unset: keep them")
     retention_check_s: float = Field(3600.0, gt=0,
                                      description="how often the retention task runs [s]")
+    access_check_s: float = Field(5.0, gt=0, description="how often open live feeds and 3D "
+                                  "views are checked against rights changed elsewhere (the "
+                                  "command line, another instance) [s]")
     audit_repeat_s: float = Field(60.0, ge=0, description="a repeated view of the same data "
                                   "by the same person within this time is logged once [s]")
 

@@ -5,7 +5,9 @@ Callers: nobody (no token), another therapist, a clinic admin who is not the pat
 therapist, the patient's own kit (device token), a revoked kit, the owner's expired
 token, and the owner. Each cell is refused or allowed as designed, and a refusal leaks
 nothing: the same status and body (the asked-for id aside) whether the object exists or
-not, and no other patient's name in any body. The matrix is printed (``pytest -s``)."""
+not, and no other patient's name in any body. A clinic admin holds no patients (issue 17):
+they cannot add one nor be given one, and every patient's data is 404 to them. The matrix
+is printed (``pytest -s``)."""
 
 from __future__ import annotations
 
@@ -186,6 +188,8 @@ def expected(route_kind: str, identity: str, method: str, path: str) -> set[int]
     if route_kind == "admin":
         return {200, 201} if identity == "admin" else {403}
     if route_kind == "list":
+        if identity == "admin" and (method, path) == ("POST", "/api/patients"):
+            return {403}  # a clinic admin holds no patients
         return {200, 201}
     if identity in ("other", "admin"):
         return {404}
@@ -286,6 +290,17 @@ def test_the_authorisation_matrix(world):
         failures.append(f"POST /api/recordings by a kit for another patient: {cells}")
     rows.append(("POST /api/recordings (kit, another patient)", "upload",
                  ["" if i != "device" else str(cells[0][0]) for i in IDENTITIES]))
+
+    # an admin cannot give a patient to themself (nor to another admin) to read it
+    carol_id = next(t["id"] for t in world.carol.http.get("/api/admin/therapists").json()
+                    if t["username"] == "carol")
+    to_self = world.carol.http.post(f"/api/admin/patients/{world.patient['id']}/reassign",
+                                    json={"therapist_id": carol_id})
+    if to_self.status_code != 409 or SECRET_NAME in to_self.text:
+        failures.append(f"reassign to the admin themself: {to_self.status_code} "
+                        f"{to_self.text[:200]}")
+    rows.append(("POST /api/admin/patients/{patient_id}/reassign (to self)", "admin",
+                 ["" if i != "admin" else str(to_self.status_code) for i in IDENTITIES]))
 
     # the WebSockets and the viewer
     base = world.server.url.replace("http", "ws")

@@ -9,12 +9,12 @@ from datetime import UTC, datetime, timedelta
 from typing import Annotated
 
 from fastapi import APIRouter, Depends, HTTPException, status
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 from sqlalchemy import delete, func, select
 from sqlalchemy.orm import Session as DbSession
 
 from .. import audit
-from ..auth import hash_password, new_token
+from ..auth import DEMO_USER, hash_password, new_token
 from ..db import models
 from ..plain_text import Line, Secret
 from ..services import Services
@@ -44,6 +44,14 @@ class TherapistIn(BaseModel):
     password: Secret = Field(min_length=MIN_PASSWORD, max_length=1000)
     is_admin: bool = False
     full_name: Line | None = Field(None, max_length=200, description="as reports print it")
+
+    @field_validator("username")
+    @classmethod
+    def not_the_demo_account(cls, name: str) -> str:
+        if name.lower() == DEMO_USER:  # `armtrack serve` refuses a database holding it
+            raise ValueError(f"the name {DEMO_USER!r} is kept for `armtrack demo`'s account: "
+                             "choose another")
+        return name
 
 
 class ResetOut(BaseModel):
@@ -100,8 +108,9 @@ def create_therapist(body: TherapistIn, db: Db, admin: Admin) -> TherapistOut:
 @router.post("/therapists/{therapist_id}/disable", response_model=TherapistOut)
 async def disable_therapist(therapist_id: Id, admin: Admin,
                             svc: Annotated[Services, Depends(services)]) -> TherapistOut:
-    """Disable an account: it cannot sign in and its tokens stop working at once. Its
-    patients stay; reassign them to a covering therapist."""
+    """Disable an account: it cannot sign in, its tokens stop working and its live feeds
+    and 3D views close at once. Its patients stay; reassign them to a covering
+    therapist."""
     if therapist_id == admin.id:
         raise HTTPException(status.HTTP_409_CONFLICT, "an admin cannot disable themselves")
 
@@ -114,7 +123,9 @@ async def disable_therapist(therapist_id: Id, admin: Admin,
         db.commit()
         return _out(db, therapist)
 
-    return await svc.run_db(work)
+    out = await svc.run_db(work)
+    await svc.access.recheck()
+    return out
 
 
 @router.post("/therapists/{therapist_id}/enable", response_model=TherapistOut)
@@ -155,17 +166,28 @@ def list_all_patients(db: Db, admin: Admin, page: Annotated[Page, Depends()],
 
 
 @router.post("/patients/{patient_id}/reassign", response_model=AdminPatientOut)
-def reassign_patient(patient_id: Id, body: Reassign, db: Db, admin: Admin
-                     ) -> AdminPatientOut:
-    """Give a patient (with their sessions and kits) to a covering therapist."""
-    patient = db.get(models.Patient, patient_id)
-    if patient is None:
-        raise HTTPException(status.HTTP_404_NOT_FOUND, f"no patient {patient_id}")
-    target = _therapist(db, body.therapist_id)
-    if target.disabled_at is not None:
-        raise HTTPException(status.HTTP_409_CONFLICT,
-                            f"therapist {target.id} is disabled: choose an active one")
-    patient.therapist_id = target.id
-    db.commit()
-    audit.note(patient_id=patient.id)
-    return AdminPatientOut(id=patient.id, name=patient.name, therapist_id=patient.therapist_id)
+async def reassign_patient(patient_id: Id, body: Reassign, admin: Admin,
+                           svc: Annotated[Services, Depends(services)]) -> AdminPatientOut:
+    """Give a patient (with their sessions and kits) to a covering therapist; the former
+    therapist's live feeds and 3D views of them close at once."""
+    def work(db: DbSession) -> AdminPatientOut:
+        patient = db.get(models.Patient, patient_id)
+        if patient is None:
+            raise HTTPException(status.HTTP_404_NOT_FOUND, f"no patient {patient_id}")
+        target = _therapist(db, body.therapist_id)
+        if target.disabled_at is not None:
+            raise HTTPException(status.HTTP_409_CONFLICT,
+                                f"therapist {target.id} is disabled: choose an active one")
+        if target.is_admin:  # an admin holds no patients, themself included
+            raise HTTPException(status.HTTP_409_CONFLICT,
+                                f"therapist {target.id} is a clinic admin, who holds no "
+                                "patients: choose a therapist")
+        patient.therapist_id = target.id
+        db.commit()
+        audit.note(patient_id=patient.id)
+        return AdminPatientOut(id=patient.id, name=patient.name,
+                               therapist_id=patient.therapist_id)
+
+    out = await svc.run_db(work)
+    await svc.access.recheck()
+    return out

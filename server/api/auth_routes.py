@@ -12,7 +12,8 @@ from typing import Annotated
 from fastapi import APIRouter, Depends, HTTPException, Request, status
 from fastapi.security import OAuth2PasswordRequestForm
 from pydantic import BaseModel, ConfigDict, Field
-from sqlalchemy import delete, select
+from sqlalchemy import delete, select, update
+from sqlalchemy.orm import Session as DbSession
 
 from ..auth import hash_password, hash_token, new_token, verify_password
 from ..db import models
@@ -94,22 +95,29 @@ def sign_in(db: Db, form: Annotated[OAuth2PasswordRequestForm, Depends()],
 @router.post("/password", status_code=status.HTTP_204_NO_CONTENT, responses={
     400: {"description": "the old password is wrong"},
     429: {"description": "too many wrong old passwords"}})
-def change_password(body: PasswordChange, db: Db, therapist: Therapist, request: Request,
-                    token: Annotated[str | None, Depends(oauth2)]) -> None:
+async def change_password(body: PasswordChange, therapist: Therapist, request: Request,
+                          token: Annotated[str | None, Depends(oauth2)],
+                          svc: Annotated[Services, Depends(services)]) -> None:
     """Change your password (the old one, then the new one, at least 8 characters). Your
-    other sign-ins end; this one stays."""
+    other sign-ins end, with their live feeds and 3D views; this one stays."""
     keys = login_keys(therapist.username, _client(request))
     limits = limiter(request)
     if (wait := limits.retry_after(keys)) is not None:
         raise _too_many(wait)
-    if not verify_password(body.old_password, therapist.password_hash):
-        limits.failed(keys)
-        raise HTTPException(status.HTTP_400_BAD_REQUEST, "the old password is wrong")
-    therapist.password_hash = hash_password(body.new_password)
-    db.execute(delete(models.AccessToken).where(
-        models.AccessToken.therapist_id == therapist.id,
-        models.AccessToken.token_hash != hash_token(token or "")))
-    db.commit()
+
+    def work(db: DbSession) -> None:
+        if not verify_password(body.old_password, therapist.password_hash):
+            limits.failed(keys)
+            raise HTTPException(status.HTTP_400_BAD_REQUEST, "the old password is wrong")
+        db.execute(update(models.Therapist).where(models.Therapist.id == therapist.id)
+                   .values(password_hash=hash_password(body.new_password)))
+        db.execute(delete(models.AccessToken).where(
+            models.AccessToken.therapist_id == therapist.id,
+            models.AccessToken.token_hash != hash_token(token or "")))
+        db.commit()
+
+    await svc.run_db(work)
+    await svc.access.recheck()
 
 
 def reset_grant(db: Db, token: Annotated[str | None, Depends(oauth2)]
@@ -125,14 +133,22 @@ def reset_grant(db: Db, token: Annotated[str | None, Depends(oauth2)]
 
 @router.post("/reset", status_code=status.HTTP_204_NO_CONTENT, responses={
     401: {"description": "the reset token is missing, unknown, used or expired"}})
-def reset_password(body: PasswordReset, db: Db,
-                   row: Annotated[models.PasswordReset, Depends(reset_grant)]) -> None:
+async def reset_password(body: PasswordReset,
+                         row: Annotated[models.PasswordReset, Depends(reset_grant)],
+                         svc: Annotated[Services, Depends(services)]) -> None:
     """Set a new password with the one-time reset token a clinic admin issued, given as
-    the bearer token (``Authorization: Bearer rt_…``). Every sign-in of the account ends."""
-    therapist = db.get(models.Therapist, row.therapist_id)
-    assert therapist is not None
-    therapist.password_hash = hash_password(body.new_password)
-    row.used_at = datetime.now(UTC)
-    db.execute(delete(models.AccessToken).where(
-        models.AccessToken.therapist_id == therapist.id))
-    db.commit()
+    the bearer token (``Authorization: Bearer rt_…``). Every sign-in of the account ends,
+    with its live feeds and 3D views."""
+    def work(db: DbSession) -> None:
+        reset = db.get(models.PasswordReset, row.id)
+        if reset is None or reset.used_at is not None:  # used meanwhile
+            raise unauthorized("the reset token is unknown, used or expired: ask your admin")
+        db.execute(update(models.Therapist).where(models.Therapist.id == reset.therapist_id)
+                   .values(password_hash=hash_password(body.new_password)))
+        reset.used_at = datetime.now(UTC)
+        db.execute(delete(models.AccessToken).where(
+            models.AccessToken.therapist_id == reset.therapist_id))
+        db.commit()
+
+    await svc.run_db(work)
+    await svc.access.recheck()

@@ -1,5 +1,9 @@
 """What routes depend on: a database session, the signed-in therapist, and ownership
-checks (another therapist's patient is 404, as if it did not exist)."""
+checks (another therapist's patient is 404, as if it did not exist).
+
+A clinic admin manages accounts and holds no patients (docs/security.md): no patient is
+ever theirs, whatever the database says, so every patient, session and kit is 404 to them
+as to another therapist; they cannot add patients, nor be given one."""
 
 from __future__ import annotations
 
@@ -13,8 +17,9 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session as DbSession
 
 from .. import audit
-from ..auth import hash_token
+from ..auth import DEMO_USER, hash_token
 from ..db import models
+from ..live.access import holds
 from ..services import Services
 
 oauth2 = OAuth2PasswordBearer(tokenUrl="/api/auth/token", auto_error=False)
@@ -53,10 +58,6 @@ def therapist_of_token(db: DbSession, token: str | None, demo_mode: bool
             or (therapist.username == DEMO_USER and not demo_mode):
         return None
     return therapist
-
-
-#: The account ``armtrack demo`` makes; it signs in only in demo mode.
-DEMO_USER = "demo"
 
 
 def current_therapist(db: Db, token: Annotated[str | None, Depends(oauth2)],
@@ -98,7 +99,7 @@ class Page:
 
 def own_patient(db: DbSession, therapist: models.Therapist, patient_id: int) -> models.Patient:
     patient = db.get(models.Patient, patient_id)
-    if patient is None or patient.therapist_id != therapist.id:
+    if not holds(therapist, patient):
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"no patient {patient_id}")
     audit.note(patient_id=patient.id)
     return patient
@@ -108,7 +109,7 @@ def own_session(db: DbSession, therapist: models.Therapist, session_id: int) -> 
     session = db.get(models.Session, session_id)
     if session is not None:
         patient = db.get(models.Patient, session.patient_id)
-        if patient is not None and patient.therapist_id == therapist.id:
+        if holds(therapist, patient):
             audit.note(patient_id=patient.id, session_id=session.id)
             return session
     raise HTTPException(status.HTTP_404_NOT_FOUND, f"no session {session_id}")
@@ -118,7 +119,7 @@ def own_device(db: DbSession, therapist: models.Therapist, device_id: int) -> mo
     device = db.get(models.Device, device_id)
     if device is not None:
         patient = db.get(models.Patient, device.patient_id)
-        if patient is not None and patient.therapist_id == therapist.id:
+        if holds(therapist, patient):
             audit.note(patient_id=patient.id)
             return device
     raise HTTPException(status.HTTP_404_NOT_FOUND, f"no device {device_id}")

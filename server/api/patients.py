@@ -29,6 +29,11 @@ router = APIRouter(prefix="/api", tags=["patients"])
 
 @router.post("/patients", response_model=PatientOut, status_code=status.HTTP_201_CREATED)
 def create_patient(body: PatientIn, db: Db, therapist: Therapist) -> models.Patient:
+    """A new patient of the signed-in therapist (not of a clinic admin: admins hold no
+    patients)."""
+    if therapist.is_admin:
+        raise HTTPException(status.HTTP_403_FORBIDDEN, "a clinic admin holds no patients: "
+                            "sign in with a therapist's account to add one")
     patient = models.Patient(therapist_id=therapist.id, **body.model_dump())
     db.add(patient)
     db.commit()
@@ -39,7 +44,10 @@ def create_patient(body: PatientIn, db: Db, therapist: Therapist) -> models.Pati
 def list_patients(db: Db, therapist: Therapist, page: Annotated[Page, Depends()],
                   q: str | None = None) -> list[PatientOut]:
     """The therapist's patients by name, each with when their latest session started;
-    ``q`` keeps those whose name contains it."""
+    ``q`` keeps those whose name contains it (a clinic admin holds none:
+    ``/api/admin/patients`` lists everyone's)."""
+    if therapist.is_admin:
+        return []
     last = (select(models.Session.patient_id,
                    func.max(models.Session.started_at).label("last"))
             .group_by(models.Session.patient_id).subquery())
@@ -89,11 +97,13 @@ def get_patient(patient_id: Id, db: Db, therapist: Therapist) -> models.Patient:
 @router.delete("/patients/{patient_id}", status_code=status.HTTP_204_NO_CONTENT)
 async def delete_patient(patient_id: Id, therapist: Therapist,
                          svc: Annotated[Services, Depends(services)]) -> None:
-    """Erase the patient with all their sessions, data and devices."""
+    """Erase the patient with all their sessions, data and devices; their kits' streams,
+    live feeds and 3D views close."""
     device_ids = await svc.run_db(_patient_devices, therapist, patient_id)
     for device_id in device_ids:
         await svc.revoke_device(device_id)
     await svc.run_db(erase_patient, patient_id)
+    await svc.access.recheck()
 
 
 def _patient_devices(db, therapist, patient_id: int) -> list[int]:

@@ -83,10 +83,12 @@ async def close_session(session_id: Id, therapist: Therapist,
 @router.delete("/sessions/{session_id}", status_code=status.HTTP_204_NO_CONTENT)
 async def delete_session(session_id: Id, therapist: Therapist,
                          svc: Annotated[Services, Depends(get_services)]) -> None:
-    """Erase the session and all its data (an open stream of it is closed first)."""
+    """Erase the session and all its data (an open stream of it is closed first, its
+    replays after)."""
     await svc.run_db(lambda db: own_session(db, therapist, session_id))
     await svc.end_session_streams(session_id, "session erased")
     await svc.run_db(erase_session, session_id)
+    await svc.access.recheck()
 
 
 def uploader(db: Db, token: Annotated[str | None, Depends(oauth2)], request: Request

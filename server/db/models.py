@@ -48,6 +48,13 @@ class UtcDateTime(TypeDecorator):
         return value.replace(tzinfo=UTC)
 
 
+def never_reused() -> dict[str, Any]:
+    """Table options: an id is never given twice, even after its row is deleted (SQLite's
+    AUTOINCREMENT; PostgreSQL's sequences never repeat). Migration 0004 converted the
+    tables made before it; every new table with an integer id takes this too."""
+    return {"sqlite_autoincrement": True}
+
+
 class Base(DeclarativeBase):
     type_annotation_map: ClassVar = {dict[str, Any]: JSON, list[Any]: JSON,
                                      datetime: UtcDateTime}
@@ -55,6 +62,7 @@ class Base(DeclarativeBase):
 
 class Therapist(Base):
     __tablename__ = "therapists"
+    __table_args__ = never_reused()
 
     id: Mapped[int] = mapped_column(primary_key=True)
     username: Mapped[str] = mapped_column(String(128), unique=True)
@@ -72,6 +80,7 @@ class AccessToken(Base):
     """A therapist's sign-in: the SHA-256 of an opaque bearer token, until ``expires_at``."""
 
     __tablename__ = "access_tokens"
+    __table_args__ = never_reused()
 
     id: Mapped[int] = mapped_column(primary_key=True)
     therapist_id: Mapped[int] = mapped_column(
@@ -82,6 +91,7 @@ class AccessToken(Base):
 
 class Patient(Base):
     __tablename__ = "patients"
+    __table_args__ = never_reused()
 
     id: Mapped[int] = mapped_column(primary_key=True)
     therapist_id: Mapped[int] = mapped_column(
@@ -99,6 +109,7 @@ class Device(Base):
     """A sensor kit of one patient; its token is stored as a SHA-256 only."""
 
     __tablename__ = "devices"
+    __table_args__ = never_reused()
 
     id: Mapped[int] = mapped_column(primary_key=True)
     patient_id: Mapped[int] = mapped_column(
@@ -118,6 +129,7 @@ class Session(Base):
     """
 
     __tablename__ = "sessions"
+    __table_args__ = never_reused()
 
     id: Mapped[int] = mapped_column(primary_key=True)
     patient_id: Mapped[int] = mapped_column(
@@ -186,6 +198,7 @@ class Mark(Base):
     """A stream's or file's mark (``npose``, ``tpose``, ``exercise:<name>``, ``end:…``)."""
 
     __tablename__ = "marks"
+    __table_args__ = never_reused()
 
     id: Mapped[int] = mapped_column(primary_key=True)
     session_id: Mapped[int] = mapped_column(
@@ -199,6 +212,7 @@ class EstimateBlock(Base):
     columns named in ``Session.estimate_columns`` (t [s], angles [rad], positions [m])."""
 
     __tablename__ = "estimate_blocks"
+    __table_args__ = never_reused()
 
     id: Mapped[int] = mapped_column(primary_key=True)
     session_id: Mapped[int] = mapped_column(
@@ -214,7 +228,8 @@ class PatientTarget(Base):
 
     __tablename__ = "patient_targets"
     __table_args__ = (UniqueConstraint("patient_id", "angle",
-                                       name="uq_patient_targets_patient_angle"),)
+                                       name="uq_patient_targets_patient_angle"),
+                      never_reused())
 
     id: Mapped[int] = mapped_column(primary_key=True)
     patient_id: Mapped[int] = mapped_column(
@@ -253,6 +268,7 @@ class PasswordReset(Base):
     """A one-time password reset an admin issued: the SHA-256 of its token."""
 
     __tablename__ = "password_resets"
+    __table_args__ = never_reused()
 
     id: Mapped[int] = mapped_column(primary_key=True)
     therapist_id: Mapped[int] = mapped_column(
@@ -269,6 +285,7 @@ class AuditEntry(Base):
     holds ids only, never a patient's name or data."""
 
     __tablename__ = "audit_log"
+    __table_args__ = never_reused()
 
     id: Mapped[int] = mapped_column(primary_key=True)
     at: Mapped[datetime] = mapped_column(UtcDateTime, default=utcnow, index=True)

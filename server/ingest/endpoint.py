@@ -226,6 +226,10 @@ class IngestConnection:
     async def _open_stream(self, hello: Hello) -> dict[str, Any]:
         services = self.services
         extra: dict[str, Any] = {}
+        if hello.resume is not None or hello.session is not None:
+            # another patient's session or stream is refused before anything is touched:
+            # no connection of theirs closed, nothing waited for
+            await services.run_db(self._check_own, hello)
         if hello.resume is None and hello.session is not None:
             # a new stream in the session: any connection still open on it ends first
             for old in list(services.connections.values()):
@@ -295,6 +299,21 @@ class IngestConnection:
         message = self.feedback.pose(pose, time.monotonic())
         if message is not None and not self._closed:
             asyncio.get_running_loop().create_task(self.send(message))
+
+    def _check_own(self, db: DbSession, hello: Hello) -> None:
+        """Refuse a ``hello`` naming a session or stream that is not this device's
+        patient's, with the same words as one that does not exist."""
+        if hello.resume is not None:
+            stream = db.get(models.Stream, hello.resume)
+            session = None if stream is None else db.get(models.Session, stream.session_id)
+            if session is None or session.patient_id != self.patient_id:
+                raise Refused(f"hello: no stream {hello.resume!r} to resume for this "
+                              "device's patient")
+        elif hello.session is not None:
+            session = db.get(models.Session, hello.session)
+            if session is None or session.patient_id != self.patient_id:
+                raise Refused(f"hello: no session {hello.session} to continue for this "
+                              "device's patient")
 
     def _create_session(self, db: DbSession, hello: Hello, stream_id: str) -> tuple[int, float]:
         patient = db.get(models.Patient, self.patient_id)

@@ -3,7 +3,9 @@
 motion, ``latency_s`` from the newest sample's arrival to publication), ``status`` (a
 sensor's battery and signal) and ``session`` (live, interrupted, closed). The therapist's
 bearer token goes in the ``Authorization`` header or ``?token=``; a patient not theirs
-closes with 4404 like one that does not exist."""
+closes with 4404 like one that does not exist. A feed whose right goes while it is open
+(``live.access``) closes at once: 4401 when the sign-in ended, 4404 when the patient is
+no longer the therapist's."""
 
 from __future__ import annotations
 
@@ -16,9 +18,11 @@ from starlette.websockets import WebSocketDisconnect
 
 from .. import audit
 from ..api.deps import therapist_of_token
+from ..auth import hash_token
 from ..db import models
 from ..ingest.endpoint import bearer
 from ..ingest.protocol import CLOSE_BAD_TOKEN, dumps
+from .access import Watch, holds
 from .encoded import EncodedPose
 
 router = APIRouter()
@@ -26,17 +30,16 @@ CLOSE_NOT_FOUND = 4404
 
 
 def _therapist_patient(db, token: str | None, patient_id: int, demo_mode: bool = False,
-                       client: str | None = None) -> str | None:
-    """None when the token's therapist may watch the patient, else why not."""
+                       client: str | None = None) -> int | str:
+    """The id of the token's therapist if they may watch the patient, else why not."""
     therapist = therapist_of_token(db, token, demo_mode)
     if therapist is None:  # unknown, expired, disabled (or the demo's, outside demo mode)
         return "token"
-    patient = db.get(models.Patient, patient_id)
-    if patient is None or patient.therapist_id != therapist.id:
+    if not holds(therapist, db.get(models.Patient, patient_id)):
         return "patient"
     audit.record(db, action="viewed_live", route=f"WS /ws/live?patient={patient_id}",
                  therapist_id=therapist.id, patient_id=patient_id, client=client)
-    return None
+    return therapist.id
 
 
 @router.websocket("/ws/live")
@@ -44,33 +47,55 @@ async def live(websocket: WebSocket,
                patient: Annotated[int, Query(ge=1, le=2**31 - 1)]) -> None:
     services = websocket.app.state.services
     client = websocket.client.host if websocket.client else None
-    refusal = await services.run_db(_therapist_patient, bearer(websocket), patient,
+    token = bearer(websocket)
+    checked_at = services.access.generation
+    allowed = await services.run_db(_therapist_patient, token, patient,
                                     services.settings.demo_mode, client)
     await websocket.accept()
-    if refusal == "token":
+    if allowed == "token":
         await websocket.close(CLOSE_BAD_TOKEN, "sign in first")
         return
-    if refusal == "patient":
+    if allowed == "patient":
         await websocket.close(CLOSE_NOT_FOUND, f"no patient {patient}")
         return
-    with services.hub.subscribe(patient) as subscription:
-        for status in services.sensor_status.get(patient, {}).values():
-            await websocket.send_text(dumps({"kind": "status", **status}))
-        # the viewer sends nothing: its receive returns when it goes away, and then a
-        # None in the queue ends the loop (one await per update, no task per update)
-        async def watch_gone() -> None:
-            with contextlib.suppress(Exception):
-                await websocket.receive()
-            subscription.put(None)
+    revoked: list[tuple[int, str]] = []
 
-        gone = asyncio.create_task(watch_gone())
+    def revoke(code: int, reason: str) -> None:
+        revoked.append((code, reason))
+        subscription.put(None)
+
+    with services.hub.subscribe(patient) as subscription:
+        watch = Watch(hash_token(token or ""), int(allowed), patient, None, revoke)
         try:
-            while (update := await subscription.get()) is not None:
-                try:  # a pose comes encoded by the live estimation process
-                    await websocket.send_text(update.text.decode()
-                                              if isinstance(update, EncodedPose)
-                                              else dumps(update))
-                except (WebSocketDisconnect, RuntimeError):
-                    return
+            await services.access.added(watch, checked_at)
+            if not revoked:
+                await _feed(websocket, services, patient, subscription)
         finally:
-            gone.cancel()
+            services.access.remove(watch)
+    if revoked:
+        with contextlib.suppress(WebSocketDisconnect, RuntimeError):
+            await websocket.close(*revoked[0])
+
+
+async def _feed(websocket: WebSocket, services, patient: int, subscription) -> None:
+    """Updates to the viewer until it goes away or a None ends the subscription."""
+    for status in services.sensor_status.get(patient, {}).values():
+        await websocket.send_text(dumps({"kind": "status", **status}))
+    # the viewer sends nothing: its receive returns when it goes away, and then a
+    # None in the queue ends the loop (one await per update, no task per update)
+    async def watch_gone() -> None:
+        with contextlib.suppress(Exception):
+            await websocket.receive()
+        subscription.put(None)
+
+    gone = asyncio.create_task(watch_gone())
+    try:
+        while (update := await subscription.get()) is not None:
+            try:  # a pose comes encoded by the live estimation process
+                await websocket.send_text(update.text.decode()
+                                          if isinstance(update, EncodedPose)
+                                          else dumps(update))
+            except (WebSocketDisconnect, RuntimeError):
+                return
+    finally:
+        gone.cancel()

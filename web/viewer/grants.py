@@ -45,6 +45,8 @@ class Grant:
     ticket: str | None = None
     ticket_expires_at: float = 0.0
     closed_at: float | None = None
+    #: SHA-256 of the sign-in token it was issued to: the view ends with that sign-in
+    token_hash: str = ""
 
     @property
     def live(self) -> bool:
@@ -62,11 +64,12 @@ class GrantBook:
         self._claimed: dict[str, Grant] = {}  # grant id → used grant, open or lately closed
         self._lock = threading.Lock()
 
-    def issue(self, *, therapist_id: int, patient_id: int, session_id: int | None) -> Grant:
+    def issue(self, *, therapist_id: int, patient_id: int, session_id: int | None,
+              token_hash: str = "") -> Grant:
         """A new grant, good for ``ttl_s``."""
         now = time.monotonic()
         grant = Grant(secrets.token_urlsafe(24), therapist_id, patient_id, session_id,
-                      now + self.ttl_s)
+                      now + self.ttl_s, token_hash=token_hash)
         with self._lock:
             self._prune(now)
             self._grants[grant.id] = grant

@@ -21,6 +21,7 @@ from urllib.parse import parse_qs, urlsplit
 
 import viser
 from armtrack.server.db import models
+from armtrack.server.live.access import holds
 
 from .grants import GRANT_TTL_S, Grant, GrantBook
 from .live import LiveDriver
@@ -199,7 +200,8 @@ class ViewerHost:
         services = self.services
         with services.db() as db:
             patient = db.get(models.Patient, grant.patient_id)
-            if patient is None or patient.therapist_id != grant.therapist_id:
+            therapist = db.get(models.Therapist, grant.therapist_id)
+            if patient is None or therapist is None or not holds(therapist, patient):
                 raise ViewerError(f"patient {grant.patient_id} is not the grant's therapist's")
             if grant.live:
                 view = ClientView(client, heading=f"{patient.name} · live",

@@ -1,6 +1,7 @@
 """A WebSocket proxy from the app to the loopback viser server: the subprotocol the browser
 asked for (``viser-v<version>``) is kept, frames pass both ways unchanged (binary stays
-binary), and either side closing closes the other with the same code."""
+binary), and either side closing closes the other with the same code; ``revoked``
+resolving to ``(code, reason)`` closes both, the browser's side with that code."""
 
 from __future__ import annotations
 
@@ -17,8 +18,10 @@ from websockets.typing import Subprotocol
 CLOSE_UPSTREAM_DOWN = 1011
 
 
-async def proxy(websocket: WebSocket, upstream_url: str) -> None:
-    """Join the (not yet accepted) ``websocket`` to ``upstream_url`` until either ends."""
+async def proxy(websocket: WebSocket, upstream_url: str,
+                revoked: asyncio.Future[tuple[int, str]] | None = None) -> None:
+    """Join the (not yet accepted) ``websocket`` to ``upstream_url`` until either ends
+    or ``revoked`` resolves."""
     requested = [Subprotocol(p) for p in websocket.scope.get("subprotocols", [])
                  if p.startswith("viser-v")]
     try:
@@ -49,13 +52,17 @@ async def proxy(websocket: WebSocket, upstream_url: str) -> None:
                     await upstream.send(message["text"])
 
     tasks = [asyncio.create_task(down()), asyncio.create_task(up())]
+    waited = [*tasks, revoked] if revoked is not None else tasks
     try:
-        await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+        await asyncio.wait(waited, return_when=asyncio.FIRST_COMPLETED)
     finally:
         for task in tasks:
             task.cancel()
         await asyncio.gather(*tasks, return_exceptions=True)
         await upstream.close()
         code = upstream.close_code if upstream.close_code not in (None, 1005, 1006) else 1000
+        reason = upstream.close_reason or ""
+        if revoked is not None and revoked.done():
+            code, reason = revoked.result()
         with contextlib.suppress(RuntimeError, WebSocketDisconnect):
-            await websocket.close(code, upstream.close_reason or "")
+            await websocket.close(code, reason)

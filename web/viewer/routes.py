@@ -12,15 +12,21 @@
   else 404. Served with its own strict policy (``page.viewer_csp``).
 * ``WebSocket /viewer/<grant>`` — the page's connection: it uses the grant up and is
   proxied to the loopback viser server; without a valid grant the handshake is refused
-  (HTTP 403).
+  (HTTP 403), and so it is when the right the grant was issued with is gone meanwhile.
+  Once open, the view closes at once when that right goes (``server/live/access.py``):
+  4401 when the sign-in that asked for the grant ended, 4404 when the patient or the
+  replayed session is no longer the therapist's.
 """
 
 from __future__ import annotations
 
-from typing import Literal
+import asyncio
+from typing import Annotated, Literal
 
-from armtrack.server.api.deps import Db, Therapist, own_patient, own_session
-from fastapi import APIRouter, HTTPException, Request, WebSocket, status
+from armtrack.server.api.deps import Db, Therapist, oauth2, own_patient, own_session
+from armtrack.server.auth import hash_token
+from armtrack.server.live.access import Watch, refusals
+from fastapi import APIRouter, Depends, HTTPException, Request, WebSocket, status
 from fastapi.responses import Response
 from pydantic import BaseModel, Field
 
@@ -54,8 +60,8 @@ class ViewerStateOut(BaseModel):
 
 
 @router.post("/api/viewer", response_model=ViewerGrantOut)
-def create_viewer(body: ViewerRequest, db: Db, therapist: Therapist,
-                  request: Request) -> ViewerGrantOut:
+def create_viewer(body: ViewerRequest, db: Db, therapist: Therapist, request: Request,
+                  token: Annotated[str | None, Depends(oauth2)]) -> ViewerGrantOut:
     """A one-time, short-lived address of a 3D view of one of your patients: live, or a
     replay of one of their stored sessions."""
     own_patient(db, therapist, body.patient_id)
@@ -66,7 +72,7 @@ def create_viewer(body: ViewerRequest, db: Db, therapist: Therapist,
                                 f"no session {body.session_id} of patient {body.patient_id}")
     grants = request.app.state.services.viewer.grants
     grant = grants.issue(therapist_id=therapist.id, patient_id=body.patient_id,
-                         session_id=body.session_id)
+                         session_id=body.session_id, token_hash=hash_token(token or ""))
     return ViewerGrantOut(url=f"/viewer/{grant.id}/", expires_in=round(grants.ttl_s),
                           state_url=f"/api/viewer/{grant.id}")
 
@@ -99,12 +105,27 @@ def viewer_page(grant_id: str, request: Request) -> Response:
 
 @router.websocket("/viewer/{grant_id}")
 async def viewer_socket(websocket: WebSocket, grant_id: str) -> None:
-    host = websocket.app.state.services.viewer
+    services = websocket.app.state.services
+    host = services.viewer
     grant = host.grants.claim(grant_id)
     if grant is None:
         await websocket.close(CLOSE_NO_GRANT)  # before accepting: the handshake is refused
         return
     try:
-        await proxy(websocket, host.upstream_url(grant.ticket))
+        revoked: asyncio.Future[tuple[int, str]] = asyncio.get_running_loop().create_future()
+        watch = Watch(grant.token_hash, grant.therapist_id, grant.patient_id,
+                      grant.session_id,
+                      lambda code, reason: revoked.done() or revoked.set_result((code, reason)))
+        checked_at = services.access.generation
+        # the right may have gone since the grant was issued (up to its lifetime ago)
+        if await services.run_db(refusals, [watch], services.settings.demo_mode):
+            await websocket.close(CLOSE_NO_GRANT)
+            return
+        try:
+            await services.access.added(watch, checked_at)
+            if not revoked.done():
+                await proxy(websocket, host.upstream_url(grant.ticket), revoked)
+        finally:
+            services.access.remove(watch)
     finally:
         host.grants.close(grant.id)

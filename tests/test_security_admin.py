@@ -1,0 +1,82 @@
+"""Issue 17, a clinic admin's reach, on a real server: an admin holds no patients — they
+cannot give one to themself (nor to another admin) to read it, cannot add one, and a
+patient the database says is theirs (made before this rule) is 404 to them like anyone
+else's (item 5); an admin cannot make an account named ``demo``, the name ``armtrack
+serve`` refuses to start with (low)."""
+
+from __future__ import annotations
+
+import asyncio
+
+import pytest
+from server_support import PASSWORD, ServerProcess
+from websockets.asyncio.client import connect
+from websockets.exceptions import ConnectionClosed
+
+
+@pytest.fixture(scope="module")
+def clinic(tmp_path_factory):
+    server = ServerProcess(tmp_path_factory.mktemp("clinic"))
+    server.create_user("alice")
+    for admin in ("root", "root2"):
+        done = server.armtrack("create-user", admin, "--admin", "--password", PASSWORD)
+        assert done.returncode == 0, done.stderr
+    server.start()
+    yield server
+    server.stop()
+
+
+def ids(api) -> dict[str, int]:
+    return {t["username"]: t["id"] for t in api.http.get("/api/admin/therapists").json()}
+
+
+async def live_outcome(server, token: str, patient_id: int) -> str:
+    url = f"ws://127.0.0.1:{server.port}/ws/live?patient={patient_id}"
+    try:
+        async with connect(url, additional_headers={"Authorization": f"Bearer {token}"}) as ws:
+            await asyncio.wait_for(ws.recv(), 2)
+    except ConnectionClosed as exc:
+        return str(exc.rcvd.code if exc.rcvd else None)
+    except TimeoutError:
+        return "open"
+    return "message"
+
+
+def test_an_admin_cannot_take_a_patient_to_read_its_data(clinic):
+    alice, root = clinic.client("alice"), clinic.client("root")
+    patient = alice.patient("Private Person")
+    therapists = ids(root)
+    for admin in ("root", "root2"):  # not to themself, not to another admin
+        answer = root.http.post(f"/api/admin/patients/{patient['id']}/reassign",
+                                json={"therapist_id": therapists[admin]})
+        assert answer.status_code == 409, answer.text
+        assert "clinic admin" in answer.json()["detail"]
+    assert alice.http.get(f"/api/patients/{patient['id']}").status_code == 200  # still hers
+    assert root.http.post("/api/patients", json={"name": "Mine", "side": "left",
+                                                 "height_m": 1.7}).status_code == 403
+    # a patient the database gives an admin (made before the rule) is still out of reach
+    clinic.sql("UPDATE patients SET therapist_id = :admin WHERE id = :id",
+               admin=therapists["root"], id=patient["id"])
+    for path in (f"/api/patients/{patient['id']}", f"/api/patients/{patient['id']}/sessions",
+                 f"/api/patients/{patient['id']}/export"):
+        assert root.http.get(path).status_code == 404, path
+    assert root.http.get("/api/patients").json() == []
+    assert root.http.post("/api/viewer", json={"patient_id": patient["id"]}
+                          ).status_code == 404
+    assert asyncio.run(live_outcome(clinic, root.token, patient["id"])) == "4404"
+    # admins see who holds whom, to reassign: that list names patients, nothing clinical
+    listed = root.http.get("/api/admin/patients").json()
+    assert {"id", "name", "therapist_id"} == set(listed[0])
+    back = root.http.post(f"/api/admin/patients/{patient['id']}/reassign",
+                          json={"therapist_id": therapists["alice"]})
+    assert back.status_code == 200, back.text
+
+
+def test_an_admin_cannot_make_the_demo_account(clinic):
+    root = clinic.client("root")
+    for name in ("demo", "Demo"):
+        answer = root.http.post("/api/admin/therapists", json={"username": name,
+                                                              "password": PASSWORD})
+        assert answer.status_code == 422, answer.text
+        assert "armtrack demo" in answer.text
+    assert "demo" not in {n.lower() for n in ids(root)}

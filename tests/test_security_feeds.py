@@ -1,0 +1,250 @@
+"""Issue 17, what reaches a therapist after their right to it is gone, on a real server:
+ids are never handed out twice (an erased patient's id never names a new patient, whose
+export then never holds the old one's audit trail), and every change that takes a right
+away — erasing a patient or a session, reassigning a patient, disabling a therapist,
+changing or resetting a password — closes at once the live feeds (``/ws/live``) and 3D
+views that it takes away, while those it leaves alone go on."""
+
+from __future__ import annotations
+
+import asyncio
+import io
+import json
+import zipfile
+
+import httpx
+import msgspec
+import pytest
+from server_support import PASSWORD, ServerProcess
+from test_viewer import CAMERA, SUBPROTOCOL
+from websockets.asyncio.client import connect
+from websockets.exceptions import ConnectionClosed
+
+pytestmark = pytest.mark.both_databases
+
+#: How soon "at once" must be [s] (the close is sent before the change's answer).
+AT_ONCE_S = 2.0
+HELLO = {"type": "hello", "protocol": 1, "device": "kit", "side": "right",
+         "sensors": ["forearm"], "rate_hz": 50, "nine_axis": False, "resume": None}
+
+
+def admin(server: ServerProcess, name: str = "root"):
+    done = server.armtrack("create-user", name, "--admin", "--password", PASSWORD)
+    assert done.returncode == 0 or "exists already" in done.stderr, done.stderr
+    return server.client(name)
+
+
+def therapist_id(admin_api, username: str) -> int:
+    return next(t["id"] for t in admin_api.http.get("/api/admin/therapists").json()
+                if t["username"] == username)
+
+
+async def open_live(server, token: str, patient_id: int):
+    ws = await connect(f"ws://127.0.0.1:{server.port}/ws/live?patient={patient_id}",
+                       additional_headers={"Authorization": f"Bearer {token}"})
+    await still_open(ws)
+    return ws
+
+
+async def open_viewer(server, api, patient_id: int, session_id: int | None = None):
+    """A 3D view through a one-time grant, as a browser opens it; returns once viser
+    has sent its first frame."""
+    answer = await asyncio.to_thread(api.http.post, "/api/viewer", json={
+        "patient_id": patient_id, "session_id": session_id})
+    assert answer.status_code == 200, answer.text
+    url = f"ws://127.0.0.1:{server.port}{answer.json()['url'].rstrip('/')}"
+    ws = await connect(url, subprotocols=[SUBPROTOCOL], max_size=None)
+    await ws.send(msgspec.msgpack.encode(CAMERA.as_serializable_dict()))
+    await asyncio.wait_for(ws.recv(), 15)
+    return ws
+
+
+async def still_open(ws, seconds: float = 0.3) -> None:
+    """Fails if ``ws`` closes within ``seconds`` (messages meanwhile are read away)."""
+    try:
+        async with asyncio.timeout(seconds):
+            while True:
+                await ws.recv()
+    except TimeoutError:
+        return
+    except ConnectionClosed as exc:
+        pytest.fail(f"closed although its right is intact: {exc.rcvd}")
+
+
+async def close_code(ws, seconds: float = AT_ONCE_S) -> int | None:
+    """The code ``ws`` is closed with within ``seconds``, or None if it stays open."""
+    try:
+        async with asyncio.timeout(seconds):
+            while True:
+                await ws.recv()
+    except TimeoutError:
+        await ws.close()
+        return None
+    except ConnectionClosed as exc:
+        return exc.rcvd.code if exc.rcvd else -1
+
+
+async def change(api_call, *args, **kwargs) -> httpx.Response:
+    return await asyncio.to_thread(api_call, *args, **kwargs)
+
+
+def test_an_erased_patients_id_feeds_views_and_audit_trail_reach_nobody_else(module_server):
+    server = module_server
+    alice, bob = server.client("alice"), server.client("bob")
+    root = admin(server)
+
+    async def scenario():
+        patient = await asyncio.to_thread(bob.patient, "Erased Soon")
+        feed = await open_live(server, bob.token, patient["id"])
+        view = await open_viewer(server, bob, patient["id"])
+        erased = await change(bob.http.delete, f"/api/patients/{patient['id']}")
+        assert erased.status_code == 204
+        return patient, await close_code(feed), await close_code(view)
+
+    patient, feed_code, view_code = asyncio.run(scenario())
+    assert feed_code == 4404, f"the live feed of the erased patient stayed open ({feed_code})"
+    assert view_code == 4404, f"the 3D view of the erased patient stayed open ({view_code})"
+    # the next patient, anyone's, never gets the erased one's id, nor its audit trail
+    newcomer = alice.patient("Newcomer")
+    assert newcomer["id"] > patient["id"], (newcomer["id"], patient["id"])
+    archive = zipfile.ZipFile(io.BytesIO(
+        alice.http.get(f"/api/patients/{newcomer['id']}/export").content))
+    entries = json.loads(archive.read("audit.json"))
+    bob_id = therapist_id(root, "bob")
+    assert not [e for e in entries if e["therapist_id"] == bob_id], entries
+
+
+def test_ids_of_erased_sessions_and_kits_are_never_given_again(module_server):
+    alice = module_server.client("alice")
+    patient = alice.patient("Kits")
+    kit = alice.device(patient["id"])
+
+    async def stream_once() -> int:
+        async with connect(module_server.ws_url, additional_headers={
+                "Authorization": f"Bearer {kit['token']}"}) as ws:
+            await ws.send(json.dumps(HELLO))
+            ready = json.loads(await ws.recv())
+            await ws.send(json.dumps({"type": "bye"}))
+            return ready["session"]
+
+    session_id = asyncio.run(stream_once())
+    assert alice.http.delete(f"/api/sessions/{session_id}").status_code == 204
+    assert asyncio.run(stream_once()) > session_id
+    assert alice.http.delete(f"/api/patients/{patient['id']}").status_code == 204
+    other = alice.patient("Other")
+    assert other["id"] > patient["id"]
+    assert alice.device(other["id"])["id"] > kit["id"]
+
+
+def test_reassigning_a_patient_closes_the_former_therapists_feeds_only(module_server):
+    server = module_server
+    alice, bob = server.client("alice"), server.client("bob")
+    root = admin(server)
+    alice_id = therapist_id(root, "alice")
+
+    async def scenario():
+        moved = await asyncio.to_thread(bob.patient, "Moves to Alice")
+        kept = await asyncio.to_thread(bob.patient, "Stays with Bob")
+        feed = await open_live(server, bob.token, moved["id"])
+        view = await open_viewer(server, bob, moved["id"])
+        other_feed = await open_live(server, bob.token, kept["id"])
+        answer = await change(root.http.post, f"/api/admin/patients/{moved['id']}/reassign",
+                              json={"therapist_id": alice_id})
+        assert answer.status_code == 200, answer.text
+        codes = await close_code(feed), await close_code(view)
+        await still_open(other_feed)  # bob keeps his other patient
+        new_owner = await open_live(server, alice.token, moved["id"])  # alice may now
+        await still_open(new_owner)
+        for ws in (other_feed, new_owner):
+            await ws.close()
+        return codes
+
+    assert asyncio.run(scenario()) == (4404, 4404)
+
+
+def test_disabling_a_therapist_closes_their_feeds_and_views_at_once(module_server):
+    server = module_server
+    root = admin(server)
+    made = root.http.post("/api/admin/therapists", json={"username": "gil",
+                                                         "password": PASSWORD})
+    assert made.status_code == 201, made.text
+    gil = server.client("gil")
+
+    async def scenario():
+        patient = await asyncio.to_thread(gil.patient, "Gil's")
+        feed = await open_live(server, gil.token, patient["id"])
+        view = await open_viewer(server, gil, patient["id"])
+        answer = await change(root.http.post,
+                              f"/api/admin/therapists/{made.json()['id']}/disable")
+        assert answer.status_code == 200, answer.text
+        return await close_code(feed), await close_code(view)
+
+    assert asyncio.run(scenario()) == (4401, 4401)
+
+
+def test_a_password_change_closes_the_feeds_of_the_sign_ins_it_ends(module_server):
+    server = module_server
+    root = admin(server)
+    assert root.http.post("/api/admin/therapists", json={
+        "username": "hal", "password": PASSWORD}).status_code == 201
+    hal, hal_elsewhere = server.client("hal"), server.client("hal")
+
+    async def scenario():
+        patient = await asyncio.to_thread(hal.patient, "Hal's")
+        ended = await open_live(server, hal_elsewhere.token, patient["id"])
+        ended_view = await open_viewer(server, hal_elsewhere, patient["id"])
+        kept = await open_live(server, hal.token, patient["id"])
+        answer = await change(hal.http.post, "/api/auth/password", json={
+            "old_password": PASSWORD, "new_password": "hal's new password"})
+        assert answer.status_code == 204, answer.text
+        codes = await close_code(ended), await close_code(ended_view)
+        await still_open(kept)  # the sign-in that changed it stays
+        await kept.close()
+        return codes
+
+    assert asyncio.run(scenario()) == (4401, 4401)
+
+
+def test_erasing_a_session_closes_its_replays(module_server):
+    server = module_server
+    alice = server.client("alice")
+    patient = alice.patient("Replayed")
+    kit = alice.device(patient["id"])
+
+    async def scenario():
+        async with connect(server.ws_url, additional_headers={
+                "Authorization": f"Bearer {kit['token']}"}) as ws:
+            await ws.send(json.dumps(HELLO))
+            session_id = json.loads(await ws.recv())["session"]
+            await ws.send(json.dumps({"type": "bye"}))
+        replay = await open_viewer(server, alice, patient["id"], session_id)
+        live = await open_live(server, alice.token, patient["id"])
+        erased = await change(alice.http.delete, f"/api/sessions/{session_id}")
+        assert erased.status_code == 204
+        code = await close_code(replay)
+        await still_open(live)  # the patient is still theirs
+        await live.close()
+        return code
+
+    assert asyncio.run(scenario()) == 4404
+
+
+def test_a_change_made_outside_the_server_closes_feeds_soon(tmp_path):
+    """``armtrack create-user NAME --disable`` runs in another process: the server learns
+    it at its next periodic check (``ARMTRACK_ACCESS_CHECK_S``)."""
+    server = ServerProcess(tmp_path / "server", env={"ARMTRACK_ACCESS_CHECK_S": "0.5"})
+    server.create_user("ivy")
+    server.start()
+    try:
+        ivy = server.client("ivy")
+        patient = ivy.patient("Ivy's")
+
+        async def scenario():
+            feed = await open_live(server, ivy.token, patient["id"])
+            done = await asyncio.to_thread(server.armtrack, "create-user", "ivy", "--disable")
+            assert done.returncode == 0, done.stderr
+            return await close_code(feed, 3.0)
+
+        assert asyncio.run(scenario()) == 4401
+    finally:
+        server.stop()

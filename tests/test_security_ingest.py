@@ -1,0 +1,62 @@
+"""Issue 17, what a kit's token can reach on ``/ws/ingest`` and ``POST /api/recordings``,
+on a real server: another patient's live stream is never touched by a ``hello`` naming
+its session or stream (item 4)."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+
+import pytest
+from websockets.asyncio.client import connect
+from websockets.exceptions import ConnectionClosed
+
+HELLO = {"type": "hello", "protocol": 1, "device": "kit", "side": "right",
+         "sensors": ["forearm"], "rate_hz": 50, "nine_axis": False, "resume": None}
+
+
+async def kit(server, token: str, **hello):
+    ws = await connect(server.ws_url, additional_headers={"Authorization": f"Bearer {token}"})
+    await ws.send(json.dumps({**HELLO, **hello}))
+    return ws, json.loads(await asyncio.wait_for(ws.recv(), 10))
+
+
+async def refused_hello(server, token: str, **hello) -> tuple[dict, int | None]:
+    """A hello that must be refused: its error and the close code."""
+    ws, answer = await kit(server, token, **hello)
+    try:
+        await asyncio.wait_for(ws.recv(), 5)
+    except ConnectionClosed as exc:
+        return answer, exc.rcvd.code if exc.rcvd else None
+    return answer, None
+
+
+def test_a_hello_naming_another_patients_session_or_stream_touches_nothing(module_server):
+    alice, bob = module_server.client("alice"), module_server.client("bob")
+    victim = alice.device(alice.patient("Victim")["id"])["token"]
+    attacker = bob.device(bob.patient("Attacker")["id"])["token"]
+
+    async def scenario():
+        ws, ready = await kit(module_server, victim)
+        assert ready["type"] == "ready", ready
+        answers = [await refused_hello(module_server, attacker, session=ready["session"]),
+                   await refused_hello(module_server, attacker, resume=ready["stream"])]
+        # the victim's stream is untouched: it goes on and is acked
+        row = [0.0, 0.0, 0.0, 9.81, 0.0, 0.0, 0.0, None, None, None]
+        await ws.send(json.dumps({"type": "samples", "seq": 0, "sensor": "forearm",
+                                  "rows": [row]}))
+        try:
+            async with asyncio.timeout(10):
+                while (message := json.loads(await ws.recv()))["type"] != "ack":
+                    pass
+        except ConnectionClosed as exc:
+            pytest.fail(f"the victim's stream was closed: {exc.rcvd}")
+        await ws.send(json.dumps({"type": "bye"}))
+        await ws.close()
+        return answers, message
+
+    answers, ack = asyncio.run(scenario())
+    assert ack == {"type": "ack", "seq": 0}
+    for (error, code), words in zip(answers, ("no session", "no stream"), strict=True):
+        assert error["type"] == "error" and words in error["reason"], error
+        assert code == 4400, code
