@@ -17,7 +17,7 @@ from ..programs.schemas import CatalogueOut, PrescriptionIn, ProgramIn, ProgramO
 from ..reports.targets import patient_targets
 from ..services import Services
 from ..settings import Settings
-from .deps import Db, Therapist, own_patient, services
+from .deps import Db, Therapist, holds, own_patient, services
 from .schemas import Id
 
 router = APIRouter(prefix="/api", tags=["programs"], responses={
@@ -30,7 +30,7 @@ def own_program(db: DbSession, therapist: models.Therapist, program_id: int
     program = db.get(models.Program, program_id)
     if program is not None:
         patient = db.get(models.Patient, program.patient_id)
-        if patient is not None and patient.therapist_id == therapist.id:
+        if holds(therapist, patient):  # theirs, and not an admin's (docs/security.md)
             audit.note(patient_id=patient.id)
             return program
     raise HTTPException(status.HTTP_404_NOT_FOUND, f"no program {program_id}")
