@@ -1,4 +1,4 @@
-"""Issue 17 item 1, the database side: migration 0005 rebuilds a database made before it
+"""Issue 17 item 1, the database side: migration 0006 rebuilds a database made before it
 (revision 0003) with SQLite's AUTOINCREMENT, keeps every row and every reference (no
 cascade from the rebuild), and starts each counter past every id ever given — also past
 ids of rows erased before the migration, which only the audit log still names."""

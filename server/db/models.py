@@ -50,7 +50,7 @@ class UtcDateTime(TypeDecorator):
 
 def never_reused() -> dict[str, Any]:
     """Table options: an id is never given twice, even after its row is deleted (SQLite's
-    AUTOINCREMENT; PostgreSQL's sequences never repeat). Migration 0005 converted the
+    AUTOINCREMENT; PostgreSQL's sequences never repeat). Migration 0006 converted the
     tables made before it; every new table with an integer id takes this too."""
     return {"sqlite_autoincrement": True}
 

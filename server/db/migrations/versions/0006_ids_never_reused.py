@@ -13,21 +13,21 @@ PostgreSQL needs nothing: its sequences never hand out a value twice.
 ``sample_blocks`` is not rebuilt: its ids name nothing outside the table, it is the one
 large table, and its inserts are the hot path of ingest.
 
-Revision ID: 0005
-Revises: 0004
+Revision ID: 0006
+Revises: 0005
 Create Date: 2026-12-02 05:40:00
 """
 
 import sqlalchemy as sa
 from alembic import op
 
-revision = "0005"
-down_revision = "0004"
+revision = "0006"
+down_revision = "0005"
 branch_labels = None
 depends_on = None
 
 #: Tables rebuilt, each with the audit log's column that names its ids (if any).
-#: (The tables of 0004, programs, were made with AUTOINCREMENT already.)
+#: (The tables of 0004 and 0005 were made with AUTOINCREMENT already.)
 TABLES = {"therapists": "therapist_id", "access_tokens": None, "patients": "patient_id",
           "devices": "device_id", "sessions": "session_id", "marks": None,
           "estimate_blocks": None, "patient_targets": None, "password_resets": None,
