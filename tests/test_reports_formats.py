@@ -72,7 +72,7 @@ def test_summary_csv_has_a_row_per_angle_and_exercise(alice, sessions):
     print(text)
 
 
-def test_pdf_renders_three_pages(alice, sessions, tmp_path):
+def test_pdf_renders_four_pages(alice, sessions, tmp_path):
     session, _ = sessions["left_reach_50hz"]
     alice.http.put(f"/api/patients/{session['patient_id']}/targets/shoulder_flexion",
                    json={"min_deg": 0, "max_deg": 120})
@@ -85,7 +85,7 @@ def test_pdf_renders_three_pages(alice, sessions, tmp_path):
     subprocess.run(["pdftoppm", "-png", "-r", "60", str(tmp_path / "report.pdf"),
                     str(tmp_path / "page")], check=True, timeout=120)
     pages = sorted(tmp_path.glob("page-*.png"))
-    assert len(pages) == 3, pages
+    assert len(pages) == 4, pages  # summary, details, curves, repetitions + appendix
     from matplotlib.image import imread
 
     for page in pages:

@@ -7,7 +7,7 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Annotated
 
-from fastapi import APIRouter, HTTPException, Path, status
+from fastapi import APIRouter, Depends, HTTPException, Path, status
 from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel, Field
 from sqlalchemy import select
@@ -18,6 +18,7 @@ from ..reports import content, fhir, opensim, pdf
 from ..reports import csv as report_csv
 from ..reports import progress as progress_mod
 from ..reports.content import AngleName, NoEstimates, SessionReport, TargetOut
+from ..reports.pdf_summary import Letterhead
 from ..reports.targets import (
     TargetIn,
     current_targets,
@@ -25,7 +26,9 @@ from ..reports.targets import (
     set_target,
     target_history,
 )
-from .deps import Db, Therapist, own_patient, own_session
+from ..services import Services
+from ..store.recordings import dated_by
+from .deps import Db, Therapist, own_patient, own_session, services
 
 router = APIRouter(prefix="/api", tags=["reports"], responses={
     400: {"description": "the body is not JSON"},
@@ -84,16 +87,51 @@ def get_report_csv(session_id: Id, db: Db, therapist: Therapist) -> Response:
 @router.get("/sessions/{session_id}/report.pdf", response_class=Response,
             responses={200: {"content": {"application/pdf": {}}, "description": "PDF"},
                        **CONFLICT})
-def get_report_pdf(session_id: Id, db: Db, therapist: Therapist) -> Response:
-    """The report as a PDF a therapist can file (two or three pages)."""
+def get_report_pdf(session_id: Id, db: Db, therapist: Therapist,
+                   svc: Annotated[Services, Depends(services)]) -> Response:
+    """The report as a PDF a clinic files or sends: a one-page summary (clinic,
+    therapist, patient identifiers, local date and time, what was done, range against
+    normal, the target then, the previous sessions and the change, a plain sentence),
+    then the details and a technical appendix (four pages)."""
     session = own_session(db, therapist, session_id)
     try:
         data = content.load_session(db, session)
     except NoEstimates as exc:
         raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from None
     report = content.session_report(db, session, data=data)
-    return _attachment(pdf.report_pdf(report, data), "application/pdf",
-                       f"session-{session_id}-report.pdf")
+    patient = data.patient
+    settings = svc.settings
+    letterhead = Letterhead(
+        clinic_name=settings.clinic_name, clinic_address=settings.clinic_address,
+        zone=settings.clinic_zone(), therapist=therapist.full_name or therapist.username,
+        clinic_number=patient.clinic_number, date_of_birth=patient.date_of_birth,
+        dated=dated_by(session))
+    return _attachment(pdf.report_pdf(report, data, letterhead,
+                                      _previous(db, session, PREVIOUS_IN_PDF)),
+                       "application/pdf", f"session-{session_id}-report.pdf")
+
+
+#: Earlier sessions the PDF's summary compares with.
+PREVIOUS_IN_PDF = 3
+
+
+def _previous(db: DbSession, session: models.Session, count: int
+              ) -> list[tuple[datetime, SessionReport]]:
+    """The patient's ``count`` latest estimated sessions before ``session``: (start,
+    report), newest first."""
+    earlier = db.scalars(select(models.Session).where(
+        models.Session.patient_id == session.patient_id, models.Session.id != session.id,
+        models.Session.started_at < session.started_at)
+        .order_by(models.Session.started_at.desc()).limit(count * 2))
+    out = []
+    for other in earlier:
+        try:
+            out.append((other.started_at, content.session_report(db, other)))
+        except NoEstimates:
+            continue
+        if len(out) == count:
+            break
+    return out
 
 
 @router.get("/sessions/{session_id}/report.mot", response_class=Response,

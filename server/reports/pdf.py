@@ -1,19 +1,24 @@
-"""The report as a PDF a therapist can file, drawn with matplotlib (object API, no pyplot
-state, so requests may draw at once in threads). A4 portrait, three pages:
+"""The report as a PDF a clinic files or sends, drawn with matplotlib (object API, no
+pyplot state, so requests may draw at once in threads). A4 portrait, four pages:
 
-1. header (patient, date, side, kit, calibration), the range-of-motion table against
-   AAOS normal values and the patient's targets, and bars: normal range (grey), the
-   session's range (blue), the target (black frame);
-2. the joint angles that moved over time, the calibration part shaded, exercises as
+1. the summary (``pdf_summary.py``): clinic, therapist, patient identifiers, local date
+   and time, what was done, range against normal, the target then and the previous
+   session, the change, a sentence of plain interpretation;
+2. details: the range-of-motion table against AAOS normal values and the target in
+   force when the session was recorded, and bars: normal range (grey), the session's
+   range (blue), the target (black frame);
+3. the joint angles that moved over time, the calibration part shaded, exercises as
    coloured bands with their names, each repetition's peak marked;
-3. repetitions and smoothness per exercise and angle, and data quality (sensors, rates,
-   lost samples, magnetometer disturbances, calibration, warnings).
+4. repetitions and smoothness per exercise and angle; appendix: data quality and
+   technical data (sensors, rates, lost samples, magnetometer disturbances, calibration,
+   estimator, warnings).
 """
 
 from __future__ import annotations
 
 import io
-from datetime import UTC
+from collections.abc import Sequence
+from datetime import UTC, datetime
 
 import matplotlib
 import numpy as np
@@ -21,6 +26,7 @@ from matplotlib.backends.backend_pdf import PdfPages
 from matplotlib.figure import Figure
 
 from .content import SessionData, SessionReport
+from .pdf_summary import Letterhead, local, summary_page
 
 # Names and notes are a user's text: "$…$" in a patient's name is no formula (mathtext made
 # such a name fail the whole PDF, issue 17). Set once for the process, not per call with
@@ -41,6 +47,9 @@ LABELS = {
     "forearm_pronation": "Forearm pronation", "wrist_flexion": "Wrist flexion",
     "wrist_deviation": "Wrist ulnar deviation", "shoulder_elevation": "Shoulder elevation",
 }
+POSES = {"npose": "N-pose", "tpose": "T-pose"}
+SENSORS = {"trunk": "trunk", "clavicle": "clavicle", "upper_arm": "upper arm",
+           "forearm": "forearm", "hand": "hand"}
 COLOURS = ["#4C72B0", "#DD8452", "#55A868", "#C44E52", "#8172B3", "#937860", "#DA8BC3"]
 
 
@@ -70,23 +79,22 @@ ASSUMPTION_WORDS = {"trunk_still": "trunk upright and still",
                     "forearm_still": "forearm still"}
 
 
-def _header(fig: Figure, report: SessionReport) -> None:
+def _header(fig: Figure, report: SessionReport, letterhead: Letterhead) -> None:
     s, q = report.session, report.quality
     started = s.started_at if s.started_at.tzinfo else s.started_at.replace(tzinfo=UTC)
     cal = q.calibration
-    poses = ", ".join(f"{p.name} {p.start_s:.1f}–{p.end_s:.1f} s" for p in cal.poses) or "none"
+    poses = ", ".join(f"{POSES.get(p.name, p.name)} {p.start_s:.1f}–{p.end_s:.1f} s"
+                      for p in cal.poses) or "none"
     lines = [
-        ("Patient", f"{s.patient_name} (id {s.patient_id})"
-                    + (f", height {s.height_m:.2f} m" if s.height_m else "")),
-        ("Date", started.strftime("%Y-%m-%d %H:%M UTC") + f", {s.duration_s / 60:.1f} min"),
+        ("Patient", s.patient_name + (f", height {s.height_m:.2f} m" if s.height_m else "")),
+        ("Date", local(started, letterhead.zone) + f", {s.duration_s / 60:.1f} min"),
         ("Side", f"{s.side} arm"),
-        ("Kit", f"{s.kit or '(uploaded file)'} · sensors: {', '.join(s.sensors)}"
+        ("Kit", f"{s.kit or '(uploaded file)'} · sensors: {', '.join(SENSORS.get(n, n) for n in s.sensors)}"
                 + (" · assumes: " + ", ".join(ASSUMPTION_WORDS.get(a, a) for a in s.assumptions)
                    if s.assumptions else "")),
         ("Calibration", f"{cal.method or '–'}"
                         + (" (default mounting)" if cal.default_mounting else "")
                         + f"; poses: {poses}"),
-        ("Estimator", ", ".join(f"{k} {v}" for k, v in q.estimator.items()) or "–"),
     ]
     y = 0.925
     for key, value in lines:
@@ -264,11 +272,13 @@ def _details_page(fig: Figure, report: SessionReport) -> None:
 
     q = report.quality
     y = bottom - 0.07
-    fig.text(0.06, y, "Data quality", fontsize=11, weight="bold")
+    fig.text(0.06, y, "Appendix: data quality and technical data", fontsize=9,
+             weight="bold")
     lines = []
     for sensor in q.sensors:
         lines.append(
-            f"{sensor.name}: {'9' if sensor.nine_axis else '6'}-axis, {sensor.samples} samples"
+            f"{SENSORS.get(sensor.name, sensor.name)} sensor: "
+            f"{'9' if sensor.nine_axis else '6'}-axis, {sensor.samples} samples"
             f" at {_fmt(sensor.rate_hz, '.0f', ' Hz')} over {sensor.duration_s:.0f} s, "
             f"{sensor.lost_samples} lost ({sensor.lost_percent:.1f}%)"
             + (f", magnetic disturbance {sensor.magnetic_disturbance_s:.1f} s in "
@@ -281,15 +291,21 @@ def _details_page(fig: Figure, report: SessionReport) -> None:
                     if cal.default_mounting else "")
                  + (f"; excluded from metrics {cal.excluded.start_s:.1f}–"
                     f"{cal.excluded.end_s:.1f} s" if cal.excluded else ""))
+    lines.append("Estimator: " + (", ".join(f"{k} {v}" for k, v in q.estimator.items())
+                                  or "–") + f"; kit: {report.session.kit or 'uploaded file'}")
     lines += [f"Warning: {w}" for w in q.warnings] or ["No warnings."]
-    y -= 0.03
-    for line in lines[: max(1, int((y - 0.05) / 0.018))]:
-        fig.text(0.07, y, line, fontsize=8, wrap=True)
-        y -= 0.018
+    y -= 0.025
+    for line in lines[: max(1, int((y - 0.05) / 0.016))]:
+        fig.text(0.07, y, line, fontsize=7, wrap=True, color="#333")
+        y -= 0.016
 
 
-def report_pdf(report: SessionReport, data: SessionData) -> bytes:
-    """The report as PDF bytes."""
+def report_pdf(report: SessionReport, data: SessionData,
+               letterhead: Letterhead | None = None,
+               previous: Sequence[tuple[datetime, SessionReport]] = ()) -> bytes:
+    """The report as PDF bytes; ``previous``: earlier sessions' (start, report), newest
+    first, for the summary's comparison."""
+    letterhead = letterhead or Letterhead()
     repetitions: dict[str, int] = {}
     for exercise in report.exercises:
         for a in exercise.angles:
@@ -297,14 +313,17 @@ def report_pdf(report: SessionReport, data: SessionData) -> bytes:
     out = io.BytesIO()
     with PdfPages(out, metadata={"Title": f"armtrack session {report.session.session_id}",
                                  "Creator": "armtrack"}) as pages:
-        first = _page("Session report", report, 1, 3)
-        _header(first, report)
-        _rom_bars(first, report, _rom_table(first, report, repetitions))
+        first = _page("Session report: summary", report, 1, 4)
+        summary_page(first, report, letterhead, previous)
         pages.savefig(first)
-        second = _page("Joint angles over time", report, 2, 3)
-        _angles_page(second, report, data)
+        second = _page("Range of motion in detail", report, 2, 4)
+        _header(second, report, letterhead)
+        _rom_bars(second, report, _rom_table(second, report, repetitions))
         pages.savefig(second)
-        third = _page("Repetitions, smoothness and data quality", report, 3, 3)
-        _details_page(third, report)
+        third = _page("Joint angles over time", report, 3, 4)
+        _angles_page(third, report, data)
         pages.savefig(third)
+        fourth = _page("Repetitions and smoothness; appendix", report, 4, 4)
+        _details_page(fourth, report)
+        pages.savefig(fourth)
     return out.getvalue()

@@ -1,0 +1,78 @@
+"""The PDF a doctor reads, on a real server: the first page is a summary with the clinic,
+the therapist, the patient's identifiers, the local date and time, what was done, the
+range against normal, the target in force then, the previous session and the change, and
+a plain sentence. Pages are rendered with pdftoppm (kept in ``ARMTRACK_SHOTS`` or a temp
+folder, to be looked at) and read back with pdftotext."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+from armtrack.estimator.recording import format_recording, read_recording
+from server_support import ServerProcess
+
+
+@pytest.fixture(scope="module")
+def clinic(tmp_path_factory):
+    process = ServerProcess(tmp_path_factory.mktemp("pdf"), {
+        "ARMTRACK_CLINIC_NAME": "Rehab Clinic Nord",
+        "ARMTRACK_CLINIC_ADDRESS": "12 Quai des Chartrons, 33000 Bordeaux",
+        "ARMTRACK_CLINIC_TIMEZONE": "Europe/Paris"})
+    process.create_user("alice")
+    process.start()
+    yield process
+    process.stop()
+
+
+def test_the_first_page_is_a_summary_a_doctor_reads(clinic, recordings_dir, tmp_path):
+    if shutil.which("pdftoppm") is None or shutil.which("pdftotext") is None:
+        pytest.skip("pdftoppm/pdftotext (Debian poppler-utils) are missing")
+    alice = clinic.client("alice")
+    alice.http.patch("/api/me", json={"full_name": "Dr Alice Martin"})
+    patient = alice.http.post("/api/patients", json={
+        "name": "Marie Curie", "side": "right", "height_m": 1.75,
+        "clinic_number": "BX-2291", "date_of_birth": "1967-11-07"}).json()
+
+    def upload(name, start_time):
+        recording = read_recording(recordings_dir / f"{name}.csv")
+        recording = replace(recording, metadata={**recording.metadata,
+                                                 "start_time": start_time})
+        answer = alice.http.post("/api/recordings", data={"patient_id": patient["id"]},
+                                 files={"file": (f"{name}.csv", format_recording(recording))})
+        assert answer.status_code == 201, answer.text
+        return answer.json()
+
+    alice.http.put(f"/api/patients/{patient['id']}/targets/elbow_flexion",
+                   json={"min_deg": 0, "max_deg": 130, "note": "week 2: full flexion"})
+    upload("elbow_6axis", "2026-11-24T09:30:00+01:00")  # before the target: recorded then
+    latest = upload("elbow_flexion", "2026-12-01T09:41:00+01:00")
+    # the target was set now, after both recordings: neither report shows it as "then"
+    answer = alice.http.get(f"/api/sessions/{latest['id']}/report.pdf")
+    assert answer.status_code == 200, answer.text[:300]
+    folder = Path(os.environ.get("ARMTRACK_SHOTS", tmp_path))
+    folder.mkdir(parents=True, exist_ok=True)
+    pdf = folder / "report.pdf"
+    pdf.write_bytes(answer.content)
+    subprocess.run(["pdftoppm", "-png", "-r", "80", str(pdf), str(folder / "pdf-page")],
+                   check=True, timeout=120)
+    pages = sorted(folder.glob("pdf-page-*.png"))
+    assert len(pages) == 4, pages
+    first = subprocess.run(["pdftotext", "-f", "1", "-l", "1", "-layout", str(pdf), "-"],
+                           capture_output=True, text=True, check=True).stdout
+    print(first)
+    flat = " ".join(first.split())  # wrapped lines joined
+    for words in ("Rehab Clinic Nord", "12 Quai des Chartrons", "Dr Alice Martin",
+                  "Marie Curie", "BX-2291", "7 Nov 1967", "Tue 1 Dec 2026, 09:41 CET",
+                  "(recorded)", "Elbow flexion: 5 repetitions", "% of normal",
+                  "Previous session", "Tue 24 Nov 2026", "In plain words",
+                  "10° more range than on Tue 24 Nov 2026", "Targets set since this session"):
+        assert words in flat, words
+    assert "UTC" not in first and "upper_arm" not in first and "estimator" not in first
+    appendix = subprocess.run(["pdftotext", "-f", "4", "-l", "4", str(pdf), "-"],
+                              capture_output=True, text=True, check=True).stdout
+    assert "Appendix" in appendix and "Estimator" in appendix
