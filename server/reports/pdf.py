@@ -89,7 +89,8 @@ def _header(fig: Figure, report: SessionReport, letterhead: Letterhead) -> None:
         ("Patient", s.patient_name + (f", height {s.height_m:.2f} m" if s.height_m else "")),
         ("Date", local(started, letterhead.zone) + f", {s.duration_s / 60:.1f} min"),
         ("Side", f"{s.side} arm"),
-        ("Kit", f"{s.kit or '(uploaded file)'} · sensors: {', '.join(SENSORS.get(n, n) for n in s.sensors)}"
+        ("Kit", f"{s.kit or '(uploaded file)'} · sensors: "
+                + ", ".join(SENSORS.get(n, n) for n in s.sensors)
                 + (" · assumes: " + ", ".join(ASSUMPTION_WORDS.get(a, a) for a in s.assumptions)
                    if s.assumptions else "")),
         ("Calibration", f"{cal.method or '–'}"

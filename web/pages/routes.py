@@ -82,6 +82,13 @@ def kit_service_worker() -> FileResponse:
                         headers={"Cache-Control": "no-cache"})
 
 
+@router.get("/favicon.ico")
+def favicon() -> FileResponse:
+    """Browsers ask for it whatever the page says: the same icon, as SVG."""
+    return FileResponse(STATIC / "favicon.svg", media_type="image/svg+xml",
+                        headers={"Cache-Control": "max-age=86400"})
+
+
 @router.get("/assets/{name}")
 def asset(name: str) -> FileResponse:
     path = STATIC / name

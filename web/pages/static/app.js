@@ -27,11 +27,62 @@ function signOut() {
   location.href = "/signin";
 }
 
-function requireSignIn() {
-  if (!token()) {
-    location.href = "/signin?next=" + encodeURIComponent(location.pathname);
-    throw new Error("not signed in");
+// A tab opened from a signed-in tab (Ctrl-click, middle click) has no token of its own:
+// it asks the other tabs of this origin on a BroadcastChannel (same-origin only, nothing
+// written to cookies or localStorage), and a signed-in tab answers with its token.
+const AUTH_CHANNEL = "armtrack.auth";
+let authChannel = null;
+try { authChannel = new BroadcastChannel(AUTH_CHANNEL); } catch (_) { authChannel = null; }
+// A tab answers only just after the therapist opened a link in a new tab from it
+// (Ctrl/⌘/Shift-click or middle click), once: not to any page that asks at any time.
+const HANDOFF_WINDOW_MS = 10000;
+let openedNewTabAt = -Infinity;
+function noteNewTab(event) {
+  if (event.target.closest && event.target.closest("a[href], tr.clickable")
+      && (event.ctrlKey || event.metaKey || event.shiftKey || event.button === 1)) {
+    openedNewTabAt = Date.now();
   }
+}
+document.addEventListener("click", noteNewTab, true);
+document.addEventListener("auxclick", noteNewTab, true);
+if (authChannel) {
+  authChannel.onmessage = (event) => {
+    if (event.data && event.data.kind === "need-token" && token()
+        && Date.now() - openedNewTabAt < HANDOFF_WINDOW_MS) {
+      openedNewTabAt = -Infinity;
+      authChannel.postMessage({ kind: "token", to: event.data.from, token: token(),
+        user: sessionStorage.getItem(USER_KEY) || "" });
+    }
+  };
+}
+const TAB_ID = Math.random().toString(36).slice(2);
+const HANDOFF_WAIT_MS = 1500;
+
+let signedIn = null;
+function requireSignIn() {
+  if (signedIn) return signedIn;
+  if (token()) return (signedIn = Promise.resolve());
+  signedIn = new Promise((resolve) => {
+    const giveUp = () => {
+      location.href = "/signin?next=" + encodeURIComponent(location.pathname + location.search);
+    };
+    if (!authChannel) { giveUp(); return; }
+    const timer = setTimeout(giveUp, HANDOFF_WAIT_MS);
+    const listen = (event) => {
+      if (event.data && event.data.kind === "token" && event.data.to === TAB_ID && event.data.token) {
+        clearTimeout(timer);
+        authChannel.removeEventListener("message", listen);
+        sessionStorage.setItem(TOKEN_KEY, event.data.token);
+        if (event.data.user) sessionStorage.setItem(USER_KEY, event.data.user);
+        const who = document.getElementById("who-name");
+        if (who && !who.textContent) who.textContent = event.data.user;
+        resolve();
+      }
+    };
+    authChannel.addEventListener("message", listen);
+    authChannel.postMessage({ kind: "need-token", from: TAB_ID });
+  });
+  return signedIn;
 }
 
 class ApiError extends Error {
@@ -44,14 +95,15 @@ let CLINIC = null;
 let clinicPromise = null;
 function clinic() {
   if (!clinicPromise) {
-    clinicPromise = fetch("/api/clinic", { headers: { Authorization: "Bearer " + token() } })
+    clinicPromise = requireSignIn().then(() => fetch("/api/clinic", { headers: { Authorization: "Bearer " + token() } })
       .then((r) => (r.ok ? r.json() : null)).catch(() => null)
-      .then((c) => { CLINIC = c; return c; });
+      .then((c) => { CLINIC = c; return c; }));
   }
   return clinicPromise;
 }
 
 async function api(path, options = {}) {
+  await requireSignIn();
   if (path !== "/api/clinic") await clinic();
   const headers = Object.assign({ Authorization: "Bearer " + token() }, options.headers || {});
   let body = options.body;
@@ -92,6 +144,17 @@ function el(tag, attrs, ...children) {
     node.append(child instanceof Node ? child : document.createTextNode(String(child)));
   }
   return node;
+}
+
+// A table row that opens ``url``: a click on its own link is the link's (a Ctrl-click
+// opens a new tab, signed in by the token hand-off above); elsewhere in the row, Ctrl/⌘
+// opens a new tab too.
+function rowLink(url) {
+  return (event) => {
+    if (event.target.closest("a, button, input, select")) return;
+    if (event.ctrlKey || event.metaKey) { openedNewTabAt = Date.now(); window.open(url, "_blank"); }
+    else location.href = url;
+  };
 }
 
 function clear(node, ...children) { node.replaceChildren(...children.flat(Infinity).filter((c) => c != null)); return node; }

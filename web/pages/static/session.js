@@ -333,6 +333,7 @@ async function finishLive() {
   calibrationParts = null;
   if (socket) socket.close();
   document.getElementById("exercise-now")?.remove();
+  document.getElementById("sensors-card").hidden = true;  // no kit streams any more
   LiveFollow.watch();
   LiveFollow.history().catch(() => {});
   clear(document.getElementById("calibration"), el("div", { class: "calib done", id: "calibration-box" },
