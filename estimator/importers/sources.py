@@ -5,12 +5,20 @@ from __future__ import annotations
 
 import io
 import zipfile
+import zlib
 from pathlib import Path
 
 from .base import ImportFailure, SourceFile
 
 #: Largest total size [bytes] a zip may unpack to (a zip bomb is refused, not unpacked).
 MAX_UNPACKED_BYTES = 2 << 30
+#: Most files a zip may hold (an export holds a few dozen; listing a zip of millions of
+#: empty members costs minutes and gigabytes).
+MAX_ZIP_MEMBERS = 1000
+#: What a damaged or unusual zip raises when opened or read (a name that is not the
+#: UTF-8 it says it is, a password, a compression zipfile cannot undo, broken data).
+_UNZIP_ERRORS = (zipfile.BadZipFile, zipfile.LargeZipFile, OSError, EOFError, zlib.error,
+                 UnicodeDecodeError, RuntimeError, NotImplementedError, ValueError)
 
 
 def is_zip(data: bytes) -> bool:
@@ -19,9 +27,13 @@ def is_zip(data: bytes) -> bool:
 
 def unzip(name: str, data: bytes, limit: int = MAX_UNPACKED_BYTES) -> list[SourceFile]:
     """The regular files inside a zip (macOS resource forks and hidden files left out)."""
+    # every member has a central directory entry starting so: a bound read in C
+    if data.count(b"PK\x01\x02") > MAX_ZIP_MEMBERS:
+        raise ImportFailure(name, f"holds more than {MAX_ZIP_MEMBERS} files; zip the "
+                            "recording's files alone")
     try:
         archive = zipfile.ZipFile(io.BytesIO(data))
-    except zipfile.BadZipFile as exc:
+    except _UNZIP_ERRORS as exc:
         raise ImportFailure(name, f"not a readable zip file ({exc})") from None
     members = [m for m in archive.infolist() if not m.is_dir()
                and not m.filename.startswith("__MACOSX/")
@@ -33,7 +45,7 @@ def unzip(name: str, data: bytes, limit: int = MAX_UNPACKED_BYTES) -> list[Sourc
     for m in sorted(members, key=lambda m: m.filename):
         try:
             out.append(SourceFile(f"{name}/{m.filename}", archive.read(m)))
-        except (zipfile.BadZipFile, OSError, EOFError) as exc:
+        except _UNZIP_ERRORS as exc:
             raise ImportFailure(f"{name}/{m.filename}", f"cannot be unpacked ({exc})") from None
     return out
 

@@ -335,7 +335,9 @@ def progress(session_id: Id, db: Db,
         if session.patient_id != who.patient_id:
             raise HTTPException(status.HTTP_404_NOT_FOUND, f"no uploaded session {session_id}")
     else:
-        own_patient(db, who, session.patient_id)
+        patient = db.get(models.Patient, session.patient_id)
+        if patient is None or patient.therapist_id != who.id:  # as if it did not exist
+            raise HTTPException(status.HTTP_404_NOT_FOUND, f"no uploaded session {session_id}")
     audit.note(patient_id=session.patient_id, session_id=session.id)
     if session.estimate_columns:
         state = "done"

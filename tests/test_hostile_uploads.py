@@ -1,0 +1,150 @@
+"""Hostile and careless input to the new routes, on a real server: every refusal is a clear
+4xx (never a 500 or a dropped connection), says what is wrong, and costs little; another
+therapist learns nothing from a refusal."""
+
+import io
+import json
+import struct
+import time
+import zipfile
+
+import httpx
+import pytest
+
+
+@pytest.fixture(scope="module")
+def alice(module_server):
+    return module_server.client("alice")
+
+
+@pytest.fixture(scope="module")
+def bob(module_server):
+    return module_server.client("bob")
+
+
+def post_json(api, path, text):
+    """A JSON body sent as given (``json.dumps`` escapes a lone surrogate as ``\\ud800``,
+    which a JSON parser turns back into one)."""
+    return api.http.post(path, content=text.encode("ascii"),
+                         headers={"content-type": "application/json"})
+
+
+@pytest.mark.parametrize("field", ["name", "note"])
+def test_a_lone_surrogate_in_a_body_is_a_422_not_a_500(module_server, alice, field):
+    patient = alice.patient(f"Sur {field}")
+    body = {"name": "Daily", "start_date": "2026-12-01",
+            "exercises": [{"exercise": "elbow_flexion", "sets": 2, "repetitions": 10,
+                           "days_per_week": 5}]}
+    body[field] = "x\ud800y"
+    answer = post_json(alice, f"/api/patients/{patient['id']}/programs", json.dumps(body))
+    assert answer.status_code == 422, answer.text
+    (error,) = answer.json()["detail"]
+    assert error["loc"] == ["body", field], error
+    print(error)
+    answer = post_json(alice, "/api/patients", json.dumps(
+        {"name": "a\udfffb", "side": "right", "height_m": 1.7}))
+    assert answer.status_code == 422, answer.text
+    assert module_server.sql("SELECT COUNT(*) FROM programs WHERE patient_id = :p",
+                             p=patient["id"])[0][0] == 0
+
+
+def zip_with_raw_name(raw: bytes) -> bytes:
+    """A zip of one member whose name is ``raw`` with the UTF-8 flag set (bad UTF-8 when
+    ``raw`` is)."""
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as z:
+        z.writestr("A" * len(raw), b"t,x\n1,2\n")
+    data = bytearray(buf.getvalue().replace(b"A" * len(raw), raw))
+    struct.pack_into("<H", data, 6, struct.unpack_from("<H", data, 6)[0] | 0x800)
+    c = data.find(b"PK\x01\x02")
+    struct.pack_into("<H", data, c + 8, struct.unpack_from("<H", data, c + 8)[0] | 0x800)
+    return bytes(data)
+
+
+def encrypted_zip() -> bytes:
+    """A zip whose member says it is encrypted (flag bit 0)."""
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as z:
+        z.writestr("acc.csv", b"t,x\n1,2\n")
+    data = bytearray(buf.getvalue())
+    c = data.find(b"PK\x01\x02")
+    struct.pack_into("<H", data, 6, struct.unpack_from("<H", data, 6)[0] | 0x1)
+    struct.pack_into("<H", data, c + 8, struct.unpack_from("<H", data, c + 8)[0] | 0x1)
+    return bytes(data)
+
+
+def unknown_method_zip() -> bytes:
+    """A zip whose member is compressed by a method zipfile cannot undo (99: AES)."""
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as z:
+        z.writestr("acc.csv", b"t,x\n1,2\n")
+    data = bytearray(buf.getvalue())
+    c = data.find(b"PK\x01\x02")
+    struct.pack_into("<H", data, 8, 99)
+    struct.pack_into("<H", data, c + 10, 99)
+    return bytes(data)
+
+
+@pytest.mark.parametrize("name, data", [
+    ("badname.zip", zip_with_raw_name(b"\xff\xfe.csv")),
+    ("locked.zip", encrypted_zip()),
+    ("aes.zip", unknown_method_zip()),
+])
+@pytest.mark.parametrize("route", ["/api/recordings/inspect", "/api/recordings"])
+def test_a_zip_that_cannot_be_unpacked_is_refused_naming_it(module_server, alice, route,
+                                                            name, data):
+    patient = alice.patient(f"Zip {name} {route[-7:]}")
+    form = {"patient_id": str(patient["id"]), "sensors": json.dumps({"forearm": name})}
+    with httpx.Client(base_url=module_server.url, headers=alice.http.headers,
+                      timeout=60) as http:  # a 500 may drop the connection
+        answer = http.post(route, data=form, files=[("files", (name, data, "application/zip"))])
+    print(route, name, answer.status_code, answer.text[:300])
+    assert answer.status_code == 422, answer.text
+    assert name in answer.json()["detail"]
+    assert module_server.sql("SELECT COUNT(*) FROM sessions WHERE patient_id = :p",
+                             p=patient["id"])[0][0] == 0
+
+
+def test_a_zip_of_very_many_members_is_refused_at_once(alice):
+    """60,000 empty members in 5.6 MB took 6 s of the server's CPU to list and read (a
+    200 MB upload of them minutes and gigabytes); an export holds a few dozen files."""
+    patient = alice.patient("Many")
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_STORED) as z:
+        for k in range(60_000):
+            z.writestr(f"{k}.csv", b"")
+    start = time.monotonic()
+    answer = alice.http.post("/api/recordings/inspect", data={"patient_id": str(patient["id"])},
+                             files=[("files", ("many.zip", buf.getvalue(), "application/zip"))])
+    elapsed = time.monotonic() - start
+    print(f"{len(buf.getvalue())} bytes, {answer.status_code} in {elapsed:.2f} s: "
+          f"{answer.text[:200]}")
+    assert answer.status_code == 422, answer.text
+    assert "many.zip" in answer.json()["detail"] and "files" in answer.json()["detail"]
+    assert elapsed < 1.5
+
+
+def test_another_therapists_progress_route_says_nothing_of_the_patient(alice, bob):
+    """Bob asking for the progress of Alice's upload gets the same 404 as for a session
+    that does not exist (it named Alice's patient's id)."""
+    patient = alice.patient("Progress")
+    answer = bob.http.get("/api/recordings/999999/progress")
+    assert answer.status_code == 404
+    missing = answer.json()["detail"]
+    session_id = _upload_session(alice, patient)
+    answer = bob.http.get(f"/api/recordings/{session_id}/progress")
+    assert answer.status_code == 404, answer.text
+    assert answer.json()["detail"] == missing.replace("999999", str(session_id))
+
+
+def _upload_session(alice, patient) -> int:
+    """An uploaded session of ``patient`` (a small simulated recording, not waited for)."""
+    from armtrack.estimator.recording import format_recording
+    from armtrack.estimator.simulation import SimulationConfig, simulate
+
+    rec = simulate(SimulationConfig(rate_hz=30.0, repetitions=1, seed=2)).recording
+    answer = alice.http.post("/api/recordings", data={"patient_id": str(patient["id"]),
+                                                      "wait": "false"},
+                             files={"file": ("r.csv", format_recording(rec), "text/csv")})
+    assert answer.status_code == 202, answer.text
+    return answer.json()["id"]
