@@ -35,7 +35,6 @@ from armtrack.estimator.recording.rules import (
 )
 
 from ..plain_text import text_problem
-
 from . import points as _points
 from .points import PointsDeclaration, check_declaration
 
