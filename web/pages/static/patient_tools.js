@@ -65,7 +65,10 @@ const PatientTools = (() => {
 
   async function progress() {
     const p = await api(`/api/patients/${patientId}/progress`);
-    const normals = (await api(`/api/patients/${patientId}/live`)).normal_ranges || {};
+    // the AAOS normal ranges come with any report's rows (normal_min/normal_max)
+    const normals = {};
+    for (const s of p.sessions) for (const [a, r] of Object.entries(s.rom))
+      if (r.normal_min !== null && r.normal_max !== null) normals[a] = [r.normal_min, r.normal_max];
     const today = Object.fromEntries(p.targets.map((t) => [t.angle, t]));
     const angles = ANGLES.filter((a) => p.sessions.some((s) => s.rom[a]));
     const body = angles.length ? angles.map((a) => {
@@ -162,7 +165,6 @@ const PatientTools = (() => {
     } }, "Erase the patient…");
     card("record-card", "Patient record", form,
       el("div", { class: "row", style: "margin-top:12px;align-items:center" }, exportButton,
-        el("a", { href: `/audit?patient=${patientId}`, id: "audit-link" }, "Who opened this record (audit log)"),
         el("span", { class: "grow" }), erase));
   }
 
