@@ -228,3 +228,39 @@ def test_a_name_with_dollars_is_text_in_the_pdf(srv, tmp_path):
     text = subprocess.run(["pdftotext", str(path), "-"], capture_output=True, text=True,
                           check=True).stdout
     assert name in text, text[:500]
+
+
+def test_csv_cells_for_spreadsheets_start_no_formula(srv, hostile):
+    """OWASP CSV injection: a text cell starting with = + - @ is shown as text (a leading
+    apostrophe); numbers, negative angles included, stay numbers. The audit CSV's client
+    column is anyone's text (a forwarded address from a proxy)."""
+    import csv
+    import io
+
+    api, patient, session = hostile
+    forged = "=HYPERLINK(\"http://198.51.100.7/\",\"open\")"
+    api.http.get(f"/api/patients/{patient['id']}", headers={"X-Forwarded-For": forged})
+    api.http.get(f"/api/sessions/{session['id']}/report",
+                 headers={"X-Forwarded-For": "-2+3"})
+    for path in ("/api/audit?format=csv", f"/api/sessions/{session['id']}/report.csv",
+                 f"/api/patients/{patient['id']}/progress.csv"):
+        answer = api.http.get(path)
+        assert answer.status_code == 200, (path, answer.text[:200])
+        rows = list(csv.reader(io.StringIO(answer.text)))
+        for row in rows[1:]:
+            for value in row:
+                try:
+                    float(value)
+                    continue  # a number, e.g. a negative angle
+                except ValueError:
+                    assert not value.startswith(("=", "+", "-", "@")), (path, value)
+        if path.startswith("/api/audit") and forged in answer.text:  # the proxy header held
+            assert "'" + forged.replace('"', '""') in answer.text
+
+
+def test_spreadsheet_text_neutralises_formulas_only():
+    from armtrack.server.reports.csv import spreadsheet_text
+
+    assert spreadsheet_text("=HYPERLINK(\"http://x\")") == "'=HYPERLINK(\"http://x\")"
+    assert spreadsheet_text("@SUM(A1)") == "'@SUM(A1)" and spreadsheet_text("+1") == "'+1"
+    assert spreadsheet_text(-12.5) == -12.5 and spreadsheet_text("elbow") == "elbow"

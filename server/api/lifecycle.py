@@ -22,6 +22,7 @@ from ..commands.output import write_angles_csv
 from ..db import models
 from ..reports import content
 from ..reports.content import NoEstimates
+from ..reports.csv import spreadsheet_text
 from ..reports.targets import current_targets, target_history
 from ..store.processing import stored_estimates
 from ..store.recordings import session_recording
@@ -156,4 +157,6 @@ def list_audit(db: Db, therapist: Therapist, page: Annotated[Page, Depends()],
 
 
 def _csv_value(value: object) -> object:
-    return value.isoformat() if isinstance(value, datetime) else ("" if value is None else value)
+    if isinstance(value, datetime):
+        return value.isoformat()
+    return "" if value is None else spreadsheet_text(value)  # the client is anyone's text

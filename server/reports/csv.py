@@ -20,12 +20,25 @@ SUMMARY_COLUMNS = ("session_id", "scope", "start_s", "end_s", "angle", *ROM_FIEL
                    *REPETITION_FIELDS, "amplitude_cv", "movement_time_cv")
 
 
+#: A text cell starting with one of these is a formula to a spreadsheet (OWASP, "CSV
+#: injection"); tab and carriage return too, since some spreadsheets skip them first.
+FORMULA_START = ("=", "+", "-", "@", "\t", "\r")
+
+
+def spreadsheet_text(value: object) -> object:
+    """A text cell that a spreadsheet shows as text: one that would start a formula gets a
+    leading apostrophe (OWASP). Numbers stay numbers (a negative angle is ``-12.5``)."""
+    if isinstance(value, str) and value.startswith(FORMULA_START):
+        return "'" + value
+    return value
+
+
 def cell(value: object) -> object:
     if value is None:
         return ""
     if isinstance(value, bool):
         return "yes" if value else "no"
-    return value
+    return spreadsheet_text(value)
 
 
 def _rows(report: SessionReport) -> Iterable[list[object]]:
@@ -42,7 +55,7 @@ def _rows(report: SessionReport) -> Iterable[list[object]]:
         for angle in dict.fromkeys([*exercise.rom, *by_angle]):
             rom = exercise.rom.get(angle)
             reps = by_angle.get(angle)
-            yield [sid, exercise.name, exercise.start_s, exercise.end_s, angle,
+            yield [sid, spreadsheet_text(exercise.name), exercise.start_s, exercise.end_s, angle,
                    *(_rom(rom) if rom else [""] * len(ROM_FIELDS)), *_reps(reps)]
 
 

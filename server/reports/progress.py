@@ -21,6 +21,7 @@ from pydantic import BaseModel, Field
 
 from ..db import models
 from .content import AngleName, RomEntry, SessionReport, TargetOut, finite, utc
+from .csv import spreadsheet_text
 
 SECONDS_PER_WEEK = 7 * 24 * 3600.0
 #: A slope needs sessions spread over at least this [s]: one day.
@@ -129,7 +130,8 @@ def progress_csv(p: Progress) -> str:
                       rom.target_max, rom.percent_of_target, rom.target_reached,
                       s.repetitions.get(angle, 0), s.median_sparc.get(angle),
                       s.peak_velocity_deg_s.get(angle)]
-            writer.writerow([s.session_id, s.started_at.isoformat(), s.status, angle,
+            writer.writerow([s.session_id, s.started_at.isoformat(), spreadsheet_text(s.status),
+                             spreadsheet_text(angle),
                              *("" if v is None else ("yes" if v is True else "no")
                                if isinstance(v, bool) else v for v in values)])
     return out.getvalue()
