@@ -7,11 +7,16 @@ from __future__ import annotations
 from typing import Annotated
 
 from fastapi import APIRouter, Depends, HTTPException, status
+from fastapi.responses import JSONResponse, Response
+from pydantic import BaseModel
+from sqlalchemy import select
 from sqlalchemy.orm import Session as DbSession
 
-from .. import audit
+from .. import audit, clock
 from ..db import models
-from ..programs import catalogue, store
+from ..programs import adherence, catalogue, store
+from ..programs import fhir as program_fhir
+from ..programs import pdf as program_pdf
 from ..programs.calendar import clinic_zone, today
 from ..programs.schemas import CatalogueOut, PrescriptionIn, ProgramIn, ProgramOut, VersionOut
 from ..reports.targets import patient_targets
@@ -109,3 +114,75 @@ def end_program(program_id: Id, db: Db, therapist: Therapist,
     program = own_program(db, therapist, program_id)
     store.end_program(db, program)
     return _out(db, program, settings)
+
+
+@router.get("/programs/{program_id}/adherence", response_model=adherence.ProgramProgress)
+def get_adherence(program_id: Id, db: Db, therapist: Therapist,
+                  settings: SettingsDep) -> adherence.ProgramProgress:
+    """The program's sessions, per ISO week prescribed vs done, per exercise the range
+    over time against its target, pain over time, and its flags (``docs/programs.md``)."""
+    program = own_program(db, therapist, program_id)
+    patient = db.get(models.Patient, program.patient_id)
+    return next(p for p in adherence.patient_programs_progress(db, patient, settings)
+                if p.program_id == program.id)
+
+
+class PatientFlags(BaseModel):
+    patient_id: int
+    flags: list[adherence.Flag]
+
+
+@router.get("/flags", response_model=list[PatientFlags])
+def get_flags(db: Db, therapist: Therapist, settings: SettingsDep) -> list[PatientFlags]:
+    """The therapist's patients who need a look (``docs/programs.md``, "Flags"): no
+    session for days, range falling, pain rising. Patients without a flag are left out."""
+    out = []
+    patients = db.scalars(select(models.Patient).where(
+        models.Patient.therapist_id == therapist.id).order_by(models.Patient.id))
+    for patient in patients:
+        flags = [f for p in adherence.patient_programs_progress(db, patient, settings)
+                 for f in p.flags]
+        seen, unique = set(), []
+        for f in flags:  # the patient's no_session flag once, not per program
+            key = (f.kind, f.exercise, f.program_id if f.kind != "no_session" else None)
+            if key not in seen:
+                seen.add(key)
+                unique.append(f)
+        if unique:
+            out.append(PatientFlags(patient_id=patient.id, flags=unique))
+    return out
+
+
+@router.get("/programs/{program_id}/careplan.fhir.json", response_class=JSONResponse,
+            responses={200: {"content": {"application/fhir+json": {"schema": {
+                "type": "object", "description": "a FHIR R4 Bundle"}}},
+                "description": "FHIR R4 Bundle"}})
+def get_careplan_fhir(program_id: Id, db: Db, therapist: Therapist,
+                      settings: SettingsDep) -> JSONResponse:
+    """The program as FHIR R4: CarePlan with its activities, a Goal and a ServiceRequest
+    per exercise, and the sessions' range-of-motion, pain and effort Observations
+    (LOINC where it has a fitting term, SNOMED CT otherwise; docs/programs.md)."""
+    program = own_program(db, therapist, program_id)
+    if not program.versions:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"no program {program_id}")
+    patient = db.get(models.Patient, program.patient_id)
+    zone = clinic_zone(settings.clinic_timezone)
+    sessions = adherence.filled_sessions(db, patient.id, program, zone)
+    bundle = program_fhir.careplan_bundle(program, patient, patient_targets(db, patient.id),
+                                          sessions, today(zone), clock.now())
+    return JSONResponse(bundle, media_type="application/fhir+json", headers={
+        "Content-Disposition": f'attachment; filename="program-{program_id}.fhir.json"'})
+
+
+@router.get("/patients/{patient_id}/progress.pdf", response_class=Response,
+            responses={200: {"content": {"application/pdf": {}}, "description": "PDF"}})
+def get_progress_pdf(patient_id: Id, db: Db, therapist: Therapist,
+                     settings: SettingsDep) -> Response:
+    """The patient's programs as a PDF: per program the flags, adherence per ISO week,
+    the range of each exercise against its target, pain and effort over time."""
+    patient = own_patient(db, therapist, patient_id)
+    programs = adherence.patient_programs_progress(db, patient, settings)
+    zone = clinic_zone(settings.clinic_timezone)
+    data = program_pdf.progress_pdf(patient, programs, today(zone), settings.clinic_timezone)
+    return Response(data, media_type="application/pdf", headers={
+        "Content-Disposition": f'attachment; filename="patient-{patient_id}-progress.pdf"'})

@@ -14,6 +14,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session as DbSession
 
 from ..db import models
+from ..programs.adherence import patient_programs_progress
 from ..reports import content, fhir, opensim, pdf
 from ..reports import csv as report_csv
 from ..reports import progress as progress_mod
@@ -186,10 +187,15 @@ def _progress(db: DbSession, therapist: models.Therapist, patient_id: int
 
 
 @router.get("/patients/{patient_id}/progress", response_model=progress_mod.Progress)
-def get_progress(patient_id: Id, db: Db, therapist: Therapist) -> progress_mod.Progress:
+def get_progress(patient_id: Id, db: Db, therapist: Therapist,
+                 svc: Annotated[Services, Depends(services)]) -> progress_mod.Progress:
     """The report's metrics for each of the patient's sessions, oldest first, against the
-    patient's targets, and per angle the trend (change and slope per week of the range)."""
-    return _progress(db, therapist, patient_id)
+    patient's targets, and per angle the trend (change and slope per week of the range);
+    the patient's programs with their adherence (``docs/programs.md``)."""
+    result = _progress(db, therapist, patient_id)
+    result.programs = patient_programs_progress(db, db.get(models.Patient, patient_id),
+                                                svc.settings)
+    return result
 
 
 @router.get("/patients/{patient_id}/progress.csv", response_class=Response, responses=CSV)

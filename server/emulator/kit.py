@@ -71,6 +71,11 @@ class KitEmulator:
     longest wait between reconnects [s] (doubling, with jitter). ack_timeout_s: how long
     [s] unacked messages may wait for any ``ack`` before the connection counts as dead.
     open_timeout_s: time [s] for the handshake and for ``ready``.
+    hello_extra: fields added to ``hello`` (extensions, e.g. ``{"extensions":
+    ["programs/1"], "program": "Shoulder"}``); the last ``ready`` is kept in
+    :attr:`ready`. ratings: ``effort_pain`` messages (``docs/extensions/effort-pain.md``)
+    sent once every sample and mark is acked, each again after a reconnect until its
+    ``effort_pain_stored`` came; ``bye`` waits for them.
 
     ``await run()`` streams everything and returns :attr:`stats`; it raises
     :class:`KitRefused` when the server refuses the kit for good and :class:`KitError`
@@ -83,7 +88,8 @@ class KitEmulator:
                  token_in_query: bool = False, on_ack: AckCallback | None = None,
                  drop_after_seqs: Iterable[int] = (), max_retries: int = 8,
                  backoff_s: tuple[float, float] = (0.2, 5.0), ack_timeout_s: float = 15.0,
-                 open_timeout_s: float = 10.0):
+                 open_timeout_s: float = 10.0, hello_extra: dict[str, Any] | None = None,
+                 ratings: Iterable[dict[str, Any]] = ()):
         if not (speed >= 0):
             raise InvalidArgument(f"speed must be >= 0 (0 or inf: as fast as possible), "
                                   f"got {speed}")
@@ -93,7 +99,16 @@ class KitEmulator:
             raise InvalidArgument(f"not a ws:// or wss:// URL: {url!r} ({exc})") from None
         self.recording = recording
         self.plan = MessagePlan(recording, rows_per_message)
-        self.hello = hello_message(recording, device, None, rate_hz)
+        self.hello = {**hello_message(recording, device, None, rate_hz),
+                      **(hello_extra or {})}
+        #: the last ``ready`` the server sent
+        self.ready: dict[str, Any] | None = None
+        self.ratings = {r["id"]: {**r, "type": "effort_pain"} for r in ratings}
+        #: ids of the ratings the server said it stored
+        self.ratings_stored: set[str] = set()
+        self._ratings_done = asyncio.Event()
+        if not self.ratings:
+            self._ratings_done.set()
         self.url = url
         self.token = token
         self.token_in_query = token_in_query
@@ -199,6 +214,7 @@ class KitEmulator:
                     self.outbox.refuse(message.get("seq"), str(message.get("reason", "")))
                     continue
                 raise KitError(f"expected ready, got {message!r}")
+        self.ready = message
         stream, next_seq = message.get("stream"), message.get("next_seq")
         if not isinstance(next_seq, int) or isinstance(next_seq, bool) or stream is None:
             raise KitError(f"ready must carry a stream id and an integer next_seq: {message!r}")
@@ -243,6 +259,10 @@ class KitEmulator:
             await asyncio.sleep(0)  # let acks in when sending unpaced
         self._check_done()
         await self._all_acked.wait()
+        for rid, rating in self.ratings.items():
+            if rid not in self.ratings_stored:
+                await self._send_text(ws, encode(rating))
+        await self._ratings_done.wait()
         await self._send_text(ws, encode({"type": "bye"}))
         self.stats.finished = time.monotonic()
         await ws.close(1000)
@@ -284,8 +304,14 @@ class KitEmulator:
                     outbox.stats.errors.append({"seq": seq, "reason": reason})
                     ws.transport.abort()  # a lost connection, not an ended session
                     raise _Resync
+                if reason.startswith("effort_pain:"):
+                    raise KitError(f"the server refused a rating: {reason}")
                 outbox.refuse(seq if isinstance(seq, int) else None, reason)
                 self._check_done()
+            elif kind == "effort_pain_stored":
+                self.ratings_stored.add(str(message.get("id")))
+                if self.ratings_stored >= set(self.ratings):
+                    self._ratings_done.set()
             elif kind == "bye":
                 self._server_bye = True
             # anything else (a future message type) is ignored

@@ -37,9 +37,11 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session as DbSession
 from starlette.websockets import WebSocketDisconnect, WebSocketState
 
+from .. import clock
 from ..auth import hash_token
 from ..db import models
 from ..live.worker import LiveWorker
+from ..programs import stream as program_stream
 from ..programs.today import exercise_bands
 from ..services import Services
 from ..store.processing import mark_closed
@@ -110,6 +112,11 @@ class IngestConnection:
         self.received = 0
         self.sensor_stats: dict[str, dict[str, Any]] = {}
         self.feedback: FeedbackTracker | None = None
+        #: programs/1 (docs/extensions/programs-hello.md): the program hello named, and
+        #: what ready says of it
+        self.program_ref: int | str | None = None
+        self.program: dict[str, Any] | None = None
+        self.program_error: str | None = None
 
     # -- sending ------------------------------------------------------------------------
     async def send(self, message: dict[str, Any]) -> None:
@@ -213,7 +220,9 @@ class IngestConnection:
         if text is None:
             return False
         try:
-            self.hello = protocol.check_hello(protocol.parse(text))
+            message = protocol.parse(text)
+            self.hello = protocol.check_hello(message)
+            self.program_ref = program_stream.check_program(message, self.hello)
             ready = await self._open_stream(self.hello)
         except Refused as error:
             if error.close_code is None:
@@ -277,17 +286,21 @@ class IngestConnection:
                                      points_frame=hello.points.frame if hello.points else None)
         except EstimatorError as exc:  # the data are still stored; only live view is off
             log.warning("no live estimates for session %s: %s", session_id, exc)
+        if hello.extensions:  # docs/extensions/README.md: those this server speaks
+            extra["extensions"] = [e for e in hello.extensions
+                                   if e == FEEDBACK_EXTENSION or e in program_stream.SPOKEN]
         if FEEDBACK_EXTENSION in hello.extensions:
             bands, marks = await services.run_db(_feedback_start, self.patient_id, session_id)
             self.feedback = FeedbackTracker({k: Band(*v) for k, v in bands.items()},
                                             measured_angles(hello.sensors))
             for t, label in marks:  # a resumed stream: the exercise under way goes on
                 self.feedback.mark(t, label)
-            extra["extensions"] = [FEEDBACK_EXTENSION]
             if self.worker is not None:
                 self.worker.on_pose = self._send_feedback
-        elif hello.extensions:
-            extra["extensions"] = []
+        if program_stream.PROGRAMS_EXTENSION in hello.extensions:
+            extra["program"] = self.program
+            if self.program_error:
+                extra["program_error"] = self.program_error
         services.hub.publish(self.patient_id, {"kind": "session", "session_id": session_id,
                                                "status": "live"})
         return {"type": "ready", "stream": stream_id, "session": session_id,
@@ -323,11 +336,15 @@ class IngestConnection:
             side=hello.side, height_m=patient.height_m, rate_hz=hello.rate_hz,
             sensors={s: {"nine_axis": hello.nine_axis} for s in hello.sensors},
             meta={"device": hello.device, **coverage(hello.sensors),
-                  **(hello.points.as_meta() if hello.points else {})})
+                  **(hello.points.as_meta() if hello.points else {})},
+            started_at=clock.now())
         db.add(session)
         db.flush()
         db.add(models.Stream(id=stream_id, session_id=session.id, device_id=self.device_id,
                              next_seq=0, last_t={}))
+        if self.program_ref is not None:
+            self.program, self.program_error = program_stream.follow_program(
+                db, patient.id, session.id, self.program_ref)
         db.commit()
         return session.id, patient.height_m
 
@@ -364,6 +381,7 @@ class IngestConnection:
         session.status = "live"
         session.ended_at = None
         db.commit()
+        self.program = program_stream.followed_program(db, session.id)
         return session.id, session.height_m, last_t
 
     def _resume_session(self, db: DbSession, hello: Hello, stream_id: str
@@ -384,6 +402,7 @@ class IngestConnection:
         session.status = "live"
         session.ended_at = None
         db.commit()
+        self.program = program_stream.followed_program(db, session.id)
         return session.id, session.height_m, stream.next_seq, dict(stream.last_t)
 
     def _fenced(self) -> None:
@@ -444,6 +463,11 @@ class IngestConnection:
                 self.services.sensor_status.setdefault(self.patient_id, {})[
                     status["sensor"]] = status
                 self.services.hub.publish(self.patient_id, {"kind": "status", **status})
+            elif kind == "effort_pain":  # docs/extensions/effort-pain.md
+                rating = program_stream.check_effort_pain(message)
+                await self.services.run_db(program_stream.store_effort_pain,
+                                           state.session_id, rating)
+                await self.send({"type": "effort_pain_stored", "id": rating.id})
             elif kind == "bye":
                 await self._finish()
                 return False
@@ -451,7 +475,7 @@ class IngestConnection:
                 raise Refused("hello was already received on this connection")
             else:
                 raise Refused(f"unknown message type {kind!r} (expected samples, mark, "
-                              "points, status or bye)")
+                              "points, status, effort_pain or bye)")
         except Refused as error:
             await self.refuse(error)
         return not self._closed

@@ -252,7 +252,7 @@ def check_hello(message: dict[str, Any]) -> Hello:
         raise bad(f"extensions must be a list of at most {MAX_EXTENSIONS} names "
                   "'name/version' (like 'feedback/1')")
     return Hello(device, side, tuple(sensors), None if rate is None else float(rate),
-                 nine_axis, resume, session, points, tuple(extensions))
+                 nine_axis, resume, session, points=points, extensions=tuple(extensions))
 
 
 def check_seq(message: dict[str, Any]) -> int:

@@ -20,6 +20,7 @@ import numpy as np
 from pydantic import BaseModel, Field
 
 from ..db import models
+from ..programs.adherence import ProgramProgress
 from .content import AngleName, RomEntry, SessionReport, TargetOut, finite, utc
 from .csv import spreadsheet_text
 
@@ -59,6 +60,9 @@ class Progress(BaseModel):
     targets: list[TargetOut]
     sessions: list[SessionProgress] = Field(description="oldest first")
     trend: dict[AngleName, Trend]
+    programs: list[ProgramProgress] = Field(
+        default_factory=list, description="the patient's exercise programs: adherence per "
+        "ISO week, range per exercise against its target, pain, flags (docs/programs.md)")
 
 
 def session_progress(session: models.Session, report: SessionReport | None) -> SessionProgress:

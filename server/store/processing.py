@@ -5,7 +5,6 @@ The same numbers as ``armtrack estimate`` on the session's exported recording.""
 from __future__ import annotations
 
 from collections.abc import Callable
-from datetime import UTC, datetime
 from importlib.metadata import PackageNotFoundError, version
 from typing import Any
 
@@ -22,6 +21,7 @@ from sqlalchemy import delete, select
 from sqlalchemy.orm import Session as DbSession
 from sqlalchemy.orm import sessionmaker
 
+from .. import clock
 from ..commands.estimate import CALIBRATION_TAIL_S
 from ..db import models
 from .blocks import pack, unpack_many
@@ -146,7 +146,7 @@ def mark_closed(db: DbSession, session_id: int) -> None:
     session = db.get(models.Session, session_id)
     if session is not None and session.status != "closed":
         session.status = "closed"
-        session.ended_at = datetime.now(UTC)
+        session.ended_at = clock.now()
         db.commit()
 
 

@@ -1,0 +1,126 @@
+"""The progress report of a patient's programs as a PDF a therapist can file
+(``GET /api/patients/{id}/progress.pdf``): per program one A4 page with what needs a look
+(the flags), adherence per ISO week (done / prescribed), the range of each exercise over
+its sessions against the target band, and pain and effort over time. Drawn with
+matplotlib's object API (no pyplot state), as the session report."""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Sequence
+from datetime import date, datetime, time, timedelta
+from zoneinfo import ZoneInfo
+
+from matplotlib.backends.backend_pdf import PdfPages
+from matplotlib.dates import AutoDateLocator, DateFormatter
+from matplotlib.figure import Figure
+
+from ..db import models
+from ..reports.pdf import A4, DISCLAIMER, LABELS
+from .adherence import ProgramProgress
+
+FLAG_WORDS = {"no_session": "No session", "range_falling": "Range falling",
+              "pain_rising": "Pain rising"}
+
+
+def _program_page(fig: Figure, patient: models.Patient, p: ProgramProgress, today: date,
+                  zone: str, page: int, pages: int) -> None:
+    fig.text(0.06, 0.965, "Exercise program progress", fontsize=15, weight="bold")
+    fig.text(0.94, 0.965, f"{patient.name} · {patient.side} arm", ha="right", fontsize=9,
+             color="#444")
+    fig.text(0.06, 0.94, f"{p.name} — version {p.version}, "
+             + ("in force" if p.active else "not in force")
+             + f" · {len(p.sessions)} sessions · as of {today.isoformat()} ({zone})",
+             fontsize=10)
+    fig.text(0.06, 0.02, DISCLAIMER, fontsize=7, color="#666")
+    fig.text(0.94, 0.02, f"page {page} of {pages}", ha="right", fontsize=7, color="#666")
+    y = 0.915
+    if p.flags:
+        fig.text(0.06, y, "Needs a look:", fontsize=10, weight="bold", color="#b03a2e")
+        for f in p.flags:
+            y -= 0.018
+            fig.text(0.08, y, f"• {FLAG_WORDS.get(f.kind, f.kind)}: {f.message}", fontsize=9)
+    else:
+        fig.text(0.06, y, "No flag: sessions regular, range and pain steady.", fontsize=9)
+    y -= 0.03
+    # adherence per week (the last 8)
+    weeks = p.weeks[-8:]
+    ax = fig.add_axes((0.06, y - 0.03 - 0.022 * (len(weeks) + 1), 0.88,
+                       0.022 * (len(weeks) + 1)))
+    ax.axis("off")
+    rows = [[w.week, f"v{w.version}", f"{w.done.sessions} / {w.prescribed.sessions}",
+             f"{w.done.exercises} / {w.prescribed.exercises}",
+             f"{w.done.repetitions} / {w.prescribed.repetitions}",
+             "–" if w.adherence_percent is None else f"{w.adherence_percent:.0f} %"]
+            for w in weeks]
+    if rows:
+        table = ax.table(cellText=rows, colLabels=["ISO week", "version", "sessions",
+                                                   "exercise-days", "repetitions",
+                                                   "adherence"],
+                         loc="upper left", cellLoc="center")
+        table.auto_set_font_size(False)
+        table.set_fontsize(8)
+    fig.text(0.06, y, "Adherence by week (done / prescribed)", fontsize=10, weight="bold")
+    y = y - 0.06 - 0.022 * (len(weeks) + 1)
+    # range per exercise against its target
+    shown = [e for e in p.exercises if e.points]
+    # one time axis for every chart: the program's first Monday to today (the clinic's)
+    first = p.weeks[0].monday if p.weeks else today
+    span = (datetime.combine(first, time(0), ZoneInfo(zone)),
+            datetime.combine(today + timedelta(days=1), time(0), ZoneInfo(zone)))
+
+    def dates(ax) -> None:
+        ax.set_xlim(*span)
+        ax.xaxis.set_major_locator(AutoDateLocator(maxticks=8))
+        ax.xaxis.set_major_formatter(DateFormatter("%d %b", tz=ZoneInfo(zone)))
+        ax.tick_params(labelsize=7)
+        ax.grid(alpha=0.3)
+    n = len(shown) + 1
+    height = max(0.08, (y - 0.06) / n - 0.035)
+    for i, e in enumerate(shown):
+        top = y - i * (height + 0.035)
+        ax = fig.add_axes((0.1, top - height, 0.84, height))
+        xs = [pt.started_at for pt in e.points]
+        ax.plot(xs, [pt.range_deg for pt in e.points], "o-", color="#4C72B0", label="range")
+        low = [pt.target_max_deg - pt.target_min_deg for pt in e.points]
+        ax.step(xs, low, where="post", color="#55A868", linestyle="--", label="target arc")
+        ax.set_title(f"{e.title} — {LABELS.get(e.angle, e.angle)}: range per session [°]",
+                     fontsize=9, loc="left")
+        ax.set_ylim(0, 1.15 * max([*low, *(pt.range_deg or 0 for pt in e.points), 10]))
+        dates(ax)
+        ax.legend(fontsize=7, loc="lower left")
+    top = y - len(shown) * (height + 0.035)
+    ax = fig.add_axes((0.1, top - height, 0.84, height))
+    pain = [pt for pt in p.pain if pt.pain is not None]
+    effort = [pt for pt in p.pain if pt.effort is not None]
+    if pain:
+        ax.plot([pt.started_at for pt in pain], [pt.pain for pt in pain], "o-",
+                color="#C44E52", label="pain (NRS)")
+    if effort:
+        ax.plot([pt.started_at for pt in effort], [pt.effort for pt in effort], "s--",
+                color="#8172B3", label="effort (Borg CR10)")
+    ax.set_ylim(0, 10.5)
+    ax.set_title("Pain and effort given after the exercises (highest per session, 0–10)",
+                 fontsize=9, loc="left")
+    dates(ax)
+    if pain or effort:
+        ax.legend(fontsize=7, loc="upper left")
+    else:
+        ax.text(0.5, 0.5, "none given yet", ha="center", va="center", transform=ax.transAxes)
+
+
+def progress_pdf(patient: models.Patient, programs: Sequence[ProgramProgress], today: date,
+                 zone: str) -> bytes:
+    """One page per program (a page saying there is none, without one)."""
+    out = io.BytesIO()
+    with PdfPages(out) as pdf:
+        if not programs:
+            fig = Figure(figsize=A4)
+            fig.text(0.06, 0.965, "Exercise program progress", fontsize=15, weight="bold")
+            fig.text(0.06, 0.93, f"{patient.name}: no program prescribed.", fontsize=10)
+            pdf.savefig(fig)
+        for i, p in enumerate(programs):
+            fig = Figure(figsize=A4)
+            _program_page(fig, patient, p, today, zone, i + 1, len(programs))
+            pdf.savefig(fig)
+    return out.getvalue()

@@ -1,0 +1,156 @@
+"""The programs' extensions of the stream protocol (``ingest.md``, version 1):
+
+* ``programs/1`` (``docs/extensions/programs-hello.md``): ``hello`` names a program of the
+  patient (``"program": <id or name>``); ``ready`` gives its exercises and version, and
+  the session is stored as following that version.
+* ``effort-pain/1`` (``docs/extensions/effort-pain.md``): the device message
+  ``effort_pain`` (effort on the Borg CR10 scale, pain on the 0–10 numeric rating scale,
+  after an exercise), stored with the session and answered ``effort_pain_stored``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from armtrack.estimator.recording.model import LABEL_PATTERN
+from sqlalchemy import select
+from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import Session as DbSession
+
+from .. import clock
+from ..db import models
+from ..ingest.protocol import CLOSE_BAD_PROTOCOL, Hello, Refused
+from ..reports.targets import patient_targets
+from . import catalogue, store
+
+PROGRAMS_EXTENSION = "programs/1"
+EFFORT_PAIN_EXTENSION = "effort-pain/1"
+#: The extensions of this module a server speaks.
+SPOKEN = (PROGRAMS_EXTENSION, EFFORT_PAIN_EXTENSION)
+RATING_ID_MAX = 64
+
+
+def check_program(message: dict[str, Any], hello: Hello) -> int | str | None:
+    """The program a ``hello`` names (``programs/1`` asked): its id or its name; None when
+    it names none or did not ask for the extension (then ``program`` is an unknown field,
+    ignored as before). A malformed one is refused like any bad hello (4400)."""
+    if PROGRAMS_EXTENSION not in hello.extensions:
+        return None
+    ref = message.get("program")
+    if ref is None:
+        return None
+    if isinstance(ref, int) and not isinstance(ref, bool) and 0 < ref < 2**31:
+        return ref
+    if isinstance(ref, str) and 0 < len(ref) <= 120:
+        return ref
+    raise Refused("hello: program must be a program's id or its name (1 to 120 "
+                  f"characters), got {ref!r}", close_code=CLOSE_BAD_PROTOCOL)
+
+
+def ready_program(db: DbSession, version: models.ProgramVersion) -> dict[str, Any]:
+    """What ``ready`` says of the program version a session follows."""
+    program = version.program
+    targets = patient_targets(db, program.patient_id)
+    exercises = []
+    for e in version.exercises:
+        entry = catalogue.CATALOGUE[e.exercise]
+        (low, high), source = store.resolve_target(e, targets)
+        exercises.append({
+            "name": e.exercise, "title": entry.title, "angle": e.angle,
+            "sensor": entry.sensor, "instruction": entry.instruction,
+            "picture": entry.picture, "sets": e.sets, "repetitions": e.repetitions,
+            "hold_s": e.hold_s, "rest_s": e.rest_s, "note": e.note,
+            "target": {"min_deg": low, "max_deg": high, "from": source}})
+    return {"id": program.id, "name": program.name, "version": version.number,
+            "note": version.note, "exercises": exercises}
+
+
+def follow_program(db: DbSession, patient_id: int, session_id: int, ref: int | str
+                   ) -> tuple[dict[str, Any] | None, str | None]:
+    """Link a new session to the current version of the patient's program ``ref`` (not
+    committed); returns ``ready``'s ``program`` and, when there is none to follow, the
+    reason (the session streams all the same)."""
+    program = store.find_program(db, patient_id, ref)
+    if program is None or not program.versions:
+        return None, f"no program {ref!r} for this device's patient"
+    if program.ended_at is not None:
+        return None, f"program {program.name!r} has ended"
+    version = program.versions[-1]
+    db.add(models.SessionProgram(session_id=session_id, version_id=version.id))
+    return ready_program(db, version), None
+
+
+def followed_program(db: DbSession, session_id: int) -> dict[str, Any] | None:
+    """``ready``'s ``program`` for a session continued or resumed: the version it follows
+    since it started (never a newer one)."""
+    link = db.get(models.SessionProgram, session_id)
+    if link is None:
+        return None
+    return ready_program(db, db.get(models.ProgramVersion, link.version_id))
+
+
+@dataclass(frozen=True)
+class EffortPain:
+    id: str
+    exercise: str
+    t: float | None
+    effort: float | None
+    pain: int | None
+
+
+def check_effort_pain(message: dict[str, Any]) -> EffortPain:
+    """An ``effort_pain`` message, checked whole: ``id`` (the kit's, 1–64 characters),
+    ``exercise`` (a mark label's name), optional ``t`` [s, the stream's clock], ``effort``
+    0–10 in steps of 0.5 (Borg CR10) and ``pain`` 0–10 whole (NRS), at least one given."""
+    def bad(reason: str) -> Refused:
+        return Refused(f"effort_pain: {reason}")
+
+    rid = message.get("id")
+    if not isinstance(rid, str) or not 0 < len(rid) <= RATING_ID_MAX:
+        raise bad(f"id must be the kit's id of this message, 1 to {RATING_ID_MAX} "
+                  "characters")
+    exercise = message.get("exercise")
+    if not isinstance(exercise, str) or not LABEL_PATTERN.fullmatch(f"exercise:{exercise}"):
+        raise bad(f"exercise must be the name the kit marked (exercise:<name>), got "
+                  f"{exercise!r}")
+    t = message.get("t")
+    if t is not None and not (_number(t) and 0 <= t < 1e9):
+        raise bad(f"t must be a time [s] on the stream's clock, got {t!r}")
+    effort, pain = message.get("effort"), message.get("pain")
+    if effort is not None and not (_number(effort) and 0 <= effort <= 10
+                                   and float(effort * 2).is_integer()):
+        raise bad(f"effort must be 0 to 10 in steps of 0.5 (Borg CR10), got {effort!r}")
+    if pain is not None and not (isinstance(pain, int) and not isinstance(pain, bool)
+                                 and 0 <= pain <= 10):
+        raise bad(f"pain must be a whole number 0 to 10 (numeric rating scale), got "
+                  f"{pain!r}")
+    if effort is None and pain is None:
+        raise bad("give effort, pain or both")
+    return EffortPain(rid, exercise, None if t is None else float(t),
+                      None if effort is None else float(effort), pain)
+
+
+def _number(value: Any) -> bool:
+    return (isinstance(value, int | float) and not isinstance(value, bool)
+            and math.isfinite(value))
+
+
+def store_effort_pain(db: DbSession, session_id: int, rating: EffortPain) -> bool:
+    """Store a rating with its session (committed); False when that id was stored
+    already (a message sent again): the first one stands."""
+    exists = db.scalar(select(models.SessionRating.id).where(
+        models.SessionRating.session_id == session_id,
+        models.SessionRating.rating_id == rating.id))
+    if exists is not None:
+        return False
+    db.add(models.SessionRating(session_id=session_id, rating_id=rating.id,
+                                exercise=rating.exercise, t=rating.t, effort=rating.effort,
+                                pain=rating.pain, received_at=clock.now()))
+    try:
+        db.commit()
+    except IntegrityError:  # the same id from a second connection at the same moment
+        db.rollback()
+        return False
+    return True
