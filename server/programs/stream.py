@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from datetime import date
 from typing import Any
 
 from armtrack.estimator.recording.model import LABEL_PATTERN
@@ -154,3 +155,31 @@ def store_effort_pain(db: DbSession, session_id: int, rating: EffortPain) -> boo
         db.rollback()
         return False
     return True
+
+
+def todays_program(db: DbSession, patient_id: int, today: date
+                   ) -> models.Program | None:
+    """The program a kit guides today: the most recently created one in force today
+    (``store.is_active``), or None."""
+    active = [p for p in store.patient_programs(db, patient_id) if store.is_active(p, today)]
+    return active[-1] if active else None
+
+
+def device_today(db: DbSession, patient: models.Patient, today: date) -> dict[str, Any] | None:
+    """What the device-scoped read of today's exercises (the phone kit's
+    ``docs/extensions/device-today.md``) answers when a program is in force: ``source``
+    ``program``, the program's id, name and version (the kit names it in ``hello``,
+    ``programs-hello.md``), and its exercises in order, each the catalogue's fields with
+    the dose and the target band; None without a program in force."""
+    program = todays_program(db, patient.id, today)
+    if program is None:
+        return None
+    ready = ready_program(db, program.versions[-1])
+    exercises = []
+    for e in ready["exercises"]:
+        entry = catalogue.CATALOGUE[e["name"]]
+        exercises.append({**entry.as_dict(), **e, "repetitions": e["repetitions"]})
+    return {"source": "program", "side": patient.side,
+            "program": {"id": program.id, "name": program.name,
+                        "version": ready["version"], "note": ready["note"]},
+            "exercises": exercises}
