@@ -40,8 +40,13 @@ KINDS = {
     ("GET", "/api/patients"): "list",
     ("GET", "/api/audit"): "list",
     ("POST", "/api/recordings"): "upload",
+    ("POST", "/api/recordings/inspect"): "upload",
+    ("GET", "/api/recordings/{session_id}/progress"): "upload",
     ("POST", "/api/viewer"): "owned",  # the patient is in the body
     ("GET", "/api/programs/catalogue"): "list",
+    ("GET", "/api/clinic"): "list",
+    ("GET", "/api/me"): "list",
+    ("PATCH", "/api/me"): "list",  # each their own account
     ("GET", "/api/flags"): "list",
     ("GET", "/api/device/today"): "device",
 }
@@ -139,8 +144,9 @@ class World:
         headers = {"Authorization": f"Bearer {token}"} if token else {}
         patient_id = values["patient_id"]
         kwargs: dict = {}
-        if (method, path) == ("POST", "/api/recordings"):
-            kwargs["files"] = {"file": (RECORDING, open(self.recording, "rb").read())}
+        if (method, path) in (("POST", "/api/recordings"), ("POST", "/api/recordings/inspect")):
+            field = "file" if path == "/api/recordings" else "files"
+            kwargs["files"] = {field: (RECORDING, open(self.recording, "rb").read())}
             if identity != "device" or missing:
                 kwargs["data"] = {"patient_id": patient_id}
         else:
@@ -154,8 +160,10 @@ def body(method: str, path: str, identity: str, patient_id: int, alice_id: int):
         "/api/auth/password": {"old_password": "not the old password",
                                "new_password": "a new password 1"},
         "/api/auth/reset": {"new_password": "a new password 1"},
+        "/api/me": {"full_name": f"Full name of {identity}"},
         "/api/patients": {"name": f"Own {identity}", "side": "left", "height_m": 1.7},
         "/api/patients/{patient_id}/devices": {"name": "kit"},
+        "/api/patients/{patient_id}": {"clinic_number": f"C-{identity}"},
         "/api/patients/{patient_id}/targets/{angle}": {"min_deg": 5, "max_deg": 110},
         "/api/viewer": {"patient_id": patient_id, "session_id": None},
         "/api/admin/therapists": {"username": f"made-by-{identity}", "password": PASSWORD},
@@ -163,7 +171,7 @@ def body(method: str, path: str, identity: str, patient_id: int, alice_id: int):
         "/api/patients/{patient_id}/programs": program_body(f"Program of {identity}"),
         "/api/programs/{program_id}": {k: v for k, v in program_body("").items()
                                        if k != "name"},
-    }.get(path) if method in ("POST", "PUT") else None
+    }.get(path) if method in ("POST", "PUT", "PATCH") else None
 
 
 def program_body(name: str) -> dict:
@@ -181,7 +189,8 @@ def expected(route_kind: str, identity: str, method: str, path: str) -> set[int]
         return {200} if identity == "device" else {401}  # no therapist token opens it
     if identity in EXPECTED_REFUSAL:
         if route_kind == "upload" and identity == "device":
-            return {201}  # a kit uploads for its own patient
+            # a kit uploads for its own patient, looks inside its files, follows them
+            return {201} if (method, path) == ("POST", "/api/recordings") else {200}
         return {EXPECTED_REFUSAL[identity]}
     if route_kind == "self":
         return {400}  # their own account only: the old password is wrong
