@@ -148,3 +148,25 @@ def _upload_session(alice, patient) -> int:
                              files={"file": ("r.csv", format_recording(rec), "text/csv")})
     assert answer.status_code == 202, answer.text
     return answer.json()["id"]
+
+
+@pytest.mark.parametrize("path, field", [
+    ("/api/patients/{id}", "name"), ("/api/patients/{id}", "clinic_number"),
+    ("/api/patients", "clinic_number"), ("/api/me", "full_name")])
+def test_changed_names_hold_no_control_characters(module_server, alice, path, field):
+    """Creating a patient refuses a NUL or an escape in the name (plain_text); changing
+    the record took them (PostgreSQL refuses NUL: a 500 there), as did the clinic number
+    and the therapist's full name."""
+    patient = alice.patient(f"Ctl {path} {field}")
+    text = "a\x00b\x1b[31m"
+    if path == "/api/patients":
+        answer = alice.http.post(path, json={"name": "Ctl new", "side": "left",
+                                             "height_m": 1.7, field: text})
+    else:
+        answer = alice.http.patch(path.format(id=patient["id"]), json={field: text})
+    print(path, field, answer.status_code, answer.text[:200])
+    assert answer.status_code == 422, answer.text
+    assert field in answer.text and "control character" in answer.text
+    assert not module_server.sql("SELECT id FROM patients WHERE name = :t OR clinic_number = :t",
+                                 t=text)
+    assert not module_server.sql("SELECT id FROM therapists WHERE full_name = :t", t=text)

@@ -9,6 +9,7 @@ from typing import Annotated
 from fastapi import APIRouter, Depends
 from pydantic import BaseModel, ConfigDict, Field
 
+from ..plain_text import Line
 from ..services import Services
 from .deps import Db, Therapist, services
 
@@ -33,7 +34,7 @@ class MeOut(BaseModel):
 
 class MeIn(BaseModel):
     model_config = ConfigDict(extra="forbid")
-    full_name: str | None = Field(max_length=200, description="as reports print it; null "
+    full_name: Line | None = Field(max_length=200, description="as reports print it; null "
                                   "or empty: the user name")
 
 

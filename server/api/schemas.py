@@ -31,7 +31,7 @@ class PatientIn(BaseModel):
     side: Literal["right", "left"] = Field(description="the arm followed")
     height_m: float = Field(ge=HEIGHT_RANGE_M[0], le=HEIGHT_RANGE_M[1],
                             description="body height [m], for segment lengths")
-    clinic_number: str | None = Field(None, max_length=64,
+    clinic_number: Line | None = Field(None, max_length=64,
                                       description="the clinic's own patient number")
     date_of_birth: date | None = Field(None, description="ISO date, YYYY-MM-DD")
 
@@ -40,10 +40,10 @@ class PatientUpdate(BaseModel):
     """The fields to change; those left out stay (``null`` clears an optional one)."""
 
     model_config = ConfigDict(extra="forbid")
-    name: str | None = Field(None, min_length=1, max_length=200)
+    name: Line | None = Field(None, min_length=1, max_length=200)
     side: Literal["right", "left"] | None = None
     height_m: float | None = Field(None, ge=HEIGHT_RANGE_M[0], le=HEIGHT_RANGE_M[1])
-    clinic_number: str | None = Field(None, max_length=64)
+    clinic_number: Line | None = Field(None, max_length=64)
     date_of_birth: date | None = None
 
 
