@@ -170,3 +170,29 @@ def test_changed_names_hold_no_control_characters(module_server, alice, path, fi
     assert not module_server.sql("SELECT id FROM patients WHERE name = :t OR clinic_number = :t",
                                  t=text)
     assert not module_server.sql("SELECT id FROM therapists WHERE full_name = :t", t=text)
+
+
+@pytest.mark.parametrize("where", ["name", "note", "exercise note"])
+def test_a_programs_text_holds_no_control_characters(module_server, alice, where):
+    """A program's name (a kit names it in hello, pages show it) and notes took a NUL or
+    an escape; a note keeps its line breaks."""
+    patient = alice.patient(f"Prog ctl {where}")
+    body = {"name": "Daily", "start_date": "2026-12-01", "note": "line one\nline two",
+            "exercises": [{"exercise": "elbow_flexion", "sets": 2, "repetitions": 10,
+                           "days_per_week": 5, "note": "slowly\tand fully"}]}
+    bad = "a\x00b\x1b[2J"
+    if where == "exercise note":
+        body["exercises"][0]["note"] = bad
+    else:
+        body[where] = bad
+    answer = alice.http.post(f"/api/patients/{patient['id']}/programs", json=body)
+    print(where, answer.status_code, answer.text[:200])
+    assert answer.status_code == 422, answer.text
+    assert "control character" in answer.text
+    assert module_server.sql("SELECT COUNT(*) FROM programs WHERE patient_id = :p",
+                             p=patient["id"])[0][0] == 0
+    body = {**body, "name": "Daily", "note": "line one\nline two"}
+    body["exercises"][0]["note"] = "slowly\tand fully"
+    answer = alice.http.post(f"/api/patients/{patient['id']}/programs", json=body)
+    assert answer.status_code == 201, answer.text
+    assert answer.json()["version"]["note"] == "line one\nline two"

@@ -6,6 +6,7 @@ from datetime import date, datetime
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from ..plain_text import Line, Note
 from .catalogue import CATALOGUE
 
 #: Target angles can be set within this [deg] (as the patients' targets).
@@ -40,7 +41,7 @@ class ExerciseIn(BaseModel):
     rest_s: float = Field(30.0, ge=0, le=600, allow_inf_nan=False,
                           description="rest between sets [s]")
     days_per_week: int = Field(ge=1, le=7)
-    note: str | None = Field(None, max_length=500)
+    note: Note | None = Field(None, max_length=500)
 
     @model_validator(mode="after")
     def _check(self) -> ExerciseIn:
@@ -63,7 +64,7 @@ class PrescriptionIn(BaseModel):
     model_config = ConfigDict(extra="forbid")
     start_date: date
     end_date: date | None = None
-    note: str | None = Field(None, max_length=2000)
+    note: Note | None = Field(None, max_length=2000)
     exercises: list[ExerciseIn] = Field(min_length=1, max_length=30)
 
     @model_validator(mode="after")
@@ -80,7 +81,7 @@ class PrescriptionIn(BaseModel):
 
 
 class ProgramIn(PrescriptionIn):
-    name: str = Field(min_length=1, max_length=120,
+    name: Line = Field(min_length=1, max_length=120,
                       description="unique among the patient's programs; a kit names it")
 
 
