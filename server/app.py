@@ -35,7 +35,7 @@ from .audit import AuditMiddleware
 from .ingest import endpoint
 from .live import endpoint as live_endpoint
 from .plain_text import validation_error
-from .security import BodyLimit, SecurityHeaders
+from .security import BodyLimit, SecurityHeaders, UploadGate
 from .services import Services
 from .settings import Settings
 from .store.processing import estimator_version
@@ -119,6 +119,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origin_list(),
                            allow_methods=["GET", "POST", "PUT", "PATCH", "DELETE"],
                            allow_headers=["Authorization", "Content-Type"])
+    app.add_middleware(UploadGate)  # inside the body limit: 413 by length comes first
     app.add_middleware(BodyLimit, settings=settings)
     app.add_middleware(SecurityHeaders, settings=settings)
 

@@ -5,6 +5,7 @@ to start with outside demo mode."""
 
 from __future__ import annotations
 
+import asyncio
 import base64
 import hashlib
 import ipaddress
@@ -12,7 +13,7 @@ import json
 import math
 import re
 import time
-from collections import deque
+from collections import OrderedDict, deque
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -97,9 +98,15 @@ class _TooLarge(BaseException):
     turns it into a 400 on its way out."""
 
 
+class _Stalled(BaseException):
+    """Raised from ``receive`` when the next part of a body does not come in time."""
+
+
 class BodyLimit:
     """Pure ASGI: a request body over the limit is refused with 413, by its
-    ``Content-Length`` before it is read, or as soon as a chunked body passes it."""
+    ``Content-Length`` before it is read, or as soon as a chunked body passes it; a body
+    whose next part does not come within ``ARMTRACK_BODY_TIMEOUT_S`` is cut off with 408
+    (a client sending slowly holds no connection for good)."""
 
     def __init__(self, app: Any, settings: Settings):
         self.app = app
@@ -123,14 +130,22 @@ class BodyLimit:
             return
         received = 0
         started = False
+        body_done = False
+        timeout = self.settings.body_timeout_s
 
         async def limited() -> dict:
-            nonlocal received
-            message = await receive()
+            nonlocal received, body_done
+            if body_done:  # waiting for a disconnect only: no time limit
+                return await receive()
+            try:
+                message = await asyncio.wait_for(receive(), timeout)
+            except TimeoutError:
+                raise _Stalled from None
             if message["type"] == "http.request":
                 received += len(message.get("body", b""))
                 if received > limit:
                     raise _TooLarge
+                body_done = not message.get("more_body", False)
             return message
 
         async def tracking(message: dict) -> None:
@@ -143,6 +158,47 @@ class BodyLimit:
         except _TooLarge:
             if not started:
                 await _refuse(send, 413, detail)
+        except _Stalled:
+            if not started:
+                await _refuse(send, 408, f"the request body stalled: no data for {timeout:g} "
+                              "s (ARMTRACK_BODY_TIMEOUT_S)")
+
+
+class UploadGate:
+    """Pure ASGI: an upload (``UPLOAD_PATHS``) is refused with 401 before its body is read
+    unless its bearer token is a valid kit's or therapist's: nobody without one makes the
+    server receive and spool up to ``ARMTRACK_MAX_UPLOAD_BYTES``. The route checks the
+    token again, with everything else."""
+
+    def __init__(self, app: Any):
+        self.app = app
+
+    async def __call__(self, scope: dict, receive: Any, send: Any) -> None:
+        if scope["type"] != "http" or scope["method"] != "POST" \
+                or scope["path"] not in UPLOAD_PATHS:
+            await self.app(scope, receive, send)
+            return
+        header = dict(scope["headers"]).get(b"authorization", b"").decode("latin-1")
+        scheme, _, token = header.partition(" ")
+        token = token.strip() if scheme.lower() == "bearer" else ""
+        services = scope["app"].state.services
+        if not token:
+            detail = "sign in first: a valid bearer token is required"
+        elif not await services.run_db(_uploader_known, token, services.settings.demo_mode):
+            detail = "the token is unknown or has expired: sign in again"
+        else:
+            await self.app(scope, receive, send)
+            return
+        await _refuse(send, 401, detail, [(b"www-authenticate", b"Bearer")])
+
+
+def _uploader_known(db: Any, token: str, demo_mode: bool) -> bool:
+    """Whether ``token`` is a valid kit's or therapist's (who may upload)."""
+    from .api.deps import therapist_of_token
+    from .ingest.endpoint import find_device
+
+    return find_device(db, token) is not None \
+        or therapist_of_token(db, token, demo_mode) is not None
 
 
 async def _refuse(send: Any, status: int, detail: str,
@@ -155,14 +211,26 @@ async def _refuse(send: Any, status: int, detail: str,
 
 
 class LoginLimiter:
-    """Failed sign-ins per user name and per client address in a sliding window: at
-    ``max_failures`` the key is locked until its oldest failure leaves the window (every
-    attempt refused, a right password too). A success clears the user name's failures."""
+    """Failed sign-ins slow a key down (a user name, a client address); they never lock it
+    out. Within ``window_s``, a key's first ``free`` - 1 failures cost nothing; from the
+    ``free``-th on, the n-th of them makes its next attempt wait 2**(n-1) s (1, 2, 4 …),
+    at most ``max_delay_s``, counted from that failure: meanwhile every attempt is refused (429
+    with ``Retry-After``), the right password too — else the wait would not slow a
+    guesser. The owner of a name under attack thus gets in after at most ``max_delay_s``,
+    while a guesser gets about one try per ``max_delay_s``. A success clears the user
+    name's failures.
 
-    def __init__(self, max_failures: int, window_s: float):
-        self.max_failures = max_failures
+    Bounded whatever it is sent: a key is a fixed-size hash of the name or address, a key
+    keeps at most its last ``free`` + 32 failure times, and the table at most ``max_keys``
+    keys — past that, the key whose last failure is oldest is forgotten first."""
+
+    def __init__(self, free: int, window_s: float, max_delay_s: float = 60.0,
+                 max_keys: int = 100_000):
+        self.free = free
         self.window_s = window_s
-        self._failures: dict[str, deque[float]] = {}
+        self.max_delay_s = max_delay_s
+        self.max_keys = max_keys
+        self._failures: OrderedDict[str, deque[float]] = OrderedDict()
 
     def _recent(self, key: str, now: float) -> deque[float]:
         times = self._failures.get(key)
@@ -174,27 +242,49 @@ class LoginLimiter:
             del self._failures[key]
         return times
 
+    def _wait(self, times: deque[float], now: float) -> float:
+        beyond = len(times) - self.free + 1  # the free-th failure makes the first wait
+        if beyond <= 0:
+            return 0.0
+        return times[-1] + min(2.0 ** (beyond - 1), self.max_delay_s) - now
+
     def retry_after(self, keys: list[str]) -> int | None:
-        """Seconds until an attempt is allowed again, or None when it is now."""
+        """Whole seconds until an attempt is allowed again, or None when it is now."""
         now = time.monotonic()
-        waits = [times[-self.max_failures] + self.window_s - now
-                 for key in keys if len(times := self._recent(key, now)) >= self.max_failures]
-        return max(1, math.ceil(max(waits))) if waits else None
+        wait = max((self._wait(self._recent(key, now), now) for key in keys), default=0.0)
+        return max(1, math.ceil(wait)) if wait > 0 else None
 
     def failed(self, keys: list[str]) -> None:
         now = time.monotonic()
-        if len(self._failures) > 100_000:  # bound the memory an attacker can make us use
-            for key in list(self._failures):
-                self._recent(key, now)
         for key in keys:
-            self._failures.setdefault(key, deque()).append(now)
+            times = self._failures.get(key)
+            if times is None:
+                times = self._failures[key] = deque(maxlen=self.free + 32)
+            else:
+                self._failures.move_to_end(key)
+            times.append(now)
+        while len(self._failures) > self.max_keys:
+            self._failures.popitem(last=False)
 
     def succeeded(self, key: str) -> None:
         self._failures.pop(key, None)
 
+    def __len__(self) -> int:
+        return len(self._failures)
+
 
 def login_keys(username: str, client: str | None) -> list[str]:
-    return [f"user:{username.strip().lower()}", f"addr:{client or '?'}"]
+    """The limiter's keys of an attempt: its user name (case and spaces aside) and its
+    client's address, each as a fixed-size hash (a 1 MB name costs 32 bytes)."""
+    def digest(text: str) -> str:
+        return hashlib.blake2b(text.encode("utf-8", "surrogatepass"),
+                               digest_size=16).hexdigest()
+    return ["user:" + digest(username.strip().lower()), "addr:" + digest(client or "?")]
+
+
+def trusted_proxies(settings: Settings) -> list[str]:
+    """``ARMTRACK_TRUSTED_PROXIES`` as a list of addresses and networks (empty: none)."""
+    return [p.strip() for p in settings.trusted_proxies.split(",") if p.strip()]
 
 
 def _loopback(host: str) -> bool:
@@ -227,6 +317,16 @@ def unsafe_settings(settings: Settings, demo_account: bool) -> list[str]:
                        ("ARMTRACK_TLS_KEY", settings.tls_key)):
         if path is not None and not Path(path).is_file():
             problems.append(f"{name}={path}: no such file")
+    for proxy in trusted_proxies(settings):
+        try:
+            ipaddress.ip_network(proxy, strict=False)
+        except ValueError:
+            problems.append(f"ARMTRACK_TRUSTED_PROXIES: {proxy!r} is not an address or a "
+                            "network (e.g. 10.0.0.5 or 172.18.0.0/16)")
+        else:
+            if proxy in ("0.0.0.0/0", "::/0"):
+                problems.append("ARMTRACK_TRUSTED_PROXIES trusts every address: any "
+                                "client could then choose the address it is limited by")
     if not _loopback(settings.host) and not settings.tls_cert and not settings.behind_proxy:
         problems.append(
             f"ARMTRACK_HOST={settings.host} is reachable from other machines but "

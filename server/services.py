@@ -55,6 +55,7 @@ class Services:
         self.live = LiveBatcher(self.live_estimation, settings.live_batch_s)
         self.streams: dict[str, StreamState] = {}
         self.connections: dict[str, Any] = {}  # stream id → open IngestConnection
+        self.kit_sockets: dict[int, int] = {}  # device id → its open ingest connections
         self.sensor_status: dict[int, dict[str, dict[str, Any]]] = {}  # patient → sensor
         self.background: set[asyncio.Future] = set()
         #: the open live feeds and 3D views, closed once their right is gone (live/access)

@@ -69,9 +69,20 @@ class Settings(BaseSettings):
                                   description="largest recording upload [B] (else 413)")
     max_body_bytes: int = Field(1 << 20, gt=0,
                                 description="largest body of any other request [B] (else 413)")
+    body_timeout_s: float = Field(30.0, gt=0, description="longest wait for the next part of "
+                                  "a request body [s] (else 408)")
+    max_streams_per_kit: int = Field(4, ge=1, description="most ingest connections one kit "
+                                     "token holds open at once (more: 4429)")
     login_max_failures: int = Field(10, gt=0, description="failed sign-ins per user name and "
-                                    "per client address within the window before 429")
+                                    "per client address within the window that cost "
+                                    "nothing; each one after slows the next attempt down")
     login_window_s: float = Field(300.0, gt=0, description="window of failed sign-ins [s]")
+    login_max_delay_s: float = Field(60.0, gt=0, description="longest wait a failed sign-in "
+                                     "imposes on its user name or address [s] (1, 2, 4 … s)")
+    trusted_proxies: str = Field("", description="comma-separated addresses or networks of "
+                                 "the reverse proxies whose X-Forwarded-For names the client "
+                                 "(sign-in limit, audit log); empty: none, the peer is the "
+                                 "client")
     reset_token_hours: float = Field(24.0, gt=0,
                                      description="lifetime of an admin-issued reset token [h]")
     retention_days: float | None = Field(None, gt=0, description="erase closed sessions "

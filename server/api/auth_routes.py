@@ -1,8 +1,9 @@
 """Signing in: the OAuth2 password flow gives a therapist an opaque bearer token. Failed
-sign-ins are rate-limited per user name and per client address (429 with
-``Retry-After``); a disabled account and, outside demo mode, the demo account cannot sign
-in. A therapist changes their password (old and new); an admin-issued one-time reset
-token sets a new one."""
+sign-ins slow the user name and the client address down (429 with ``Retry-After``,
+``security.LoginLimiter``; the client's address comes from ``X-Forwarded-For`` only behind
+a proxy in ``ARMTRACK_TRUSTED_PROXIES``); a disabled account and, outside demo mode, the
+demo account cannot sign in. A therapist changes their password (old and new); an
+admin-issued one-time reset token sets a new one."""
 
 from __future__ import annotations
 
@@ -44,7 +45,8 @@ def limiter(request: Request) -> LoginLimiter:
     state = request.app.state
     if not hasattr(state, "login_limiter"):
         settings = state.services.settings
-        state.login_limiter = LoginLimiter(settings.login_max_failures, settings.login_window_s)
+        state.login_limiter = LoginLimiter(settings.login_max_failures, settings.login_window_s,
+                                           settings.login_max_delay_s)
     return state.login_limiter
 
 

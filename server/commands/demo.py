@@ -225,7 +225,7 @@ async def _main(args: argparse.Namespace) -> int:
     app = create_app(settings)
     server = uvicorn.Server(uvicorn.Config(app, host=settings.host, port=settings.port,
                                            ws_max_size=settings.max_message_bytes,
-                                           log_level="warning"))
+                                           log_level="warning", proxy_headers=False))
     serving = asyncio.create_task(server.serve(sockets=[sock]))
     while not server.started:
         if serving.done():

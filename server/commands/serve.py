@@ -7,9 +7,20 @@ import argparse
 import logging
 import re
 from pathlib import Path
+from urllib.parse import unquote_plus
 
-#: ``token=…`` in a logged URL (kits that cannot set headers put their token there).
-TOKEN_IN_URL = re.compile(r"(token=)[^&\s\"']+")
+#: ``token=…`` in a logged URL (kits that cannot set headers put their token there),
+#: matched once the URL is percent-decoded (``?tok%65n=`` is ``?token=`` to the server).
+TOKEN_IN_URL = re.compile(r"(token=)[^&\s\"']+", re.IGNORECASE)
+
+
+def redact(text: str) -> str:
+    """``text`` with the value of every ``token=`` replaced by ``***``, looked for in the
+    text as it is and percent-decoded (where one is found, the decoded text is kept)."""
+    decoded = unquote_plus(text) if "%" in text or "+" in text else text
+    if TOKEN_IN_URL.search(decoded) is None:
+        return text
+    return TOKEN_IN_URL.sub(r"\1***", decoded)
 
 HELP = "run the server (REST API, ingest WebSocket, dashboard)"
 DESCRIPTION = ("Runs armtrack under uvicorn. Settings come from the environment "
@@ -22,10 +33,9 @@ class RedactTokens(logging.Filter):
 
     def filter(self, record: logging.LogRecord) -> bool:
         if record.args:
-            record.args = tuple(TOKEN_IN_URL.sub(r"\1***", a) if isinstance(a, str) else a
-                                for a in record.args)
+            record.args = tuple(redact(a) if isinstance(a, str) else a for a in record.args)
         if isinstance(record.msg, str):
-            record.msg = TOKEN_IN_URL.sub(r"\1***", record.msg)
+            record.msg = redact(record.msg)
         return True
 
 
@@ -71,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
 
     import uvicorn
     from armtrack.server.app import create_app
-    from armtrack.server.security import unsafe_settings
+    from armtrack.server.security import trusted_proxies, unsafe_settings
 
     settings = settings_from(args)
     problems = unsafe_settings(settings, demo_account=not settings.demo_mode
@@ -94,8 +104,13 @@ def run(args: argparse.Namespace) -> int:
           f"(database {settings.resolved_database_url()})", flush=True)
     tls = ({"ssl_certfile": str(settings.tls_cert), "ssl_keyfile": str(settings.tls_key)}
            if settings.tls_cert else {})
+    # X-Forwarded-For is believed from the configured proxies only (uvicorn's default
+    # believes it from 127.0.0.1: any local client, or a proxy there, would choose the
+    # address the sign-in limit and the audit log see)
+    proxies = trusted_proxies(settings)
     config = uvicorn.Config(create_app(settings), host=settings.host, port=settings.port,
-                            **tls,
+                            **tls, proxy_headers=bool(proxies),
+                            forwarded_allow_ips=proxies or None,
                             ws_max_size=settings.max_message_bytes, log_level="info",
                             # kit frames are small JSON: compressing them costs more CPU
                             # than it saves bandwidth on a LAN or Wi-Fi

@@ -88,8 +88,25 @@ async def ingest(websocket: WebSocket) -> None:
     if found is None:
         await websocket.close(protocol.CLOSE_BAD_TOKEN, "bad or revoked device token")
         return
-    connection = IngestConnection(services, websocket, *found)
-    await connection.run()
+    device_id = found[0]
+    limit = services.settings.max_streams_per_kit
+    if services.kit_sockets.get(device_id, 0) >= limit:  # one token, no flood of sessions
+        with contextlib.suppress(WebSocketDisconnect, RuntimeError, OSError):
+            await websocket.send_text(protocol.dumps({
+                "type": "error", "seq": None,
+                "reason": f"this kit has {limit} streams open already, the most one kit may "
+                          "hold (ARMTRACK_MAX_STREAMS_PER_KIT): end one first"}))
+            await websocket.close(protocol.CLOSE_TOO_MANY_ERRORS, "too many streams open")
+        return
+    services.kit_sockets[device_id] = services.kit_sockets.get(device_id, 0) + 1
+    try:
+        connection = IngestConnection(services, websocket, *found)
+        await connection.run()
+    finally:
+        if (left := services.kit_sockets[device_id] - 1) > 0:
+            services.kit_sockets[device_id] = left
+        else:
+            del services.kit_sockets[device_id]
 
 
 class IngestConnection:
