@@ -391,18 +391,32 @@ def test_generated_messages_over_a_real_connection_refused_whole_server_alive(
 
 
 def test_odd_kit_names_and_empty_sessions_export_without_a_server_error(srv, api):
-    """Found by the runs here: a kit named with a line break or surrounding spaces (any
-    name ``hello`` allows) made every export of its sessions fail (500), and so did a
-    session without samples (a stream whose messages were all refused) in the patient's
-    archive and its own ``recording.csv``. Now: the name is stored and exported on one
-    line, an empty session's recording is a 409, the archive leaves it out."""
+    """Found by the runs here: a kit named with surrounding spaces (or, before ``hello``
+    refused control characters, a line break) made every export of its sessions fail
+    (500), and so did a session without samples (a stream whose messages were all
+    refused) in the patient's archive and its own ``recording.csv``. Now: a line break in
+    the name is refused at ``hello`` (4400, naming ``device``), a name with spaces around
+    is exported trimmed, an empty session's recording is a 409, the archive leaves it
+    out."""
     patient = api.patient("Odd names")
     token = api.device(patient["id"])["token"]
     row = [0.0, 0.1, 0.2, 9.8, 0.01, 0.02, 0.03, 20.0, 5.0, -30.0]
 
+    async def refused_name() -> dict:
+        async with connect(srv.ws_url, additional_headers={
+                "Authorization": f"Bearer {token}"}, open_timeout=10) as ws:
+            await ws.send(json.dumps({**WIRE_HELLO, "device": " kit\n7 "}))
+            error = json.loads(await ws.recv())
+            with pytest.raises(ConnectionClosed) as closed:
+                await ws.recv()
+            return {**error, "code": closed.value.rcvd.code}
+
+    error = asyncio.run(refused_name())
+    assert error["type"] == "error" and "device" in error["reason"] and error["code"] == 4400
+
     async def two_sessions() -> list[int]:
         sessions = []
-        for device, samples in ((" kit\n7 ", 1), ("kit 8", 0)):
+        for device, samples in ((" kit  7 ", 1), ("kit 8", 0)):
             async with connect(srv.ws_url, additional_headers={
                     "Authorization": f"Bearer {token}"}, open_timeout=10) as ws:
                 await ws.send(json.dumps({**WIRE_HELLO, "device": device}))

@@ -96,6 +96,27 @@ def test_pdf_renders_four_pages(alice, sessions, tmp_path):
         assert 0.01 < ink < 0.6  # drawn on, not blank and not black
 
 
+def test_mot_of_a_kit_measuring_some_angles_keeps_every_coordinate(alice):
+    """Found by the whole-API fuzzing: a forearm-only kit's session (its reports hold the
+    measured angles only) made ``report.mot`` a 500 (KeyError 'shoulder_flexion'). The
+    coordinates the kit does not measure keep the spec's 0, as in the angles CSV."""
+    from armtrack.estimator.simulation import SimulationConfig, simulate
+
+    recording = simulate(SimulationConfig(exercise="elbow_flexion", repetitions=2, seed=3,
+                                          sensors=("forearm",), nine_axis=False)).recording
+    patient = alice.patient("Forearm only")
+    session = upload(alice, patient["id"], "forearm.csv", format_recording(recording))
+    alice.wait_processed(session["id"])
+    text = get(alice, f"/api/sessions/{session['id']}/report.mot", "text/plain").text
+    body = text.split("endheader\n")[1]
+    columns = body.splitlines()[0].split("\t")
+    values = np.loadtxt(io.StringIO(body), skiprows=1)
+    assert len(columns) == 8 and values.shape[1] == 8
+    col = {c: values[:, i] for i, c in enumerate(columns)}
+    assert np.all(col["arm_flex_r"] == 0) and np.all(col["arm_add_r"] == 0)
+    assert np.ptp(col["elbow_flex_r"]) > 90  # two flexions to 120°
+
+
 def test_mot_has_rajagopal_coordinates_in_degrees(alice, sessions):
     for name, side in (("shoulder_abduction", "r"), ("left_reach_50hz", "l")):
         session, _ = sessions[name]

@@ -46,7 +46,10 @@ from .deps import services as get_services
 from .schemas import MAX_ID, Id
 from .sessions import uploader
 
-router = APIRouter(prefix="/api/recordings", tags=["sessions"])
+router = APIRouter(prefix="/api/recordings", tags=["sessions"], responses={
+    401: {"description": "not signed in, or not a kit's valid token"},
+    404: {"description": "no such patient or uploaded session of this caller's"},
+    413: {"description": "the files, or what a zip unpacks to, are over the upload limit"}})
 
 #: Files one request may carry.
 MAX_FILES = 64

@@ -71,7 +71,10 @@ def mot(data: SessionData, name: str) -> str:
     """The joint angles as an OpenSim motion file (text)."""
     s = _suffix(data.session.side)
     columns = ["time", *(f"{stem}_{s}" for stem, _, _ in MOT_COORDINATES)]
-    values = np.column_stack([data.t, *(sign * data.angles[angle]
+    # a kit that measures some angles only (docs/extensions/measured-angles.md): the
+    # others keep the spec's 0, as in the angles CSV
+    zero = np.zeros_like(data.t)
+    values = np.column_stack([data.t, *(sign * data.angles.get(angle, zero)
                                         for _, angle, sign in MOT_COORDINATES)])
     values = values[np.all(np.isfinite(values), axis=1)]
     out = io.StringIO()
