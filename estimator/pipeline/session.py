@@ -80,8 +80,7 @@ class Pipeline:
         self.gamma: GammaElbow | None = None
         if points_frame is not None and "upper_arm" in config.sensors:
             self._wrist = WristTrack(points_frame, config.side, config.lengths)
-            self.gamma = GammaElbow(config.side, config.lengths,
-                                    forearm_imu="forearm" in config.sensors)
+            self.gamma = GammaElbow(config.lengths, forearm_imu="forearm" in config.sensors)
 
     @property
     def elbow_source(self) -> str:

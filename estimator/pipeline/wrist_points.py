@@ -123,7 +123,7 @@ class GammaElbow:
     """The heading correction and elbow flexion from wrist points, held where flagged.
     Causal and stateful: chunks of estimate times in order give the same result as one."""
 
-    def __init__(self, side: Side, lengths: SegmentLengths, forearm_imu: bool):
+    def __init__(self, lengths: SegmentLengths, forearm_imu: bool):
         self.lengths = lengths
         self.forearm_imu = forearm_imu
         self._gamma = 0.0

@@ -26,7 +26,7 @@ from matplotlib.backends.backend_pdf import PdfPages
 from matplotlib.figure import Figure
 
 from .content import SessionData, SessionReport
-from .pdf_summary import Letterhead, local, summary_page
+from .pdf_summary import Letterhead, local, style_table, summary_page
 
 # Names and notes are a user's text: "$…$" in a patient's name is no formula (mathtext made
 # such a name fail the whole PDF, issue 17). Set once for the process, not per call with
@@ -134,15 +134,7 @@ def _rom_table(fig: Figure, report: SessionReport, repetitions: dict[str, int]) 
     table = ax.table(cellText=rows, colLabels=header, cellLoc="center",
                      colWidths=[0.22, 0.07, 0.07, 0.08, 0.15, 0.1, 0.13, 0.11, 0.07],
                      bbox=(0, 0, 1, 1 - 0.03 / height))
-    table.auto_set_font_size(False)
-    table.set_fontsize(8)
-    for (row, col), cell in table.get_celld().items():
-        cell.set_edgecolor("#bbb")
-        if row == 0:
-            cell.set_facecolor("#e8eef7")
-            cell.set_text_props(weight="bold")
-        elif col == 0:
-            cell.set_text_props(ha="left")
+    style_table(table)
     return TABLE_TOP - height
 
 
@@ -260,13 +252,7 @@ def _details_page(fig: Figure, report: SessionReport) -> None:
         table = ax.table(cellText=rows, colLabels=header, cellLoc="center",
                          colWidths=[0.27, 0.15, 0.05, 0.08, 0.08, 0.08, 0.06, 0.06, 0.07,
                                     0.07], bbox=(0, 0, 1, 1))
-        table.auto_set_font_size(False)
-        table.set_fontsize(6.5)
-        for (row, _), cell in table.get_celld().items():
-            cell.set_edgecolor("#bbb")
-            if row == 0:
-                cell.set_facecolor("#e8eef7")
-                cell.set_text_props(weight="bold")
+        style_table(table, fontsize=6.5, names_left=False)
     else:
         ax.text(0, 0.5, "No repetitions found.", fontsize=9)
     fig.text(0.06, bottom - 0.02, note, fontsize=7, color="#444")

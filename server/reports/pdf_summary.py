@@ -43,6 +43,20 @@ class Letterhead:
     dated: str = "streamed"
 
 
+def style_table(table, fontsize: float = 8, names_left: bool = True) -> None:
+    """The reports' table look: light grey rules, a bold tinted header row, ``fontsize``
+    [pt], and (``names_left``) the first column's names aligned left."""
+    table.auto_set_font_size(False)
+    table.set_fontsize(fontsize)
+    for (row, col), cell in table.get_celld().items():
+        cell.set_edgecolor("#bbb")
+        if row == 0:
+            cell.set_facecolor("#e8eef7")
+            cell.set_text_props(weight="bold")
+        elif col == 0 and names_left:
+            cell.set_text_props(ha="left")
+
+
 def local(moment: datetime, zone: ZoneInfo, with_time: bool = True) -> str:
     """``Tue 1 Dec 2026, 09:41 CET`` in the clinic's zone."""
     at = moment.astimezone(zone)
@@ -184,15 +198,7 @@ def summary_page(fig: Figure, report: SessionReport, letterhead: Letterhead,
         ax.axis("off")
         table = ax.table(cellText=table_rows, colLabels=header, cellLoc="center",
                          colWidths=[0.2, 0.14, 0.1, 0.2, 0.26, 0.1], bbox=(0, 0, 1, 1))
-        table.auto_set_font_size(False)
-        table.set_fontsize(8)
-        for (row, col), cell in table.get_celld().items():
-            cell.set_edgecolor("#bbb")
-            if row == 0:
-                cell.set_facecolor("#e8eef7")
-                cell.set_text_props(weight="bold")
-            elif col == 0:
-                cell.set_text_props(ha="left")
+        style_table(table)
         y -= height + 0.02
     else:
         fig.text(0.08, y - 0.02, "No joint moved more than 10° outside the calibration.",
