@@ -9,6 +9,7 @@ import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
+from armtrack.web.pages import api_docs
 from armtrack.web.pages import routes as pages
 from armtrack.web.viewer import routes as viewer_routes
 from fastapi import FastAPI
@@ -92,6 +93,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             await services.stop()
 
     app = FastAPI(title="armtrack", version=estimator_version(), lifespan=lifespan,
+                  docs_url=None, redoc_url=None,  # api_docs serves them, CDN-free
                   description="Remote arm rehabilitation: IMU streams in (`/ws/ingest`, "
                   "spec/ingest.md), joint angles, sessions and reports out (spec/api.md). "
                   "armtrack supports therapy; it is not a diagnostic device.")
@@ -109,6 +111,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(live_status.router)
     app.include_router(session_summary.router)
     app.include_router(pages.router)
+    app.include_router(api_docs.router)
     app.include_router(admin.router)
     app.include_router(lifecycle.router)
     app.include_router(clinic.router)
