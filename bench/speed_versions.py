@@ -16,7 +16,10 @@ Measured per process (after one warm-up run, numba's compile or cache load exclu
    into the session (past calibration); median over 300 rounds.
 
 Prints each round's figures, the medians over rounds and the ratio new / base (> 1 is
-slower). The default base is the last commit before issue 18's estimator work.
+slower), of the wall time and of the process's CPU time (``time.process_time``: on a
+machine that other work loads, the time the scheduler gives to others does not count,
+so it varies far less than the wall time; both are printed). The default base is the
+last commit before issue 18's estimator work.
 """
 
 from __future__ import annotations
@@ -52,15 +55,16 @@ out = {"module": est.__file__}
 
 def batch(rec):
     estimate_recording(rec)  # warm-up (compile or cache load)
-    times = []
+    times, cpu = [], []
     for _ in range(3):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         estimate_recording(rec)
         times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+        cpu.append(time.process_time() - c0)
+    return statistics.median(times), statistics.median(cpu)
 
-out["batch9_s"] = batch(rec9)
-out["batch6_s"] = batch(rec6)
+out["batch9_s"], out["batch9_cpu_s"] = batch(rec9)
+out["batch6_s"], out["batch6_cpu_s"] = batch(rec6)
 
 config = PipelineConfig(side=rec9.side, lengths=rec9.segment_lengths(),
                         sensors=tuple(rec9.sensors), filter="qcf")
@@ -69,16 +73,18 @@ start = 6000
 for n, s in rec9.sensors.items():
     pipe.feed(n, s.t[:start], s.acc[:start], s.gyr[:start], s.mag[:start])
 pipe.poll()
-costs = []
+costs, cpu = [], []
 for r in range(350):
     a, b = start + 10 * r, start + 10 * r + 10
     for n, s in rec9.sensors.items():
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         pipe.feed(n, s.t[a:b], s.acc[a:b], s.gyr[a:b], s.mag[a:b])
         pipe.poll()
         if r >= 50:
             costs.append(time.perf_counter() - t0)
+            cpu.append(time.process_time() - c0)
 out["chunk_us"] = statistics.median(costs) * 1e6
+out["chunk_cpu_us"] = statistics.median(cpu) * 1e6
 print(json.dumps(out))
 '''
 
@@ -143,22 +149,28 @@ def main(argv: list[str] | None = None) -> int:
             print(f"base {base_rev} against new {new_rev} (working tree), CPU {cpu}, "
                   f"{args.rounds} rounds")
             print(f"{'round':>5} {'which':>5} {'batch 9-axis s':>15} {'batch 6-axis s':>15} "
-                  f"{'10-row chunk us':>16}")
+                  f"{'10-row chunk us':>16}   (CPU: 9-axis s, 6-axis s, chunk us)")
             for r in range(args.rounds):
                 for which in ("base", "new"):
                     m = measure(roots[which], recording, cpu)
                     rows[which].append(m)
                     print(f"{r + 1:>5} {which:>5} {m['batch9_s']:>15.3f} "
-                          f"{m['batch6_s']:>15.3f} {m['chunk_us']:>16.1f}", flush=True)
+                          f"{m['batch6_s']:>15.3f} {m['chunk_us']:>16.1f}   "
+                          f"({m['batch9_cpu_s']:.3f}, {m['batch6_cpu_s']:.3f}, "
+                          f"{m['chunk_cpu_us']:.1f})", flush=True)
         finally:
             subprocess.run(["git", "-C", str(REPO), "worktree", "remove", "--force",
                             str(base_checkout)], check=False)
-    print("\nmedians over rounds, and new / base:")
+    print("\nmedians over rounds, and new / base (wall time; CPU time of the process):")
     for key, label in (("batch9_s", "batch 9-axis [s]"), ("batch6_s", "batch 6-axis [s]"),
                        ("chunk_us", "10-row chunk [us]")):
         b = statistics.median(m[key] for m in rows["base"])
         n = statistics.median(m[key] for m in rows["new"])
-        print(f"  {label:<20} base {b:9.3f}  new {n:9.3f}  ratio {n / b:5.2f}")
+        cpu = key.replace("_s", "_cpu_s").replace("_us", "_cpu_us")
+        cb = statistics.median(m[cpu] for m in rows["base"])
+        cn = statistics.median(m[cpu] for m in rows["new"])
+        print(f"  {label:<20} base {b:9.3f}  new {n:9.3f}  ratio {n / b:5.2f}   "
+              f"CPU base {cb:9.3f}  new {cn:9.3f}  ratio {cn / cb:5.2f}")
     return 0
 
 

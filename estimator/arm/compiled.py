@@ -22,6 +22,8 @@ import math
 import numpy as np
 
 STATE_SIZE = 13
+#: Samples per block of a chunk's relative rotations (``_chunk_python``).
+_BLOCK = 1024
 _TWO_PI = 2.0 * math.pi
 
 
@@ -243,10 +245,15 @@ _RELATIVE, _KERNEL, _TO_WORLD = _relative_python, _kernel_python, _to_world_pyth
 
 def _chunk_python(Rw, present, side_sign, lengths, zone_sin, normal, state, rel, angles,
                   residuals, positions, R_out):
-    _RELATIVE(Rw, present, side_sign, rel)
-    _KERNEL(rel, side_sign, lengths, zone_sin, normal, state, angles, residuals, positions,
-            R_out[:, 1:])
-    _TO_WORLD(Rw, present, R_out)
+    # in blocks of rel's length: a long recording's relative rotations never make one
+    # big temporary array (it stays in the cache, and no fresh memory is faulted in)
+    block = rel.shape[0]
+    for a in range(0, Rw.shape[0], block):
+        b = min(a + block, Rw.shape[0])
+        _RELATIVE(Rw[a:b], present, side_sign, rel[:b - a])
+        _KERNEL(rel[:b - a], side_sign, lengths, zone_sin, normal, state, angles[a:b],
+                residuals[a:b], positions[a:b], R_out[a:b, 1:])
+        _TO_WORLD(Rw[a:b], present, R_out[a:b])
 
 
 def _compile():
@@ -285,6 +292,7 @@ class CompiledJoints:
         self._normal = np.deg2rad([NORMAL_RANGE_DEG[f"shoulder_{n}"]
                                    for n in ("flexion", "abduction", "rotation")])
         self._state = np.zeros(STATE_SIZE)
+        self._rel = np.empty((_BLOCK, 4, 3, 3))  # the kernel's work space, see _chunk_python
 
     def update(self, Rw: np.ndarray, present: np.ndarray):
         """``(angles (N, 10), residuals (N, 3), positions (N, 4, 3), R_world_segment
@@ -296,5 +304,6 @@ class CompiledJoints:
         angles, residuals = np.empty((n, 10)), np.empty((n, 3))
         positions, R_out = np.empty((n, 4, 3)), np.empty((n, 5, 3, 3))
         chunk(Rw, present, self._side_sign, self._lengths, self._zone_sin, self._normal,
-              self._state, np.empty((n, 4, 3, 3)), angles, residuals, positions, R_out)
+              self._state, self._rel[:max(min(n, _BLOCK), 1)], angles, residuals, positions,
+              R_out)
         return angles, residuals, positions, R_out

@@ -1,6 +1,7 @@
-"""Joint constraints that keep a 6-axis kit's headings tied together over a long session.
+"""Joint constraints that keep a kit's forearm and hand headings tied together.
 
-Without a magnetometer each sensor's heading drifts on its own. The elbow and the wrist
+Without a magnetometer (or where the kit's magnetometers disagree) each sensor's heading
+drifts on its own. The elbow and the wrist
 have two degrees of freedom each: the elbow cannot turn about the upper arm's X axis
 (``R_humerus_forearm = Rz · Ry``), the wrist not about the hand's long axis
 (``R_forearm_hand = Rx · Rz``). A heading error ``δ`` of the distal segment (a turn about
@@ -12,16 +13,61 @@ says how well the sample observes ``δ`` (zero with the elbow straight: then a h
 is a pronation error no joint reveals). The correction is the ``D²``-weighted mean of these
 per-sample values with exponential forgetting (time constant ``tau``) and a prior toward
 no correction, causal, so chunks give what the whole recording gives.
+
+The running sums and the turn of the segments run in one compiled pass per chunk
+(``_constrain``): on a live stream's 10-sample chunks a dozen numpy calls cost far more
+than the arithmetic.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
-#: Samples per block of the vectorised running sum (keeps exp() of relative times small).
-_BLOCK = 2048
+
+def _constrain_python(t, Rw, parent, child, u_axis, v_axis, turned, tau, prior, state,
+                      delta):
+    """For each sample ``n`` of times ``t`` [s] (N,): ``u = Rw[n, parent, :, u_axis]``,
+    ``v = Rw[n, child, :, v_axis]`` (world axes of ``Rw`` (N, S, 3, 3)); the running sums
+    ``state[0:2]`` (numerator, denominator) decayed by ``exp(−Δt/τ)`` and grown by this
+    sample's ``−(u·v) D Δt`` and ``D² Δt``; ``delta[n]`` the correction [rad]; then each
+    ``Rw[n, s]``, ``s`` in ``turned`` (int array), turned about the world's vertical by it.
+    ``state[2]`` is the last time [s], ``state[3]`` 1.0 once there is one."""
+    numerator, denominator = state[0], state[1]
+    t_prev = state[2] if state[3] != 0.0 else (t[0] if t.shape[0] else 0.0)
+    for n in range(t.shape[0]):
+        ux, uy, uz = Rw[n, parent, 0, u_axis], Rw[n, parent, 1, u_axis], Rw[n, parent, 2, u_axis]
+        vx, vy, vz = Rw[n, child, 0, v_axis], Rw[n, child, 1, v_axis], Rw[n, child, 2, v_axis]
+        d = uy * vx - ux * vy
+        dt = t[n] - t_prev
+        t_prev = t[n]
+        decay = math.exp(-dt / tau)  # weights are per second: independent of the rate
+        numerator = decay * numerator - (ux * vx + uy * vy + uz * vz) * d * dt
+        denominator = decay * denominator + d * d * dt
+        # the prior pulls toward no correction until the joint has been seen bent a while
+        correction = numerator / (denominator + prior)
+        delta[n] = correction
+        c, s = math.cos(correction), math.sin(correction)
+        for segment in turned:
+            for k in range(3):  # Rz(δ) · R: rows 0 and 1 turn, row 2 stays
+                r0, r1 = Rw[n, segment, 0, k], Rw[n, segment, 1, k]
+                Rw[n, segment, 0, k] = c * r0 - s * r1
+                Rw[n, segment, 1, k] = s * r0 + c * r1
+    if t.shape[0]:
+        state[0], state[1], state[2], state[3] = numerator, denominator, t_prev, 1.0
+
+
+def _compile():
+    try:
+        import numba
+    except ImportError:  # the pure-Python fallback: same numbers, slower
+        return _constrain_python
+    return numba.njit(cache=True, nogil=True)(_constrain_python)
+
+
+_constrain = _compile()
 
 
 @dataclass
@@ -32,36 +78,26 @@ class HeadingConstraint:
     tau: float = 20.0
     #: Weight of "no correction" [s·rad²]: as much as 0.2 s with the joint bent 30°.
     prior: float = 0.05
-    _numerator: float = field(default=0.0, init=False)
-    _denominator: float = field(default=0.0, init=False)
-    _t_last: float | None = field(default=None, init=False)
+    #: numerator, denominator, last time [s], has a last time (see ``_constrain``).
+    _state: np.ndarray = field(default_factory=lambda: np.zeros(4), init=False)
+
+    def apply(self, t: np.ndarray, Rw: np.ndarray, parent: int, child: int, u_axis: int,
+              v_axis: int, turned: tuple[int, ...]) -> None:
+        """Turn the segments ``turned`` of ``Rw`` (N, S, 3, 3) ``R_world_segment`` about the
+        vertical, in place, by the heading correction of joint ``parent``–``child`` at times
+        ``t`` [s] (N,): ``u`` is the parent's column ``u_axis``, ``v`` the child's column
+        ``v_axis``."""
+        _constrain(np.ascontiguousarray(t, dtype=np.float64), Rw, parent, child, u_axis,
+                   v_axis, np.array(turned, dtype=np.int64), self.tau, self.prior,
+                   self._state, np.empty(len(t)))
 
     def update(self, t: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Heading correction δ [rad] (N,) at times ``t`` [s] from the joint's axes ``u``,
         ``v`` (N, 3) in the world."""
-        if len(t) == 0:
-            return np.zeros(0)
-        D = u[:, 1] * v[:, 0] - u[:, 0] * v[:, 1]
-        # weights are per second, so the estimate does not depend on the sample rate
-        previous = self._t_last if self._t_last is not None else t[0]
-        dt = np.diff(t, prepend=previous)
-        numerator = self._running(t, -np.sum(u * v, axis=1) * D * dt, "_numerator")
-        denominator = self._running(t, D * D * dt, "_denominator")
-        self._t_last = float(t[-1])
-        # the prior pulls toward no correction until the joint has been seen bent a while
-        return numerator / (denominator + self.prior)
-
-    def _running(self, t: np.ndarray, x: np.ndarray, name: str) -> np.ndarray:
-        """S_k = e^{-(t_k - t_{k-1})/τ} S_{k-1} + x_k, vectorised in blocks."""
-        out = np.empty_like(x)
-        carry = getattr(self, name)
-        t_prev = self._t_last if self._t_last is not None else (t[0] if len(t) else 0.0)
-        for a in range(0, len(t), _BLOCK):
-            tb, xb = t[a:a + _BLOCK], x[a:a + _BLOCK]
-            rel = (tb - tb[0]) / self.tau
-            decay_in = np.exp(-(tb[0] - t_prev) / self.tau)
-            sums = np.cumsum(xb * np.exp(rel))
-            out[a:a + _BLOCK] = np.exp(-rel) * (carry * decay_in + sums)
-            carry, t_prev = out[a + len(tb) - 1], tb[-1]
-        setattr(self, name, float(carry))
-        return out
+        n = len(t)
+        axes = np.empty((n, 2, 3, 1))
+        axes[:, 0, :, 0], axes[:, 1, :, 0] = u, v
+        delta = np.empty(n)
+        _constrain(np.ascontiguousarray(t, dtype=np.float64), axes, 0, 1, 0, 0,
+                   np.zeros(0, dtype=np.int64), self.tau, self.prior, self._state, delta)
+        return delta

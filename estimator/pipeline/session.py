@@ -27,7 +27,6 @@ from ..errors import InvalidArgument
 from ..orientation import DEFAULT_FILTER
 from ..recording import Mark, Pose
 from ..recording.points import PointsFrame
-from ..rotations import elemental
 from .calibrate import Calibration, calibrate
 from .constraints import HeadingConstraint
 from .estimates import REFERENCE_ORDER, EstimateArrays, Estimates
@@ -273,10 +272,10 @@ class Pipeline:
             parent, child, u_axis, v_axis = pairs[segment]
             if not present[parent]:
                 continue
-            delta = constraint.update(times, Rw[:, parent, :, u_axis], Rw[:, child, :, v_axis])
-            Rw[:, child] = elemental("z", delta) @ Rw[:, child]
+            turned = (child,)
             if segment == "forearm" and present[hand] and "hand" not in self._constraints:
-                Rw[:, hand] = elemental("z", delta) @ Rw[:, hand]
+                turned = (forearm, hand)
+            constraint.apply(times, Rw, parent, child, u_axis, v_axis, turned)
 
 
 _SEGMENT_INDEX = {segment: i for i, segment in enumerate(SEGMENTS)}

@@ -14,6 +14,28 @@ from ..orientation import OrientationFilter, make_filter
 from ..rotations import quat_to_matrix
 
 
+def _not_increasing_python(t, last):
+    """Whether a time in ``t`` [s] (N,) is not after the one before it (``last`` before
+    the first; NaN: none)."""
+    previous = last
+    for i in range(t.shape[0]):
+        if t[i] <= previous:
+            return True
+        previous = t[i]
+    return False
+
+
+def _compile():
+    try:
+        import numba
+    except ImportError:  # the pure-Python fallback: the same answer, slower
+        return _not_increasing_python
+    return numba.njit(cache=True, nogil=True)(_not_increasing_python)
+
+
+_not_increasing = _compile()
+
+
 @dataclass
 class SensorTrack:
     """Samples of one sensor: ``t`` [s], ``acc`` [m/s²], ``gyr`` [rad/s] and the filter's
@@ -126,15 +148,11 @@ class SensorTrack:
             return t
         if self._seen == 0:
             self._t0 = float(t[0])
-        # the usual case, every stamp new: cheaply (a live stream's every message)
-        if n <= 32:  # (order is the filter's to check: here only repeats matter)
-            stamps = t.tolist()
-            fresh = stamps[0] != self._run_stamp and len(set(stamps)) == n
-        else:
-            fresh = bool(t[0] != self._run_stamp and (t[1:] > t[:-1]).all())
-        if fresh:
+        # the usual case, every stamp after the one before: cheaply (a live stream's
+        # every message)
+        if not _not_increasing(t, self._run_stamp):
             self._seen += n
-            self._run_stamp = stamps[-1] if n <= 32 else float(t[-1])
+            self._run_stamp = float(t[n - 1])
             self._run_start = self._seen - 1
             return t
         if not (np.diff(t) >= 0).all():  # the filter says what is wrong
