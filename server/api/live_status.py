@@ -243,7 +243,7 @@ def live_status(svc: Services, db: DbSession, patient_id: int,
         "connected": open_stream is not None,
         "sensors": sensors,
         "calibration": calibration,
-        "exercise": (current_exercise(motion, session.id, mark, now_t)
+        "exercise": (current_exercise(motion, session.id, mark)
                      if motion is not None else None),
         "estimating": bool(latest and latest.get("session_id") == session.id),
         "normal_ranges": NORMAL_RANGE_DEG,

@@ -23,6 +23,15 @@ CALIBRATION_TAIL_S = 2.5
 #: Stream seconds after which a sensor named in hello that sent nothing is left out of
 #: the live estimates (the others would wait for it for ever).
 SILENT_SENSOR_S = 10.0
+#: Rate of the angle trail a pose carries [Hz, on the stream's clock]: every estimate
+#: since the previous pose, thinned to this rate. The live repetition count
+#: (``server/live/motion.py``) reads the trail, not the poses, which come one per batch
+#: and so thin out when the server is busy (half a second apart and more: the counter
+#: then saw every sample as its own stretch and counted nothing). 25 Hz is 8 times the
+#: counter's 3 Hz low-pass.
+TRAIL_HZ = 25.0
+#: Decimals of the trail's angles [deg]: 0.01° is far below any estimate's accuracy.
+TRAIL_DECIMALS = 2
 
 
 class RunningRange:
@@ -91,6 +100,37 @@ def _compile_extend_range():
 _extend_range = _compile_extend_range()
 
 
+class AngleTrail:
+    """The estimates since the last ``take``, thinned to at most one per 1/``rate_hz``
+    of the stream's clock (the first estimate of each such slot is kept)."""
+
+    def __init__(self, rate_hz: float):
+        self._rate = rate_hz
+        self._last_slot = -np.inf
+        self._t: list[np.ndarray] = []
+        self._angles: list[np.ndarray] = []
+
+    def add(self, t: np.ndarray, radians: np.ndarray) -> None:
+        """Estimates at times ``t`` [s] (n,), angles ``radians`` (n, len(REPORTED_ANGLES))."""
+        slots = np.floor(np.asarray(t) * self._rate + 1e-6)  # a stamp on a boundary opens it
+        keep = np.empty(len(slots), dtype=bool)
+        keep[:1] = slots[:1] > self._last_slot
+        keep[1:] = (slots[1:] > slots[:-1]) & (slots[1:] > self._last_slot)
+        if keep.any():
+            self._t.append(np.asarray(t)[keep])
+            self._angles.append(radians[keep])
+            self._last_slot = float(slots[keep][-1])
+
+    def take(self) -> tuple[list[float], list[list[float | None]]]:
+        """The kept times [s] and angles [deg] (rows in ``REPORTED_ANGLES`` order; a NaN
+        stays NaN, which the pose's JSON writes as null), then forgets them."""
+        if not self._t:
+            return [], []
+        t, angles = np.concatenate(self._t), np.vstack(self._angles)
+        self._t, self._angles = [], []
+        return t.tolist(), np.round(np.rad2deg(angles), TRAIL_DECIMALS).tolist()
+
+
 class LiveEstimator:
     """One streaming session's estimation, where the estimates are computed: its
     ``Pipeline``, running range of motion, and the sensors left out for silence."""
@@ -107,6 +147,7 @@ class LiveEstimator:
         self.estimates = 0
         self._first_t = np.inf
         self._last_pose = -np.inf  # monotonic time the last pose was returned
+        self._trail = AngleTrail(TRAIL_HZ)
 
     def _drop_silent(self, t: float) -> None:
         if t - self._first_t < SILENT_SENSOR_S or self.pipeline.calibration is not None:
@@ -147,10 +188,12 @@ class LiveEstimator:
             return None
         self.estimates += len(estimates.t)
         self.rom.update(estimates.t, estimates.angles)
+        self._trail.add(estimates.t, estimates.angles)
         now = time.monotonic()
         if now - self._last_pose < self._min_interval:
             return None  # published recently enough: the range of motion is kept all the same
         self._last_pose = now
+        trail_t, trail_deg = self._trail.take()
         segments = estimates.R_world_segment[-1].reshape(len(SEGMENTS), 9).tolist()
         return EncodedPose.encode({
             "kind": "pose", "session_id": self.session_id, "t": float(estimates.t[-1]),
@@ -162,5 +205,6 @@ class LiveEstimator:
             "rom_deg": self.rom.as_dict(),
             "estimates": self.estimates,
             "warnings": list(self.warnings),
+            "trail": {"t": trail_t, "angles_deg": trail_deg},
             **({"elbow_source": pipeline.elbow_source} if pipeline.gamma is not None else {}),
         })

@@ -53,26 +53,37 @@ class MotionWatch:
         self.task: asyncio.Task | None = None
 
     def add(self, update: Any) -> None:
-        """One hub update (on the event loop: appends only)."""
+        """One hub update (on the event loop: appends only). A pose's ``trail`` (every
+        estimate since the previous pose, ``server/live/estimator.py``) is what is kept;
+        a pose without one (from an older server) gives its own angles."""
         if update.get("kind") != "pose":
             return
         session_id = update.get("session_id")
-        t = float(update["t"])
-        angles = update.get("angles_deg") or {}
-        row = np.array([np.nan if angles.get(k) is None else float(angles[k])
-                        for k in REPORTED_ANGLES])
+        t_pose = float(update["t"])
+        trail = update.get("trail")
+        if trail and trail.get("t"):
+            times = np.asarray(trail["t"], dtype=float)
+            rows = np.array(trail["angles_deg"], dtype=float)  # null → NaN
+        else:
+            angles = update.get("angles_deg") or {}
+            times = np.array([t_pose])
+            rows = np.array([[np.nan if angles.get(k) is None else float(angles[k])
+                              for k in REPORTED_ANGLES]])
+        if rows.ndim != 2 or rows.shape != (len(times), len(REPORTED_ANGLES)):
+            return
         with self._lock:
             if session_id != self.session_id:
                 self.session_id, self.calibrated_from = session_id, None
                 self._t.clear()
                 self._angles.clear()
-            if self._t and t <= self._t[-1]:
+            newer = times > (self._t[-1] if self._t else -np.inf)
+            if not newer.any():
                 return
             if self.calibrated_from is None and update.get("rom_deg"):
-                self.calibrated_from = t  # the running range starts after the poses
-            self._t.append(t)
-            self._angles.append(row)
-            while self._t and self._t[0] < t - BUFFER_S:
+                self.calibrated_from = t_pose  # the running range starts after the poses
+            self._t.extend(times[newer].tolist())
+            self._angles.extend(rows[newer])
+            while self._t and self._t[0] < t_pose - BUFFER_S:
                 self._t.popleft()
                 self._angles.popleft()
 
@@ -131,22 +142,28 @@ def words(name: str) -> str:
     return text[:1].upper() + text[1:]
 
 
-def current_exercise(motion: MotionWatch, session_id: int, mark: dict[str, Any] | None,
-                     now_t: float | None) -> dict[str, Any] | None:
+def current_exercise(motion: MotionWatch, session_id: int, mark: dict[str, Any] | None
+                     ) -> dict[str, Any] | None:
     """The exercise going on and its repetitions so far (worker thread). ``mark``: the
     open exercise mark ``{"name", "t"}`` or None. None before any pose after the
-    calibration, or when nothing is going on."""
+    calibration, or when nothing is going on. ``counted_to_s``: the stream time [s] the
+    count has reached (the live estimates lag the stored stream when the server is
+    busy; null before the first angle after the mark)."""
     from ..reports.content import GROUP_GAP_S, detected_groups, detected_name
 
     sid, calibrated_from, t, angles = motion.series()
-    if sid != session_id or not len(t):
+    start = (mark["t"] if mark else calibrated_from if calibrated_from is not None
+             else t[0] if len(t) else None)
+    if sid != session_id or not len(t) or start >= t[-1]:
+        # no angles yet after the mark: the live estimation has not caught up with it
         return ({"name": mark["name"], "label": words(mark["name"]), "source": "marks",
-                 "since_s": mark["t"], "repetitions": 0, "angle": None}
+                 "since_s": mark["t"], "repetitions": 0, "angle": None,
+                 "counted_to_s": None}
                 if mark else None)
     rad = np.deg2rad(angles)
     index = {a: i for i, a in enumerate(REPORTED_ANGLES)}
-    start = mark["t"] if mark else (calibrated_from if calibrated_from is not None else t[0])
-    include = [(start, float(t[-1]) + 1e-6)]
+    counted_to = float(t[-1])
+    include = [(start, counted_to + 1e-6)]
     found = {}
     for angle in NAMING:
         column = rad[:, index[angle]]
@@ -156,14 +173,13 @@ def current_exercise(motion: MotionWatch, session_id: int, mark: dict[str, Any] 
     if mark:
         angle = mark["name"] if mark["name"] in found else _leading(found)
         return {"name": mark["name"], "label": words(mark["name"]), "source": "marks",
-                "since_s": mark["t"], "angle": angle,
+                "since_s": mark["t"], "angle": angle, "counted_to_s": counted_to,
                 "repetitions": len(found.get(angle, ())) if angle else 0}
     groups = detected_groups({k: v for k, v in found.items() if v})
     if not groups:
         return None
     a, b = groups[-1]
-    latest = now_t if now_t is not None else float(t[-1])
-    if latest - b > GROUP_GAP_S:
+    if counted_to - b > GROUP_GAP_S:  # by the angles' clock: a lag is not a pause
         return None  # the last movement is over
     in_group = {k: [r for r in v if a <= r.start_s and r.end_s <= b]
                 for k, v in found.items()}
@@ -171,7 +187,8 @@ def current_exercise(motion: MotionWatch, session_id: int, mark: dict[str, Any] 
     name = detected_name(moved)
     angle = _leading({k: in_group[k] for k in moved})
     return {"name": name, "label": words(name), "source": "detected", "since_s": a,
-            "angle": angle, "repetitions": len(in_group[angle]) if angle else 0}
+            "angle": angle, "counted_to_s": counted_to,
+            "repetitions": len(in_group[angle]) if angle else 0}
 
 
 def _leading(found: dict[str, Any]) -> str | None:

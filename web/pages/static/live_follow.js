@@ -8,6 +8,7 @@
 const LiveFollow = (() => {
   const FOLLOW_KEY = "armtrack.follow.";
   const MOVE_AFTER_S = 5;
+  const LAG_SHOWN_S = 2;    // a count further behind the stream than this says so
   let current = null;       // this page's session
   let watching = false;
   let offered = null;       // the newer session offered
@@ -51,9 +52,13 @@ const LiveFollow = (() => {
     }
     name.textContent = exercise.label;
     reps.textContent = `${exercise.repetitions} ${exercise.repetitions === 1 ? "repetition" : "repetitions"}`;
-    how.textContent = exercise.source === "marks"
+    const streamT = status.calibration ? status.calibration.stream_time_s : null;
+    const behind = exercise.counted_to_s === null || exercise.counted_to_s === undefined || streamT === null
+      ? null : streamT - exercise.counted_to_s;
+    how.textContent = (exercise.source === "marks"
       ? `marked by the kit at ${exercise.since_s.toFixed(0)} s`
-      : "found in the movement (no exercise mark)";
+      : "found in the movement (no exercise mark)")
+      + (behind !== null && behind > LAG_SHOWN_S ? ` · counted up to ${behind.toFixed(0)} s ago (the server is catching up)` : "");
   }
 
   // ------------------------------------------------------------ the day's sessions
