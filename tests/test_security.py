@@ -348,18 +348,27 @@ def test_reads_exports_and_erasures_are_in_the_audit_log(srv, recording, tmp_pat
     assert by_kit.status_code == 201
     assert alice.http.delete(f"/api/sessions/{session['id']}").status_code == 204
 
-    mine = alice.http.get("/api/audit", params={"patient_id": patient["id"]}).json()
-    seen = {(e["action"], e["session_id"]) for e in mine}
+    deadline = time.monotonic() + 10  # an entry is written just after its answer is sent
+    while True:
+        mine = alice.http.get("/api/audit", params={"patient_id": patient["id"]}).json()
+        seen = {(e["action"], e["session_id"]) for e in mine}
+        if ("erased", session["id"]) in seen or time.monotonic() > deadline:
+            break
+        time.sleep(0.1)
     assert ("viewed", None) in seen and ("viewed", session["id"]) in seen
     assert ("exported", session["id"]) in seen  # recording.csv
     assert ("exported", None) in seen  # the archive
     assert ("erased", session["id"]) in seen and ("uploaded", session["id"]) in seen
-    assert all(e["therapist_id"] == mine[0]["therapist_id"] and e["client"] == "127.0.0.1"
-               for e in mine)
+    alice_id = alice.http.get("/api/me").json()["id"]
+    assert all(e["client"] == "127.0.0.1" for e in mine)
+    # the patient's whole trail: their therapist's actions and their kit's upload, named
+    assert {(e["therapist_id"], e["device_id"]) for e in mine} == {(alice_id, None),
+                                                                  (None, device["id"])}
+    assert {e["actor"] for e in mine} == {"alice", f"kit {device['name']}"}
     assert [e["id"] for e in mine] == sorted((e["id"] for e in mine), reverse=True)
     assert all(e["route"].startswith(("GET /api/", "POST /api/", "DELETE /api/"))
                for e in mine)
-    # a therapist sees their own actions only; an admin sees everyone's
+    # another therapist sees nothing of it; an admin sees everyone's
     assert bob.http.get("/api/audit", params={"patient_id": patient["id"]}).json() == []
     everyone = root.http.get("/api/audit", params={"patient_id": patient["id"]}).json()
     assert {e["device_id"] for e in everyone} >= {device["id"]}

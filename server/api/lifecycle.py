@@ -1,6 +1,6 @@
 """The patient's data lifecycle and its trace: everything held about a patient as one
 zip archive, and the audit log (``GET /api/audit``: an admin sees every entry, a
-therapist their own actions; JSON pages or CSV)."""
+therapist the trail of their own patients and their own actions; JSON pages or CSV)."""
 
 from __future__ import annotations
 
@@ -8,14 +8,14 @@ import csv
 import io
 import json
 import zipfile
-from datetime import datetime
+from datetime import UTC, date, datetime, time, timedelta
 from typing import Annotated, Literal
 
 from armtrack.estimator.recording import format_recording
 from fastapi import APIRouter, Depends, Query
 from fastapi.responses import Response
-from pydantic import BaseModel, ConfigDict
-from sqlalchemy import Select, select
+from pydantic import BaseModel, ConfigDict, Field
+from sqlalchemy import Select, or_, select
 from sqlalchemy.orm import Session as DbSession
 
 from ..commands.output import write_angles_csv
@@ -24,9 +24,10 @@ from ..reports import content
 from ..reports.content import NoEstimates
 from ..reports.csv import spreadsheet_text
 from ..reports.targets import current_targets, target_history
+from ..services import Services
 from ..store.processing import stored_estimates
 from ..store.recordings import session_recording
-from .deps import Db, Page, Therapist, own_patient
+from .deps import Db, Page, Therapist, own_patient, services
 from .schemas import DeviceOut, Id, PatientOut, QueryId
 from .sessions import ANGLE_COLUMNS_END, session_out
 
@@ -45,9 +46,12 @@ class AuditOut(BaseModel):
     session_id: int | None
     route: str
     client: str | None
+    actor: str | None = Field(None, description="who, in words: the therapist's full name "
+                              "and user name, or the kit's name (null: erased since)")
 
 
-AUDIT_FIELDS = list(AuditOut.model_fields)
+#: The CSV's columns: the log's own (ids only, no names).
+AUDIT_FIELDS = [name for name in AuditOut.model_fields if name != "actor"]
 
 
 def _json(value: object) -> str:
@@ -101,7 +105,7 @@ def patient_archive(db: DbSession, patient: models.Patient) -> bytes:
                 except NoEstimates:
                     pass
         archive.writestr("audit.json", _json(
-            [AuditOut.model_validate(e).model_dump(mode="json")
+            [AuditOut.model_validate(e).model_dump(mode="json", exclude={"actor"})
              for e in db.scalars(_entries(patient.id))]))
     return out.getvalue()
 
@@ -119,34 +123,83 @@ def export_patient(patient_id: Id, db: Db, therapist: Therapist) -> Response:
         "Content-Disposition": f'attachment; filename="patient-{patient_id}.zip"'})
 
 
-def _audit_query(therapist: models.Therapist, patient_id: int | None,
-                 therapist_id: int | None, action: str | None) -> Select:
+def _audit_query(db: DbSession, therapist: models.Therapist, patient_id: int | None,
+                 therapist_id: int | None, action: str | None,
+                 since: datetime | None, before: datetime | None) -> Select:
     query = select(models.AuditEntry)
-    if not therapist.is_admin:
-        query = query.where(models.AuditEntry.therapist_id == therapist.id)
-    elif therapist_id is not None:
+    if not therapist.is_admin:  # the trail of their patients, and what they did themselves
+        theirs = select(models.Patient.id).where(models.Patient.therapist_id == therapist.id)
+        query = query.where(or_(models.AuditEntry.patient_id.in_(theirs),
+                                models.AuditEntry.therapist_id == therapist.id))
+    if therapist_id is not None:
         query = query.where(models.AuditEntry.therapist_id == therapist_id)
     if patient_id is not None:
         query = query.where(models.AuditEntry.patient_id == patient_id)
     if action:
         query = query.where(models.AuditEntry.action == action)
+    if since is not None:
+        query = query.where(models.AuditEntry.at >= since)
+    if before is not None:
+        query = query.where(models.AuditEntry.at < before)
     return query.order_by(models.AuditEntry.id.desc())
+
+
+def _day_start(day: date | None, svc: Services, days_after: int = 0) -> datetime | None:
+    """Midnight starting ``day`` (+ ``days_after``) in the clinic's time zone, in UTC (as
+    the log stores its moments: SQLite compares them as text)."""
+    if day is None:
+        return None
+    return datetime.combine(day + timedelta(days=days_after), time(0),
+                            tzinfo=svc.settings.clinic_zone()).astimezone(UTC)
+
+
+def _actors(db: DbSession, rows: list[models.AuditEntry]) -> list[AuditOut]:
+    """The entries with who did each in words."""
+    therapist_ids = {r.therapist_id for r in rows if r.therapist_id is not None}
+    device_ids = {r.device_id for r in rows if r.device_id is not None}
+    names: dict[tuple[str, int], str] = {}
+    if therapist_ids:
+        for t in db.scalars(select(models.Therapist)
+                            .where(models.Therapist.id.in_(therapist_ids))):
+            names["t", t.id] = f"{t.full_name} ({t.username})" if t.full_name else t.username
+    if device_ids:
+        for d in db.scalars(select(models.Device).where(models.Device.id.in_(device_ids))):
+            names["d", d.id] = f"kit {d.name}"
+    out = []
+    for row in rows:
+        actor = (names.get(("t", row.therapist_id)) if row.therapist_id is not None
+                 else names.get(("d", row.device_id)) if row.device_id is not None else None)
+        if actor is None and row.therapist_id is None and row.device_id is None:
+            actor = "armtrack (retention)"
+        out.append(AuditOut.model_validate(row).model_copy(update={"actor": actor}))
+    return out
 
 
 @router.get("/audit", response_model=list[AuditOut])
 def list_audit(db: Db, therapist: Therapist, page: Annotated[Page, Depends()],
+               svc: Annotated[Services, Depends(services)],
                patient_id: QueryId = None, therapist_id: QueryId = None,
-               action: str | None = None,
+               action: Annotated[str | None, Query(max_length=24)] = None,
+               from_date: Annotated[date | None, Query(
+                   description="entries from this day on (the clinic's calendar)")] = None,
+               to_date: Annotated[date | None, Query(
+                   description="entries up to the end of this day (the clinic's calendar)")]
+               = None,
                format: Annotated[Literal["json", "csv"], Query()] = "json",
-               ) -> list[models.AuditEntry] | Response:
+               ) -> list[AuditOut] | Response:
     """The audit log, newest first: who (a therapist or a device) viewed, exported,
     uploaded, erased … which patient's data, when, through which route, from which
-    address. A clinic admin sees every entry (``therapist_id`` filters), a therapist their
-    own actions. ``format=csv``: the matching entries as CSV (up to ``limit``)."""
-    rows = list(db.scalars(_audit_query(therapist, patient_id, therapist_id, action)
+    address. A clinic admin sees every entry; a therapist the trail of their own patients
+    (whoever acted: they, a kit, an admin who reassigned them, a former therapist) and
+    their own actions. Filters: ``patient_id``, ``therapist_id`` (the actor), ``action``,
+    ``from_date``/``to_date`` (days of the clinic's time zone, both included).
+    ``format=csv``: the matching entries as CSV (up to ``limit``)."""
+    rows = list(db.scalars(_audit_query(db, therapist, patient_id, therapist_id, action,
+                                        _day_start(from_date, svc),
+                                        _day_start(to_date, svc, days_after=1))
                            .limit(page.limit).offset(page.offset)))
     if format == "json":
-        return rows
+        return _actors(db, rows)
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(AUDIT_FIELDS)

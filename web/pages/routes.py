@@ -62,6 +62,18 @@ def session(session_id: int) -> FileResponse:
     return _page("session.html")
 
 
+@router.get("/audit")
+def audit_log() -> FileResponse:
+    """The audit log (``GET /api/audit``): a therapist's patients' trail, an admin's all."""
+    return _page("audit.html")
+
+
+@router.get("/admin")
+def admin() -> FileResponse:
+    """The clinic admin's screens (``/api/admin/*``); a non-admin sees a notice only."""
+    return _page("admin.html")
+
+
 @router.get("/kit")
 def kit() -> FileResponse:
     """The phone kit (``docs/phone-kit.md``): the patient's page; its device token comes

@@ -287,6 +287,9 @@ function frame(crumbs) {
   });
   api("/api/me").then((me) => {
     document.getElementById("who-name").textContent = me.full_name || me.username;
+    bar.querySelector(".who").prepend(el("nav", { class: "nav-links" },
+      el("a", { href: "/audit", id: "nav-audit" }, "Audit log"),
+      me.is_admin ? el("a", { href: "/admin", id: "nav-admin" }, "Accounts") : null));
     window.ME = me;
     document.dispatchEvent(new CustomEvent("armtrack:me", { detail: me }));
   }).catch(() => {});
