@@ -6,9 +6,9 @@ then the exercise, through the whole estimator. The bar: 2° RMSE after the pose
 elbow flexion and pronation (forearm phone) and shoulder flexion, abduction and elevation
 over a minute (upper-arm phone).
 
-Each case prints its RMSE per seed. The cases the estimator does not meet yet are marked
-``xfail(strict=True)`` with the figures: 6-axis heading drift that only the estimator's
-fusion can remove (issue 19's note); when it does, they XPASS and the mark must go."""
+Each case prints its RMSE per seed (each seed draws its own mounting, biases, noise,
+jitter and repeated stamps). The cases the estimator does not meet yet are marked
+``xfail(strict=True)`` with the figures (issue 19's note); when they pass, the mark goes."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ from armtrack.estimator.recording import SensorStream
 from armtrack.estimator.simulation import SCORED_FROM_S, ImuErrors, SimulationConfig, simulate
 
 BAR_DEG = 2.0
-SEEDS = (0, 1, 2)
+SEEDS = (0, 1, 2, 3, 4, 5)
 #: Share of readings stamped like the one before (phones deliver readings in bursts).
 REPEATED_SHARE = 0.03
 
@@ -59,22 +59,24 @@ def _pending(reason: str):
     return pytest.mark.xfail(strict=True, reason=reason)
 
 
-DRIFT = ("6-axis heading drift of a single phone (the gyroscope's bias about the vertical "
-         "is not observable without a magnetometer): the estimator's fusion")
+SIDE_RAISE_FLEXION = (
+    "measured 1.2–2.7° over seeds 0–5 (bar 2°): in a side raise to 80° the spec's Z·X·Y "
+    "flexion is tan(80°) = 5.7 times the heading error; with the bias known exactly, the "
+    "gyroscope's noise alone (0.01 rad/s at 60 Hz) gives 0.6–1.5°, the bias learnt in the "
+    "poses' few seconds of stillness the rest")
 
 CASES = [
     # forearm phone: elbow flexion and pronation, in both of its exercises
     ("elbow_flexion", "forearm", "elbow_flexion", None, ()),
-    ("elbow_flexion", "forearm", "forearm_pronation", None, (_pending(DRIFT),)),
+    ("elbow_flexion", "forearm", "forearm_pronation", None, ()),
     ("pronation", "forearm", "elbow_flexion", None, ()),
-    ("pronation", "forearm", "forearm_pronation", None, (_pending(DRIFT),)),
-    # upper-arm phone: a minute of raises; elevation (the report's range for raises,
-    # kinematics.md) holds, the split of a raise into flexion and abduction does not yet
+    ("pronation", "forearm", "forearm_pronation", None, ()),
+    # upper-arm phone: a minute of raises, forward and sideways
     ("shoulder_flexion", "upper_arm", "shoulder_flexion", 14, ()),
-    ("shoulder_flexion", "upper_arm", "shoulder_abduction", 14, (_pending(DRIFT),)),
+    ("shoulder_flexion", "upper_arm", "shoulder_abduction", 14, ()),
     ("shoulder_flexion", "upper_arm", "shoulder_elevation", 14, ()),
-    ("shoulder_abduction", "upper_arm", "shoulder_flexion", 14, (_pending(DRIFT),)),
-    ("shoulder_abduction", "upper_arm", "shoulder_abduction", 14, (_pending(DRIFT),)),
+    ("shoulder_abduction", "upper_arm", "shoulder_flexion", 14, (_pending(SIDE_RAISE_FLEXION),)),
+    ("shoulder_abduction", "upper_arm", "shoulder_abduction", 14, ()),
     ("shoulder_abduction", "upper_arm", "shoulder_elevation", 14, ()),
 ]
 

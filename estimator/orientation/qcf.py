@@ -51,12 +51,13 @@ class QcfParams:
     rest_rate: float = 0.05
     #: … and after (tight: slow movements are not rest).
     rest_rate_known: float = 0.02
-    #: Time constant with which later rests update the bias [s] (it drifts with temperature).
+    #: Time constant with which later rests update the bias [s] (it drifts with
+    #: temperature); until this much rest has taught it, every rest's second counts alike.
     tau_bias_rest: float = 10.0
     #: A rest must have lasted this much longer before the orientation is held still
     #: through it (the zero-velocity update) [s].
     zupt_delay: float = 0.3
-    #: Rest: every accelerometer sample within this of its low-pass [m/s²].
+    #: Rest: the accelerometer (over ``tau_rest_acc``) within this of its low-pass [m/s²].
     rest_acc: float = 0.25
     #: Stillness must last this long before it counts as rest [s].
     rest_time: float = 1.0
@@ -105,6 +106,11 @@ class QcfParams:
     #: restarts the heading from the running mean of its readings [rad] (a smaller
     #: difference is corrected at tau_mag).
     mag_restart: float = 0.35
+    #: Low-pass of the accelerometer before its deviation is compared with ``rest_acc``
+    #: [s]: a movement's deviation is slow and passes; a phone's sample noise (0.1 m/s²
+    #: an axis, whose raw deviations passed 0.25 m/s² every few samples, so a phone was
+    #: never at rest and never learnt its bias) is cut by 2–3×.
+    tau_rest_acc: float = 0.05
     #: A field that stayed put in the earth frame (its norm within mag_norm_tolerance,
     #: its direction within twice mag_dip_tolerance of its mean) while the sensor turned
     #: this far becomes the reference in place of one confirmed by less turning [rad].
@@ -124,7 +130,8 @@ class QcfParams:
                   self.rest_rate_known, self.zupt_delay, self.mag_window,
                   self.tau_bias_mag, self.mag_bias_prior, self.rest_tilt,
                   self.rest_time_first, self.rest_guard_first, self.mag_confirm_turn,
-                  self.rest_min_samples_first, self.mag_hold_weight, self.mag_restart]
+                  self.rest_min_samples_first, self.mag_hold_weight, self.mag_restart,
+                  self.tau_rest_acc]
         assert len(values) == PARAM_SIZE
         return np.array(values, dtype=np.float64)
 

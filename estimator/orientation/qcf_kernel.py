@@ -28,7 +28,9 @@ low-passed accelerometer when the current rest began · ``[70:73]`` the candidat
 reference field in E [µT] · ``[73]`` how far the sensor turned while the field stayed
 with the candidate [rad] · ``[74]`` the same for the reference (its confirmation) [rad]
 · ``[75]`` when the heading's warm-up (running mean of the readings) began [s] · ``[76]``
-the time the candidate has held [s].
+the time the candidate has held [s] · ``[77]`` the rest time [s] the bias was learnt
+from (a rest's second counts as much as any before, until ``tau_bias_rest`` of them) ·
+``[78:81]`` the accelerometer low-passed over ``tau_rest_acc`` (the rest detector's).
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ import numpy as np
 
 from ..scalar_rotations import quat_to_rows
 
-STATE_SIZE = 77
+STATE_SIZE = 81
 
 # Indices into the parameter vector, see QcfParams.as_array.
 (P_TAU_ACC, P_TAU_MAG, P_TAU_LP, P_REST_GYR, P_REST_ACC, P_REST_TIME,
@@ -47,8 +49,9 @@ STATE_SIZE = 77
  P_MAG_REACCEPT, P_MAX_DT, P_REST_MIN_SAMPLES, P_REST_GUARD, P_TAU_ACC_REST,
  P_REST_RATE, P_TAU_BIAS_REST, P_REST_RATE_KNOWN, P_ZUPT_DELAY, P_MAG_WINDOW,
  P_TAU_BIAS_MAG, P_MAG_BIAS_PRIOR, P_REST_TILT, P_REST_TIME_FIRST, P_REST_GUARD_FIRST,
- P_MAG_CONFIRM_TURN, P_REST_MIN_SAMPLES_FIRST, P_MAG_HOLD_WEIGHT, P_MAG_RESTART) = range(31)
-PARAM_SIZE = 31
+ P_MAG_CONFIRM_TURN, P_REST_MIN_SAMPLES_FIRST, P_MAG_HOLD_WEIGHT, P_MAG_RESTART,
+ P_TAU_REST_ACC) = range(32)
+PARAM_SIZE = 32
 
 
 def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out_rest,
@@ -97,6 +100,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     rest_min_samples_first = params[P_REST_MIN_SAMPLES_FIRST]
     mag_hold_weight = params[P_MAG_HOLD_WEIGHT]
     mag_restart = params[P_MAG_HOLD_WEIGHT + 1]
+    tau_rest_acc = params[P_TAU_REST_ACC]
 
     gw, gx, gy, gz = state[0], state[1], state[2], state[3]
     cw, cx, cy, cz = state[4], state[5], state[6], state[7]
@@ -124,6 +128,8 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     srx, sry, srz = state[67], state[68], state[69]
     cex, cey, cez, cand_turn, ref_turn = state[70], state[71], state[72], state[73], state[74]
     t_mag_start, cand_time = state[75], state[76]
+    evidence = state[77]
+    afx, afy, afz = state[78], state[79], state[80]
 
     for i in range(t.shape[0]):
         ax, ay, az = acc[i, 0], acc[i, 1], acc[i, 2]
@@ -148,6 +154,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
             vx, vy, vz = 0.0, 0.0, 0.0
             glx, gly, glz = wx, wy, wz
             alx, aly, alz = ax, ay, az
+            afx, afy, afz = ax, ay, az
             t_last = t[i]
             t_start = t[i]
             initialised = 1.0
@@ -184,14 +191,22 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
             # onset (a smoothed measure would let its first samples into the bias)
             dev_g = math.sqrt((wx - glx) ** 2 + (wy - gly) ** 2 + (wz - glz) ** 2)
             rate = math.sqrt((glx - bx) ** 2 + (gly - by) ** 2 + (glz - bz) ** 2)
-            dev_a = math.sqrt((ax - alx) ** 2 + (ay - aly) ** 2 + (az - alz) ** 2)
+            k_f = dt / (tau_rest_acc + dt)
+            afx += k_f * (ax - afx)
+            afy += k_f * (ay - afy)
+            afz += k_f * (az - afz)
+            dev_a = math.sqrt((afx - alx) ** 2 + (afy - aly) ** 2 + (afz - alz) ** 2)
             rate_limit = rest_rate if bias_known == 0.0 else rest_rate_known
             still = dev_g < rest_gyr and rate < rate_limit and dev_a < rest_acc
-            if still and bias_known == 0.0 and still_time + dt >= rest_time_needed:
+            from_start = t[i] - still_time <= t_start + 2.0 * dt
+            if still and bias_known == 0.0 and (
+                    not from_start or still_time + dt >= rest_time_needed):
                 # Until a rest has taught the bias, the gyroscope cannot tell a slow turn
-                # (a trunk's sway) from its bias: through the rest the low-passed specific
-                # force must also keep the direction it had when the rest began.
-                if still_time < rest_time_needed:
+                # (a trunk's sway) from its bias: through the stillness the low-passed
+                # specific force must also keep the direction it had when it began (a
+                # stillness from the first sample: when it became a rest, the low-pass
+                # having settled by then).
+                if still_time == 0.0 or (from_start and still_time < rest_time_needed):
                     srx, sry, srz = alx, aly, alz
                 else:
                     dot = alx * srx + aly * sry + alz * srz
@@ -219,6 +234,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
                     sy += py
                     sz += pz
                     count += pending
+                    evidence += pending_time
                     px, py, pz, pending, pending_time = 0.0, 0.0, 0.0, 0.0, 0.0
                 if still_time >= rest_time_first and count >= rest_min_samples_first:
                     bx, by, bz = sx / count, sy / count, sz / count
@@ -226,6 +242,8 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
                 at_rest = True
                 if still_time - dt < rest_time_needed and not initial:
                     sx, sy, sz, count = 0.0, 0.0, 0.0, 0.0  # a new rest: a new mean
+                    if bias_known == 0.0:
+                        evidence = 0.0
                 # Samples wait rest_guard seconds before they count, so that the slow
                 # start of the next movement never leaks into the bias.
                 px += wx
@@ -240,12 +258,14 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
                         sy += py
                         sz += pz
                         count += pending
+                        evidence += pending_time
                         if count >= rest_min_samples:
                             bx, by, bz = sx / count, sy / count, sz / count
                             bias_known = 1.0
                     else:
                         # later: follow a drifting bias, each block weighted by its length
-                        k_b = pending_time / (tau_bias_rest + pending_time)
+                        k_b = pending_time / (min(evidence, tau_bias_rest) + pending_time)
+                        evidence += pending_time
                         bx += k_b * (px / pending - bx)
                         by += k_b * (py / pending - by)
                         bz += k_b * (pz / pending - bz)
@@ -529,6 +549,8 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     state[67], state[68], state[69] = srx, sry, srz
     state[70], state[71], state[72], state[73], state[74] = cex, cey, cez, cand_turn, ref_turn
     state[75], state[76] = t_mag_start, cand_time
+    state[77] = evidence
+    state[78], state[79], state[80] = afx, afy, afz
     return -1
 
 
