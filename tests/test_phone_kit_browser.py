@@ -268,6 +268,21 @@ def _match(stored: np.ndarray, events: list[list[float]]) -> np.ndarray:
     return np.array([key[tuple(np.round(r[1:4], 9))] for r in stored])
 
 
+def finish_session(phone, timeout: float = 60.0) -> None:
+    """From the end of an exercise to the session's end: each remaining step is left by
+    its button (well done → next, how it was → skip, an exercise's intro → start, the
+    exercise → next) until the finished screen shows."""
+    deadline = time.monotonic() + timeout
+    while not phone.locator("#sent").is_visible():
+        assert time.monotonic() < deadline, "the session did not reach its end"
+        for button in ("#rating-skip", "#start-exercise", "#next"):
+            try:
+                phone.click(button, timeout=300)
+                break
+            except sync_api.TimeoutError:
+                continue
+
+
 def _wait(predicate, timeout: float, what: str, step: float = 0.2):
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -329,9 +344,7 @@ def test_phone_kit_guides_streams_survives_a_cut_link_and_matches_truth(kit_serv
         phone.wait_for_timeout(500)
         reps_shown = phone.locator("#reps").inner_text()
         phone.click("#next")  # the simulation ends here: on to the finish
-        if phone.locator("#start-exercise").is_visible():  # the next exercise's intro
-            phone.click("#start-exercise")
-            phone.click("#next")
+        finish_session(phone)
         sync_api.expect(phone.locator("#sent")).to_contain_text("All sent", timeout=60_000)
         phone.screenshot(path=str(shots / "a9-finished.png"))
         closes = phone.evaluate("kit.stream.closes")
@@ -408,9 +421,7 @@ def test_a_reload_mid_session_loses_nothing(kit_server, phone, shots):
           "the rest dispatched")
     phone.wait_for_timeout(300)
     phone.click("#next")
-    if phone.locator("#start-exercise").is_visible():
-        phone.click("#start-exercise")
-        phone.click("#next")
+    finish_session(phone)
     sync_api.expect(phone.locator("#sent")).to_contain_text("All sent", timeout=60_000)
     session_id = phone.evaluate("kit.stream.state.session")
     session = api.session(session_id)

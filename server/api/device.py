@@ -6,13 +6,14 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Depends
+from fastapi import APIRouter, Depends, Request
 from sqlalchemy import select
 from sqlalchemy.orm import Session as DbSession
 
 from .. import audit
 from ..auth import hash_token
 from ..db import models
+from ..programs.calendar import today as clinic_today
 from ..programs.today import todays_exercises
 from .deps import Db, oauth2, unauthorized
 
@@ -40,9 +41,11 @@ Device = Annotated[models.Device, Depends(current_device)]
 
 
 @router.get("/today")
-def today(db: Db, device: Device) -> dict[str, Any]:
+def today(request: Request, db: Db, device: Device) -> dict[str, Any]:
     """Today's exercises for this device's patient, with their target bands, for a phone
-    on either segment (each exercise names its ``sensor``)."""
+    on either segment (each exercise names its ``sensor``): the program in force today
+    (the clinic's day) with its dose and version, else the default session."""
     patient = db.get(models.Patient, device.patient_id)
     assert patient is not None  # a device goes with its patient (cascade)
-    return {"device": device.name, **todays_exercises(db, patient)}
+    day = clinic_today(request.app.state.services.settings.clinic_zone())
+    return {"device": device.name, **todays_exercises(db, patient, day)}

@@ -1,13 +1,16 @@
 """What a patient's device guides today (``docs/extensions/device-today.md``): the
 exercises, each with its target band, for the phone on either segment.
 
-Without a program this is the catalogue's default session per segment, each exercise's
-band the patient's target for its angle where the therapist set one. A program (issue 22)
-plugs in here: ``todays_exercises`` is the one place the kit's list comes from.
+With a program in force today (the clinic's day, ``docs/programs.md``) these are the
+program's exercises with their dose and the program's id, name and version
+(``stream.device_today``); without one, the catalogue's default session per segment, each
+exercise's band the patient's target for its angle where the therapist set one.
+``todays_exercises`` is the one place the kit's list comes from.
 """
 
 from __future__ import annotations
 
+from datetime import date
 from typing import Any
 
 from sqlalchemy.orm import Session as DbSession
@@ -15,15 +18,20 @@ from sqlalchemy.orm import Session as DbSession
 from ..db import models
 from ..reports.targets import patient_targets
 from .catalogue import CATALOGUE, DEFAULT_SESSION
+from .stream import device_today
 
 #: Version of the device-today answer (``docs/extensions/device-today.md``).
 DEVICE_TODAY_VERSION = 1
 
 
-def todays_exercises(db: DbSession, patient: models.Patient) -> dict[str, Any]:
-    """The answer of ``GET /api/device/today`` for ``patient``: ``source`` (``default`` or
-    ``program``) and ``exercises``, in order, each the catalogue's fields plus
-    ``target``: ``{"min_deg", "max_deg", "from"}`` (``from``: ``patient`` or ``default``)."""
+def todays_exercises(db: DbSession, patient: models.Patient, today: date) -> dict[str, Any]:
+    """The answer of ``GET /api/device/today`` for ``patient`` on the clinic's day
+    ``today``: ``source`` (``program`` or ``default``) and ``exercises``, in order, each
+    the catalogue's fields plus ``target``: ``{"min_deg", "max_deg", "from"}``; with a
+    program also ``program`` and each exercise's dose (``programs-hello.md``)."""
+    program = device_today(db, patient, today)
+    if program is not None:
+        return {"version": DEVICE_TODAY_VERSION, **program}
     targets = patient_targets(db, patient.id)
     exercises = []
     for sensor, names in DEFAULT_SESSION.items():

@@ -1,6 +1,9 @@
 // armtrack phone kit: the phone's motion sensors as a 6-axis sensor streamed per the
 // stream protocol (docs: ingest protocol version 1, docs/phone-kit.md), with every message
 // kept in IndexedDB until the server acks it. No framework, no build step.
+// Extensions asked in hello (docs/extensions/): feedback/1 (live angle, repetitions),
+// programs/1 (the session follows the therapist's program the kit names), effort-pain/1
+// (effort and pain after each exercise, kept on the phone until the server stored them).
 //
 // Axes (docs/phone-kit.md): the phone is strapped screen out (away from the skin), its top
 // toward the joint above (the elbow for the forearm, the shoulder for the upper arm), on
@@ -13,6 +16,7 @@
 "use strict";
 
 const TAIL_KEY = "armtrack.kit.tail";
+const EXTENSIONS = ["feedback/1", "programs/1", "effort-pain/1"];
 
 const KitAxes = {
   /** One DeviceMotionEvent's reading as a row's 6 numbers, or null when incomplete. */
@@ -109,15 +113,20 @@ const KitStore = {
  * older than the last kept one is stamped with the last time (t never goes back).
  */
 class KitStream {
-  constructor({ token, sensor, side, device, onChange, onFeedback, onClose }) {
+  constructor({ token, sensor, side, device, program, onChange, onFeedback, onClose, onReady }) {
     this.token = token;
     this.sensor = sensor;
     this.side = side;
     this.device = device;
+    this.program = program == null ? null : program;  // the program's id (programs/1)
     this.onChange = onChange || (() => {});
     this.onFeedback = onFeedback || (() => {});
     this.onClose = onClose || (() => {});
-    this.state = null;     // {stream, session, nextSeq, startEpoch, lastT, sensor, side, acked}
+    this.onReady = onReady || (() => {});
+    // {stream, session, nextSeq, startEpoch, lastT, sensor, side, acked, program, ratings}
+    // ratings: effort_pain messages not yet stored by the server (effort-pain/1)
+    this.state = null;
+    this.extensions = [];  // those the server's ready listed
     this.rows = [];        // readings not yet in a message
     this.ws = null;
     this.connected = false;
@@ -167,6 +176,8 @@ class KitStream {
       this.state = kept;
       this.sensor = kept.sensor;
       this.side = kept.side;
+      this.program = kept.program == null ? null : kept.program;
+      this.state.ratings = kept.ratings || [];
       this.ended = Boolean(kept.ended);
       this._takeTail();
     } else {
@@ -174,7 +185,8 @@ class KitStream {
       await KitStore.clear();
       this.state = { stream: null, session: null, nextSeq: 0, acked: -1,
                      startEpoch: (performance.timeOrigin + performance.now()) / 1000,
-                     lastT: 0, sensor: this.sensor, side: this.side, finished: false };
+                     lastT: 0, sensor: this.sensor, side: this.side, finished: false,
+                     program: this.program, ratings: [] };
       await KitStore.setState("stream", this.state);
     }
     this.unsent = await KitStore.count();
@@ -215,6 +227,29 @@ class KitStream {
     return this._queue((seq) => ({ type: "mark", seq, t: at, label }));
   }
 
+  /** Effort (Borg CR10, 0–10) and pain (NRS 0–10) after an exercise, either null when
+   * skipped (docs/extensions/effort-pain.md). Kept on the phone with the stream's state
+   * and sent until the server answers effort_pain_stored; its id is unique in the session
+   * (the server stores an id once). Resolves once it is saved on the phone. */
+  rate(exercise, effort, pain, key) {
+    if (!this.state || (effort == null && pain == null)) return Promise.resolve(null);
+    const id = `r${Math.round(this.state.startEpoch * 1000)}-${key}`.slice(0, 64);
+    if (this.state.ratings.some((r) => r.id === id)) return Promise.resolve(id);
+    const message = { type: "effort_pain", id, exercise, t: this.now(), effort, pain };
+    this.state.ratings = [...this.state.ratings, message];
+    this._saving = this._saving.then(() => KitStore.setState("stream", { ...this.state }))
+      .then(() => { this._sendRatings(); this.onChange(this); })
+      .catch((error) => { this.error = "could not save on this phone: " + error; this.onChange(this); });
+    return this._saving.then(() => id);
+  }
+
+  _sendRatings() {
+    if (!this.connected || !this.extensions.includes("effort-pain/1")) return;
+    for (const rating of this.state.ratings) {
+      try { this.ws.send(JSON.stringify(rating)); } catch (_) { return; /* reconnects */ }
+    }
+  }
+
   /** The readings so far as one samples message (at most 1000 rows each). */
   flush() {
     while (this.rows.length) {
@@ -248,7 +283,8 @@ class KitStream {
   }
 
   connect() {
-    if (this.ended || (this.ws && this.ws.readyState <= 1)) return;
+    // an ended session still connects until everything is sent and bye is said
+    if (this.state.finished || (this.ws && this.ws.readyState <= 1)) return;
     const scheme = location.protocol === "https:" ? "wss:" : "ws:";
     const ws = new WebSocket(`${scheme}//${location.host}/ws/ingest?token=${encodeURIComponent(this.token)}`);
     this.ws = ws;
@@ -256,7 +292,8 @@ class KitStream {
       ws.send(JSON.stringify({
         type: "hello", protocol: 1, device: this.device, side: this.side,
         sensors: [this.sensor], rate_hz: 60, nine_axis: false,
-        resume: this.state.stream, extensions: ["feedback/1"] }));
+        resume: this.state.stream, extensions: EXTENSIONS,
+        ...(this.program != null ? { program: this.program } : {}) }));
     };
     ws.onmessage = (event) => this._message(ws, JSON.parse(event.data));
     ws.onclose = (event) => {
@@ -279,6 +316,9 @@ class KitStream {
     if (message.type === "ready") {
       this.state.stream = message.stream;
       this.state.session = message.session;
+      this.extensions = message.extensions || [];
+      if (message.program) this.state.followed = message.program;  // the version that counts
+      this.onReady(message);
       this._retry = 500;
       // in the save chain: what is saved before goes out now, what is saved after follows
       this._saving = this._saving.then(async () => {
@@ -291,6 +331,7 @@ class KitStream {
         this._sent = message.next_seq - 1;
         this.connected = true;
         for (const [seq, text] of pending) this._send(seq, text);
+        this._sendRatings();
         this.onChange(this);
         if (this.ended) this._byeWhenDone();
       }).catch((error) => { this.error = "could not read this phone's storage: " + error; });
@@ -308,6 +349,12 @@ class KitStream {
       // a refused message uses up its number: it is dropped with the next ack
     } else if (message.type === "feedback") {
       this.onFeedback(message);
+    } else if (message.type === "effort_pain_stored") {
+      this.state.ratings = this.state.ratings.filter((r) => r.id !== message.id);
+      this._saving = this._saving.then(() => KitStore.setState("stream", { ...this.state }));
+      await this._saving;
+      this.onChange(this);
+      if (this.ended) this._byeWhenDone();
     }
   }
 
@@ -324,7 +371,9 @@ class KitStream {
   }
 
   _byeWhenDone() {
-    if (this.connected && this.unsent === 0 && this.ws.readyState === 1) {
+    // ratings wait for their answer, unless this server cannot store them (no effort-pain/1)
+    const ratingsDone = this.state.ratings.length === 0 || !this.extensions.includes("effort-pain/1");
+    if (this.connected && this.unsent === 0 && ratingsDone && this.ws.readyState === 1) {
       this.ws.send(JSON.stringify({ type: "bye" }));
       this.state.finished = true;
       KitStore.setState("stream", { ...this.state });

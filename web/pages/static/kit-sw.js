@@ -2,9 +2,10 @@
 // first (so an update arrives at once), the cached copy when offline. Only the kit's own
 // files; never the API or the stream (their answers are the patient's data).
 "use strict";
-const CACHE = "armtrack-kit-v1";
+const CACHE = "armtrack-kit-v2";
 const FILES = ["/kit", "/kit.webmanifest", "/assets/kit.css", "/assets/kit.js",
-               "/assets/kit-stream.js", "/assets/kit-pictures.js", "/assets/kit-icon.svg"];
+               "/assets/kit-stream.js", "/assets/kit-pictures.js", "/assets/kit-program.js",
+               "/assets/kit-icon.svg"];
 
 self.addEventListener("install", (event) => {
   event.waitUntil(caches.open(CACHE).then((cache) => cache.addAll(FILES)).then(() => self.skipWaiting()));

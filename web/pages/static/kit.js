@@ -1,6 +1,9 @@
 // armtrack phone kit: the guided home session (/kit). The phone is the sensor: strap it,
 // hold the two calibration poses, then do the day's exercises with the live angle, the
-// target band and the repetitions from the server (docs/phone-kit.md). Every text the
+// target band and the repetitions from the server (docs/phone-kit.md). With a program in
+// force (docs/programs.md) the list, the dose (sets × repetitions, hold, rest) and the
+// version come from it, the session names it in hello (programs/1), and after each
+// exercise the patient says how hard it was and the pain (kit-program.js). Every text the
 // server or the page shows is set as text (textContent), never as HTML.
 "use strict";
 
@@ -12,6 +15,11 @@ const G = 9.81;
 /** Stillness: over the last STILL_S, gyroscope under STILL_GYRO [rad/s] and |a| within
  * STILL_ACC [m/s²] of g. A calibration pose is held HOLD_S once still. */
 const STILL_S = 0.5, STILL_GYRO = 0.25, STILL_ACC = 0.8, HOLD_S = 2.5;
+/** After a set's last repetition the set ends once the angle is back within
+ * RETURN_FRACTION of the band from its start and SETTLE_MS has passed (the report counts a
+ * repetition from rest and back to rest, so the marked set must hold the return), or after
+ * RETURN_WAIT_MS at most. */
+const RETURN_FRACTION = 0.15, SETTLE_MS = 1200, RETURN_WAIT_MS = 7000;
 
 /** Used when the server cannot be asked (offline, first start) — the catalogue's defaults. */
 const FALLBACK_EXERCISES = [
@@ -150,9 +158,12 @@ function noLink() {
 function welcome() {
   kit.phase = "welcome";
   const count = kit.today.exercises.length;
-  screen(el("h1", {}, "Your arm exercises"),
-    el("p", { class: "lead" }, `Today: ${count ? [...new Set(kit.today.exercises.map((e) => e.title))].join(", ") : "your exercises"}.`),
-    el("p", {}, "Your phone measures your arm. It takes about 10 minutes. You need a strap or a sports armband for the phone."),
+  const intro = kit.today.program
+    ? KitProgram.summary(kit.today, kit.today.exercises)
+    : [el("h1", {}, "Your arm exercises"),
+      el("p", { class: "lead" }, `Today: ${count ? [...new Set(kit.today.exercises.map((e) => e.title))].join(", ") : "your exercises"}.`)];
+  screen(...intro,
+    el("p", {}, "Your phone measures your arm. You need a strap or a sports armband for the phone."),
     kit.today.offline ? el("p", { class: "note" }, "Offline: using the exercises saved on this phone.") : null,
     big("Start", { id: "start", onclick: chooseSegment }));
 }
@@ -208,11 +219,27 @@ function strap() {
   });
 }
 
-async function beginSession() {
-  kit.stream = new KitStream({
+/** `ready` of each connection: the program version the session follows is the one that
+ * counts (programs-hello.md: a change since today's list was read gives the newer one). */
+function onReady(message) {
+  if (message.program_error) kit.programError = message.program_error;
+  const followed = message.program;
+  if (followed && kit.today.program && followed.version !== kit.today.program.version) {
+    kit.today = { ...kit.today, exercises: followed.exercises,
+      program: { id: followed.id, name: followed.name, version: followed.version, note: followed.note } };
+    localStorage.setItem(TODAY_KEY, JSON.stringify(kit.today));
+  }
+}
+
+function newStream(program) {
+  return new KitStream({
     token: kit.token, sensor: kit.sensor, side: kit.side, device: "phone " + (navigator.platform || "web").slice(0, 60),
-    onChange: status, onFeedback: (f) => { kit.feedback = f; kit.feedbackAt = Date.now(); },
+    program, onChange: status, onReady, onFeedback: (f) => { kit.feedback = f; kit.feedbackAt = Date.now(); },
   });
+}
+
+async function beginSession() {
+  kit.stream = newStream(kit.today.program ? kit.today.program.id : null);
   await kit.stream.start();
   await keepAwake();
   saveStep("npose", 0);
@@ -299,27 +326,60 @@ function exerciseIntro(index) {
   const ex = list[index];
   saveStep("intro", index);
   const count = el("div", { class: "count", id: "count" }, "");
+  const hold = ex.hold_s ? ` Hold ${ex.hold_s} ${ex.hold_s === 1 ? "second" : "seconds"} at the end of each movement.` : "";
   screen(el("p", { class: "kicker" }, `Exercise ${index + 1} of ${list.length}`),
     el("h1", {}, ex.title), picture(ex.picture),
-    el("p", { class: "lead" }, ex.instruction),
-    el("p", {}, `${ex.repetitions} times.`), count,
-    big("Start now", { id: "start-exercise", onclick: () => exercise(index) }));
-  say(`${ex.title}. ${ex.instruction} ${ex.repetitions} times.`);
+    el("p", { class: "lead" }, ex.instruction + hold),
+    ex.note ? el("p", { class: "note", id: "exercise-note" }, ex.note) : null,
+    el("p", { class: "dose", id: "dose" }, KitProgram.dose(ex) + "."), count,
+    big("Start now", { id: "start-exercise", onclick: () => exercise(index, 0) }));
+  say(`${ex.title}. ${ex.instruction}${hold} ${KitProgram.dose(ex).replace(" × ", " sets of ")}.`);
   let left = 5;
   every(1000, () => {
     count.textContent = String(left);
-    if (left-- <= 0) exercise(index);
+    if (left-- <= 0) exercise(index, 0);
   });
 }
 
-function exercise(index, resumed = false) {
+/** Rest between two sets, then the next set (its own marks, programs-hello.md). */
+function restBetweenSets(index, set) {
+  const ex = exercisesForKit()[index];
+  saveStep("rest", index, { set });
+  const count = el("div", { class: "count", id: "count" }, "");
+  screen(el("p", { class: "kicker" }, `${ex.title} · set ${set + 1} of ${ex.sets}`),
+    el("h1", { class: "welldone" }, "Rest"),
+    el("p", { class: "lead" }, `Set ${set} done. Let your arm rest; set ${set + 1} starts when the count ends.`),
+    count, big(`Start set ${set + 1} now`, { id: "start-set", onclick: () => exercise(index, set) }));
+  say(`Rest. Set ${set + 1} follows.`);
+  let left = Math.max(1, Math.round(ex.rest_s || 10));
+  every(1000, () => {
+    count.textContent = String(left);
+    if (left-- <= 0) exercise(index, set);
+  });
+}
+
+/** After each exercise: how hard it was and the pain, or skip (effort-pain/1). */
+function rateExercise(index) {
+  const ex = exercisesForKit()[index];
+  saveStep("rating", index);
+  say("How hard was it, and how much pain? Tap a number, or skip.");
+  screen(KitProgram.ratingScreen(ex, async (effort, pain) => {
+    if (effort != null || pain != null) await kit.stream.rate(ex.name, effort, pain, `${index}-${ex.name}`);
+    exerciseIntro(index + 1);
+  }));
+}
+
+function exercise(index, set = 0, resumed = false) {
   const list = exercisesForKit();
   const ex = list[index];
+  const sets = ex.sets || 1;
   // after a reload the exercise goes on: its clock and the repetitions shown so far
   const kept = resumed ? JSON.parse(localStorage.getItem(STEP_KEY) || "{}") : {};
-  if (!resumed) kit.stream.mark("exercise:" + ex.name);
+  // feedback counts from this set's mark on: an earlier set's, still on its way, is not this one's
+  const markT = resumed && kept.markT != null ? kept.markT : kit.stream.now();
+  if (!resumed) kit.stream.mark("exercise:" + ex.name, markT);
   const started = kept.started || Date.now();
-  saveStep("exercise", index, { started, reps: kept.reps || 0 });
+  saveStep("exercise", index, { set, markT, started, reps: kept.reps || 0 });
   kit.feedback = null;
   const lo = ex.target.min_deg, hi = ex.target.max_deg;
   const span = Math.max(hi - lo, 1), pad = 0.25 * span;
@@ -332,24 +392,28 @@ function exercise(index, resumed = false) {
   const reps = el("div", { class: "reps", id: "reps" }, `${kept.reps || 0} of ${ex.repetitions}`);
   const note = el("p", { class: "note", id: "live-note" }, "");
   const clock = el("div", { class: "timer", id: "timer" }, "0:00");
-  const next = big(index + 1 < list.length ? "Next exercise" : "Finish", { id: "next", class: "big secondary" });
-  screen(el("p", { class: "kicker" }, `Exercise ${index + 1} of ${list.length} · `, clock),
+  const next = big(set + 1 < sets ? "End this set" : index + 1 < list.length ? "Next exercise" : "Finish",
+    { id: "next", class: "big secondary" });
+  screen(el("p", { class: "kicker" }, `Exercise ${index + 1} of ${list.length}`,
+    sets > 1 ? ` · set ${set + 1} of ${sets}` : "", " · ", clock),
     el("h1", {}, ex.title),
     el("div", { class: "live" }, angle, el("div", { class: "target" }, `target ${Math.round(lo)}° to ${Math.round(hi)}°`)),
     band, reps, note, next);
-  let done = false, spoken = kept.reps || 0, base = kept.reps || 0, counted = 0;
+  let done = false, spoken = kept.reps || 0, base = kept.reps || 0, counted = 0, reachedAt = null, backAt = null;
+  // the set's end: the next set after a rest, else well done and how it was
+  const after = () => (set + 1 < sets ? restBetweenSets(index, set + 1) : wellDone(index));
   const end = () => {
     if (done) return;
     done = true;
     kit.stream.mark("end:exercise:" + ex.name);
-    exerciseIntro(index + 1);
+    after();
   };
   next.addEventListener("click", end);
   every(100, () => {
     const secs = Math.floor((Date.now() - started) / 1000);
     clock.textContent = `${Math.floor(secs / 60)}:${String(secs % 60).padStart(2, "0")}`;
     const f = kit.feedback;
-    const fresh = f && Date.now() - kit.feedbackAt < 3000 && f.exercise === ex.name;
+    const fresh = f && Date.now() - kit.feedbackAt < 3000 && f.exercise === ex.name && f.t >= markT;
     if (fresh && f.angle_deg != null) {
       angle.textContent = `${Math.round(f.angle_deg)}°`;
       marker.style.left = pos(f.angle_deg);
@@ -363,13 +427,19 @@ function exercise(index, resumed = false) {
         spoken = n;
         buzz(60);
         if (n < ex.repetitions) say(String(n));
-        saveStep("exercise", index, { started, reps: n });
+        saveStep("exercise", index, { set, markT, started, reps: n });
       }
-      note.textContent = f.warnings && f.warnings.length ? f.warnings[f.warnings.length - 1] : "";
-      if (n >= ex.repetitions && !done) {
-        done = true;
-        kit.stream.mark("end:exercise:" + ex.name);
-        wellDone(index);
+      if (reachedAt === null) note.textContent = f.warnings && f.warnings.length ? f.warnings[f.warnings.length - 1] : "";
+      if (n >= ex.repetitions) {
+        // the last repetition is counted on the way up: the set ends once the arm is back
+        // (RETURN_FRACTION, SETTLE_MS above)
+        if (reachedAt === null) {
+          reachedAt = Date.now();
+          note.textContent = "That's all of them — now back to the start.";
+          say("That's all. Back to the start.");
+        }
+        if (backAt === null && f.angle_deg <= lo + RETURN_FRACTION * (hi - lo)) backAt = Date.now();
+        if ((backAt !== null && Date.now() - backAt > SETTLE_MS) || Date.now() - reachedAt > RETURN_WAIT_MS) end();
       }
     } else {
       angle.textContent = "—";
@@ -386,10 +456,10 @@ function wellDone(index) {
   buzz([120, 80, 120]);
   say("Well done!");
   screen(el("h1", { class: "welldone" }, "Well done!"),
-    el("p", { class: "lead" }, "Rest a moment. The next exercise starts in a few seconds."),
-    big("Next", { id: "next", onclick: () => exerciseIntro(index + 1) }));
-  let left = 4;
-  every(1000, () => { if (left-- <= 0) exerciseIntro(index + 1); });
+    el("p", { class: "lead" }, "Rest a moment, then say how it was."),
+    big("Next", { id: "next", onclick: () => rateExercise(index) }));
+  let left = 3;
+  every(1000, () => { if (left-- <= 0) rateExercise(index); });
 }
 
 async function finished() {
@@ -397,7 +467,9 @@ async function finished() {
   const info = el("p", { class: "lead", id: "sent" }, "Sending your session…");
   screen(el("h1", { class: "welldone" }, "Session finished"),
     el("p", {}, "Thank you. Your therapist will see it."), info,
-    big("Start another session", { id: "again", class: "big secondary", onclick: () => { localStorage.removeItem(STEP_KEY); welcome(); } }));
+    // only once all is sent: a new session starts a new outbox
+    big("Start another session", { id: "again", class: "big secondary", disabled: "",
+      onclick: () => { localStorage.removeItem(STEP_KEY); welcome(); } }));
   say("Session finished. Well done!");
   await kit.stream.finish();
   every(300, () => {
@@ -405,7 +477,11 @@ async function finished() {
     info.textContent = s.state.finished ? "All sent ✓"
       : s.connected ? `Sending… ${s.unsent} to go`
         : "Saved on this phone, will send when online.";
-    if (s.state.finished) { localStorage.removeItem(STEP_KEY); if (kit.wakeLock) kit.wakeLock.release(); }
+    if (s.state.finished) {
+      localStorage.removeItem(STEP_KEY);
+      document.getElementById("again").removeAttribute("disabled");
+      if (kit.wakeLock) kit.wakeLock.release();
+    }
   });
 }
 
@@ -428,16 +504,17 @@ async function resume(kept) {
   kit.sensor = kept.sensor;
   kit.side = kept.side;
   const step = JSON.parse(localStorage.getItem(STEP_KEY) || "null") || { phase: "npose", index: 0 };
-  kit.stream = new KitStream({ token: kit.token, sensor: kit.sensor, side: kit.side, device: "phone",
-    onChange: status, onFeedback: (f) => { kit.feedback = f; kit.feedbackAt = Date.now(); } });
+  kit.stream = newStream(kept.program);
   await kit.stream.start({ resume: true });
   const go = async () => {
     try { await askMotionPermission(); } catch (error) { return sensorProblem(String(error.message || error)); }
     listen();
     await keepAwake();
     if (kit.stream.ended || step.phase === "finished") return finished();
-    if (step.phase === "exercise") return exercise(step.index, true);
-    if (step.phase === "intro" || step.phase === "welldone") return exerciseIntro(step.index);
+    if (step.phase === "exercise") return exercise(step.index, step.set || 0, true);
+    if (step.phase === "rest") return restBetweenSets(step.index, step.set);
+    if (step.phase === "welldone" || step.phase === "rating") return rateExercise(step.index);
+    if (step.phase === "intro") return exerciseIntro(step.index);
     if (step.phase === "lower") return lowerArm();
     return calibrationPose(step.phase === "tpose" ? "tpose" : "npose");
   };

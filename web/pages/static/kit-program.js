@@ -1,0 +1,83 @@
+// armtrack phone kit: the therapist's program in the guided session (docs/programs.md) —
+// the program's welcome (its name, version and exercises with their dose) and, after each
+// exercise, the effort (Borg CR10) and pain (numeric rating scale) screen sent as
+// effort-pain/1 (docs/extensions/effort-pain.md). Uses kit.js's `el` (loaded after this
+// file; called only once the page runs). Every text is set as text, never as HTML.
+"use strict";
+
+/** Borg CR10's verbal anchors (Borg 1998, "Borg's perceived exertion and pain scales"). */
+const BORG_WORDS = { 0: "Nothing at all", 1: "Very light", 2: "Light", 3: "Moderate",
+  5: "Hard", 7: "Very hard", 10: "Maximal" };
+/** Numeric rating scale's anchors. */
+const PAIN_WORDS = { 0: "No pain", 10: "Worst pain imaginable" };
+
+const KitProgram = {
+  /** "2 × 10 · hold 2 s · rest 20 s" (the rest between sets only when there are sets). */
+  dose(ex) {
+    const sets = ex.sets || 1;
+    const parts = [sets > 1 ? `${sets} × ${ex.repetitions}` : `${ex.repetitions} times`];
+    if (ex.hold_s) parts.push(`hold ${ex.hold_s} s`);
+    if (sets > 1 && ex.rest_s) parts.push(`rest ${ex.rest_s} s`);
+    return parts.join(" · ");
+  },
+
+  /** The welcome's part for a program: its name, version and today's exercises. */
+  summary(today, exercises) {
+    const program = today.program;
+    return [
+      el("p", { class: "kicker" }, "From your therapist"),
+      el("h1", { id: "program-name" }, program.name),
+      el("p", { class: "note", id: "program-version" }, `Version ${program.version}`),
+      program.note ? el("p", { class: "lead", id: "program-note" }, program.note) : null,
+      el("ol", { class: "program", id: "program-list" }, exercises.map((ex) =>
+        el("li", {}, el("span", { class: "title" }, ex.title),
+          el("span", { class: "dose" }, KitProgram.dose(ex))))),
+    ];
+  },
+
+  /** A 0–10 scale of large buttons; `onPick(value)` on a tap. */
+  scale(id, words, onPick, kind) {
+    const buttons = [];
+    const row = el("div", { class: `scale ${kind}`, id, role: "radiogroup" });
+    for (let v = 0; v <= 10; v++) {
+      const b = el("button", { class: "pick", type: "button", role: "radio", "aria-checked": "false",
+        "data-value": String(v), "aria-label": words[v] ? `${v}, ${words[v]}` : String(v) }, String(v));
+      b.addEventListener("click", () => {
+        for (const other of buttons) other.setAttribute("aria-checked", String(other === b));
+        onPick(v);
+      });
+      buttons.push(b);
+      row.append(b);
+    }
+    const legend = el("div", { class: "legend" },
+      el("span", {}, `0 ${words[0]}`), el("span", {}, `${words[10]} 10`));
+    return [row, legend];
+  },
+
+  /** The effort and pain screen's contents after exercise `ex`: `onDone(effort, pain)`
+   * with the answers (null for one not given; both null: skipped). */
+  ratingScreen(ex, onDone) {
+    let effort = null, pain = null;
+    const effortWord = el("p", { class: "word", id: "effort-word" }, "");
+    const send = el("button", { class: "big", id: "rating-send", disabled: "" }, "Send");
+    const picked = () => { if (effort != null || pain != null) send.removeAttribute("disabled"); };
+    send.addEventListener("click", () => onDone(effort, pain));
+    return [
+      el("p", { class: "kicker" }, ex.title),
+      el("h1", {}, "How was it?"),
+      el("h2", { class: "question" }, "How hard was it?"),
+      ...KitProgram.scale("effort", BORG_WORDS, (v) => {
+        effort = v;
+        effortWord.textContent = BORG_WORDS[v] || "";
+        picked();
+      }, "effort"),
+      effortWord,
+      el("h2", { class: "question" }, "How much pain?"),
+      ...KitProgram.scale("pain", PAIN_WORDS, (v) => { pain = v; picked(); }, "pain"),
+      el("div", { class: "answer" }, send,
+        el("button", { class: "big secondary", id: "rating-skip", onclick: () => onDone(null, null) }, "Skip")),
+    ];
+  },
+};
+
+window.KitProgram = KitProgram;
