@@ -1,0 +1,72 @@
+"""Issue 18's speed work changes no number. The compiled heading-constraint pass
+(``pipeline/constraints._constrain``) turns the segments as the correction ``update``
+gives, applied with ``elemental('z', δ) @ R``, in any chunking, and its pure-Python
+fallback gives the compiled numbers; the joint angles worked in blocks of the kernel's
+work space (``arm/compiled._chunk_python``) equal those of small chunks."""
+
+import numpy as np
+from armtrack.estimator.pipeline import constraints
+from armtrack.estimator.pipeline.constraints import HeadingConstraint
+from armtrack.estimator.rotations import elemental, quat_to_matrix
+
+
+def random_rotations(rng, n):
+    q = rng.normal(size=(n, 4))
+    return quat_to_matrix(q / np.linalg.norm(q, axis=1)[:, None])
+
+
+def stack(rng, n=1500):
+    """R_world_segment (n, 5, 3, 3) of a slowly turning chain, times at ~100 Hz."""
+    t = np.cumsum(rng.uniform(0.008, 0.012, n))
+    base = random_rotations(rng, 5)
+    turn = np.stack([elemental("y", 0.8 * np.sin(0.7 * t + k)) for k in range(5)], axis=1)
+    return t, turn @ base[None]
+
+
+def test_apply_turns_the_segments_as_update_and_elemental_do():
+    rng = np.random.default_rng(5)
+    t, Rw = stack(rng)
+    # the forearm (2) by the elbow (upper arm Z, forearm Y), the hand (3) with it
+    expected = Rw.copy()
+    delta = HeadingConstraint().update(t, Rw[:, 1, :, 2], Rw[:, 2, :, 1])
+    expected[:, 2] = elemental("z", delta) @ Rw[:, 2]
+    expected[:, 3] = elemental("z", delta) @ Rw[:, 3]
+    got = Rw.copy()
+    chunked = HeadingConstraint()
+    for a in range(0, len(t), 97):
+        part = got[a:a + 97]
+        chunked.apply(t[a:a + 97], part, 1, 2, 2, 1, (2, 3))
+    print(f"heading correction up to {np.rad2deg(np.abs(delta).max()):.2f}°")
+    assert np.abs(delta).max() > np.deg2rad(1.0)  # the case does turn the segments
+    np.testing.assert_allclose(got, expected, atol=1e-12)
+    np.testing.assert_array_equal(got[:, (0, 1, 4)], Rw[:, (0, 1, 4)])
+
+
+def test_pure_python_fallback_gives_the_compiled_numbers():
+    rng = np.random.default_rng(6)
+    t, Rw = stack(rng, 400)
+    outs = []
+    for kernel in (constraints._constrain, constraints._constrain_python):
+        R, state, delta = Rw.copy(), np.zeros(4), np.empty(len(t))
+        kernel(t, R, 2, 3, 0, 2, np.array([3]), 20.0, 0.05, state, delta)
+        outs.append((R, state, delta))
+    for compiled, python in zip(*outs, strict=True):
+        np.testing.assert_allclose(compiled, python, atol=1e-12)
+
+
+def test_joint_angles_in_blocks_equal_small_chunks():
+    from armtrack.estimator.arm.compiled import _BLOCK, CompiledJoints
+    from armtrack.estimator.body import SegmentLengths
+    from armtrack.estimator.pipeline.session import PipelineConfig
+
+    rng = np.random.default_rng(7)
+    n = 2 * _BLOCK + 333  # three blocks, the last one short
+    _, Rw = stack(rng, n)
+    present = np.array([1.0, 0.0, 1.0, 1.0, 1.0])
+    params = PipelineConfig(side="right", lengths=SegmentLengths.from_height(1.7),
+                            sensors=("upper_arm",)).joint_params
+    whole = CompiledJoints("right", SegmentLengths.from_height(1.7), params).update(Rw, present)
+    chunked = CompiledJoints("right", SegmentLengths.from_height(1.7), params)
+    parts = [chunked.update(Rw[a:a + 7], present) for a in range(0, n, 7)]
+    for i, got in enumerate(whole):
+        np.testing.assert_array_equal(got, np.concatenate([p[i] for p in parts]))
