@@ -1,0 +1,187 @@
+"""Every page a therapist sees fits the window at 390 px (a phone) and 1366 px (a laptop)
+with demo-like data (issue 21): no horizontal scrolling of the page
+(``document.scrollingElement.scrollWidth <= innerWidth``); a table wider than a phone
+scrolls inside its card instead; at 1366 px the range tables fit their card, "% normal"
+column included. Pages: sign-in, patients, the patient page (sessions, kits, progress,
+programs and the programs editor), a finished session (range table), the live page
+during a stream, the audit log and the admin's accounts. Real server, real uploads and
+a kit streaming at real pace, real headless chromium; screenshots to the printed folder."""
+
+from __future__ import annotations
+
+import re
+import time
+
+import pytest
+from armtrack.estimator.recording import format_recording
+from armtrack.estimator.simulation import SimulationConfig, simulate
+from server_support import PASSWORD, ServerProcess
+from test_pages_browser import (  # noqa: F401
+    KitThread,
+    _exercise,
+    browser_context,
+    page,
+    shots,
+    sync_api,
+)
+
+pytestmark = pytest.mark.slow
+expect = sync_api.expect
+WIDTHS = ((390, 844), (1366, 900))
+LONG_NAME = "Margaret Featherstonehaugh-Cholmondeley"
+
+
+@pytest.fixture(scope="module")
+def world(tmp_path_factory):
+    server = ServerProcess(tmp_path_factory.mktemp("layout"),
+                           env={"ARMTRACK_CLINIC_NAME": "Clinique du Parc — Rééducation"})
+    server.create_user("alice")
+    done = server.armtrack("create-user", "root", "--admin", "--password", PASSWORD)
+    assert done.returncode == 0, done.stderr
+    server.start()
+    api = server.client("alice")
+    api.http.patch("/api/me", json={"full_name": "Dr Alice Martin-Lefebvre"})
+    patient = api.patient(LONG_NAME, side="right", height_m=1.68)
+    api.http.patch(f"/api/patients/{patient['id']}", json={"clinic_number": "BX-2291-0042",
+                                                           "date_of_birth": "1954-03-17"})
+    for extra in ("Grace Hopper", "Ada Lovelace"):
+        api.patient(extra)
+    sessions = []
+    for seed, exercise in ((1, "elbow_flexion"), (2, "shoulder_flexion")):
+        text = format_recording(simulate(SimulationConfig(exercise=exercise, rate_hz=50.0,
+                                                          repetitions=3, seed=seed)).recording)
+        answer = api.http.post("/api/recordings", data={"patient_id": patient["id"]},
+                               files={"file": (f"{exercise}.csv", text)})
+        assert answer.status_code == 201, answer.text
+        sessions.append(api.wait_processed(answer.json()["id"], timeout=120))
+    assert all(s["processed"] for s in sessions), sessions
+    api.http.put(f"/api/patients/{patient['id']}/targets/elbow_flexion",
+                 json={"min_deg": 0, "max_deg": 140, "note": "after the cast came off"})
+    catalogue = api.http.get("/api/programs/catalogue").json()
+    made = api.http.post(f"/api/patients/{patient['id']}/programs", json={
+        "name": "Elbow after the fracture", "start_date": "2026-11-01",
+        "exercises": [{"exercise": catalogue[0]["name"], "sets": 3, "repetitions": 10,
+                       "days_per_week": 5}]})
+    assert made.status_code == 201, made.text
+    api.device(patient["id"], "home kit")
+    yield server, api, patient, sessions
+    server.stop()
+
+
+def sign_in(page, base: str, name: str = "alice") -> None:  # noqa: F811
+    page.goto(base + "/signin")
+    page.fill("#username", name)
+    page.fill("#password", PASSWORD)
+    page.click("#submit")
+    page.wait_for_url(re.compile(r".*/patients$"))
+
+
+#: Tables that must fit a phone's width without scrolling (their rows stack there).
+STACKED_ON_PHONES = {"patient": ("sessions",), "session": ("rom-table",)}
+
+
+def fits(page, shots, name: str, width: int) -> None:  # noqa: F811
+    """The page is no wider than the window; wide tables scroll inside their card (but
+    the patient's sessions and a session's ranges stack to fit a phone)."""
+    page.wait_for_load_state("networkidle")
+    measured = page.evaluate("""() => {
+      const tables = [...document.querySelectorAll('table')].filter((t) => t.offsetParent)
+        .map((t) => {
+          let box = t.parentElement;
+          while (box && getComputedStyle(box).overflowX === 'visible') box = box.parentElement;
+          return { id: t.id, width: t.scrollWidth, box: box ? box.clientWidth : null,
+                   scrolls: box ? getComputedStyle(box).overflowX : null };
+        });
+      return { page: document.scrollingElement.scrollWidth, window: innerWidth, tables };
+    }""")
+    page.screenshot(path=str(shots / f"layout-{name}-{width}.png"), full_page=True)
+    print(f"\n{name} at {width} px: page {measured['page']} px; tables "
+          + ", ".join(f"{t['id'] or '?'} {t['width']}/{t['box']}" for t in measured["tables"]))
+    assert measured["page"] <= measured["window"], \
+        f"{name} at {width} px: the page is {measured['page']} px wide"
+    for table in measured["tables"]:
+        if table["box"] is not None and table["width"] > table["box"]:
+            assert table["scrolls"] in ("auto", "scroll"), table
+            assert table["id"] not in STACKED_ON_PHONES.get(name, ()), \
+                f"{name} at {width} px: #{table['id']} is wider than its card: {table}"
+
+
+def percent_column_inside(page, table: str) -> None:  # noqa: F811
+    """At a laptop's width the whole range table, "% normal" included, is inside its card."""
+    place = page.evaluate("""(sel) => {
+      const table = document.querySelector(sel);
+      const card = table.closest('.card');
+      const last = [...table.querySelectorAll('thead th')].pop();
+      const c = card.getBoundingClientRect();
+      return { th: last.textContent, right: last.getBoundingClientRect().right,
+               card: c.right, scroll: card.scrollWidth, client: card.clientWidth };
+    }""", table)
+    assert place["th"] == "% normal", place
+    assert place["right"] <= place["card"] and place["scroll"] <= place["client"], place
+
+
+@pytest.mark.parametrize("width,height", WIDTHS)
+def test_the_therapists_pages_fit(world, page, shots, width, height):  # noqa: F811
+    server, _api, patient, sessions = world
+    base = server.url
+    page.set_viewport_size({"width": width, "height": height})
+    page.goto(base + "/signin")
+    expect(page.locator("#submit")).to_be_visible()
+    fits(page, shots, "signin", width)
+
+    sign_in(page, base)
+    expect(page.locator("#patients tbody tr")).to_have_count(3)
+    fits(page, shots, "patients", width)
+
+    page.goto(f"{base}/patients/{patient['id']}")
+    expect(page.locator("#sessions tbody tr")).to_have_count(2)
+    expect(page.locator("#devices tbody tr")).to_have_count(1)
+    fits(page, shots, "patient", width)
+    page.click("#new-program")
+    expect(page.locator("#program-editor")).to_be_visible()
+    page.click("#add-exercise")
+    fits(page, shots, "program-editor", width)
+
+    page.goto(f"{base}/sessions/{sessions[0]['id']}")
+    expect(page.locator("#rom-table tbody tr").first).to_be_visible(timeout=30_000)
+    fits(page, shots, "session", width)
+    if width >= 1366:
+        percent_column_inside(page, "#rom-table")
+
+    page.goto(base + "/audit")
+    expect(page.locator("#audit-table tbody tr").first).to_be_visible()
+    fits(page, shots, "audit", width)
+
+    page.click("text=Sign out")
+    sign_in(page, base, "root")
+    page.goto(base + "/admin")
+    expect(page.locator("#therapists tbody tr")).to_have_count(2)
+    expect(page.locator("#admin-patients tbody tr")).to_have_count(3)
+    fits(page, shots, "admin", width)
+
+
+def test_the_live_page_fits(world, page, shots):  # noqa: F811
+    server, api, patient, _ = world
+    device = api.device(patient["id"], "live kit")
+    kit = KitThread(_exercise("elbow_flexion", seed=4), server.ws_url, device["token"])
+    try:
+        sign_in(page, server.url)
+        page.goto(f"{server.url}/patients/{patient['id']}")
+        open_live = page.locator("text=Open the live view")
+        expect(open_live).to_be_visible(timeout=30_000)
+        open_live.click()
+        page.wait_for_url(re.compile(r".*/sessions/\d+$"))
+        rows = page.locator("#angles-table tbody tr")
+        expect(rows.first).to_be_visible(timeout=30_000)
+        deadline = time.monotonic() + 40  # a "% normal" figure once the arm moved
+        while time.monotonic() < deadline and not any(
+                t.strip() for t in page.locator("#angles-table td.pct").all_inner_texts()):
+            time.sleep(0.5)
+        for width, height in reversed(WIDTHS):
+            page.set_viewport_size({"width": width, "height": height})
+            time.sleep(0.5)
+            fits(page, shots, "live", width)
+            if width >= 1366:
+                percent_column_inside(page, "#angles-table")
+    finally:
+        kit.cut()
