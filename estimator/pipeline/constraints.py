@@ -27,13 +27,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
-def _constrain_python(t, Rw, parent, child, u_axis, v_axis, turned, tau, prior, state,
-                      delta):
+def _constrain_python(t, Rw, parent, child, u_axis, v_axis, turned, tau, prior, gate,
+                      state, delta):
     """For each sample ``n`` of times ``t`` [s] (N,): ``u = Rw[n, parent, :, u_axis]``,
     ``v = Rw[n, child, :, v_axis]`` (world axes of ``Rw`` (N, S, 3, 3)); the running sums
     ``state[0:2]`` (numerator, denominator) decayed by ``exp(−Δt/τ)`` and grown by this
     sample's ``−(u·v) D Δt`` and ``D² Δt``; ``delta[n]`` the correction [rad]; then each
     ``Rw[n, s]``, ``s`` in ``turned`` (int array), turned about the world's vertical by it.
+    A sample whose residual after the correction so far, ``|u·v + D δ|``, exceeds ``gate``
+    breaks the joint by more than a heading drift does and counts for nothing.
     ``state[2]`` is the last time [s], ``state[3]`` 1.0 once there is one."""
     numerator, denominator = state[0], state[1]
     t_prev = state[2] if state[3] != 0.0 else (t[0] if t.shape[0] else 0.0)
@@ -44,7 +46,10 @@ def _constrain_python(t, Rw, parent, child, u_axis, v_axis, turned, tau, prior, 
         dt = t[n] - t_prev
         t_prev = t[n]
         decay = math.exp(-dt / tau)  # weights are per second: independent of the rate
-        numerator = decay * numerator - (ux * vx + uy * vy + uz * vz) * d * dt
+        uv = ux * vx + uy * vy + uz * vz
+        if abs(uv + d * numerator / (denominator + prior)) > gate:
+            dt = 0.0
+        numerator = decay * numerator - uv * d * dt
         denominator = decay * denominator + d * d * dt
         # the prior pulls toward no correction until the joint has been seen bent a while
         correction = numerator / (denominator + prior)
@@ -78,6 +83,11 @@ class HeadingConstraint:
     tau: float = 20.0
     #: Weight of "no correction" [s·rad²]: as much as 0.2 s with the joint bent 30°.
     prior: float = 0.05
+    #: Largest residual a sample may show and count (``_constrain``): infinite between
+    #: two sensors; against a virtual upper arm (a forearm-only kit) a few degrees, so the
+    #: calibration's T-pose and any raise of the arm, which break the assumption, not
+    #: the hinge, are left out.
+    gate: float = math.inf
     #: numerator, denominator, last time [s], has a last time (see ``_constrain``).
     _state: np.ndarray = field(default_factory=lambda: np.zeros(4), init=False)
 
@@ -89,7 +99,7 @@ class HeadingConstraint:
         ``v_axis``."""
         _constrain(np.ascontiguousarray(t, dtype=np.float64), Rw, parent, child, u_axis,
                    v_axis, np.array(turned, dtype=np.int64), self.tau, self.prior,
-                   self._state, np.empty(len(t)))
+                   self.gate, self._state, np.empty(len(t)))
 
     def update(self, t: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Heading correction δ [rad] (N,) at times ``t`` [s] from the joint's axes ``u``,
@@ -99,5 +109,6 @@ class HeadingConstraint:
         axes[:, 0, :, 0], axes[:, 1, :, 0] = u, v
         delta = np.empty(n)
         _constrain(np.ascontiguousarray(t, dtype=np.float64), axes, 0, 1, 0, 0,
-                   np.zeros(0, dtype=np.int64), self.tau, self.prior, self._state, delta)
+                   np.zeros(0, dtype=np.int64), self.tau, self.prior, self.gate,
+                   self._state, delta)
         return delta

@@ -207,6 +207,9 @@ class Pipeline:
         # near metal): the magnetometer is evidence, the joints decide.
         self._constraints = {s: HeadingConstraint() for s in ("forearm", "hand")
                              if s in present}
+        if "forearm" in present and "upper_arm" not in present:
+            # against the virtual upper arm hanging still (see ``_apply_constraints``)
+            self._constraints["forearm"] = HeadingConstraint(gate=VIRTUAL_HINGE_GATE)
         return True
 
     def _estimate(self, final: bool) -> EstimateArrays | None:
@@ -264,9 +267,14 @@ class Pipeline:
     def _apply_constraints(self, times: np.ndarray, Rw: np.ndarray, present: np.ndarray
                            ) -> None:
         """Turn the forearm and hand about the vertical by their joints' heading error.
-        (A left arm's medial Z flips ``u·v`` and ``D`` alike: the estimate is the same.)"""
+        (A left arm's medial Z flips ``u·v`` and ``D`` alike: the estimate is the same.)
+        Without an upper-arm sensor the upper arm hangs still from its parent (the stated
+        assumption of a forearm-only kit, ``metrics.assumptions``): the elbow's hinge
+        against that virtual upper arm ties the forearm's heading all the same."""
         forearm, hand = _SEGMENT_INDEX["forearm"], _SEGMENT_INDEX["hand"]
-        pairs = {"forearm": (_SEGMENT_INDEX["upper_arm"], forearm, 2, 1),
+        upper_arm = next(s for s in (_SEGMENT_INDEX["upper_arm"], _SEGMENT_INDEX["clavicle"],
+                                     _SEGMENT_INDEX["thorax"]) if present[s])
+        pairs = {"forearm": (upper_arm, forearm, 2, 1),
                  "hand": (forearm, hand, 0, 2)}
         for segment, constraint in self._constraints.items():
             parent, child, u_axis, v_axis = pairs[segment]
@@ -279,4 +287,8 @@ class Pipeline:
 
 
 _SEGMENT_INDEX = {segment: i for i, segment in enumerate(SEGMENTS)}
+#: A forearm-only kit's elbow hinge against the virtual upper arm: the largest residual
+#: (the sine of the forearm's turn out of the hinge's plane) a sample may show and count.
+#: A 6-axis heading drift shows a few degrees at most; an arm raised shows tens.
+VIRTUAL_HINGE_GATE = math.sin(math.radians(8.0))
 _ELBOW_FLEXION = REPORTED_ANGLES.index("elbow_flexion")
