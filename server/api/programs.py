@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, HTTPException, status
+from fastapi import APIRouter, Depends, HTTPException, Query, status
 from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel
 from sqlalchemy import select
@@ -54,9 +54,26 @@ def _out(db: DbSession, program: models.Program, settings: Settings) -> ProgramO
 
 
 @router.get("/programs/catalogue", response_model=list[CatalogueOut])
-def get_catalogue(therapist: Therapist) -> list[dict]:
-    """The exercises a program can prescribe, each with the angle that measures it."""
-    return [e.as_dict() for e in catalogue.CATALOGUE.values()]
+def get_catalogue(therapist: Therapist, db: Db, patient_id: Annotated[int | None, Query(
+        ge=1, le=2**31 - 1, description="say for each exercise whether this patient's kits "
+        "measure it (measurable, why_not)")] = None) -> list[dict]:
+    """The exercises a program can prescribe, each with the angle that measures it; with
+    ``patient_id``, whether the patient's kits (the sensors their sessions streamed with)
+    measure it, and why not."""
+    entries = [e.as_dict() for e in catalogue.CATALOGUE.values()]
+    if patient_id is None:
+        return entries
+    own_patient(db, therapist, patient_id)
+    kits = store.patient_kits(db, patient_id)
+    for entry, e in zip(entries, catalogue.CATALOGUE.values(), strict=True):
+        if not kits:
+            continue
+        entry["measurable"] = any(catalogue.measurable(e, sensors) for _, sensors in kits)
+        if not entry["measurable"]:
+            worn = [s for s in catalogue.SEGMENT_WORDS  # chain order
+                    if any(s in sensors for _, sensors in kits)]
+            entry["why_not"] = catalogue.why_not(e, worn)
+    return entries
 
 
 @router.get("/patients/{patient_id}/programs", response_model=list[ProgramOut])

@@ -23,6 +23,10 @@ class CatalogueOut(BaseModel):
     repetitions: int = Field(description="the default count")
     instruction: str = Field(description="what the patient does, in a sentence")
     picture: str = Field(description="the name of the kit page's drawing")
+    measurable: bool | None = Field(None, description=(
+        "asked for a patient (patient_id): whether one of the patient's kits measures it "
+        "(the sensors its sessions streamed with); null when none has streamed yet"))
+    why_not: str | None = Field(None, description="when not measurable: why, in a sentence")
 
 
 class ExerciseIn(BaseModel):

@@ -147,3 +147,18 @@ def program_out(program: models.Program, patient_targets: Mapping[str, models.Pa
         ended_at=aware(program.ended_at) if program.ended_at else None,
         active=is_active(program, today),
         version=version_out(program.versions[-1], patient_targets))
+
+
+def patient_kits(db: DbSession, patient_id: int) -> list[tuple[str, tuple[str, ...]]]:
+    """The patient's kits as their sessions show them: (device name, the sensors a
+    session streamed with) for each sensor set of each unrevoked device, oldest first.
+    A phone worn on either segment gives one set per segment."""
+    rows = db.execute(
+        select(models.Device.name, models.Session.sensors)
+        .join(models.Session, models.Session.device_id == models.Device.id)
+        .where(models.Device.patient_id == patient_id, models.Device.revoked_at.is_(None))
+        .order_by(models.Session.id))
+    seen: dict[tuple[str, tuple[str, ...]], None] = {}
+    for name, sensors in rows:
+        seen[(name, tuple(sorted(sensors or {})))] = None
+    return list(seen)

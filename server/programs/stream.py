@@ -170,7 +170,8 @@ def device_today(db: DbSession, patient: models.Patient, today: date) -> dict[st
     ``docs/extensions/device-today.md``) answers when a program is in force: ``source``
     ``program``, the program's id, name and version (the kit names it in ``hello``,
     ``programs-hello.md``), and its exercises in order, each the catalogue's fields with
-    the dose and the target band; None without a program in force."""
+    the dose, the target band and what a phone measures it on
+    (``catalogue.phone_fields``); None without a program in force."""
     program = todays_program(db, patient.id, today)
     if program is None:
         return None
@@ -178,7 +179,7 @@ def device_today(db: DbSession, patient: models.Patient, today: date) -> dict[st
     exercises = []
     for e in ready["exercises"]:
         entry = catalogue.CATALOGUE[e["name"]]
-        exercises.append({**entry.as_dict(), **e, "repetitions": e["repetitions"]})
+        exercises.append({**entry.as_dict(), **e, **catalogue.phone_fields(entry)})
     return {"source": "program", "side": patient.side,
             "program": {"id": program.id, "name": program.name,
                         "version": ready["version"], "note": ready["note"]},

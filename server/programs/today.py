@@ -17,7 +17,7 @@ from sqlalchemy.orm import Session as DbSession
 
 from ..db import models
 from ..reports.targets import patient_targets
-from .catalogue import CATALOGUE, DEFAULT_SESSION
+from .catalogue import CATALOGUE, DEFAULT_SESSION, phone_fields
 from .stream import device_today
 
 #: Version of the device-today answer (``docs/extensions/device-today.md``).
@@ -41,7 +41,8 @@ def todays_exercises(db: DbSession, patient: models.Patient, today: date) -> dic
             band = ({"min_deg": target.min_deg, "max_deg": target.max_deg, "from": "patient"}
                     if target is not None else
                     {"min_deg": entry.rest_deg, "max_deg": entry.target_deg, "from": "default"})
-            exercises.append({**entry.as_dict(), "sensor": sensor, "target": band})
+            exercises.append({**entry.as_dict(), "sensor": sensor, "target": band,
+                              **phone_fields(entry)})
     return {"version": DEVICE_TODAY_VERSION, "source": "default", "side": patient.side,
             "exercises": exercises}
 

@@ -21,6 +21,30 @@ const KitProgram = {
     return parts.join(" · ");
   },
 
+  /** Whether a phone on `segment` measures exercise `ex` (device-today's measured_by;
+   * an older server's answer: the exercise's sensor). */
+  measuredOn(ex, segment) {
+    return Array.isArray(ex.measured_by) ? ex.measured_by.includes(segment) : ex.sensor === segment;
+  },
+
+  /** Where the phone goes for `ex`, in words. */
+  where(ex) {
+    const on = Array.isArray(ex.measured_by) ? ex.measured_by : [ex.sensor];
+    if (!on.length) return "not measured by a phone";
+    return "phone on the " + on.map((s) => SEGMENT_WORDS[s] || s).join(" or ");
+  },
+
+  /** The program's exercises a phone on `segment` does not measure, and why (the
+   * server's sentences); null when it measures them all. */
+  skipped(exercises, segment) {
+    const left = exercises.filter((ex) => !KitProgram.measuredOn(ex, segment));
+    if (!left.length) return null;
+    return el("div", { class: "skipped", id: "skipped" },
+      `Not in this session: with the phone on your ${SEGMENT_WORDS[segment] || segment}, these are left out.`,
+      el("ul", {}, left.map((ex) => el("li", {},
+        (ex.not_measured && ex.not_measured[segment]) || `${ex.title}: ${KitProgram.where(ex)}.`))));
+  },
+
   /** The welcome's part for a program: its name, version and today's exercises. */
   summary(today, exercises) {
     const program = today.program;
@@ -31,7 +55,7 @@ const KitProgram = {
       program.note ? el("p", { class: "lead", id: "program-note" }, program.note) : null,
       el("ol", { class: "program", id: "program-list" }, exercises.map((ex) =>
         el("li", {}, el("span", { class: "title" }, ex.title),
-          el("span", { class: "dose" }, KitProgram.dose(ex))))),
+          el("span", { class: "dose" }, `${KitProgram.dose(ex)} · ${KitProgram.where(ex)}`)))),
     ];
   },
 

@@ -177,7 +177,7 @@ function chooseSegment() {
     localStorage.setItem(SEGMENT_KEY, segment);
     strap();
   };
-  const usable = (segment) => kit.today.exercises.some((e) => e.sensor === segment);
+  const usable = (segment) => kit.today.exercises.some((e) => KitProgram.measuredOn(e, segment));
   screen(el("h1", {}, "Where will you wear the phone?"),
     el("div", { class: "choices" },
       ["forearm", "upper_arm"].filter(usable).map((segment) => el("button", {
@@ -204,6 +204,7 @@ function strap() {
       el("li", {}, `The top of the phone toward ${TOP_TOWARD[kit.sensor]}.`),
       el("li", {}, "Firm, so it does not slide.")),
     check,
+    kit.today.program ? KitProgram.skipped(kit.today.exercises, kit.sensor) : null,
     big("I'm ready", { id: "ready", onclick: beginSession }));
   say(`Strap the phone on the outside of your ${SEGMENT_WORDS[kit.sensor]}, screen out, top toward ${TOP_TOWARD[kit.sensor]}.`);
   const started = Date.now();
@@ -316,8 +317,9 @@ function lowerArm() {
   every(100, () => { if (still(hanging)) exerciseIntro(0); });
 }
 
+/** The exercises the phone measures where it is worn (device-today's measured_by). */
 function exercisesForKit() {
-  return kit.today.exercises.filter((e) => e.sensor === kit.sensor);
+  return kit.today.exercises.filter((e) => KitProgram.measuredOn(e, kit.sensor));
 }
 
 function exerciseIntro(index) {

@@ -26,9 +26,14 @@ async function showPatientFlags(tbody) {
 // --- the patient page ---------------------------------------------------------------
 
 let catalogue = [];
+let cataloguePatient = null;
 
 async function mountPrograms(patientId, box) {
-  if (!catalogue.length) catalogue = await api("/api/programs/catalogue");
+  // with the patient: whether their kits measure each exercise (measurable, why_not)
+  if (!catalogue.length || cataloguePatient !== patientId) {
+    catalogue = await api(`/api/programs/catalogue?patient_id=${encodeURIComponent(patientId)}`);
+    cataloguePatient = patientId;
+  }
   const programs = await api(`/api/patients/${patientId}/programs`);
   const cards = [];
   for (const p of programs) cards.push(await programCard(patientId, p, box));
@@ -136,11 +141,15 @@ function painLine(pain) {
 // --- the editor -----------------------------------------------------------------------
 
 function exerciseRow(value) {
-  const v = value || { exercise: catalogue[0].name, sets: 2, repetitions: 10, days_per_week: 5,
+  const offered = catalogue.filter((c) => c.measurable !== false);
+  const v = value || { exercise: (offered[0] || catalogue[0]).name, sets: 2, repetitions: 10, days_per_week: 5,
     hold_s: 0, rest_s: 30, target_min_deg: null, target_max_deg: null, note: "" };
+  // only what the patient's kits measure is offered; an exercise already prescribed stays
   const select = el("select", { name: "exercise", "aria-label": "Exercise" },
-    catalogue.map((c) => el("option", { value: c.name, selected: c.name === v.exercise },
-      `${c.title} (${ANGLE_LABELS[c.angle] || c.angle})`)));
+    catalogue.filter((c) => c.measurable !== false || c.name === v.exercise).map((c) =>
+      el("option", { value: c.name, selected: c.name === v.exercise },
+        `${c.title} (${ANGLE_LABELS[c.angle] || c.angle})`
+        + (c.measurable === false ? " — not measured by this patient's kits" : ""))));
   const num = (name, val, attrs) => el("input", Object.assign({ name, type: "number", value: val ?? "",
     "aria-label": name.replace(/_/g, " ") }, attrs));
   const row = el("div", { class: "exercise-row" },
@@ -171,6 +180,20 @@ function readRow(row) {
     note: value("note") || null };
 }
 
+/** The exercises left out of the editor's choice, each with why (the server's words). */
+function notOffered() {
+  if (catalogue.every((c) => c.measurable == null)) {
+    return el("p", { class: "small muted", id: "not-offered" },
+      "No kit of this patient has sent a session yet, so every exercise is offered: a phone "
+      + "on the forearm measures the elbow and the forearm's turn, on the upper arm the shoulder.");
+  }
+  const left = catalogue.filter((c) => c.measurable === false);
+  if (!left.length) return null;
+  return el("div", { class: "small not-offered", id: "not-offered" },
+    el("b", {}, "Not offered for this patient's kits:"),
+    el("ul", {}, left.map((c) => el("li", {}, c.why_not))));
+}
+
 function openEditor(patientId, box, program) {
   const v = program ? program.version : null;
   const today = new Date().toISOString().slice(0, 10);
@@ -185,7 +208,7 @@ function openEditor(patientId, box, program) {
       el("label", {}, "Start", el("input", { name: "start_date", type: "date", required: true, value: v ? v.start_date : today })),
       el("label", {}, "End (optional)", el("input", { name: "end_date", type: "date", value: v && v.end_date ? v.end_date : "" }))),
     el("label", { class: "wide" }, "Note", el("textarea", { name: "note", maxlength: 2000, rows: 2 }, v && v.note ? v.note : "")),
-    el("h3", {}, "Exercises, in order"), rows,
+    el("h3", {}, "Exercises, in order"), notOffered(), rows,
     el("div", { class: "row", style: "margin-top:10px" },
       el("button", { type: "button", class: "secondary", id: "add-exercise", onclick: () => rows.append(exerciseRow(null)) }, "Add exercise"),
       el("span", { class: "grow" }),
