@@ -26,11 +26,14 @@ SEEDS = (0, 1, 2, 3, 4, 5)
 REPEATED_SHARE = 0.03
 
 
-def phone_like(exercise: str, sensor: str, seed: int, repetitions: int | None = None):
-    """A phone on ``sensor`` doing ``exercise``; its recording with repeated stamps."""
+def phone_like(exercise: str, sensor: str, seed: int, repetitions: int | None = None,
+               side: str = "right"):
+    """A phone on ``sensor`` of the ``side`` arm doing ``exercise``; its recording with
+    repeated stamps."""
     rng = np.random.default_rng(1000 + seed)
     config = SimulationConfig(
-        exercise=exercise, sensors=(sensor,), rate_hz=60.0, nine_axis=False, seed=seed,
+        exercise=exercise, sensors=(sensor,), side=side, rate_hz=60.0, nine_axis=False,
+        seed=seed,
         errors=ImuErrors(gyro_noise=0.01, acc_noise=0.1), gyro_bias_max=0.02,
         jitter_s=float(rng.uniform(0.002, 0.005)), mount_axial_deg=60.0,
         repetitions=repetitions)
@@ -46,8 +49,9 @@ def phone_like(exercise: str, sensor: str, seed: int, repetitions: int | None = 
     return recording, sim.truth, len(repeated)
 
 
-def rmse(exercise: str, sensor: str, angle: str, seed: int, repetitions=None) -> float:
-    recording, truth, _ = phone_like(exercise, sensor, seed, repetitions)
+def rmse(exercise: str, sensor: str, angle: str, seed: int, repetitions=None,
+         side: str = "right") -> float:
+    recording, truth, _ = phone_like(exercise, sensor, seed, repetitions, side)
     estimates, _ = estimate_recording(recording)
     scored = estimates.t >= SCORED_FROM_S
     expected = np.rad2deg(np.interp(estimates.t[scored], truth.t, truth.angles[angle]))
@@ -60,10 +64,11 @@ def _pending(reason: str):
 
 
 SIDE_RAISE_FLEXION = (
-    "measured 1.2–2.7° over seeds 0–5 (bar 2°): in a side raise to 80° the spec's Z·X·Y "
-    "flexion is tan(80°) = 5.7 times the heading error; with the bias known exactly, the "
-    "gyroscope's noise alone (0.01 rad/s at 60 Hz) gives 0.6–1.5°, the bias learnt in the "
-    "poses' few seconds of stillness the rest")
+    "measured 1.2–2.7° (right arm) and 1.8–5.5° (left) over seeds 0–5 (bar 2°): in a side "
+    "raise to 80° the spec's Z·X·Y flexion is tan(80°) = 5.7 times the heading error, and "
+    "the heading drifts 1–3° in the minute (the bias learnt from the poses' ~4 s of "
+    "stillness at 0.01 rad/s noise is known to ~0.7 mrad/s); with the bias known exactly "
+    "the gyroscope's noise alone gives 0.6–1.5°")
 
 CASES = [
     # forearm phone: elbow flexion and pronation, in both of its exercises
@@ -91,11 +96,12 @@ def test_phone_like_recordings_are_what_the_issue_asks():
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("side", ["right", "left"])
 @pytest.mark.parametrize(("exercise", "sensor", "angle", "repetitions"),
                          [pytest.param(*c[:4], marks=c[4], id=f"{c[1]}-{c[0]}-{c[2]}")
                           for c in CASES])
-def test_single_phone_reaches_the_bar(exercise, sensor, angle, repetitions):
-    figures = [rmse(exercise, sensor, angle, seed, repetitions) for seed in SEEDS]
-    print(f"\n{sensor} phone, {exercise}: {angle} RMSE "
+def test_single_phone_reaches_the_bar(exercise, sensor, angle, repetitions, side):
+    figures = [rmse(exercise, sensor, angle, seed, repetitions, side) for seed in SEEDS]
+    print(f"\n{side} {sensor} phone, {exercise}: {angle} RMSE "
           + ", ".join(f"{f:.2f}°" for f in figures) + f" (seeds {SEEDS})")
     assert max(figures) < BAR_DEG
