@@ -225,7 +225,7 @@ STAGES = [
      "slerp/joint angles"),
     (inverse_module.JointAngleSolver, "update", "joint angles (inverse kinematics)",
      "slerp/joint angles"),
-    (session_module.Pipeline, "_apply_constraints", "6-axis heading constraints",
+    (session_module.Pipeline, "_apply_constraints", "heading constraints (compiled)",
      "slerp/joint angles"),
     (session_module, "forward_kinematics", "forward kinematics", "forward kinematics"),
 ]
