@@ -12,6 +12,7 @@ jitter and repeated stamps). The cases the estimator does not meet yet are marke
 
 from __future__ import annotations
 
+import functools
 from dataclasses import replace
 
 import numpy as np
@@ -49,14 +50,23 @@ def phone_like(exercise: str, sensor: str, seed: int, repetitions: int | None = 
     return recording, sim.truth, len(repeated)
 
 
-def rmse(exercise: str, sensor: str, angle: str, seed: int, repetitions=None,
-         side: str = "right") -> float:
+@functools.lru_cache(maxsize=32)
+def _errors(exercise: str, sensor: str, seed: int, repetitions, side: str) -> dict:
+    """Every angle's RMSE [°] against the truth after the poses (one run for all)."""
     recording, truth, _ = phone_like(exercise, sensor, seed, repetitions, side)
     estimates, _ = estimate_recording(recording)
     scored = estimates.t >= SCORED_FROM_S
-    expected = np.rad2deg(np.interp(estimates.t[scored], truth.t, truth.angles[angle]))
-    error = estimates.degrees()[angle][scored] - expected
-    return float(np.sqrt(np.mean(error**2)))
+    degrees = estimates.degrees()
+    out = {}
+    for angle, values in truth.angles.items():
+        expected = np.rad2deg(np.interp(estimates.t[scored], truth.t, values))
+        out[angle] = float(np.sqrt(np.mean((degrees[angle][scored] - expected) ** 2)))
+    return out
+
+
+def rmse(exercise: str, sensor: str, angle: str, seed: int, repetitions=None,
+         side: str = "right") -> float:
+    return _errors(exercise, sensor, seed, repetitions, side)[angle]
 
 
 def _pending(reason: str):
@@ -104,4 +114,25 @@ def test_single_phone_reaches_the_bar(exercise, sensor, angle, repetitions, side
     figures = [rmse(exercise, sensor, angle, seed, repetitions, side) for seed in SEEDS]
     print(f"\n{side} {sensor} phone, {exercise}: {angle} RMSE "
           + ", ".join(f"{f:.2f}°" for f in figures) + f" (seeds {SEEDS})")
+    assert max(figures) < BAR_DEG
+
+
+LONG_SESSION_FLEXION = (
+    "measured 0.7–2.3° over seeds 0–5 (bar 2°): its sets of side raises to 75° (see the "
+    "side raise's case); abduction and elevation hold")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("angle", [
+    "shoulder_abduction", "shoulder_elevation",
+    pytest.param("shoulder_flexion", marks=_pending(LONG_SESSION_FLEXION))])
+def test_upper_arm_phone_through_an_eleven_minute_session(angle):
+    """Rounds of forward raises, side raises, rotations and elbow flexions with 20 s
+    rests in the N-pose between sets (the rests teach the bias again)."""
+    figures = [rmse("shoulder_sets", "upper_arm", angle, seed) for seed in SEEDS]
+    rotation = [rmse("shoulder_sets", "upper_arm", "shoulder_rotation", seed)
+                for seed in SEEDS]
+    print(f"\nupper_arm phone, shoulder_sets (11 min): {angle} RMSE "
+          + ", ".join(f"{f:.2f}°" for f in figures) + f" (seeds {SEEDS}); rotation "
+          "(not in the issue's bar) " + ", ".join(f"{f:.2f}°" for f in rotation))
     assert max(figures) < BAR_DEG
