@@ -202,7 +202,7 @@ def test_a_client_scene_is_built_once_and_moved_in_place():
     np.testing.assert_allclose(view.arm.joints["wrist"].position, pose.p_thorax["wrist"])
     assert view.arcs._arcs["elbow_flexion"].visible
     assert not view.arcs._arcs["shoulder_flexion"].visible
-    assert "elbow flexion 120°" in view.arcs._labels["elbow_flexion"].text
+    assert "Elbow flexion 120°" in view.arcs._labels["elbow_flexion"].text
     # the arc: a line of fixed width on screen and a translucent fan, green within normal
     assert view.arcs._arcs["elbow_flexion"].thickness_units == "screen"
     green, amber, red = view.arcs._fans["elbow_flexion"]
@@ -213,12 +213,13 @@ def test_a_client_scene_is_built_once_and_moved_in_place():
     assert theme["control_width"] == "small" and not theme["show_logo"]
     assert any(m["type"] == "GuiSetPanelCollapsedMessage" and m["collapsed"]
                for m in messages)
-    # the camera frames the arm: near, looking at the upper arm, from the measured side
+    # the camera looks at the shoulder, the centre of the arm's reach (the framing of the
+    # whole reach: tests/test_viewer_view.py)
     camera = view.client.camera
     target = np.asarray(camera.look_at)
     shoulder = view.arm.notch_world(pose) + pose.R_world["thorax"] @ pose.p_thorax["shoulder"]
-    assert np.linalg.norm(np.asarray(camera.position) - target) < 2.0
-    assert np.linalg.norm(target - shoulder) < 0.4
+    assert np.linalg.norm(np.asarray(camera.position) - target) < 3.0
+    assert np.linalg.norm(target - shoulder) < 0.01
 
 
 def test_the_gate_closes_a_viewer_without_a_ticket_before_sending_anything():

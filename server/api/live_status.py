@@ -25,6 +25,7 @@ from sqlalchemy.orm import Session as DbSession
 
 from ..db import models
 from ..live.motion import MotionWatch, current_exercise, watch, watching
+from ..live.streams import STALE_S
 from ..services import Services
 from ..store.blocks import SAMPLE_COLUMNS, unpack_many
 from .deps import Therapist, own_patient
@@ -33,8 +34,6 @@ from .schemas import Id
 
 router = APIRouter(prefix="/api", tags=["live"])
 
-#: A sensor with an open socket but no sample for this long [s] shows as not receiving.
-STALE_S = 1.0
 #: Window of arrivals for samples per second [s].
 RATE_WINDOW_S = 3.0
 #: The newest stretch of samples judged for stillness while a pose is held [s].

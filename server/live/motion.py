@@ -30,6 +30,8 @@ import numpy as np
 from armtrack.estimator.arm.joints import REPORTED_ANGLES
 from armtrack.estimator.metrics import detect_repetitions
 
+from ..reports.words import exercise_words as words
+
 #: Seconds of poses kept per watched patient.
 BUFFER_S = 600.0
 #: A watch stops this long after the last poll [s].
@@ -134,12 +136,6 @@ def watching(hub: Any, patient_id: int) -> MotionWatch | None:
         return None
     current.last_poll = time.monotonic()
     return current
-
-
-def words(name: str) -> str:
-    """An exercise or angle name in words: ``elbow_flexion`` → ``Elbow flexion``."""
-    text = " + ".join(part.strip().replace("_", " ") for part in name.split("+"))
-    return text[:1].upper() + text[1:]
 
 
 def current_exercise(motion: MotionWatch, session_id: int, mark: dict[str, Any] | None

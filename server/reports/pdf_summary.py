@@ -15,14 +15,9 @@ from zoneinfo import ZoneInfo
 from matplotlib.figure import Figure
 
 from .content import RomEntry, SessionReport
+from .words import ANGLE_WORDS, exercise_words
 
-LABELS = {
-    "clavicle_protraction": "Clavicle protraction", "clavicle_elevation": "Clavicle elevation",
-    "shoulder_flexion": "Shoulder flexion", "shoulder_abduction": "Shoulder abduction",
-    "shoulder_rotation": "Shoulder internal rotation", "elbow_flexion": "Elbow flexion",
-    "forearm_pronation": "Forearm pronation", "wrist_flexion": "Wrist flexion",
-    "wrist_deviation": "Wrist ulnar deviation", "shoulder_elevation": "Shoulder elevation",
-}
+LABELS = ANGLE_WORDS
 #: A change of range smaller than this [deg] is "about the same" (within what one
 #: session's estimate may differ from the next: the estimator's bar plus its extremes).
 SAME_DEG = 3.0
@@ -64,9 +59,7 @@ def local(moment: datetime, zone: ZoneInfo, with_time: bool = True) -> str:
     return text + (f", {at:%H:%M} {at.tzname()}" if with_time else "")
 
 
-def words(name: str) -> str:
-    text = " + ".join(LABELS.get(p.strip(), p.strip().replace("_", " ")) for p in name.split("+"))
-    return text[:1].upper() + text[1:]
+words = exercise_words
 
 
 def _deg(x: float | None) -> str:

@@ -22,6 +22,7 @@ from urllib.parse import parse_qs, urlsplit
 import viser
 from armtrack.server.db import models
 from armtrack.server.live.access import holds
+from armtrack.server.live.streams import stream_receiving
 
 from .grants import GRANT_TTL_S, Grant, GrantBook
 from .live import LiveDriver
@@ -206,8 +207,10 @@ class ViewerHost:
             if grant.live:
                 view = ClientView(client, heading=f"{patient.name} · live",
                                   height_m=patient.height_m, side=patient.side, live=True)
-                return LiveDriver(view, services.hub, patient.id,
-                                  dict(services.sensor_status.get(patient.id, {})))
+                patient_id = patient.id
+                return LiveDriver(view, services.hub, patient_id,
+                                  dict(services.sensor_status.get(patient_id, {})),
+                                  receiving=lambda: stream_receiving(services, patient_id))
             session = db.get(models.Session, grant.session_id)
             if session is None or session.patient_id != patient.id:
                 raise ViewerError(f"session {grant.session_id} is not patient {patient.id}'s")

@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import time
 from collections import deque
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -15,14 +16,25 @@ from .pose import Pose
 from .repetitions import RunningRepetitions
 from .view import ClientView
 
+#: The panel's title is checked this often when no update comes [s].
+TICK_S = 1.0
+#: A pose this recent means the stream is live, when the kit streams to another server
+#: instance [s].
+POSE_FRESH_S = 2.0
+
 
 class LiveDriver:
     """Feeds ``view`` with the updates of ``patient_id`` from ``hub``; ``sensor_status``:
     the server's last ``status`` per sensor of that patient."""
 
     def __init__(self, view: ClientView, hub, patient_id: int,
-                 sensor_status: dict[str, dict[str, Any]] | None = None):
+                 sensor_status: dict[str, dict[str, Any]] | None = None,
+                 receiving: Callable[[], bool | None] | None = None):
         self.view = view
+        #: whether the kit sends now (``server/live/streams.py``; None: no stream here)
+        self.receiving = receiving or (lambda: None)
+        self.session_status: str | None = None  # of the newest session heard of
+        self._pose_at = -float("inf")  # monotonic time of the last pose
         self.hub = hub
         self.patient_id = patient_id
         self.sensors: dict[str, dict[str, Any]] = dict(sensor_status or {})
@@ -41,8 +53,12 @@ class LiveDriver:
                 await asyncio.to_thread(self.handle, latest)
             else:
                 await asyncio.to_thread(self._status)
-            while True:
-                update = await subscription.get()
+            while True:  # the chip is kept up to date even when nothing comes
+                try:
+                    update = await asyncio.wait_for(subscription.get(), TICK_S)
+                except TimeoutError:
+                    await asyncio.to_thread(self._status)
+                    continue
                 await asyncio.to_thread(self.handle, update)
 
     def handle(self, update: dict[str, Any]) -> None:
@@ -51,6 +67,7 @@ class LiveDriver:
         if kind == "pose":
             pose = Pose.from_update(update)
             self._pose, self._update = pose, update
+            self._pose_at = time.monotonic()
             self.session = f"session {update.get('session_id')}: live"
             self.view.show(pose)
             self._panels(pose)
@@ -58,6 +75,7 @@ class LiveDriver:
             self.sensors[str(update.get("sensor"))] = update
         elif kind == "session":
             self.session = f"session {update.get('session_id')}: {update.get('status')}"
+            self.session_status = update.get("status")
         elif kind == "error":
             self.session = f"session {update.get('session_id')}: {update.get('reason')}"
         if kind != "pose" or self.view.due("status", 0.5):
@@ -82,7 +100,24 @@ class LiveDriver:
             name = exercise_angle(None, pose.rom_deg)
             panels.show_repetitions(name, self.repetitions.counts.get(name, 0) if name else 0)
 
+    def stream_state(self) -> str:
+        """The stream's state in words, for the panel's title: the sensor table's rule
+        when the kit streams to this server, else what the hub says."""
+        receiving = self.receiving()
+        if receiving is True:
+            return "Live: receiving"
+        if receiving is False:
+            return "No data from the kit"
+        if self.session_status == "closed":
+            return "Session ended"
+        if self.session_status == "interrupted":
+            return "Connection lost"
+        if time.monotonic() - self._pose_at <= POSE_FRESH_S:
+            return "Live: receiving"  # the kit streams to another server instance
+        return "Waiting for the kit"
+
     def _status(self) -> None:
+        self.view.panels.set_label(self.stream_state())
         lines = [f"Live · {self.session}"]
         if self._pose is not None:
             latency = self._update.get("latency_s")

@@ -14,6 +14,7 @@ from collections.abc import Mapping
 
 import numpy as np
 from armtrack.estimator.arm.joints import NORMAL_RANGE_DEG, REPORTED_ANGLES
+from armtrack.server.reports.words import exercise_words
 
 from .pose import Rom
 from .rom import degrees, pretty
@@ -51,9 +52,10 @@ class Panels:
     """The panels; ``gui`` is the viewer's ``client.gui``.
 
     The viewer is mostly seen embedded in the session page (an iframe of about 640×480 px)
-    beside the page's own angles and status, so the control panel is small and floats at
-    the top right: live (``live``), it starts minimised to its title bar; in a replay it
-    starts open on the replay controls, the other folders closed."""
+    beside the page's own angles and status, so the control panel is small, floats at
+    the top right and starts minimised to its title bar, which names the stream's state
+    (live, ``live``) or "Replay controls"; opened, a replay shows its controls first, the
+    other folders closed."""
 
     def __init__(self, gui, heading: str, *, live: bool = True):
         self.gui = gui
@@ -61,8 +63,8 @@ class Panels:
                             dark_mode=False)
         main = gui.main_panel
         main.float(x=-8, y=8)
-        if live:
-            main.minimize()
+        main.minimize()  # its title bar only: the scene stays clear (open it with its +)
+        self.set_label("Waiting for the kit" if live else "Replay controls")
         self.heading = markdown_text(heading)
         self.status = gui.add_markdown(f"**{self.heading}**\n\nwaiting for data…\n\n"
                                        f"{DISCLAIMER}")
@@ -85,6 +87,14 @@ class Panels:
             self.sensor_frames = gui.add_checkbox("Sensor frames", initial_value=False)
             self.arcs = gui.add_checkbox("Range-of-motion arcs", initial_value=True)
 
+    def set_label(self, text: str) -> None:
+        """The panel's title (where viser would say "Connected", which is only its own
+        socket's state): the stream's state when live, what the panel holds in a
+        replay. Sent when it changes."""
+        if text != getattr(self, "label", None):
+            self.label = text
+            self.gui.set_panel_label(text)
+
     def show_status(self, lines: list[str]) -> None:
         """Plain-text ``lines`` under the heading (shown as written)."""
         self.status.content = "\n\n".join([f"**{self.heading}**",
@@ -105,7 +115,7 @@ class Panels:
             self.repetitions.content = "no exercise movement yet"
             return
         of = f" of {total}" if total is not None else ""
-        self.repetitions.content = f"**{pretty(name)}**: {count}{of} repetitions"
+        self.repetitions.content = f"**{exercise_words(name)}**: {count}{of} repetitions"
 
 
 def rom_table(rom: Rom, now_deg: Mapping[str, float]) -> str:

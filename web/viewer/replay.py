@@ -13,6 +13,7 @@ import numpy as np
 from armtrack.estimator.metrics import Repetition, repetitions_by_angle
 from armtrack.server.db import models
 from armtrack.server.live.estimator import CALIBRATION_TAIL_S
+from armtrack.server.reports.words import exercise_words, mark_words
 from armtrack.server.store.processing import stored_estimates
 from sqlalchemy import select
 from sqlalchemy.orm import Session as DbSession
@@ -100,7 +101,8 @@ class ReplayDriver:
         exclude = [(self.t0, data.rom_start_s)] if data.rom_start_s > self.t0 else None
         self.repetitions: dict[str, tuple[Repetition, ...]] = repetitions_by_angle(
             angles, table.t, exclude=exclude)
-        self._mark_options = {f"{t:7.1f} s  {label}": t for t, label in data.marks}
+        # in words, as the therapist reads them ("12.5 s · Elbow flexion"), not codes
+        self._mark_options = {f"{t:.1f} s · {mark_words(label)}": t for t, label in data.marks}
         self._build_controls()
 
     def _build_controls(self) -> None:
@@ -204,4 +206,4 @@ class ReplayDriver:
             panels.show_status([
                 f"Replay · session {self.data.session_id} · {state} at {self.speed:g}×",
                 f"t = {pose.t:.1f} s of {self.t1:.1f} s"
-                + (f" · {exercise[9:].replace('_', ' ')}" if exercise else "")])
+                + (f" · {exercise_words(exercise[9:])}" if exercise else "")])

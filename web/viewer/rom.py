@@ -16,6 +16,7 @@ import numpy as np
 from armtrack.estimator.arm.forward import forward_kinematics
 from armtrack.estimator.arm.joints import NORMAL_RANGE_DEG
 from armtrack.estimator.body import SegmentLengths
+from armtrack.server.reports.words import exercise_words
 
 from .pose import Pose, chain_angles_rad
 
@@ -34,6 +35,11 @@ GREEN = (30, 160, 60)
 AMBER = (245, 150, 0)
 RED = (214, 40, 40)
 BANDS = (GREEN, AMBER, RED)
+#: The in-scene labels' size (viser's screen scale: 1 is its default text size): 0.8 was
+#: too small to read in the embedded view.
+LABEL_SCALE = 1.2
+#: How far outside the arc's point a label starts [m] (away from the body).
+LABEL_OUTSIDE_M = 0.04
 
 _DOWN = np.array([0.0, -1.0, 0.0])  # a segment's distal axis
 _FRONT = np.array([1.0, 0.0, 0.0])  # its anterior axis (for axial rotations)
@@ -120,8 +126,9 @@ class RomArcs:
     piece by piece) and a translucent fan from its joint to the arc, one fan per colour
     band so a range beyond normal stands out in amber or red."""
 
-    def __init__(self, scene, root: str):
+    def __init__(self, scene, root: str, side_sign: float = 1.0):
         self._arcs = {}
+        self._side_sign = side_sign
         self._fans: dict[str, list[Any]] = {}
         self._labels = {}
         blank = np.zeros((ARC_PIECES, 2, 3), dtype=np.float32)
@@ -137,9 +144,13 @@ class RomArcs:
                                       flat_shading=True, cast_shadow=False,
                                       receive_shadow=False, visible=False)
                 for i, colour in enumerate(BANDS)]
+            # legible, and written away from the body: the camera looks from the measured
+            # arm's side, where the subject's outside is on the screen's left for a right
+            # arm (right for a left arm), so the text ends at its point and runs outward
             self._labels[name] = scene.add_label(
-                f"{root}/rom/{name}/label", pretty(name), visible=False,
-                font_screen_scale=0.8, anchor="bottom-left")
+                f"{root}/rom/{name}/label", exercise_words(name), visible=False,
+                font_screen_scale=LABEL_SCALE,
+                anchor="center-right" if side_sign > 0 else "center-left")
         self.enabled = True
 
     def update(self, pose: Pose, lengths: SegmentLengths) -> None:
@@ -163,9 +174,11 @@ class RomArcs:
             arc.visible = True
             self._show_fans(name, pose.p_thorax[ARCS[name].centre], points, bands)
             value = pose.angles_deg.get(name, math.nan)
-            label.position = current_point(name, pose, lengths)
-            label.text = (f"{pretty(name)} {degrees(value)}  ({degrees(lo)}…{degrees(hi)})"
-                          if math.isfinite(value) else pretty(name))
+            outward = np.array([0.0, 0.0, LABEL_OUTSIDE_M * self._side_sign])  # thorax Z: right
+            label.position = current_point(name, pose, lengths) + outward
+            label.text = (f"{exercise_words(name)} {degrees(value)} "
+                          f"({degrees(lo)} to {degrees(hi)})"
+                          if math.isfinite(value) else exercise_words(name))
             label.visible = True
 
     def _show_fans(self, name: str, centre: np.ndarray, points: np.ndarray,

@@ -16,13 +16,32 @@ from .rom import RomArcs
 
 #: Default body height [m] when the patient's is unknown or implausible.
 DEFAULT_HEIGHT_M = 1.70
-#: The camera: its distance from the target [m], its turn from the subject's front toward
-#: the measured arm [deg], how far the target is below the shoulder [m] and how far the
-#: camera is above the target [m].
-CAMERA_DISTANCE_M = 1.3
+#: The camera: its vertical field of view [deg], its turn from the subject's front toward
+#: the measured arm [deg], how far above the shoulder it looks down from [deg], and the
+#: margin around the arm's reach sphere [-].
+CAMERA_FOV_DEG = 45.0
 CAMERA_TURN_DEG = 60.0
-CAMERA_DROP_M = 0.22
-CAMERA_RISE_M = 0.25
+CAMERA_ELEVATION_DEG = 12.0
+REACH_MARGIN = 1.08
+#: The view's aspect (width / height) until the browser says (the embedded view is 4:3).
+DEFAULT_ASPECT = 4 / 3
+
+
+def reach_m(lengths: SegmentLengths) -> float:
+    """The arm's reach from the shoulder [m]: upper arm + forearm + hand. Wherever the arm
+    goes (150° of flexion, full abduction, behind the back), the hand stays within a
+    sphere of this radius about the shoulder."""
+    return lengths.upper_arm + lengths.forearm + lengths.hand
+
+
+def framing_distance(reach: float, fov_rad: float, aspect: float) -> float:
+    """The camera's distance [m] from the centre of a sphere of radius ``reach`` [m] that
+    fits the whole sphere (with ``REACH_MARGIN``) in a view of vertical field of view
+    ``fov_rad`` [rad] and ``aspect`` (width / height): the narrower of the vertical and
+    horizontal fields decides."""
+    horizontal = 2 * np.arctan(np.tan(fov_rad / 2) * aspect)
+    half = min(fov_rad, horizontal) / 2
+    return REACH_MARGIN * reach / np.sin(half)
 
 
 class ClientView:
@@ -44,7 +63,7 @@ class ClientView:
             self.panels = Panels(client.gui, heading, live=live)
             self.arm = ArmView(client.scene, height, self.lengths,
                                1.0 if self.side == "right" else -1.0)
-            self.arcs = RomArcs(client.scene, ROOT)
+            self.arcs = RomArcs(client.scene, ROOT, 1.0 if self.side == "right" else -1.0)
         self.panels.sensor_frames.on_update(
             lambda _: self.arm.set_sensor_frames(self.panels.sensor_frames.value))
         self.panels.arcs.on_update(lambda _: self._toggle_arcs())
@@ -80,22 +99,31 @@ class ClientView:
             self.place_camera(pose)
 
     def place_camera(self, pose: Pose) -> None:
-        """Frame the measured arm: look at a point below its shoulder (where the arm and
-        its arcs are, whether it hangs or is raised) from ``CAMERA_DISTANCE_M`` away,
-        ``CAMERA_TURN_DEG`` from the front toward the measured arm's side and a little
-        above, so the arm fills the middle of a small embedded view and both sagittal and
-        frontal arcs show, clear of the trunk."""
+        """Frame the arm's whole reach: look at the measured shoulder (the centre of the
+        sphere the hand stays in, ``reach_m``) from ``framing_distance`` away,
+        ``CAMERA_TURN_DEG`` from the front toward the measured arm's side and
+        ``CAMERA_ELEVATION_DEG`` above, so the hand stays in the picture at 150° of
+        flexion and at full abduction, and both sagittal and frontal arcs show."""
         R = pose.R_world["thorax"]
         forward = heading(R)
         right = np.cross(forward, [0.0, 0.0, 1.0])  # the subject's right on the floor
-        turn = np.radians(CAMERA_TURN_DEG)
-        toward = np.cos(turn) * forward + pose.side_sign * np.sin(turn) * right
+        turn, rise = np.radians(CAMERA_TURN_DEG), np.radians(CAMERA_ELEVATION_DEG)
+        level = np.cos(turn) * forward + pose.side_sign * np.sin(turn) * right
+        toward = np.cos(rise) * level + np.sin(rise) * np.array([0.0, 0.0, 1.0])
         notch = self.arm.notch_world(pose)
         shoulder = notch + R @ pose.p_thorax["shoulder"]
-        target = shoulder - np.array([0.0, 0.0, CAMERA_DROP_M]) + 0.05 * forward
+        lengths = pose.lengths() or self.lengths
         camera = self.client.camera
+        try:
+            aspect = float(camera.aspect)
+        except (AssertionError, AttributeError, ZeroDivisionError):  # no size from the browser yet
+            aspect = DEFAULT_ASPECT
+        if not np.isfinite(aspect) or aspect <= 0:
+            aspect = DEFAULT_ASPECT
+        fov = np.radians(CAMERA_FOV_DEG)
+        distance = framing_distance(reach_m(lengths), fov, aspect)
         with self.client.atomic():
+            camera.fov = fov
             camera.up_direction = (0.0, 0.0, 1.0)
-            camera.position = target + CAMERA_DISTANCE_M * toward + np.array(
-                [0.0, 0.0, CAMERA_RISE_M])
-            camera.look_at = target
+            camera.position = shoulder + distance * toward
+            camera.look_at = shoulder

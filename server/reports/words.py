@@ -1,0 +1,39 @@
+"""Names the therapist reads: angles, exercises and the kit's marks in words
+(``elbow_flexion`` → "Elbow flexion", ``end:exercise:elbow_flexion`` → "Elbow flexion
+ends", ``tpose`` → "T-pose"), never the codes the stream carries. Plain functions, no
+heavy import: the live page, the 3D view's replay and the PDF use them alike."""
+
+from __future__ import annotations
+
+#: Angles (``REPORTED_ANGLES``) in words.
+ANGLE_WORDS = {
+    "clavicle_protraction": "Clavicle protraction", "clavicle_elevation": "Clavicle elevation",
+    "shoulder_flexion": "Shoulder flexion", "shoulder_abduction": "Shoulder abduction",
+    "shoulder_rotation": "Shoulder internal rotation", "elbow_flexion": "Elbow flexion",
+    "forearm_pronation": "Forearm pronation", "wrist_flexion": "Wrist flexion",
+    "wrist_deviation": "Wrist ulnar deviation", "shoulder_elevation": "Shoulder elevation",
+}
+#: The calibration poses' marks in words.
+POSE_WORDS = {"npose": "N-pose", "tpose": "T-pose"}
+
+
+def exercise_words(name: str) -> str:
+    """An exercise's or angle's name in words; a combined one keeps its parts
+    (``elbow_flexion + forearm_pronation`` → "Elbow flexion + Forearm pronation")."""
+    parts = [p.strip() for p in name.split("+")]
+    text = " + ".join(ANGLE_WORDS.get(p, p.replace("_", " ")) for p in parts)
+    return text[:1].upper() + text[1:]
+
+
+def mark_words(label: str) -> str:
+    """A mark's label in words: a calibration pose or an exercise, its start or its end
+    ("… ends"); any other label (a kit's own words) as it is."""
+    end = label.startswith("end:")
+    name = label[4:] if end else label
+    if name in POSE_WORDS:
+        text = POSE_WORDS[name]
+    elif name.startswith("exercise:") and name[9:].strip():
+        text = exercise_words(name[9:])
+    else:
+        return label
+    return f"{text} ends" if end else text
