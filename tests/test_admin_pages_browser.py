@@ -239,6 +239,15 @@ def test_audit_page_filters_and_pages(srv, page, shots):  # noqa: F811
     expect(rows).to_have_count(len(theirs))
     page.click("#f-clear")
     expect(rows).to_have_count(50)
+    # from the patient page, straight to that patient's trail
+    page.goto(f"{base}/patients/{first['id']}")
+    page.click("#patient-audit")
+    page.wait_for_url(re.compile(rf".*/audit\?patient_id={first['id']}$"))
+    expect(page.locator("#f-patient")).to_have_value(str(first["id"]))
+    expect(rows.first).to_be_visible()
+    assert set(rows.locator("td:nth-child(4)").all_inner_texts()) == {"Audit One"}
+    page.goto(f"{base}/audit")
+    expect(rows).to_have_count(50)
     no_overflow(page)
     page.screenshot(path=str(shots / "audit-1366.png"))
     page.set_viewport_size({"width": 390, "height": 844})

@@ -77,12 +77,14 @@ def sign_in(page, base: str, name: str = "alice") -> None:  # noqa: F811
 
 
 #: Tables that must fit a phone's width without scrolling (their rows stack there).
-STACKED_ON_PHONES = {"patient": ("sessions",), "session": ("rom-table",)}
+STACKED_ON_PHONES = {"patient": ("sessions",), "session": ("rom-table",),
+                     "audit": ("audit-table",), "admin": ("therapists", "admin-patients")}
 
 
 def fits(page, shots, name: str, width: int) -> None:  # noqa: F811
     """The page is no wider than the window; wide tables scroll inside their card (but
-    the patient's sessions and a session's ranges stack to fit a phone)."""
+    the patient's sessions, a session's ranges, the audit log and the accounts stack to
+    fit a phone)."""
     page.wait_for_load_state("networkidle")
     measured = page.evaluate("""() => {
       const tables = [...document.querySelectorAll('table')].filter((t) => t.offsetParent)
