@@ -8,6 +8,7 @@ import asyncio
 import contextvars
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from typing import Any, TypeVar
 
 from armtrack.web.viewer.host import ViewerHost
@@ -20,12 +21,28 @@ from .ingest.writer import GroupWriter, StreamState
 from .live.access import AccessWatch
 from .live.broker import make_hub
 from .live.estimation import make_estimation
-from .live.worker import LiveBatcher
+from .live.worker import LiveBatcher, LiveWorker
 from .settings import Settings
 from .store.background import SessionProcessing
 from .store.processing import process_in_background
 
 T = TypeVar("T")
+
+
+#: Seconds a lost stream's live side is kept for its resume (``Services.park_live``).
+LIVE_PARK_S = 120.0
+#: The most lost streams' live sides kept at once.
+MAX_PARKED_LIVE = 64
+
+
+@dataclass
+class ParkedLive:
+    """The live side of a stream whose connection was lost: its ``LiveWorker``, its kit
+    feedback tracker (or None), and the timer that lets them go."""
+
+    worker: LiveWorker
+    feedback: Any
+    expire: asyncio.TimerHandle
 
 
 class Services:
@@ -56,6 +73,9 @@ class Services:
         self.streams: dict[str, StreamState] = {}
         self.connections: dict[str, Any] = {}  # stream id → open IngestConnection
         self.kit_sockets: dict[int, int] = {}  # device id → its open ingest connections
+        #: stream id → the live side of a stream whose connection was lost, kept for its
+        #: resume (``park_live``)
+        self.parked_live: dict[str, ParkedLive] = {}
         self.sensor_status: dict[int, dict[str, dict[str, Any]]] = {}  # patient → sensor
         self.background: set[asyncio.Future] = set()
         #: the open live feeds and 3D views, closed once their right is gone (live/access)
@@ -87,6 +107,8 @@ class Services:
         await self.viewer.stop()
         for connection in list(self.connections.values()):
             await connection.close(1001, "server shutting down")
+        for stream_id in list(self.parked_live):
+            self._drop_parked(stream_id)
         await self.writer.stop()
         await self.live.stop()
         await self.live_estimation.stop()
@@ -96,6 +118,41 @@ class Services:
         await asyncio.get_running_loop().run_in_executor(None, self.processing.stop)
         self.db_pool.shutdown(wait=True)
         self.engine.dispose()
+
+    def park_live(self, stream_id: str, worker: LiveWorker, feedback: Any) -> None:
+        """Keep the live side (estimator, feedback's counts) of a stream whose connection
+        was lost without ``bye``, for ``LIVE_PARK_S``: a resume of the stream on this
+        server takes it over (``take_live``), so its live estimates need no calibration
+        again and its repetitions go on. At most ``MAX_PARKED_LIVE``; the oldest goes."""
+        worker.on_pose = None
+        old = self.parked_live.pop(stream_id, None)
+        if old is not None:
+            old.expire.cancel()
+            self._close_live(old.worker)
+        while len(self.parked_live) >= MAX_PARKED_LIVE:
+            oldest = next(iter(self.parked_live))
+            self._drop_parked(oldest)
+        loop = asyncio.get_running_loop()
+        self.parked_live[stream_id] = ParkedLive(
+            worker, feedback, loop.call_later(LIVE_PARK_S, self._drop_parked, stream_id))
+
+    def take_live(self, stream_id: str) -> ParkedLive | None:
+        """The parked live side of ``stream_id`` (None when there is none)."""
+        parked = self.parked_live.pop(stream_id, None)
+        if parked is not None:
+            parked.expire.cancel()
+        return parked
+
+    def _drop_parked(self, stream_id: str) -> None:
+        parked = self.parked_live.pop(stream_id, None)
+        if parked is not None:
+            parked.expire.cancel()
+            self._close_live(parked.worker)
+
+    def _close_live(self, worker: LiveWorker) -> None:
+        task = asyncio.get_running_loop().create_task(worker.close())
+        self.background.add(task)
+        task.add_done_callback(self.background.discard)
 
     async def run_db(self, fn: Callable[..., T], *args: Any) -> T:
         """``fn(db, *args)`` with a database session, on the database thread pool."""

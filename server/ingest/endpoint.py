@@ -179,6 +179,7 @@ class IngestConnection:
                 await self.send({"type": "ack", "seq": durable})
 
     _resend_ack = False
+    _said_bye = False
 
     async def refuse(self, error: Refused) -> None:
         # always the spec's shape: ``seq`` is null when the message had none to name
@@ -294,24 +295,36 @@ class IngestConnection:
         services.streams[stream_id] = state
         services.connections[stream_id] = self
         self.state = state
-        try:
-            config = PipelineConfig(side=hello.side, lengths=SegmentLengths.from_height(height),
-                                    sensors=hello.sensors)
-            self.worker = LiveWorker(config, patient_id=self.patient_id, session_id=session_id,
-                                     hub=services.hub, batcher=services.live,
-                                     max_rate_hz=self.settings.live_poses_hz,
-                                     points_frame=hello.points.frame if hello.points else None)
-        except EstimatorError as exc:  # the data are still stored; only live view is off
-            log.warning("no live estimates for session %s: %s", session_id, exc)
+        # a resumed stream whose lost connection left its live side here goes on with it:
+        # calibrated, its repetitions counting on (Services.park_live)
+        parked = services.take_live(stream_id) if hello.resume is not None else None
+        if parked is not None:
+            self.worker = parked.worker
+        else:
+            try:
+                config = PipelineConfig(side=hello.side,
+                                        lengths=SegmentLengths.from_height(height),
+                                        sensors=hello.sensors)
+                self.worker = LiveWorker(
+                    config, patient_id=self.patient_id, session_id=session_id,
+                    hub=services.hub, batcher=services.live,
+                    max_rate_hz=self.settings.live_poses_hz,
+                    points_frame=hello.points.frame if hello.points else None)
+            except EstimatorError as exc:  # the data are still stored; only live view is off
+                log.warning("no live estimates for session %s: %s", session_id, exc)
         if hello.extensions:  # docs/extensions/README.md: those this server speaks
             extra["extensions"] = [e for e in hello.extensions
                                    if e == FEEDBACK_EXTENSION or e in program_stream.SPOKEN]
         if FEEDBACK_EXTENSION in hello.extensions:
-            bands, marks = await services.run_db(_feedback_start, self.patient_id, session_id)
-            self.feedback = FeedbackTracker({k: Band(*v) for k, v in bands.items()},
-                                            measured_angles(hello.sensors))
-            for t, label in marks:  # a resumed stream: the exercise under way goes on
-                self.feedback.mark(t, label)
+            if parked is not None and parked.feedback is not None:
+                self.feedback = parked.feedback
+            else:
+                bands, marks = await services.run_db(_feedback_start, self.patient_id,
+                                                     session_id)
+                self.feedback = FeedbackTracker({k: Band(*v) for k, v in bands.items()},
+                                                measured_angles(hello.sensors))
+                for t, label in marks:  # a resumed stream: the exercise under way goes on
+                    self.feedback.mark(t, label, stored=True)
             if self.worker is not None:
                 self.worker.on_pose = self._send_feedback
         if program_stream.PROGRAMS_EXTENSION in hello.extensions:
@@ -505,6 +518,7 @@ class IngestConnection:
     async def _finish(self) -> None:
         """``bye``: store everything, ack it, close the session and process it."""
         assert self.state is not None
+        self._said_bye = True
         await self.state.idle.wait()
         await self.send({"type": "ack", "seq": self.state.durable_seq})
         await self.services.run_db(mark_closed, self.state.session_id)
@@ -518,9 +532,15 @@ class IngestConnection:
         self._closed = True
         if ack_task is not None:
             ack_task.cancel()
-        if self.worker is not None:
-            await self.worker.close()
         state = self.state
+        if self.worker is not None:
+            lost = (state is not None and not self._said_bye and not state.fenced
+                    and self.worker.error is None
+                    and self.services.connections.get(state.stream_id) is self)
+            if lost:  # the kit may resume: its live side waits for it
+                self.services.park_live(state.stream_id, self.worker, self.feedback)
+            else:
+                await self.worker.close()
         if state is None:
             return
         if self.services.connections.get(state.stream_id) is self:

@@ -10,6 +10,12 @@ band (below ``LOW``, or at the exercise's start), rises into the upper part (abo
 stops short of the top still gets their repetitions counted past two thirds of the way.
 It is counted on the live poses (up to ``ARMTRACK_LIVE_POSES_HZ``, 30 a second): a kit
 streaming in real time gives a hundred or more per repetition.
+
+A count runs from its exercise's mark (``count_from``: the mark's time). A stream resumed
+on the server that kept its live side (``endpoint``'s parked live state) goes on with the
+same tracker, so the count goes on; one that lost it (the server restarted, the stream
+went to another instance, a new stream in the session) starts a new count at its first
+estimate (``count_from``: that estimate's time), which the kit adds to what it showed.
 """
 
 from __future__ import annotations
@@ -62,26 +68,37 @@ class FeedbackTracker:
     def __init__(self, bands: Mapping[str, Band], measured: tuple[str, ...]):
         self.bands = dict(bands)
         self.measured = measured
-        self._marks: list[tuple[float, str]] = []  # (t, label) not yet passed by a pose
+        #: (t, label, stored) not yet passed by a pose
+        self._marks: list[tuple[float, str, bool]] = []
+        self._seen: set[tuple[float, str]] = set()  # a mark sent again after a resume
         self.exercise: str | None = None
         self.counter: RepetitionCounter | None = None
+        #: stream time [s] the current count runs from (None: from the next estimate)
+        self.count_from: float | None = None
         self._last_sent_t = -math.inf
 
-    def mark(self, t: float, label: str) -> None:
+    def mark(self, t: float, label: str, stored: bool = False) -> None:
         """A stream mark (stream time ``t`` [s]); it takes effect at the first pose at or
-        after ``t``."""
-        if label.startswith("exercise:") or label.startswith("end:exercise:"):
-            self._marks.append((t, label))
+        after ``t``. ``stored``: read back from the session at a resume that lost the
+        live state (its estimates before now are not counted: the count runs from the
+        next estimate). A mark seen already is ignored."""
+        if not (label.startswith("exercise:") or label.startswith("end:exercise:")):
+            return
+        if (t, label) in self._seen:
+            return
+        self._seen.add((t, label))
+        self._marks.append((t, label, stored))
 
     def _pass_marks(self, t: float) -> None:
         while self._marks and self._marks[0][0] <= t:
-            _, label = self._marks.pop(0)
+            at, label, stored = self._marks.pop(0)
             if label.startswith("exercise:"):
                 self.exercise = label.removeprefix("exercise:")
                 band = self.bands.get(self.exercise)
                 self.counter = RepetitionCounter(band) if band is not None else None
+                self.count_from = None if stored else at
             elif self.exercise is not None and label == f"end:exercise:{self.exercise}":
-                self.exercise, self.counter = None, None
+                self.exercise, self.counter, self.count_from = None, None, None
 
     def pose(self, pose: Mapping[str, Any], now: float) -> dict[str, Any] | None:
         """The feedback message for a live ``pose`` update (``now``: monotonic [s])."""
@@ -91,6 +108,8 @@ class FeedbackTracker:
         band = self.bands.get(self.exercise) if self.exercise else None
         value = angles.get(band.angle) if band is not None else None
         if self.counter is not None and value is not None and math.isfinite(value):
+            if self.count_from is None:
+                self.count_from = t
             self.counter.update(value)
         if now - self._last_sent_t < 1.0 / FEEDBACK_HZ:
             return None
@@ -101,6 +120,7 @@ class FeedbackTracker:
             "angle_deg": value if value is not None and math.isfinite(value) else None,
             "target": None if band is None else [band.min_deg, band.max_deg],
             "repetitions": 0 if self.counter is None else self.counter.count,
+            "count_from": self.count_from if self.exercise is not None else None,
             "angles_deg": {k: v for k, v in angles.items() if k in self.measured
                            and v is not None and math.isfinite(v)},
             "warnings": list(pose.get("warnings") or ()),

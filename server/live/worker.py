@@ -130,6 +130,7 @@ class LiveWorker:
         #: what makes the estimator; sent with the first batch, then None
         self._opening: Opening | None = Opening(config, session_id, max_rate_hz, points_frame)
         self._pending: list[Samples | MarkMessage] = []
+        self._fed_seq = -1  # the highest seq fed: a resumed stream sends some again
         self._received = 0.0  # monotonic time the newest pending message arrived
         self._warned = 0
         self._batch = 0  # number of the batch whose outcome was published last
@@ -138,7 +139,11 @@ class LiveWorker:
         self.on_pose: Callable[[Mapping[str, Any]], None] | None = None
 
     def feed(self, item: Samples | MarkMessage, received: float) -> None:
-        """An accepted message; ``received`` [s, ``time.monotonic``] when it arrived."""
+        """An accepted message; ``received`` [s, ``time.monotonic``] when it arrived. One
+        fed already (a resumed stream sends again what was not stored yet) is skipped."""
+        if item.seq <= self._fed_seq:
+            return
+        self._fed_seq = item.seq
         if self.error is None:
             self._pending.append(item)
             self._received = received

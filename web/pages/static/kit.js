@@ -401,7 +401,10 @@ function exercise(index, set = 0, resumed = false) {
     el("h1", {}, ex.title),
     el("div", { class: "live" }, angle, el("div", { class: "target" }, `target ${Math.round(lo)}° to ${Math.round(hi)}°`)),
     band, reps, note, next);
-  let done = false, spoken = kept.reps || 0, base = kept.reps || 0, counted = 0, reachedAt = null, backAt = null;
+  // repetitions: per counting run of the server (feedback's count_from; one run goes on
+  // across a resumed stream), a new run's count added to what was shown before it
+  let run = kept.run, base = kept.run !== undefined ? (kept.runBase || 0) : (kept.reps || 0);
+  let done = false, spoken = kept.reps || 0, shown = kept.reps || 0, reachedAt = null, backAt = null;
   // the set's end: the next set after a rest, else well done and how it was
   const after = () => (set + 1 < sets ? restBetweenSets(index, set + 1) : wellDone(index));
   const end = () => {
@@ -420,16 +423,19 @@ function exercise(index, set = 0, resumed = false) {
       angle.textContent = `${Math.round(f.angle_deg)}°`;
       marker.style.left = pos(f.angle_deg);
       marker.hidden = false;
-      // a reconnect counts again from 0 (docs/extensions/kit-feedback.md): add them up
-      if (f.repetitions < counted) base += counted;
-      counted = f.repetitions;
-      const n = base + counted;
+      // docs/extensions/kit-feedback.md: a new counting run starts from 0 and adds up
+      if (f.count_from !== run) {
+        if (run !== undefined) base = shown;
+        run = f.count_from;
+      }
+      const n = Math.max(shown, base + f.repetitions);
+      shown = n;
       reps.textContent = `${n} of ${ex.repetitions}`;
       if (n > spoken) {
         spoken = n;
         buzz(60);
         if (n < ex.repetitions) say(String(n));
-        saveStep("exercise", index, { set, markT, started, reps: n });
+        saveStep("exercise", index, { set, markT, started, reps: n, run, runBase: base });
       }
       if (reachedAt === null) note.textContent = f.warnings && f.warnings.length ? f.warnings[f.warnings.length - 1] : "";
       if (n >= ex.repetitions) {

@@ -1,0 +1,159 @@
+"""Live repetitions after a reconnect (issue 19): a forearm phone doing 5 elbow flexions
+loses its connection between the second and the third and resumes its stream (the same
+session). The repetitions a kit shows — by the feedback extension's rule
+(``docs/extensions/kit-feedback.md``: the counts of each counting run, ``count_from``,
+added up) — must be the 5 it did. Before: the resumed stream's live estimator started
+anew without the session's calibration poses, so no estimate (and no count) came for the
+rest of the exercise, and the kit showed 2. A real server, a real WebSocket client, the
+live estimation process; the phone streams at 2× real time (live poses are counted per
+wall second)."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import time
+from dataclasses import replace
+
+import pytest
+from armtrack.estimator.recording import Mark
+from armtrack.estimator.simulation import ImuErrors, SimulationConfig, simulate
+from armtrack.server.emulator import MessagePlan, hello_message
+from server_support import ServerProcess
+from websockets.asyncio.client import connect
+
+SPEED = 2.0
+REPS = 5
+CUT_AT_S = 20.5  # recording time: after the second repetition's return
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    process = ServerProcess(tmp_path_factory.mktemp("resume"))
+    process.create_user("alice")
+    process.start(timeout=180)
+    yield process
+    process.stop()
+
+
+def _recording():
+    config = SimulationConfig(exercise="elbow_flexion", sensors=("forearm",), rate_hz=60.0,
+                              nine_axis=False, seed=1, jitter_s=0.003, repetitions=REPS,
+                              errors=ImuErrors(gyro_noise=0.01, acc_noise=0.1),
+                              gyro_bias_max=0.02, mount_axial_deg=30.0)
+    sim = simulate(config)
+    end = float(sim.recording.sensors["forearm"].t[-1]) - 0.5
+    marks = (*sim.recording.marks, Mark(10.5, "exercise:elbow_flexion"),
+             Mark(end, "end:exercise:elbow_flexion"))
+    return replace(sim.recording, marks=tuple(sorted(marks, key=lambda m: m.t)))
+
+
+def kit_count(feedback: list[tuple[int, dict]]) -> int:
+    """What a kit shows at the end: per counting run (``count_from``; a server without it
+    counts per connection, the extension's first rule) its last count, added up."""
+    runs: dict[object, int] = {}
+    for connection, message in feedback:
+        if message["exercise"] != "elbow_flexion":
+            continue
+        key = message["count_from"] if "count_from" in message else connection
+        runs[key] = max(runs.get(key, 0), message["repetitions"])
+    return sum(runs.values())
+
+
+def test_repetitions_go_on_across_a_resumed_stream(server):
+    api = server.client("alice")
+    patient = api.patient("Resumed phone")
+    device = api.device(patient["id"], "phone")
+    recording = _recording()
+    plan = MessagePlan(recording, rows_per_message=6)
+    url = f"{server.ws_url}?token={device['token']}"
+    feedback: list[tuple[int, dict]] = []
+
+    async def reader(ws, connection: int):
+        async for raw in ws:
+            message = json.loads(raw)
+            if message["type"] == "feedback":
+                feedback.append((connection, message))
+
+    async def send_paced(ws, first: int, stop_at_s: float | None) -> int:
+        start, origin = time.monotonic(), plan.times[first]
+        for seq in range(first, len(plan)):
+            if stop_at_s is not None and plan.times[seq] >= stop_at_s:
+                return seq
+            if seq > first and plan.times[seq] >= 10.4 > plan.times[seq - 1]:
+                # the live estimation may start slowly on a busy machine: the exercise
+                # begins once the first feedback is in
+                for _ in range(1200):
+                    if feedback:
+                        break
+                    await asyncio.sleep(0.1)
+                start, origin = time.monotonic(), plan.times[seq]
+            await asyncio.sleep(max(0.0, start + (plan.times[seq] - origin) / SPEED
+                                    - time.monotonic()))
+            await ws.send(plan.encode(seq))
+        return len(plan)
+
+    async def run():
+        hello = {**hello_message(recording, "phone"), "extensions": ["feedback/1"]}
+        ws = await connect(url)
+        await ws.send(json.dumps(hello))
+        ready = json.loads(await ws.recv())
+        task = asyncio.create_task(reader(ws, 0))
+        await send_paced(ws, 0, CUT_AT_S)
+        ws.transport.abort()  # the network goes: no close frame
+        task.cancel()
+        await asyncio.sleep(0.3)
+        async with connect(url) as ws2:
+            await ws2.send(json.dumps({**hello, "resume": ready["stream"]}))
+            again = json.loads(await ws2.recv())
+            assert again["type"] == "ready" and again["session"] == ready["session"]
+            task2 = asyncio.create_task(reader(ws2, 1))
+            await send_paced(ws2, again["next_seq"], None)
+            await asyncio.sleep(1.5)
+            await ws2.send(json.dumps({"type": "bye"}))
+            await asyncio.wait_for(task2, 30)
+        return ready
+
+    ready = asyncio.run(run())
+    before = [m for c, m in feedback if c == 0 and m["exercise"] == "elbow_flexion"]
+    after = [m for c, m in feedback if c == 1 and m["exercise"] == "elbow_flexion"]
+    shown = kit_count(feedback)
+    print(f"\nfeedback: {len(before)} messages before the cut (count "
+          f"{before[-1]['repetitions'] if before else None}), {len(after)} after (count "
+          f"{after[-1]['repetitions'] if after else None}); the kit shows {shown} of {REPS}")
+    assert before and before[-1]["repetitions"] == 2  # cut after the second
+    assert after, "no feedback after the resume"
+    assert shown == REPS
+    session = api.wait_processed(ready["session"], timeout=120)
+    assert session["status"] == "closed"
+
+
+def test_a_count_runs_from_its_mark_or_from_the_first_estimate_after_a_lost_state():
+    """``count_from``: the exercise mark's time for a count that ran since the mark; the
+    first estimate's time for one started at a resume that lost the live state (its
+    marks read back from the session). A mark sent again is not a new exercise."""
+    from armtrack.server.ingest.feedback import Band, FeedbackTracker
+
+    bands = {"elbow_flexion": Band("elbow_flexion", 0.0, 120.0)}
+
+    def pose(t: float, deg: float) -> dict:
+        return {"t": t, "angles_deg": {"elbow_flexion": deg}}
+
+    live = FeedbackTracker(bands, ("elbow_flexion",))
+    live.mark(10.5, "exercise:elbow_flexion")
+    now = 0.0
+    for i, deg in enumerate([5, 100, 5, 100, 5]):
+        now += 1.0
+        message = live.pose(pose(11.0 + i, deg), now)
+    assert (message["repetitions"], message["count_from"]) == (2, 10.5)
+    live.mark(10.5, "exercise:elbow_flexion")  # sent again after a resume: no new count
+    message = live.pose(pose(16.0, 100), now + 1.0)
+    assert (message["repetitions"], message["count_from"]) == (3, 10.5)
+
+    lost = FeedbackTracker(bands, ("elbow_flexion",))
+    lost.mark(10.5, "exercise:elbow_flexion", stored=True)
+    message = lost.pose(pose(30.0, 100), 1.0)
+    assert (message["repetitions"], message["count_from"]) == (1, 30.0)
+    lost.mark(40.0, "end:exercise:elbow_flexion")
+    message = lost.pose(pose(41.0, 5), 2.0)
+    assert (message["exercise"], message["count_from"]) == (None, None)
