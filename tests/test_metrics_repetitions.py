@@ -1,6 +1,7 @@
-"""Repetition counting against the shared truth files' exact counts (README of
-shared/data/recordings), against noisy, drifting, lossy copies of them, and against
-synthetic series whose repetitions are known in closed form."""
+"""Repetition counting on the truth files (``recording_set``): against their exact counts
+and amplitudes (the shared files' README; the stand-ins' simulation plan, times and speeds
+in closed form), against noisy, drifting, lossy copies of them, and against synthetic
+series whose repetitions are known in closed form."""
 
 import numpy as np
 import pytest
@@ -17,44 +18,28 @@ DEG = np.pi / 180
 #: Scoring starts at 10.5 s; before it are the calibration poses (N-pose, T-pose).
 EXERCISE = [(10.5, np.inf)]
 
-#: The README's repetitions as signed amplitudes [deg]: every other angle has none (the
-#: elbow *held* at 90° during wrist and forearm exercises is not a repetition).
-EXPECTED = {
-    "elbow_flexion": {"elbow_flexion": [120] * 5},
-    "shoulder_abduction": {"shoulder_abduction": [80] * 5, "shoulder_elevation": [80] * 5},
-    "shoulder_flexion": {"shoulder_flexion": [150] * 5, "shoulder_elevation": [150] * 5},
-    "wrist_flexion": {"wrist_flexion": [60] * 3 + [-50] * 3},
-    "pronation": {"forearm_pronation": [75] * 3 + [-75] * 3},
-    "left_reach_50hz": {"shoulder_flexion": [80] * 5, "elbow_flexion": [70] * 5,
-                        "shoulder_elevation": [80] * 5},
-    "elbow_6axis": {"elbow_flexion": [110] * 7, "wrist_flexion": [40] * 6},
-    "elbow_6axis_long": {"elbow_flexion": [100] * 40, "forearm_pronation": [50] * 36,
-                         "wrist_flexion": [30] * 36},
-    "trunk_reach": {"shoulder_flexion": [70] * 5, "elbow_flexion": [50] * 5,
-                    "shoulder_elevation": [70] * 5},
-    "abduction_120": {"shoulder_abduction": [120] * 4, "shoulder_elevation": [120] * 4},
-}
+#: The recordings; their repetitions as signed amplitudes [deg] are the set's facts
+#: (``recording_sets``): every other angle has none (the elbow *held* at 90° during wrist
+#: and forearm exercises is not a repetition).
+NAMES = ["abduction_120", "elbow_6axis", "elbow_6axis_long", "elbow_flexion", "left_reach_50hz",
+         "pronation", "shoulder_abduction", "shoulder_flexion", "trunk_reach", "wrist_flexion"]
 #: On the noise-free truth the amplitude is measured from a rest level tracked on still
 #: samples near rest, which sit at most ~0.5° above the true rest at the bottom of a
 #: repetition (still = below 5°/s); their median is within 0.2°.
 TRUTH_AMPLITUDE_TOL_DEG = 0.2
 
 
-@pytest.fixture(scope="module")
-def truth(shared_dir):
-    cache = {}
-
+@pytest.fixture(scope="session")
+def truth(recording_set):
+    """name → (truth table, calibration windows of the recording's header, expected
+    repetitions: angle → signed amplitudes [deg])."""
     def read(name):
-        if name not in cache:
-            table = np.genfromtxt(shared_dir / "data" / "recordings" / f"{name}.truth.csv",
-                                  delimiter=",", names=True)
-            header = (shared_dir / "data" / "recordings" / f"{name}.csv").read_text()[:1000]
-            poses = next(line for line in header.splitlines()
-                         if line.startswith("# calibration: "))[len("# calibration: "):]
-            windows = {p.split()[0]: (float(p.split()[1]), float(p.split()[2]))
-                       for p in poses.split(";")}
-            cache[name] = (table, windows)
-        return cache[name]
+        header = recording_set.path(name).read_text()[:1000]
+        poses = next(line for line in header.splitlines()
+                     if line.startswith("# calibration: "))[len("# calibration: "):]
+        windows = {p.split()[0]: (float(p.split()[1]), float(p.split()[2]))
+                   for p in poses.split(";")}
+        return recording_set.truth(name), windows, recording_set.facts[name].repetitions
     return read
 
 
@@ -62,16 +47,16 @@ def signed_amplitudes(reps):
     return [r.direction * r.amplitude_deg for r in reps]
 
 
-@pytest.mark.parametrize("name", sorted(EXPECTED))
+@pytest.mark.parametrize("name", NAMES)
 def test_counts_on_every_truth_file(truth, name):
-    table, _ = truth(name)
+    table, _, expected_reps = truth(name)
     t = table["t"]
     found = repetitions_by_angle({k: table[k] * DEG for k in REPORTED_ANGLES}, t,
                                  include=EXERCISE)
     counts = {k: len(v) for k, v in found.items() if v}
     print(f"{name}: {counts}")
-    assert counts == {k: len(v) for k, v in EXPECTED[name].items()}
-    for angle, expected in EXPECTED[name].items():
+    assert counts == {k: len(v) for k, v in expected_reps.items()}
+    for angle, expected in expected_reps.items():
         reps = found[angle]
         got = np.array(signed_amplitudes(reps))
         print(f"  {angle}: amplitudes {np.round(got, 2).tolist()}; movement times "
@@ -87,27 +72,41 @@ def test_counts_on_every_truth_file(truth, name):
         assert np.all(ends[:-1] <= starts[1:]), "repetitions overlap"
 
 
-def test_truth_repetitions_match_their_closed_form(truth):
-    """elbow_flexion's truth repetitions are raised cosines 0 → 120° → 0 of 5 s from 11 s:
+def closed_form(recording_set):
+    """elbow_flexion's repetitions in closed form: (peak, start, end [s], peak speed
+    [deg/s]) each. The shared file's are raised cosines 0 → 120° → 0 of 5 s from 11 s:
     peaks at 13.5 + 5k s, peak speed π·120/5 deg/s, and start/end where the speed is 10%
-    of its peak: 5·asin(0.1)/(2π) s inside each 5-s repetition."""
-    table, _ = truth("elbow_flexion")
+    of its peak: 5·asin(0.1)/(2π) s inside each 5-s repetition. A stand-in's are its
+    simulation's planned excursions: Gaussian speed pulses, 10% of the peak speed at
+    σ·√(2 ln 10) before the rise and after the return (``Excursion``)."""
+    facts = recording_set.facts["elbow_flexion"]
+    if facts.excursions is None:
+        inset = 5 * np.arcsin(0.1) / (2 * np.pi)
+        return [(13.5 + 5 * k, 11 + 5 * k + inset, 16 + 5 * k - inset, np.pi * 120 / 5)
+                for k in range(len(facts.repetitions["elbow_flexion"]))]
+    return [(e.peak_s, *e.onset_s(0.1), np.rad2deg(e.peak_speed))
+            for e in facts.excursions["elbow_flexion"]]
+
+
+def test_truth_repetitions_match_their_closed_form(truth, recording_set):
+    table, _, _ = truth("elbow_flexion")
     reps = detect_repetitions(table["elbow_flexion"] * DEG, table["t"], include=EXERCISE)
-    inset = 5 * np.arcsin(0.1) / (2 * np.pi)
-    for k, r in enumerate(reps):
+    expected = closed_form(recording_set)
+    assert len(reps) == len(expected)
+    for k, (r, (peak, start, end, speed)) in enumerate(zip(reps, expected, strict=True)):
         print(f"rep {k}: start {r.start_s:.3f} peak {r.peak_s:.3f} end {r.end_s:.3f} s, "
               f"peak velocity {r.peak_velocity_deg_s:.3f} deg/s")
         # the grid is the samples' (10 ms): times to a sample, plus one for the filter
-        assert abs(r.peak_s - (13.5 + 5 * k)) <= 0.011
-        assert abs(r.start_s - (11 + 5 * k + inset)) <= 0.021
-        assert abs(r.end_s - (16 + 5 * k - inset)) <= 0.021
-        assert abs(r.peak_velocity_deg_s - np.pi * 120 / 5) < 0.01 * np.pi * 120 / 5
+        assert abs(r.peak_s - peak) <= 0.011
+        assert abs(r.start_s - start) <= 0.021
+        assert abs(r.end_s - end) <= 0.021
+        assert abs(r.peak_velocity_deg_s - speed) < 0.01 * speed
 
 
 def test_counts_with_rest_from_the_npose_window(truth):
     """The N-pose of the calibration as the rest window gives the same counts."""
-    for name, expected in EXPECTED.items():
-        table, windows = truth(name)
+    for name in NAMES:
+        table, windows, expected = truth(name)
         for angle, amplitudes in expected.items():
             reps = detect_repetitions(table[angle] * DEG, table["t"], include=EXERCISE,
                                       rest_windows=[windows["npose"]])
@@ -120,11 +119,13 @@ def test_counts_hold_on_noisy_drifting_lossy_copies(truth, seed):
     2% of the samples lost (NaN) and 1 ms timestamp jitter: every count, direction and
     idle angle's zero holds. The amplitudes stay within 1.5° of the noise-free ones: noise
     alone moves them ≤ 0.45° and the swell, tracked between 20-s blocks, ≤ 0.5° (measured
-    on seeds 0-4)."""
+    on seeds 0-4). A peak moves no further than the truth stays within 0.5° (3σ of the
+    smoothed noise, σ ≈ 0.15°) of its peak value: ±0.1 s on a 5-s raised cosine, ±0.6 s
+    on a stand-in's plateau held 1 s (measured: at most 0.85 of that, seeds 0-2)."""
     rng = np.random.default_rng(seed)
     worst = {}
-    for name, expected in EXPECTED.items():
-        table, _ = truth(name)
+    for name in NAMES:
+        table, _, expected = truth(name)
         t_clean = table["t"]
         t = t_clean + rng.uniform(-0.001, 0.001, t_clean.size)
         lost = rng.random(t.size) < 0.02
@@ -139,12 +140,25 @@ def test_counts_hold_on_noisy_drifting_lossy_copies(truth, seed):
                 assert [r.direction for r in reps] == [r.direction for r in clean]
                 off = max(abs(a.amplitude_deg - b.amplitude_deg)
                           for a, b in zip(reps, clean, strict=True))
-                late = max(abs(a.peak_s - b.peak_s) for a, b in zip(reps, clean, strict=True))
-                worst[f"{name}/{angle}"] = (len(reps), round(off, 2), round(late, 3))
+                late = max(abs(a.peak_s - b.peak_s) / flat_top(t_clean, table[angle], b.peak_s)
+                           for a, b in zip(reps, clean, strict=True))
+                worst[f"{name}/{angle}"] = (len(reps), round(off, 2), round(late, 2))
                 assert off < 1.5, f"{name} {angle}: amplitude off by {off:.2f} deg"
-                # a peak is flat within the smoothed noise (σ ≈ 0.15°) for about ±0.1 s
-                assert late < 0.25, f"{name} {angle}: peak moved by {late:.3f} s"
-    print(f"seed {seed}: count, worst amplitude change [deg], worst peak shift [s]: {worst}")
+                assert late <= 1.0, f"{name} {angle}: peak moved {late:.2f} of its flat top"
+    print(f"seed {seed}: count, worst amplitude change [deg], worst peak shift [share of "
+          f"the flat top]: {worst}")
+
+
+def flat_top(t, values, peak_s, band_deg=0.5):
+    """How long [s] ``values`` [deg] stay within ``band_deg`` of their value at ``peak_s``
+    on the longer side of it, plus a sample: where a noisy copy's peak may fall."""
+    i = int(np.searchsorted(t, peak_s))
+    off = np.flatnonzero(np.abs(values - values[i]) > band_deg)
+    before = off[off < i]
+    after = off[off > i]
+    first = before[-1] + 1 if before.size else 0
+    last = after[0] - 1 if after.size else len(t) - 1
+    return max(t[i] - t[first], t[last] - t[i]) + (t[1] - t[0])
 
 
 def raised_cosines(plan, rate_hz=100.0, rest_s=2.0, rest_level_deg=0.0):
@@ -259,15 +273,17 @@ def test_strong_drift_with_rest_windows_and_with_the_tracked_mode():
 
 
 def test_consistency_on_truth(truth):
-    table, _ = truth("wrist_flexion")
+    table, _, expected = truth("wrist_flexion")
     reps = detect_repetitions(table["wrist_flexion"] * DEG, table["t"], include=EXERCISE)
     both, flexion, extension = (consistency(reps), consistency(reps, 1),
                                 consistency(reps, -1))
     print(f"wrist_flexion CV amplitude: both {both.amplitude_cv:.4f}, flexion "
           f"{flexion.amplitude_cv:.2e}, extension {extension.amplitude_cv:.2e}; "
           f"CV movement time {both.movement_time_cv:.2e}")
-    # 60, 60, 60, 50, 50, 50: sample std sqrt(6 · 25 / 5) over the mean 55
-    assert both.amplitude_cv == pytest.approx(np.sqrt(30) / 55, rel=1e-3)
+    # 60, 60, 60, 50, 50, 50 (README): sample std sqrt(6 · 25 / 5) over the mean 55
+    amplitudes = np.abs(expected["wrist_flexion"])
+    assert both.amplitude_cv == pytest.approx(np.std(amplitudes, ddof=1) / amplitudes.mean(),
+                                              rel=1e-3)
     assert flexion.repetitions == extension.repetitions == 3
     assert flexion.amplitude_cv < 1e-3 and extension.amplitude_cv < 1e-3
     assert both.movement_time_cv < 0.01

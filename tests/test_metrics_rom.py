@@ -1,5 +1,6 @@
 """Range of motion: the api.md formula, robust extremes, windows, the angles that moved,
-and the shared truth files' exercises."""
+and the truth files' exercises (``recording_set``: the stand-ins' extremes from their
+simulation, the shared files' from their README)."""
 
 import numpy as np
 import pytest
@@ -16,36 +17,10 @@ from armtrack.estimator.metrics import (
 DEG = np.pi / 180
 CALIBRATION = [(0.0, 10.5)]  # the calibration poses, N-pose and T-pose, up to scoring
 
-#: The angles that move in each file's exercise (README of shared/data/recordings) and
-#: their exact extremes [deg]. The elbow held at 90° moved to get there.
-MOVED = {
-    "elbow_flexion": {"elbow_flexion": (0, 120)},
-    "shoulder_abduction": {"shoulder_abduction": (0, 80), "shoulder_elevation": (0, 80)},
-    "shoulder_flexion": {"shoulder_flexion": (0, 150), "shoulder_elevation": (0, 150)},
-    "wrist_flexion": {"elbow_flexion": (0, 90), "wrist_flexion": (-50, 60)},
-    "pronation": {"elbow_flexion": (0, 90), "forearm_pronation": (-75, 75)},
-    "left_reach_50hz": {"shoulder_flexion": (0, 80), "elbow_flexion": (0, 70),
-                        "shoulder_elevation": (0, 80)},
-    "elbow_6axis": {"elbow_flexion": (0, 110), "wrist_flexion": (0, 40)},
-    "elbow_6axis_long": {"elbow_flexion": (0, 100), "forearm_pronation": (0, 50),
-                         "wrist_flexion": (0, 30)},
-    "trunk_reach": {"shoulder_flexion": (0, 70), "elbow_flexion": (0, 50),
-                    "shoulder_elevation": (0, 70)},
-    "abduction_120": {"shoulder_abduction": (0, 120), "shoulder_elevation": (0, 120)},
-}
-
-
-@pytest.fixture(scope="module")
-def truth(shared_dir):
-    cache = {}
-
-    def read(name):
-        if name not in cache:
-            cache[name] = np.genfromtxt(
-                shared_dir / "data" / "recordings" / f"{name}.truth.csv", delimiter=",",
-                names=True)
-        return cache[name]
-    return read
+#: The recordings (the angles each moves and their exact extremes come from the set's
+#: facts: the shared README, or the stand-in's simulation; ``recording_sets``).
+NAMES = ["abduction_120", "elbow_6axis", "elbow_6axis_long", "elbow_flexion", "left_reach_50hz",
+         "pronation", "shoulder_abduction", "shoulder_flexion", "trunk_reach", "wrist_flexion"]
 
 
 def test_percent_of_normal_is_the_share_of_the_side_moved():
@@ -106,42 +81,52 @@ def test_one_repetition_in_a_long_session_keeps_its_peak():
     assert by_fraction.range_deg < 50.0
 
 
-def test_windows_and_missing_samples(truth):
+def test_windows_and_missing_samples(recording_set):
     """The calibration T-pose (90° abduction) is not exercise."""
-    table = truth("elbow_flexion")
+    table = recording_set.truth("elbow_flexion")
+    facts = recording_set.facts["elbow_flexion"]
+    low, high = facts.extremes["elbow_flexion"]
+    if facts.excursions is None:  # the shared file: raised cosines of 5 s from 11 s
+        first = (11.0, 16.0)
+    else:  # the stand-in's first repetition, ±5σ around its ramps: at rest there within
+        e = facts.excursions["elbow_flexion"][0]  # 120°·Φ(−5) = 3e-5° (next ramp 10σ on)
+        first = (e.up_s - 5 * e.sigma, e.down_s + 5 * e.sigma)
     t = table["t"]
     everything = range_of_motion("shoulder_abduction", table["shoulder_abduction"] * DEG, t)
     exercise = range_of_motion("shoulder_abduction", table["shoulder_abduction"] * DEG, t,
                                exclude=CALIBRATION)
-    print(f"shoulder_abduction on elbow_flexion: {everything.range_deg:.2f} deg with the "
+    print(f"{recording_set.source} shoulder_abduction on elbow_flexion: "
+          f"{everything.range_deg:.2f} deg with the "
           f"calibration, {exercise.range_deg:.2f} deg without")
     assert everything.moved and everything.range_deg == pytest.approx(90.0, abs=0.01)
     assert not exercise.moved and exercise.range_deg == 0.0
     marked = range_of_motion("elbow_flexion", table["elbow_flexion"] * DEG, t,
-                             include=[(11.0, 16.0)], params=RomParams(percentile=0))
-    assert (marked.min_deg, marked.max_deg) == pytest.approx((0.0, 120.0), abs=1e-4)
+                             include=[first], params=RomParams(percentile=0))
+    assert (marked.min_deg, marked.max_deg) == pytest.approx((low, high), abs=1e-4)
     lossy = table["elbow_flexion"] * DEG
     lossy[::2] = np.nan
     half = range_of_motion("elbow_flexion", lossy, t, exclude=CALIBRATION)
     assert half.samples == np.count_nonzero(t >= 10.5) // 2
-    assert half.range_deg == pytest.approx(120.0, abs=0.01)
+    assert half.range_deg == pytest.approx(high - low, abs=0.01)
 
 
-@pytest.mark.parametrize("name", sorted(MOVED))
-def test_truth_files_moved_angles_and_their_range(truth, name):
-    table = truth(name)
+@pytest.mark.parametrize("name", NAMES)
+def test_truth_files_moved_angles_and_their_range(recording_set, name):
+    table = recording_set.truth(name)
+    moved = recording_set.facts[name].extremes
     angles = {k: table[k] * DEG for k in REPORTED_ANGLES}
     rom = range_of_motion_table(angles, table["t"], exclude=CALIBRATION)
-    print(f"{name}: " + "; ".join(
+    print(f"{recording_set.source} {name}: " + "; ".join(
         f"{k} {v.min_deg:.3f}…{v.max_deg:.3f} = {v.range_deg:.3f} deg, "
         f"{v.percent_of_normal:.2f} % of AAOS, {v.percent_of_paper or float('nan'):.2f} % "
         f"of Table 2" for k, v in rom.items()))
-    assert list(rom) == [k for k in REPORTED_ANGLES if k in MOVED[name]]
-    for angle, (low, high) in MOVED[name].items():
+    assert list(rom) == [k for k in REPORTED_ANGLES if k in moved]
+    for angle, (low, high) in moved.items():
         r = rom[angle]
         # 0.1 s of samples per tail, spread over the peaks at that extreme (≥ 3 of
         # raised cosines ≥ 4 s long): ≤ 0.05/3 s, plus a sample (≤ 20 ms), off each side
         # of a peak of amplitude A costs A·(1 − cos(2π·τ/4))/2; the files print 1e-5°
+        # (the stand-ins' peaks are flatter: a 0.5-s hold between Gaussian ramps)
         def bound(a):
             return abs(a) * (1 - np.cos(2 * np.pi * (0.05 / 3 + 0.02) / 4)) / 2 + 1e-5
         assert r.min_deg == pytest.approx(low, abs=bound(low))

@@ -7,7 +7,6 @@ from __future__ import annotations
 import math
 import os
 import struct
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -28,6 +27,7 @@ from armtrack.estimator.recording.rules import STEP_LIMIT_S, T_LIMIT_S
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
+from recording_sets import SHARED_FACTS
 
 # ---------------------------------------------------------------------------------------
 # strategies
@@ -325,24 +325,6 @@ def test_duration_spans_all_sensors():
 # the shared recordings
 
 
-SHARED = {  # name: side, height [m], rate [Hz], 9-axis, sensors, duration [s]
-    "elbow_flexion": ("right", 1.80, 100, True, ("upper_arm", "forearm", "hand"), 40),
-    "shoulder_abduction": ("right", 1.74, 100, True, ("upper_arm", "forearm", "hand"), 40),
-    "shoulder_flexion": ("right", 1.66, 100, True, ("upper_arm", "forearm", "hand"), 40),
-    "wrist_flexion": ("right", 1.83, 100, True, ("upper_arm", "forearm", "hand"), 40),
-    "pronation": ("right", 1.78, 100, True, ("upper_arm", "forearm", "hand"), 40),
-    "left_reach_50hz": ("left", 1.70, 50, True, ("upper_arm", "forearm", "hand"), 40),
-    "elbow_6axis": ("right", 1.80, 100, False, ("upper_arm", "forearm", "hand"), 45),
-    "elbow_6axis_long": ("right", 1.76, 100, False, ("upper_arm", "forearm", "hand"), 300),
-    "trunk_reach": ("right", 1.69, 100, True, ("trunk", "upper_arm", "forearm", "hand"), 40),
-    "abduction_120": ("right", 1.72, 100, True, ("upper_arm", "forearm", "hand"), 40),
-}
-
-
-def _recordings_dir(shared_dir: Path) -> Path:
-    return shared_dir / "data" / "recordings"
-
-
 def test_every_shared_recording_reads_and_is_described(recordings_dir):
     files = sorted(p for p in recordings_dir.glob("*.csv")
                    if not p.name.endswith(".truth.csv"))
@@ -350,32 +332,43 @@ def test_every_shared_recording_reads_and_is_described(recordings_dir):
     for path in files:
         rec = read_recording(path)
         assert rec.sensors, path.name
-        assert path.stem in SHARED, f"{path.name} is new: add it to SHARED with its README facts"
+        assert path.stem in SHARED_FACTS, (
+            f"{path.name} is new: add it to tests/recording_sets.py with its README facts")
 
 
-@pytest.mark.parametrize("name", sorted(SHARED))
-def test_shared_recording_matches_its_readme(shared_dir, name):
-    """The independent simulator's files themselves, against their README (skipped without
-    ../shared: the stand-ins of tests/conftest.py are checked against their own
-    configuration in test_stand_ins_are_the_shared_sessions)."""
-    side, height, rate, nine_axis, sensors, duration = SHARED[name]
-    rec = read_recording(_recordings_dir(shared_dir) / f"{name}.csv")
-    assert (rec.side, rec.height_m, rec.rate_hz) == (side, height, rate)
-    assert tuple(rec.sensors) == sensors
-    assert all(s.nine_axis == nine_axis for s in rec.sensors.values())
+@pytest.mark.parametrize("name", sorted(SHARED_FACTS))
+def test_recording_matches_its_readme(recording_set, name):
+    """Each set's files against the shared README (side, height, rate, axes, sensors,
+    calibration windows: the stand-ins are the same sessions) and against what is known
+    of that set's file: the README's length, losses and jitter for the shared files, the
+    simulation's for the stand-ins (tests/recording_sets.py)."""
+    readme = SHARED_FACTS[name]
+    facts = recording_set.facts[name]
+    rec = read_recording(recording_set.path(name))
+    assert (rec.side, rec.height_m, rec.rate_hz) == (readme.side, readme.height_m,
+                                                      readme.rate_hz)
+    assert tuple(rec.sensors) == readme.sensors
+    assert all(s.nine_axis == readme.nine_axis for s in rec.sensors.values())
     assert rec.calibration == (Pose("npose", 0.5, 3.0), Pose("tpose", 5.5, 8.0))
-    assert rec.metadata == {"scenario": name}
-    assert rec.duration == pytest.approx(duration, abs=0.01)
+    assert rec.metadata["scenario"] == facts.scenario
+    if recording_set.source == "shared":
+        assert rec.metadata == {"scenario": name}
+    assert rec.duration == pytest.approx(facts.duration_s, abs=0.01)
+    rate = readme.rate_hz
+    print(f"{recording_set.source} {name}: {rec.duration:.2f} s, "
+          f"{[len(s) for s in rec.sensors.values()]} samples")
     for sensor, s in rec.sensors.items():
         dt = np.median(np.diff(s.t))
-        assert dt == pytest.approx(1.0 / rate, rel=1e-6), sensor
-        expected = round(duration * rate) + 1
-        if name == "abduction_120":  # 2% samples lost, 1 ms jitter
+        assert dt == pytest.approx(1.0 / rate, rel=0.01 if facts.jitter_std_s else 1e-6), sensor
+        expected = round(facts.duration_s * rate) + 1
+        if facts.lost_fraction:  # 2% samples lost
             assert 0.95 * expected < len(s) < expected, sensor
-            jitter = np.std(s.t - np.round(s.t * rate) / rate)
-            assert jitter == pytest.approx(1e-3, rel=0.1), f"{sensor}: jitter {jitter:.2e} s"
         else:
             assert len(s) == expected, sensor
+        if facts.jitter_std_s:  # 1 ms of jitter
+            jitter = np.std(s.t - np.round(s.t * rate) / rate)
+            assert jitter == pytest.approx(facts.jitter_std_s, rel=0.1), (
+                f"{sensor}: jitter {jitter:.2e} s")
         g = np.linalg.norm(s.acc[: int(rate)], axis=1).mean()  # first second: at rest
         assert g == pytest.approx(9.81, abs=0.2), f"{name} {sensor}: |a| at rest {g:.3f}"
         assert not np.isnan(s.acc).any() and not np.isnan(s.gyr).any()
@@ -418,32 +411,3 @@ def test_shared_recording_rewrites_to_the_same_numbers(recordings_dir, tmp_path)
     rec = read_recording(path)
     write_recording(rec, tmp_path / "copy.csv")
     assert_same(rec, read_recording(tmp_path / "copy.csv"))
-
-
-@pytest.mark.parametrize("name", sorted(SHARED))
-def test_stand_ins_are_the_shared_sessions(tmp_path_factory, name):
-    """The project's simulator's stand-ins (tests/conftest.py, used where ../shared is
-    absent) have the shared files' side, height, rate, axes, sensors, calibration windows,
-    sampling and losses (their length differs: the shared files end at 40-45 s)."""
-    from conftest import STAND_INS, make_stand_ins
-
-    folder = tmp_path_factory.getbasetemp() / "stand-ins-checked"
-    if not (folder / "elbow_flexion.csv").exists():
-        folder.mkdir(exist_ok=True)
-        make_stand_ins(folder)
-    side, height, rate, nine_axis, sensors, _ = SHARED[name]
-    rec = read_recording(folder / f"{name}.csv")
-    assert (rec.side, rec.height_m, rec.rate_hz) == (side, height, rate)
-    assert tuple(rec.sensors) == sensors
-    assert all(s.nine_axis == nine_axis for s in rec.sensors.values())
-    assert rec.calibration == (Pose("npose", 0.5, 3.0), Pose("tpose", 5.5, 8.0))
-    assert rec.metadata["scenario"] == STAND_INS[name]["exercise"]
-    for sensor, s in rec.sensors.items():
-        assert np.median(np.diff(s.t)) == pytest.approx(1.0 / rate, rel=0.01), sensor  # jitter
-        expected = round(rec.duration * rate) + 1
-        if name == "abduction_120":
-            assert 0.95 * expected < len(s) < expected, sensor
-        else:
-            assert len(s) == expected, sensor
-        g = np.linalg.norm(s.acc[: int(rate)], axis=1).mean()
-        assert g == pytest.approx(9.81, abs=0.2), f"{name} {sensor}: |a| at rest {g:.3f}"

@@ -33,11 +33,12 @@ def upload(api, patient_id, name, data):
 
 
 @pytest.fixture(scope="module")
-def sessions(alice, shared_dir):
-    """name → (session, recording), uploaded."""
+def sessions(alice, recordings):
+    """name → (session, recording), uploaded (the shared files where present, else the
+    stand-ins: tests/recording_sets.py)."""
     out = {}
     for name in RECORDINGS:
-        path = shared_dir / "data" / "recordings" / f"{name}.csv"
+        path = recordings.path(name)
         recording = read_recording(path)
         patient = alice.patient(name, recording.side, recording.height_m or 1.75)
         if name == "left_reach_50hz":  # a target in force when the session is recorded
@@ -56,7 +57,7 @@ def get(alice, path, media=None):
     return answer
 
 
-def test_summary_csv_has_a_row_per_angle_and_exercise(alice, sessions):
+def test_summary_csv_has_a_row_per_angle_and_exercise(alice, sessions, recordings):
     session, _ = sessions["elbow_6axis"]
     report = get(alice, f"/api/sessions/{session['id']}/report").json()
     text = get(alice, f"/api/sessions/{session['id']}/report.csv", "text/csv").text
@@ -65,10 +66,10 @@ def test_summary_csv_has_a_row_per_angle_and_exercise(alice, sessions):
     assert set(whole) == set(report["rom"]) == {"elbow_flexion", "wrist_flexion"}
     for angle, rom in report["rom"].items():
         assert float(whole[angle]["range"]) == rom["range"]
-    assert int(whole["elbow_flexion"]["repetitions"]) == 7
-    assert int(whole["wrist_flexion"]["repetitions"]) == 6
+    expected = recordings.facts["elbow_6axis"].counts()  # README: 7 and 6
+    assert {k: int(whole[k]["repetitions"]) for k in expected} == expected
     per_exercise = [r for r in rows if r["scope"] != "session"]
-    assert sum(int(r["repetitions"]) for r in per_exercise) == 13
+    assert sum(int(r["repetitions"]) for r in per_exercise) == sum(expected.values())
     print(text)
 
 
@@ -117,7 +118,7 @@ def test_mot_of_a_kit_measuring_some_angles_keeps_every_coordinate(alice):
     assert np.ptp(col["elbow_flex_r"]) > 90  # two flexions to 120°
 
 
-def test_mot_has_rajagopal_coordinates_in_degrees(alice, sessions):
+def test_mot_has_rajagopal_coordinates_in_degrees(alice, sessions, recordings):
     for name, side in (("shoulder_abduction", "r"), ("left_reach_50hz", "l")):
         session, _ = sessions[name]
         text = get(alice, f"/api/sessions/{session['id']}/report.mot", "text/plain").text
@@ -134,12 +135,16 @@ def test_mot_has_rajagopal_coordinates_in_degrees(alice, sessions):
         exercise = values[:, 0] >= 10.5  # after the calibration (T-pose: 90° abduction)
         col = {c: values[exercise, i] for i, c in enumerate(columns)}
         assert np.min(values[~exercise, 2]) == pytest.approx(-90, abs=1.5)  # the T-pose
+        extremes = recordings.facts[name].extremes
         if name == "shoulder_abduction":  # abduction to 80°: adduction to −80°
-            assert np.min(col[f"arm_add_{side}"]) == pytest.approx(-80, abs=1.5)
+            top = extremes["shoulder_abduction"][1]
+            assert np.min(col[f"arm_add_{side}"]) == pytest.approx(-top, abs=1.5)
             assert np.max(col[f"arm_add_{side}"]) < 12  # the N-pose, calibration, rest
         else:  # left: flexion to 80°, elbow to 70°, same signs as on the right
-            assert np.max(col[f"arm_flex_{side}"]) == pytest.approx(80, abs=1.5)
-            assert np.max(col[f"elbow_flex_{side}"]) == pytest.approx(70, abs=1.5)
+            assert np.max(col[f"arm_flex_{side}"]) == pytest.approx(
+                extremes["shoulder_flexion"][1], abs=1.5)
+            assert np.max(col[f"elbow_flex_{side}"]) == pytest.approx(
+                extremes["elbow_flexion"][1], abs=1.5)
 
 
 def test_sto_is_an_opensense_orientation_table(alice, sessions):
@@ -197,21 +202,22 @@ def test_fhir_bundle_validates_as_r4(alice, sessions):
     print(answer.text[:1500])
 
 
-def test_exercises_come_from_marks_when_the_file_has_them(alice, sessions, shared_dir):
-    """elbow_6axis with its detected exercise's span marked: the same repetitions, now from
-    the marks; a second mark around nothing gives an exercise without repetitions."""
+def test_exercises_come_from_marks_when_the_file_has_them(alice, sessions, recordings):
+    """elbow_6axis with its detected exercises' span marked as one: the same repetitions,
+    now from the marks. (The shared file's elbow and wrist sets overlap: one exercise
+    detected; the stand-in's follow each other: two.)"""
     session, recording = sessions["elbow_6axis"]
     detected = get(alice, f"/api/sessions/{session['id']}/report").json()["exercises"]
-    assert len(detected) == 1
-    a, b = detected[0]["start_s"], detected[0]["end_s"]
+    assert len(detected) == (1 if recordings.source == "shared" else 2), detected
+    a, b = detected[0]["start_s"], detected[-1]["end_s"]
     marks = (Mark(a - 0.3, "exercise:curls"), Mark(b + 0.3, "end:exercise:curls"))
     marked = format_recording(dataclasses.replace(recording, marks=marks))
     new = upload(alice, session["patient_id"], "marked.csv", marked)
     report = get(alice, f"/api/sessions/{new['id']}/report").json()
     (exercise,) = report["exercises"]
     assert exercise["source"] == "marks" and exercise["name"] == "curls"
-    assert {x["angle"]: x["repetitions"] for x in exercise["angles"]} == {
-        "elbow_flexion": 7, "wrist_flexion": 6}
+    assert {x["angle"]: x["repetitions"] for x in exercise["angles"]} == (
+        recordings.facts["elbow_6axis"].counts())  # README: 7 and 6
     assert set(exercise["rom"]) == {"elbow_flexion", "wrist_flexion"}
 
 

@@ -3,12 +3,12 @@ smooth joint profiles, exact IMU physics, mounting, noise, bias, jitter, lost sa
 
 from .body_motion import BodyMotion, FrameMotion, PointMotion, Stance, body_motion
 from .imu import Dipole, ImuErrors, MagneticEnvironment, Mount, default_mount, synthesize_imu
-from .profiles import Motion, Profile, Ramp, Sine, hold_and_return, repetitions
+from .profiles import Excursion, Motion, Profile, Ramp, Sine, hold_and_return, repetitions
 from .scenarios import EXERCISES, SCORED_FROM_S, calibration_sequence, exercise_motion
 from .simulator import Simulation, SimulationConfig, Truth, simulate, write_truth
 
 __all__ = [
-    "EXERCISES", "SCORED_FROM_S", "BodyMotion", "Dipole", "FrameMotion", "ImuErrors",
+    "EXERCISES", "SCORED_FROM_S", "BodyMotion", "Dipole", "Excursion", "FrameMotion", "ImuErrors",
     "MagneticEnvironment", "Motion", "Mount", "PointMotion", "Profile", "Ramp", "Simulation",
     "SimulationConfig", "Sine", "Stance", "Truth", "body_motion", "calibration_sequence",
     "default_mount", "exercise_motion", "hold_and_return", "repetitions", "simulate",

@@ -46,16 +46,61 @@ class Sine:
 
 
 @dataclass(frozen=True)
+class Excursion:
+    """One excursion of a joint from rest and back, as planned: up by ``amplitude`` [rad]
+    on a ramp centred at ``up_s`` [s], back down on one centred at ``down_s`` [s], both of
+    standard deviation ``sigma`` [s]. ``held``: a posture held while another joint
+    exercises (the elbow at 90° for pronation), not a repetition of its own.
+
+    The ground truth of what a repetition counter and a range of motion should find: the
+    joint's rate is the two Gaussian pulses, so times and speeds are in closed form."""
+
+    up_s: float
+    down_s: float
+    amplitude: float
+    sigma: float
+    held: bool = False
+
+    @property
+    def peak_s(self) -> float:
+        """Middle of the plateau [s]."""
+        return 0.5 * (self.up_s + self.down_s)
+
+    @property
+    def peak_value(self) -> float:
+        """The excursion's value at its peak, from rest [rad]: ``amplitude`` times
+        Φ(d/2σ) − Φ(−d/2σ) for ramps ``d`` apart (the ramps' tails overlap: 2 s apart at
+        σ = 0.25 s reach 99.994 % of the amplitude)."""
+        half = 0.5 * (self.down_s - self.up_s) / self.sigma
+        return float(self.amplitude * (ndtr(half) - ndtr(-half)))
+
+    def onset_s(self, speed_fraction: float) -> tuple[float, float]:
+        """Where the speed is ``speed_fraction`` of its peak, before the rise and after
+        the return [s] (a Gaussian pulse falls to f of its peak at ±σ·√(2 ln(1/f)))."""
+        if not 0.0 < speed_fraction < 1.0:
+            raise InvalidArgument(f"speed_fraction must be in (0, 1), got {speed_fraction}")
+        inset = self.sigma * np.sqrt(2.0 * np.log(1.0 / speed_fraction))
+        return self.up_s - inset, self.down_s + inset
+
+    @property
+    def peak_speed(self) -> float:
+        """Peak angular speed [rad/s] (the pulses do not overlap: ≥ 4σ apart)."""
+        return abs(self.amplitude) * _INV_SQRT_2PI / self.sigma
+
+
+@dataclass(frozen=True)
 class Profile:
-    """An angle over time: ``offset`` + ramps + sines [rad]."""
+    """An angle over time: ``offset`` + ramps + sines [rad]; ``excursions``: what the
+    ramps of :func:`hold_and_return` and :func:`repetitions` mean (ground truth)."""
 
     offset: float = 0.0
     ramps: tuple[Ramp, ...] = ()
     sines: tuple[Sine, ...] = ()
+    excursions: tuple[Excursion, ...] = ()
 
     def __add__(self, other: Profile) -> Profile:
         return Profile(self.offset + other.offset, self.ramps + other.ramps,
-                       self.sines + other.sines)
+                       self.sines + other.sines, self.excursions + other.excursions)
 
     def evaluate(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Angle [rad], rate [rad/s] and acceleration [rad/s²] at times ``t`` (N,)."""
@@ -82,13 +127,15 @@ class Profile:
 
 
 def hold_and_return(start: float, amplitude: float, rise: float, hold: float,
-                    sigma: float | None = None) -> Profile:
+                    sigma: float | None = None, held: bool = False) -> Profile:
     """One repetition: from rest up by ``amplitude`` [rad] starting at ``start`` [s], taking
-    ``rise`` [s] (±3σ of the pulse), held ``hold`` [s], and back in ``rise`` [s]."""
+    ``rise`` [s] (±3σ of the pulse), held ``hold`` [s], and back in ``rise`` [s]; ``held``:
+    a posture kept for another joint's exercise, not a repetition (:class:`Excursion`)."""
     sigma = rise / 6.0 if sigma is None else sigma
     up = start + rise / 2.0
     down = up + rise + hold
-    return Profile(ramps=(Ramp(up, amplitude, sigma), Ramp(down, -amplitude, sigma)))
+    return Profile(ramps=(Ramp(up, amplitude, sigma), Ramp(down, -amplitude, sigma)),
+                   excursions=(Excursion(up, down, amplitude, sigma, held),))
 
 
 def repetitions(start: float, count: int, amplitude: float, rise: float = 1.5,

@@ -49,11 +49,12 @@ def _elbow_held(name: str, first_deg: float, second_deg: float, default_reps: in
     def build(reps: int | None, amplitude_deg: float | None, start: float):
         count = default_reps if reps is None else reps
         scale = 1.0 if amplitude_deg is None else amplitude_deg / first_deg
-        elbow = Profile(ramps=(Ramp(start + 0.75, 90 * DEG, 0.375),))
         first = repetitions(start + 2.0, count, first_deg * scale * DEG)
         second = repetitions(start + 2.0 + count * 4.5, count, second_deg * scale * DEG)
         end = start + 2.0 + 2 * count * 4.5
-        elbow = elbow + Profile(ramps=(Ramp(end + 0.75, -90 * DEG, 0.375),))
+        # up on a ramp centred at start + 0.75 s, down at end + 0.75 s (σ 0.375 s)
+        elbow = hold_and_return(start, 90 * DEG, 1.5, end - start - 1.5, sigma=0.375,
+                                held=True)
         return {"elbow_flexion": elbow, name: first + second}, {}
     return build
 
@@ -108,7 +109,8 @@ def _sets(default_sets: int):
                                                                   rise=1.0, hold=0.3, rest=0.5)})
             t += 10 * 2.8 + 8.0
             joints = _merge(joints, {
-                "elbow_flexion": hold_and_return(t, 90 * DEG, 1.5, 9 * 2.8 + 1.0),
+                "elbow_flexion": hold_and_return(t, 90 * DEG, 1.5, 9 * 2.8 + 1.0,
+                                                 held=True),
                 "forearm_pronation": repetitions(t + 2.0, 9, 50 * scale * DEG, rise=1.0,
                                                  hold=0.3, rest=0.5)})
             t += 2.0 + 9 * 2.8 + 3.0 + 8.0
@@ -116,6 +118,27 @@ def _sets(default_sets: int):
                                                                   rise=1.0, hold=0.3,
                                                                   rest=0.5)})
             t += 9 * 2.8 + 8.0
+        return joints, {}
+    return build
+
+
+def _concurrent_sets(default_sets: int):
+    """A long session whose exercises overlap, as ``shared/data/recordings``'
+    elbow_6axis_long: sets of elbow flexion to 100° ×10, with forearm pronation to 50° ×9
+    starting 1 s and wrist flexion to 30° ×9 starting 2 s after it, all at a 5-s period
+    (1.5 s up, 1 s held, 1.5 s down, 1 s rest), 15 s rests in the N-pose between sets.
+    Nothing is held: every excursion is a repetition."""
+    def build(reps: int | None, amplitude_deg: float | None, start: float):
+        sets = default_sets if reps is None else reps
+        scale = 1.0 if amplitude_deg is None else amplitude_deg / 100.0
+        joints: dict[str, Profile] = {}
+        t = start
+        for _ in range(sets):
+            joints = _merge(joints, {
+                "elbow_flexion": repetitions(t, 10, 100 * scale * DEG, hold=1.0),
+                "forearm_pronation": repetitions(t + 1.0, 9, 50 * scale * DEG, hold=1.0),
+                "wrist_flexion": repetitions(t + 2.0, 9, 30 * scale * DEG, hold=1.0)})
+            t += 10 * 5.0 + 15.0
         return joints, {}
     return build
 
@@ -136,7 +159,8 @@ def _shoulder_sets(default_rounds: int, rest_s: float = 20.0):
             joints = _merge(joints, {"shoulder_abduction": repetitions(t, 8, 75 * scale * DEG)})
             t += 8 * period + rest_s
             joints = _merge(joints, {
-                "elbow_flexion": hold_and_return(t, 90 * DEG, 1.5, 12 * period + 1.0),
+                "elbow_flexion": hold_and_return(t, 90 * DEG, 1.5, 12 * period + 1.0,
+                                                 held=True),
                 "shoulder_rotation": repetitions(t + 2.0, 6, 45 * scale * DEG)
                 + repetitions(t + 2.0 + 6 * period, 6, -45 * scale * DEG)})
             t += 2.0 + 12 * period + 3.0 + rest_s
@@ -165,6 +189,7 @@ EXERCISES: dict[str, ExerciseBuilder] = {
     "drinking": _drinking(5),
     "shrug": _single("clavicle_elevation", 25.0, 5),
     "long_session": _sets(4),
+    "long_concurrent": _concurrent_sets(4),
     "shoulder_sets": _shoulder_sets(3),
     "shoulder_sets_no_rest": _shoulder_sets(4, rest_s=0.0),
     "still": lambda reps, amplitude, start: ({}, {}),

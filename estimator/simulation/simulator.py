@@ -24,7 +24,7 @@ from .imu import (
     synthesize_imu,
 )
 from .points import WRIST_SOURCES, wrist_points
-from .profiles import Motion, Profile, Sine
+from .profiles import Excursion, Motion, Profile, Sine
 from .scenarios import NPOSE_WINDOW_S, TPOSE_WINDOW_S, exercise_motion
 
 
@@ -87,14 +87,21 @@ class SimulationConfig:
 @dataclass(frozen=True)
 class Truth:
     """Ground truth on the nominal sample grid ``t`` [s] (N,): joint angles [rad] by name
-    (with ``shoulder_elevation``), positions [m] in the thorax frame by point, and the true
-    ``R_world_sensor`` of each sensor at its own sample times."""
+    (with ``shoulder_elevation``), positions [m] in the thorax frame by point, the true
+    ``R_world_sensor`` of each sensor at its own sample times, and each joint's planned
+    excursions from rest (its repetitions and held postures, in time order; the
+    calibration poses are not among them)."""
 
     t: np.ndarray
     angles: dict[str, np.ndarray]
     positions: dict[str, np.ndarray]
     mounts: dict[str, Mount]
     R_world_sensor: dict[str, np.ndarray]
+    excursions: dict[str, tuple[Excursion, ...]] = field(default_factory=dict)
+
+    def repetitions(self, angle: str) -> tuple[Excursion, ...]:
+        """``angle``'s repetitions (its excursions but the held postures), in time order."""
+        return tuple(e for e in self.excursions.get(angle, ()) if not e.held)
 
     def table(self) -> tuple[list[str], np.ndarray]:
         """Columns and values as in ``shared/data/recordings/*.truth.csv`` (degrees, m)."""
@@ -224,8 +231,10 @@ def simulate(config: SimulationConfig = SimulationConfig(), motion: Motion | Non
     pose = forward_kinematics(angles, config.side, lengths)
     down = np.array([0.0, -1.0, 0.0])
     angles[ELEVATION] = angle_between(pose.R_thorax["upper_arm"] @ down, down)
+    excursions = {k: tuple(sorted(p.excursions, key=lambda e: e.up_s))
+                  for k, p in motion.joints.items() if p.excursions}
     truth = Truth(t=grid, angles=angles, positions=pose.p_thorax, mounts=mounts,
-                  R_world_sensor=R_world_sensor)
+                  R_world_sensor=R_world_sensor, excursions=excursions)
 
     calibration = ()
     if config.calibration:
