@@ -141,15 +141,17 @@ STAND_INS: dict[str, dict] = {
 }
 
 
-#: Stand-ins on which the estimator misses its accuracy bar (measured figures): their
-#: tests assert that it still misses it, so the day it meets it the entry must go, and
-#: check everything else as on the others.
-STAND_IN_GAPS: dict[str, str] = {
-    "trunk_reach": "measured shoulder_elevation RMSE 2.01°, wrist 2.18 cm, the report's "
-    "shoulder flexion minimum 2.6° off: the trunk sways ±4° at 0.125 Hz through the "
-    "calibration poses, as in the shared file (its trunk gyroscope's spectrum), on which "
-    "the estimator meets the bar (0.9°); the sway's phase over the poses tilts the "
-    "calibration (test_estimation_hard_cases: larger sways)",
+#: (stand-in, check) → where the estimator misses its accuracy bar on it (measured
+#: figures): the check asserts that it still misses it, so the day it meets it the entry
+#: must go, and checks everything else as on the others. Checks: "report-rom" (test_reports'
+#: range-of-motion bar). The stand-in trunk_reach met the pipeline's bar at 2.01° and
+#: 2.18 cm before issue 19's filter changes, 0.92° and 0.99 cm after.
+STAND_IN_GAPS: dict[tuple[str, str], str] = {
+    ("trunk_reach", "report-rom"): "measured: the report's elbow range 1.53° off (bar "
+    "1.5°; shoulder flexion's minimum 1.05°): the trunk sways ±4° at 0.125 Hz through the "
+    "calibration poses, as in the shared file (its trunk gyroscope's spectrum), and the "
+    "sway's phase over the poses tilts the calibration (test_estimation_hard_cases: "
+    "larger sways)",
 }
 
 
@@ -231,9 +233,10 @@ class RecordingSet:
     def names(self) -> list[str]:
         return sorted(self.facts)
 
-    def gap(self, name: str) -> str | None:
-        """Why the estimator misses its bar on ``name`` of this set (None: it meets it)."""
-        return STAND_IN_GAPS.get(name) if self.source == "stand-in" else None
+    def gap(self, name: str, check: str) -> str | None:
+        """Why the estimator misses the bar of ``check`` on ``name`` of this set (None: it
+        meets it; :data:`STAND_IN_GAPS`)."""
+        return STAND_IN_GAPS.get((name, check)) if self.source == "stand-in" else None
 
     def path(self, name: str) -> Path:
         return self.folder / f"{name}.csv"

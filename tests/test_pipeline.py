@@ -52,6 +52,8 @@ def score(estimates, truth_t, truth_angles, truth_positions, scored_from=SCORED_
     pytest.param(n, marks=pytest.mark.xfail(strict=True, reason=KNOWN_GAPS[n]))
     if n in KNOWN_GAPS else n for n in SHARED])
 def test_shared_recordings_meet_the_bar(recordings, recordings_dir, name):
+    """On the shared files where present, else on the stand-ins (the stand-in
+    trunk_reach's trunk sways through the poses as the shared file's: 0.92°, 0.99 cm)."""
     recording = read_recording(recordings_dir / f"{name}.csv")
     truth = np.genfromtxt(recordings_dir / f"{name}.truth.csv",
                           delimiter=",", names=True)
@@ -63,9 +65,8 @@ def test_shared_recordings_meet_the_bar(recordings, recordings_dir, name):
     print(f"{recordings.source} {name}: worst angle {worst} RMSE {worst_deg:.2f}°, wrist "
           f"{wrist_cm:.2f} cm ({calibration.method}, {'9' if nine_axis else '6'}-axis)")
     assert calibration.method == "two-pose" and not calibration.warnings
-    met = worst_deg <= ANGLE_BAR_DEG[nine_axis] and wrist_cm <= WRIST_BAR_CM
-    gap = recordings.gap(name)  # a stand-in the estimator misses (recording_sets)
-    assert met != bool(gap), gap or (worst, worst_deg, wrist_cm)
+    assert worst_deg <= ANGLE_BAR_DEG[nine_axis], (worst, worst_deg)
+    assert wrist_cm <= WRIST_BAR_CM
 
 
 def sim_truth_deg(sim):
