@@ -2,7 +2,7 @@
 the trail of their own patients — whoever acted: they, the patient's kit, the admin who
 reassigned the patient to them, a former therapist — and their own actions; another
 therapist sees none of it; each entry names its actor in words; ``from_date``/``to_date``
-are days of the clinic's time zone. Real server, real database."""
+are days of the clinic's time zone. Real server, on SQLite and PostgreSQL."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from datetime import UTC, datetime, timedelta
 from zoneinfo import ZoneInfo
 
 import pytest
+from conftest import _database_env
 from server_support import PASSWORD, ServerProcess
 
 
@@ -20,11 +21,13 @@ def clinic_zone_off_utc_date() -> str:
     return "Pacific/Pago_Pago" if datetime.now(UTC).hour < 11 else "Pacific/Kiritimati"
 
 
-@pytest.fixture(scope="module")
-def srv(tmp_path_factory):
+@pytest.fixture(scope="module", params=["sqlite", "postgres"])
+def srv(tmp_path_factory, request):
+    """alice, bob and the admin root; the clinic in a zone whose day is not UTC's; on
+    SQLite and on PostgreSQL (which compare moments differently)."""
     zone = clinic_zone_off_utc_date()
     server = ServerProcess(tmp_path_factory.mktemp("audit"),
-                           env={"ARMTRACK_CLINIC_TIMEZONE": zone})
+                           env={"ARMTRACK_CLINIC_TIMEZONE": zone, **_database_env(request)})
     server.create_user("alice")
     server.create_user("bob")
     done = server.armtrack("create-user", "root", "--admin", "--password", PASSWORD)
