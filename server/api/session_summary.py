@@ -18,6 +18,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session as DbSession
 
 from ..db import models
+from ..store.coverage import session_coverage
 from ..store.processing import stored_estimates
 from .deps import Db, Therapist, own_patient, own_session
 from .live_status import block_totals, lost_fraction
@@ -76,9 +77,12 @@ def _rom(db: DbSession, session: models.Session, poses: list[tuple[float, float]
     if not columns or not len(values):
         return {}
     t = values[:, columns.index("t")]
-    # stored in degrees (``armtrack estimate``'s columns); the metrics take radians
+    # stored in degrees (``armtrack estimate``'s columns); the metrics take radians. Only
+    # the angles the session's kit measures: the others are the spec's 0, not a finding
+    # (docs/extensions/measured-angles.md)
+    measured = set(session_coverage(session)["measured_angles"])
     angles = {name: np.deg2rad(values[:, columns.index(name)]) for name in REPORTED_ANGLES
-              if name in columns}
+              if name in columns and name in measured}
     exclude = [(a, b + POSE_TAIL_S) for a, b in poses] or None
     try:
         table = range_of_motion_table(angles, t, exclude=exclude)
@@ -152,6 +156,7 @@ def summarise(db: DbSession, session: models.Session) -> dict[str, Any]:
         "exercises": exercises,
         "calibration_poses": [{"start": a, "end": b} for a, b in poses],
         "rom": rom, "headline": headline(rom), "processed": bool(session.estimate_columns),
+        **session_coverage(session),
         "processing_error": session.processing_error,
         "quality": {"grade": grade, "worst_lost_fraction": worst, "sensors": sensors,
                     "missing_sensors": missing, "calibration_warnings": warnings,
@@ -168,7 +173,8 @@ def summarise(db: DbSession, session: models.Session) -> dict[str, Any]:
 @router.get("/sessions/{session_id}/summary")
 def get_summary(session_id: Id, db: Db, therapist: Therapist) -> dict[str, Any]:
     """Exercises, duration [s], range of motion [deg] against normal values (AAOS) of the
-    angles that moved, calibration poses excluded, a ROM headline and the data quality."""
+    angles the kit measures, calibration poses excluded, a ROM headline, the data quality,
+    and the kit's measured angles and assumptions (docs/extensions/measured-angles.md)."""
     return summarise(db, own_session(db, therapist, session_id))
 
 

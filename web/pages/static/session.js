@@ -400,7 +400,7 @@ async function showReplay() {
   clear(document.getElementById("angles-card"),
     el("h2", {}, "Range of motion"),
     summary.headline ? el("p", { style: "margin:0 0 10px;font-size:16px" }, "Largest: ", el("b", { id: "headline" }, noNegativeZero(summary.headline))) : null,
-    romTable(summary));
+    romTable(summary), assumptionsNote());
   const q = summary.quality;
   const card = document.getElementById("details-card");
   card.hidden = false;
