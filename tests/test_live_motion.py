@@ -22,14 +22,15 @@ from armtrack.server.live.estimator import AngleTrail
 from armtrack.server.live.motion import MotionWatch, current_exercise
 
 
-def short_exercise(name: str, repetitions: int, seed: int = 0):
-    """Calibration poses, then ``repetitions`` of ``name`` marked as an exercise."""
+def short_exercise(name: str, repetitions: int, seed: int = 0, tail_s: float = 2.0):
+    """Calibration poses, then ``repetitions`` of ``name`` marked as an exercise, then
+    ``tail_s`` [s] of rest."""
     from armtrack.estimator.recording import Mark
     from armtrack.estimator.simulation import SimulationConfig, simulate
     from armtrack.estimator.simulation.scenarios import EXERCISE_START_S
 
     recording = simulate(SimulationConfig(exercise=name, repetitions=repetitions,
-                                          seed=seed)).recording
+                                          seed=seed, tail_s=tail_s)).recording
     end = min(float(s.t[-1]) for s in recording.sensors.values()) - 1.0
     return dataclasses.replace(recording, marks=(
         Mark(EXERCISE_START_S - 0.5, f"exercise:{name}"), Mark(end, f"end:exercise:{name}")))

@@ -1,0 +1,144 @@
+"""The live page's calibration prompts follow the stream's own poses even when the browser
+is busy (issue 21: once the page said "relax" in the middle of a T-pose). In a real
+browser (Debian's headless chromium, Playwright) against a real server fed by the kit
+emulator at real pace: the page's main thread is blocked 1.5 s at a time (its timers
+bunch up), and one late answer — a real answer of the same server from the N-pose, held
+back as a slow network or proxy would — arrives after the page has shown a newer one.
+The page must never have two live polls out at once, must not show that late answer,
+and must show the poses only in the stream's order."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import pytest
+import test_pages_browser
+from test_live_motion import short_exercise
+from test_pages_browser import KitThread, sign_in, sync_api
+
+# the browser fixtures of test_pages_browser (one chromium per module)
+browser_context = test_pages_browser.browser_context
+page = test_pages_browser.page
+shots = test_pages_browser.shots
+
+pytestmark = pytest.mark.slow
+
+#: The order in which the stream's calibration goes (``session.js`` data-phase).
+ORDER = ["waiting", "hold:npose", "between:npose", "hold:tpose", "between:tpose", "done"]
+
+#: Counts the page's live polls out at once, and logs each phase it shows with the
+#: stream time of the answer shown (the page's own ``shownStreamT``).
+WATCH_PAGE = """
+window.__polls = { out: 0, most: 0, sent: 0 };
+const realFetch = window.fetch;
+window.fetch = async (...args) => {
+  const url = String(args[0] && args[0].url || args[0]);
+  if (!/\\/api\\/patients\\/\\d+\\/live$/.test(url)) return realFetch(...args);
+  window.__polls.out++; window.__polls.sent++;
+  window.__polls.most = Math.max(window.__polls.most, window.__polls.out);
+  try { return await realFetch(...args); } finally { window.__polls.out--; }
+};
+window.__phases = [];
+new MutationObserver(() => {
+  const box = document.getElementById("calibration-box");
+  if (!box) return;
+  const phase = box.dataset.phase;
+  const last = window.__phases[window.__phases.length - 1];
+  if (phase === "done" && window.__polls.atDone === undefined)
+    window.__polls.atDone = window.__polls.most;  // while the session is live
+  if (!last || last.phase !== phase)
+    window.__phases.push({ phase, t: typeof shownStreamT === "number" ? shownStreamT : null });
+}).observe(document, { subtree: true, childList: true, attributes: true,
+                       attributeFilter: ["data-phase"] });
+"""
+
+
+def phase_of(status: dict) -> str | None:
+    """The calibration phase an answer of ``GET /live`` shows (as session.js decides it,
+    for the phases before the live angles run)."""
+    cal = status.get("calibration")
+    if not cal:
+        return None
+    if cal["holding"]:
+        return "hold:" + cal["holding"]["name"]
+    if status.get("estimating"):
+        return "done"
+    if cal["poses"]:
+        return "between:" + cal["poses"][-1]["name"]
+    return None
+
+
+def test_calibration_prompts_follow_the_stream_when_the_browser_is_busy(
+        module_server, page, shots):
+    api = module_server.client("alice")
+    patient = api.patient("Busy Browser")
+    device = api.device(patient["id"])
+    page.set_viewport_size({"width": 1366, "height": 900})
+    page.add_init_script(WATCH_PAGE)
+    sign_in(page, module_server.url)
+
+    late: dict = {}  # the answer held back, and whether it was given
+    answered: list = []  # (s since the kit started, phase) of each real answer
+    started = time.monotonic()
+
+    def hold_back(route):
+        response = route.fetch()
+        body = response.text()
+        try:
+            status = json.loads(body)
+            phase, stream_t = phase_of(status), status["calibration"]["stream_time_s"]
+        except (ValueError, KeyError, TypeError):
+            phase = stream_t = None
+        answered.append((round(time.monotonic() - started, 1), phase, stream_t))
+        if phase == "hold:npose" and "body" not in late:
+            late["body"], late["phase"], late["t"] = body, phase, stream_t  # kept
+        elif "body" in late and not late.get("given") and phase in ORDER \
+                and ORDER.index(phase) > ORDER.index(late["phase"]):
+            if late.get("newer_shown"):  # the page has shown a newer answer: now the late
+                late["given"] = True     # one arrives, instead of this one
+                late["instead_of"] = (phase, stream_t)
+                route.fulfill(response=response, body=late["body"])
+                return
+            late["newer_shown"] = True  # a later phase: the page shows it
+        route.fulfill(response=response)
+
+    page.route("**/api/patients/*/live", hold_back)
+    kit = KitThread(short_exercise("elbow_flexion", 3), module_server.ws_url, device["token"])
+    try:
+        live = None
+        deadline = time.monotonic() + 60
+        while live is None and time.monotonic() < deadline:
+            live = api.http.get(f"/api/patients/{patient['id']}/live").json()["session"]
+            if live is None:
+                time.sleep(0.1)
+        assert live, "the kit's stream did not start"
+        page.goto(f"{module_server.url}/sessions/{live['id']}")
+        sync_api.expect(page.locator("#calibration-box")).to_have_attribute(
+            "data-phase", "hold:npose", timeout=90_000)
+        for _ in range(3):  # a busy browser: the main thread blocked 1.5 s at a time
+            page.evaluate("() => { const end = performance.now() + 1500;"
+                          " while (performance.now() < end) {} }")
+            page.wait_for_timeout(300)
+        page.wait_for_function(
+            "() => document.getElementById('calibration-box')?.dataset.phase === 'done'",
+            timeout=90_000)
+        page.screenshot(path=str(shots / "calibration-done-1366.png"), timeout=90_000)
+        polls = page.evaluate("window.__polls")
+        phases = page.evaluate("window.__phases")
+    finally:
+        kit.cut()
+    print(f"answers: {answered}")
+    print(f"late answer: {late.get('phase')} at {late.get('t')} s, given instead of "
+          f"{late.get('instead_of')}; polls: {polls}")
+    print(f"phases shown: {phases}")
+    assert late.get("given"), "no late answer was given: nothing tested"
+    assert polls["atDone"] == 1, f"{polls['atDone']} live polls were out at once"
+    assert polls["sent"] >= 4
+    shown = [p["phase"] for p in phases if p["phase"]]  # (none once the session ends)
+    assert shown[-1] in ("between:tpose", "done")
+    # only forward in the stream's order: never back to the N-pose or "relax" after it
+    ranks = [ORDER.index(p) for p in shown if p in ORDER]
+    assert ranks == sorted(ranks), f"a prompt went back: {shown}"
+    times = [p["t"] for p in phases if p["t"] is not None]
+    assert times == sorted(times), f"an older answer was shown: {phases}"
