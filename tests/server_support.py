@@ -107,6 +107,11 @@ class ServerProcess:
         done = self.armtrack("create-user", name, "--password", password)
         assert done.returncode == 0, done.stderr
 
+    def create_admin(self, name: str, password: str = PASSWORD) -> None:
+        """A clinic admin's account (manages accounts, holds no patients)."""
+        done = self.armtrack("create-user", name, "--admin", "--password", password)
+        assert done.returncode == 0, done.stderr
+
     def client(self, name: str, password: str = PASSWORD) -> Api:
         return Api(self.url, name, password)
 

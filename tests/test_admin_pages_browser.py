@@ -15,6 +15,7 @@ from datetime import date, timedelta
 
 import httpx
 import pytest
+from browser_helpers import sign_in_as as sign_in
 from server_support import PASSWORD, ServerProcess
 from test_pages_browser import browser_context, page, shots, sync_api  # noqa: F401
 
@@ -30,19 +31,10 @@ def srv(tmp_path_factory):
                            env={"ARMTRACK_AUDIT_REPEAT_S": "0"})
     server.create_user("alice")
     server.create_user("bob")
-    done = server.armtrack("create-user", "root", "--admin", "--password", PASSWORD)
-    assert done.returncode == 0, done.stderr
+    server.create_admin("root")
     server.start()
     yield server
     server.stop()
-
-
-def sign_in(page, base: str, name: str, password: str = PASSWORD) -> None:  # noqa: F811
-    page.goto(base + "/signin")
-    page.fill("#username", name)
-    page.fill("#password", password)
-    page.click("#submit")
-    page.wait_for_url(re.compile(r".*/patients$"))
 
 
 def no_overflow(page) -> None:  # noqa: F811

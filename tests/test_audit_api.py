@@ -12,7 +12,7 @@ from zoneinfo import ZoneInfo
 
 import pytest
 from conftest import _database_env
-from server_support import PASSWORD, ServerProcess
+from server_support import ServerProcess
 
 
 def clinic_zone_off_utc_date() -> str:
@@ -30,8 +30,7 @@ def srv(tmp_path_factory, request):
                            env={"ARMTRACK_CLINIC_TIMEZONE": zone, **_database_env(request)})
     server.create_user("alice")
     server.create_user("bob")
-    done = server.armtrack("create-user", "root", "--admin", "--password", PASSWORD)
-    assert done.returncode == 0, done.stderr
+    server.create_admin("root")
     server.start()
     server.zone = zone
     yield server

@@ -15,7 +15,8 @@ import time
 import pytest
 from armtrack.estimator.recording import format_recording
 from armtrack.estimator.simulation import SimulationConfig, simulate
-from server_support import PASSWORD, ServerProcess
+from browser_helpers import sign_in_as
+from server_support import ServerProcess
 from test_pages_browser import (  # noqa: F401
     KitThread,
     browser_context,
@@ -35,8 +36,7 @@ def world(tmp_path_factory):
     server = ServerProcess(tmp_path_factory.mktemp("layout"),
                            env={"ARMTRACK_CLINIC_NAME": "Clinique du Parc — Rééducation"})
     server.create_user("alice")
-    done = server.armtrack("create-user", "root", "--admin", "--password", PASSWORD)
-    assert done.returncode == 0, done.stderr
+    server.create_admin("root")
     server.start()
     api = server.client("alice")
     api.http.patch("/api/me", json={"full_name": "Dr Alice Martin-Lefebvre"})
@@ -81,14 +81,6 @@ def long_exercise(seed: int = 4):
     return dataclasses.replace(recording, marks=(
         Mark(EXERCISE_START_S - 0.5, "exercise:elbow_flexion"),
         Mark(end, "end:exercise:elbow_flexion")))
-
-
-def sign_in(page, base: str, name: str = "alice") -> None:  # noqa: F811
-    page.goto(base + "/signin")
-    page.fill("#username", name)
-    page.fill("#password", PASSWORD)
-    page.click("#submit")
-    page.wait_for_url(re.compile(r".*/patients$"))
 
 
 #: Tables that must fit a phone's width without scrolling (their rows stack there).
@@ -149,7 +141,7 @@ def test_the_therapists_pages_fit(world, page, shots, width, height):  # noqa: F
     expect(page.locator("#submit")).to_be_visible()
     fits(page, shots, "signin", width)
 
-    sign_in(page, base)
+    sign_in_as(page, base, "alice")
     expect(page.locator("#patients tbody tr")).to_have_count(3)
     fits(page, shots, "patients", width)
 
@@ -173,7 +165,7 @@ def test_the_therapists_pages_fit(world, page, shots, width, height):  # noqa: F
     fits(page, shots, "audit", width)
 
     page.click("text=Sign out")
-    sign_in(page, base, "root")
+    sign_in_as(page, base, "root")
     page.goto(base + "/admin")
     expect(page.locator("#therapists tbody tr")).to_have_count(2)
     expect(page.locator("#admin-patients tbody tr")).to_have_count(3)
@@ -187,7 +179,7 @@ def test_the_live_page_fits(world, page, shots):  # noqa: F811
     print(f"\nthe kit streams {min(float(s.t[-1]) for s in recording.sensors.values()):.0f} s")
     kit = KitThread(recording, server.ws_url, device["token"])
     try:
-        sign_in(page, server.url)
+        sign_in_as(page, server.url, "alice")
         page.goto(f"{server.url}/patients/{patient['id']}")
         open_live = page.locator("text=Open the live view")
         expect(open_live).to_be_visible(timeout=30_000)

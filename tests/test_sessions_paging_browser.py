@@ -5,12 +5,12 @@
 
 from __future__ import annotations
 
-import re
 from datetime import UTC, datetime, timedelta
 
 import pytest
 from armtrack.estimator.recording import format_recording
 from armtrack.estimator.simulation import SimulationConfig, simulate
+from browser_helpers import sign_in_as
 from test_pages_browser import browser_context, page, shots, sync_api  # noqa: F401
 
 pytestmark = pytest.mark.slow
@@ -40,12 +40,7 @@ def test_older_sessions_page_in(module_server, page, shots):  # noqa: F811
     assert len(expected) == SESSIONS
 
     page.set_viewport_size({"width": 1366, "height": 900})
-    page.goto(module_server.url + "/signin")
-    page.fill("#username", "alice")
-    from server_support import PASSWORD
-    page.fill("#password", PASSWORD)
-    page.click("#submit")
-    page.wait_for_url(re.compile(r".*/patients$"))
+    sign_in_as(page, module_server.url, "alice")
     page.goto(f"{module_server.url}/patients/{patient['id']}")
     rows = page.locator("#sessions tbody tr")
     expect(rows).to_have_count(50)

@@ -14,7 +14,7 @@ from pathlib import Path
 from fastapi import APIRouter, HTTPException
 from fastapi.responses import FileResponse
 
-from .routes import STATIC
+from .routes import _page
 
 router = APIRouter(include_in_schema=False)
 
@@ -27,11 +27,6 @@ ASSETS = {"swagger-ui-bundle.js": "text/javascript", "swagger-ui.css": "text/css
 def assets_folder() -> Path:
     """Where ``fastapi-offline`` keeps swagger-ui's and redoc's files."""
     return Path(str(importlib.resources.files("fastapi_offline") / "static"))
-
-
-def _page(name: str) -> FileResponse:
-    return FileResponse(STATIC / name, media_type="text/html",
-                        headers={"Cache-Control": "no-cache"})
 
 
 @router.get("/docs")
