@@ -60,7 +60,10 @@ def kit_count(feedback: list[tuple[int, dict]]) -> int:
     return sum(runs.values())
 
 
-def test_repetitions_go_on_across_a_resumed_stream(server):
+@pytest.mark.parametrize("outage_s", [0.0, 9.0], ids=["quick-resume", "backlog-9s"])
+def test_repetitions_go_on_across_a_resumed_stream(server, outage_s):
+    """``outage_s``: recording seconds the link is down while the phone goes on recording;
+    the resumed stream sends them at once (a backlog), then streams on in real time."""
     api = server.client("alice")
     patient = api.patient("Resumed phone")
     device = api.device(patient["id"], "phone")
@@ -75,8 +78,10 @@ def test_repetitions_go_on_across_a_resumed_stream(server):
             if message["type"] == "feedback":
                 feedback.append((connection, message))
 
-    async def send_paced(ws, first: int, stop_at_s: float | None) -> int:
-        start, origin = time.monotonic(), plan.times[first]
+    async def send_paced(ws, first: int, stop_at_s: float | None,
+                         now_at_s: float | None = None) -> int:
+        # now_at_s: the recording time it is now (what is older goes at once)
+        start, origin = time.monotonic(), plan.times[first] if now_at_s is None else now_at_s
         for seq in range(first, len(plan)):
             if stop_at_s is not None and plan.times[seq] >= stop_at_s:
                 return seq
@@ -102,13 +107,13 @@ def test_repetitions_go_on_across_a_resumed_stream(server):
         await send_paced(ws, 0, CUT_AT_S)
         ws.transport.abort()  # the network goes: no close frame
         task.cancel()
-        await asyncio.sleep(0.3)
+        await asyncio.sleep(0.3 + outage_s / SPEED)
         async with connect(url) as ws2:
             await ws2.send(json.dumps({**hello, "resume": ready["stream"]}))
             again = json.loads(await ws2.recv())
             assert again["type"] == "ready" and again["session"] == ready["session"]
             task2 = asyncio.create_task(reader(ws2, 1))
-            await send_paced(ws2, again["next_seq"], None)
+            await send_paced(ws2, again["next_seq"], None, CUT_AT_S + outage_s)
             await asyncio.sleep(1.5)
             await ws2.send(json.dumps({"type": "bye"}))
             await asyncio.wait_for(task2, 30)
@@ -118,7 +123,7 @@ def test_repetitions_go_on_across_a_resumed_stream(server):
     before = [m for c, m in feedback if c == 0 and m["exercise"] == "elbow_flexion"]
     after = [m for c, m in feedback if c == 1 and m["exercise"] == "elbow_flexion"]
     shown = kit_count(feedback)
-    print(f"\nfeedback: {len(before)} messages before the cut (count "
+    print(f"\noutage {outage_s:g} s; feedback: {len(before)} messages before the cut (count "
           f"{before[-1]['repetitions'] if before else None}), {len(after)} after (count "
           f"{after[-1]['repetitions'] if after else None}); the kit shows {shown} of {REPS}")
     assert before and before[-1]["repetitions"] == 2  # cut after the second

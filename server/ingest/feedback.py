@@ -8,8 +8,9 @@ A repetition is counted when the exercise's angle, having been in the lower part
 band (below ``LOW``, or at the exercise's start), rises into the upper part (above
 ``HIGH``): fractions of the band from its ``min_deg`` to its ``max_deg``, so a patient who
 stops short of the top still gets their repetitions counted past two thirds of the way.
-It is counted on the live poses (up to ``ARMTRACK_LIVE_POSES_HZ``, 30 a second): a kit
-streaming in real time gives a hundred or more per repetition.
+It is counted on the live estimates: each pose carries a ``trace`` of the estimates since
+the previous pose (one per 0.05 s of stream time, ``live/estimator.py``), so a backlog a
+kit sends at once after a lost link is counted like a stream in real time.
 
 A count runs from its exercise's mark (``count_from``: the mark's time). A stream resumed
 on the server that kept its live side (``endpoint``'s parked live state) goes on with the
@@ -101,7 +102,22 @@ class FeedbackTracker:
                 self.exercise, self.counter, self.count_from = None, None, None
 
     def pose(self, pose: Mapping[str, Any], now: float) -> dict[str, Any] | None:
-        """The feedback message for a live ``pose`` update (``now``: monotonic [s])."""
+        """The feedback message for a live ``pose`` update (``now``: monotonic [s]). The
+        repetitions count on the pose's ``trace`` (the estimates since the last pose, a
+        few per second of stream time: a backlog counts like a live stream), then on the
+        pose itself."""
+        trace = pose.get("trace") or {}
+        times = trace.get("t") or []
+        series = trace.get("angles_deg") or {}
+        for i, ti in enumerate(times):  # at most 20 a second of stream time
+            self._pass_marks(float(ti))
+            band = self.bands.get(self.exercise) if self.exercise else None
+            if self.counter is not None and band is not None and band.angle in series:
+                value = series[band.angle][i]
+                if value is not None and math.isfinite(value):
+                    if self.count_from is None:
+                        self.count_from = float(ti)
+                    self.counter.update(value)
         t = float(pose["t"])
         self._pass_marks(t)
         angles = pose.get("angles_deg") or {}
