@@ -13,6 +13,7 @@ retention task and views of the live feed are written with ``record``."""
 from __future__ import annotations
 
 import contextvars
+import hashlib
 import time
 from datetime import UTC, datetime
 from typing import Any
@@ -28,6 +29,8 @@ _note: contextvars.ContextVar[dict[str, Any] | None] = contextvars.ContextVar(
 LISTS = {("GET", "/api/patients"), ("GET", "/api/admin/patients")}
 #: Export forms: a GET of one of these is ``exported``, not ``viewed``.
 EXPORT_ENDINGS = (".csv", ".pdf", ".mot", ".sto", ".fhir.json", "/export")
+#: The most kinds of view remembered for ``ARMTRACK_AUDIT_REPEAT_S`` (16-byte keys).
+MAX_RECENT = 10_000
 #: Routes about the audit log itself or about accounts: never logged as data access.
 NOT_LOGGED = ("/api/audit", "/api/auth/")
 
@@ -79,7 +82,7 @@ class AuditMiddleware:
 
     def __init__(self, app: Any):
         self.app = app
-        self._recent: dict[tuple, float] = {}
+        self._recent: dict[bytes, float] = {}  # kind's digest → its last logged view
 
     async def __call__(self, scope: dict, receive: Any, send: Any) -> None:
         if scope["type"] != "http" or not scope["path"].startswith("/api/") \
@@ -118,16 +121,24 @@ class AuditMiddleware:
             client=client[0] if client else None))
 
     def _first_recently(self, scope: dict, current: dict, action: str) -> bool:
+        """Whether this view is the first of its kind within ``ARMTRACK_AUDIT_REPEAT_S``.
+        Its kind is what the entry would say — actor, action, method and path, not the
+        query string, which the entry leaves out (with it, each new query string made a
+        new entry and was kept whole for the window: unbounded memory). Kinds are kept
+        as 16-byte digests, at most ``MAX_RECENT`` (the oldest go first, to be logged
+        again: more entries, never fewer)."""
         window = scope["app"].state.services.settings.audit_repeat_s
         if window <= 0:
             return True
-        key = (current.get("therapist_id"), current.get("device_id"), action,
-               scope["method"], scope["path"], scope.get("query_string", b""))
+        key = hashlib.blake2b(repr((current.get("therapist_id"), current.get("device_id"),
+                                    action, scope["method"], scope["path"])).encode(
+                                        "utf-8", "surrogatepass"), digest_size=16).digest()
         now = time.monotonic()
-        if len(self._recent) > 10_000:
-            self._recent = {k: t for k, t in self._recent.items() if now - t < window}
         last = self._recent.get(key)
         if last is not None and now - last < window:
             return False
-        self._recent[key] = now
+        self._recent.pop(key, None)
+        self._recent[key] = now  # the newest last: the dict is in the order logged
+        while len(self._recent) > MAX_RECENT:
+            del self._recent[next(iter(self._recent))]
         return True

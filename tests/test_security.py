@@ -386,6 +386,11 @@ def test_reads_exports_and_erasures_are_in_the_audit_log(srv, recording, tmp_pat
     before = len(alice.http.get("/api/audit").json())
     for _ in range(3):
         alice.http.get(f"/api/patients/{patient['id']}/live")
+    deadline = time.monotonic() + 10  # written just after the answer (was read at once:
+    while len(alice.http.get("/api/audit").json()) == before \
+            and time.monotonic() < deadline:  # on a busy machine, not yet there)
+        time.sleep(0.1)
+    time.sleep(0.5)  # the other two, were they written, would be there by now
     after = alice.http.get("/api/audit").json()
     assert len(after) == before + 1 and after[0]["action"] == "viewed"
 

@@ -108,9 +108,9 @@ def create_therapist(body: TherapistIn, db: Db, admin: Admin) -> TherapistOut:
 @router.post("/therapists/{therapist_id}/disable", response_model=TherapistOut)
 async def disable_therapist(therapist_id: Id, admin: Admin,
                             svc: Annotated[Services, Depends(services)]) -> TherapistOut:
-    """Disable an account: it cannot sign in, its tokens stop working and its live feeds
-    and 3D views close at once. Its patients stay; reassign them to a covering
-    therapist."""
+    """Disable an account: it cannot sign in, its tokens and unused reset codes stop
+    working and its live feeds and 3D views close at once. Its patients stay; reassign
+    them to a covering therapist."""
     if therapist_id == admin.id:
         raise HTTPException(status.HTTP_409_CONFLICT, "an admin cannot disable themselves")
 
@@ -120,6 +120,11 @@ async def disable_therapist(therapist_id: Id, admin: Admin,
             therapist.disabled_at = datetime.now(UTC)
         db.execute(delete(models.AccessToken)
                    .where(models.AccessToken.therapist_id == therapist_id))
+        # a reset code made before dies with the account: whoever holds it must not set
+        # the password that opens the account once it is enabled again
+        db.execute(delete(models.PasswordReset).where(
+            models.PasswordReset.therapist_id == therapist_id,
+            models.PasswordReset.used_at.is_(None)))
         db.commit()
         return _out(db, therapist)
 
@@ -141,7 +146,8 @@ def enable_therapist(therapist_id: Id, db: Db, admin: Admin) -> TherapistOut:
 def issue_reset(therapist_id: Id, db: Db, admin: Admin,
                 svc: Annotated[Services, Depends(services)]) -> ResetOut:
     """A one-time reset token for a therapist who forgot their password (used with
-    ``POST /api/auth/reset``; earlier unused ones stop working)."""
+    ``POST /api/auth/reset``; earlier unused ones stop working). One made for a disabled
+    account sets nothing until the account is enabled; disabling it ends the token."""
     _therapist(db, therapist_id)
     db.execute(delete(models.PasswordReset).where(
         models.PasswordReset.therapist_id == therapist_id,

@@ -134,7 +134,8 @@ def reset_grant(db: Db, token: Annotated[str | None, Depends(oauth2)]
 
 
 @router.post("/reset", status_code=status.HTTP_204_NO_CONTENT, responses={
-    401: {"description": "the reset token is missing, unknown, used or expired"}})
+    401: {"description": "the reset token is missing, unknown, used or expired"},
+    403: {"description": "the account is disabled"}})
 async def reset_password(body: PasswordReset,
                          row: Annotated[models.PasswordReset, Depends(reset_grant)],
                          svc: Annotated[Services, Depends(services)]) -> None:
@@ -145,6 +146,10 @@ async def reset_password(body: PasswordReset,
         reset = db.get(models.PasswordReset, row.id)
         if reset is None or reset.used_at is not None:  # used meanwhile
             raise unauthorized("the reset token is unknown, used or expired: ask your admin")
+        account = db.get(models.Therapist, reset.therapist_id)
+        if account is None or account.disabled_at is not None:
+            raise HTTPException(status.HTTP_403_FORBIDDEN,
+                                "this account is disabled: ask your clinic's admin")
         db.execute(update(models.Therapist).where(models.Therapist.id == reset.therapist_id)
                    .values(password_hash=hash_password(body.new_password)))
         reset.used_at = datetime.now(UTC)

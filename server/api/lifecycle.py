@@ -146,11 +146,14 @@ def _audit_query(db: DbSession, therapist: models.Therapist, patient_id: int | N
 
 def _day_start(day: date | None, svc: Services, days_after: int = 0) -> datetime | None:
     """Midnight starting ``day`` (+ ``days_after``) in the clinic's time zone, in UTC (as
-    the log stores its moments: SQLite compares them as text)."""
+    the log stores its moments: SQLite compares them as text); None for no bound."""
     if day is None:
         return None
-    return datetime.combine(day + timedelta(days=days_after), time(0),
-                            tzinfo=svc.settings.clinic_zone()).astimezone(UTC)
+    try:
+        return datetime.combine(day + timedelta(days=days_after), time(0),
+                                tzinfo=svc.settings.clinic_zone()).astimezone(UTC)
+    except OverflowError:  # a bound beyond the dates there are (9999-12-31's end, year 1's
+        return None        # start east of UTC) leaves nothing out: no bound (was a 500)
 
 
 def _actors(db: DbSession, rows: list[models.AuditEntry]) -> list[AuditOut]:

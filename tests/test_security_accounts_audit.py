@@ -1,0 +1,141 @@
+"""Attacks on the clinic admin's accounts and the audit log (issue 21's screens), against a
+real server and database: a reset code must die with the account's disabling; the audit
+log's day filters take any day without a 500; a kit (or a therapist) cannot grow the
+server's memory or the audit table by varying a query string."""
+
+from __future__ import annotations
+
+import secrets
+import time
+
+import httpx
+import pytest
+from server_support import PASSWORD, ServerProcess
+
+#: East of UTC on 0001-01-01 (local mean time +9:19): the clinic's midnight of that day
+#: is before the first moment Python holds in UTC.
+FAR_EAST = "Asia/Tokyo"
+
+
+@pytest.fixture(scope="module")
+def srv(tmp_path_factory):
+    server = ServerProcess(tmp_path_factory.mktemp("accounts"),
+                           env={"ARMTRACK_CLINIC_TIMEZONE": FAR_EAST})
+    server.create_user("alice")
+    done = server.armtrack("create-user", "root", "--admin", "--password", PASSWORD)
+    assert done.returncode == 0, done.stderr
+    server.start()
+    yield server
+    server.stop()
+
+
+def _id(srv, name: str) -> int:
+    return srv.sql("SELECT id FROM therapists WHERE username = :n", n=name)[0][0]
+
+
+def _sign_in(srv, name: str, password: str) -> int:
+    return httpx.post(srv.url + "/api/auth/token",
+                      data={"username": name, "password": password}).status_code
+
+
+def _reset(srv, code: str, password: str) -> httpx.Response:
+    return httpx.post(srv.url + "/api/auth/reset", json={"new_password": password},
+                      headers={"Authorization": f"Bearer {code}"})
+
+
+def test_a_reset_code_dies_when_the_account_is_disabled(srv):
+    """An admin makes a reset code for carol, then disables carol (she left the clinic).
+    Whoever holds the code must not set carol's password — neither while she is disabled
+    nor once an admin enables the account again (it would open with the code-holder's
+    password)."""
+    srv.create_user("carol")
+    root = srv.client("root")
+    carol = _id(srv, "carol")
+    code = root.http.post(f"/api/admin/therapists/{carol}/reset").json()["reset_token"]
+    assert root.http.post(f"/api/admin/therapists/{carol}/disable").status_code == 200
+
+    used = _reset(srv, code, "holder-chose-this")
+    assert used.status_code == 401, used.text
+    assert "ask your admin" in used.json()["detail"]
+
+    assert root.http.post(f"/api/admin/therapists/{carol}/enable").status_code == 200
+    assert _reset(srv, code, "holder-chose-this").status_code == 401
+    assert _sign_in(srv, "carol", "holder-chose-this") == 401
+    assert _sign_in(srv, "carol", PASSWORD) == 200
+
+
+def test_a_reset_code_issued_to_a_disabled_account_waits_for_its_enabling(srv):
+    """A code made for a disabled account sets nothing while it is disabled; enabled
+    again, the therapist uses it (the admin meant it for their return)."""
+    srv.create_user("dora")
+    root = srv.client("root")
+    dora = _id(srv, "dora")
+    assert root.http.post(f"/api/admin/therapists/{dora}/disable").status_code == 200
+    code = root.http.post(f"/api/admin/therapists/{dora}/reset").json()["reset_token"]
+    refused = _reset(srv, code, "dora-new-password")
+    assert refused.status_code == 403, refused.text
+    assert "disabled" in refused.json()["detail"]
+    assert root.http.post(f"/api/admin/therapists/{dora}/enable").status_code == 200
+    assert _reset(srv, code, "dora-new-password").status_code == 204
+    assert _sign_in(srv, "dora", "dora-new-password") == 200
+
+
+@pytest.mark.parametrize("params", [
+    {"to_date": "9999-12-31"},          # the day after it is beyond Python's dates
+    {"from_date": "0001-01-01"},        # its midnight at +9:19 is before year 1 in UTC
+    {"from_date": "0001-01-01", "to_date": "9999-12-31"},
+])
+def test_the_audit_log_takes_the_first_and_last_days_there_are(srv, params):
+    alice = srv.client("alice")
+    patient = alice.patient("Edge Days")
+    assert alice.http.get(f"/api/patients/{patient['id']}").status_code == 200
+    deadline = time.monotonic() + 10
+    while True:  # an entry is written just after its request's answer
+        answer = alice.http.get("/api/audit", params={**params, "patient_id": patient["id"]})
+        assert answer.status_code == 200, answer.text
+        if answer.json() or time.monotonic() > deadline:
+            break
+        time.sleep(0.1)
+    assert [e["action"] for e in answer.json()] == ["viewed"]
+    csv = alice.http.get("/api/audit", params={**params, "format": "csv"})
+    assert csv.status_code == 200, csv.text
+
+
+def _rss_kib(pid: int) -> int:
+    with open(f"/proc/{pid}/status") as status:
+        for line in status:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1])
+    raise AssertionError("no VmRSS")
+
+
+def test_query_strings_neither_grow_the_server_nor_the_audit_log(srv):
+    """The audit log writes a repeated view once a minute (``ARMTRACK_AUDIT_REPEAT_S``):
+    its entry names the route without its query, so a query string makes no new entry
+    and is not kept. Was: each distinct query string was a new entry and stayed in the
+    server's memory for the minute, whole — a kit asking ``/api/device/today?<16 kB of
+    noise>`` 1,500 times wrote 1,500 entries and grew the server by ~30 MB (a kit's token
+    sits on a patient's phone)."""
+    alice = srv.client("alice")
+    patient = alice.patient("Noisy Kit")
+    kit = alice.device(patient["id"], "phone")
+    token = kit["token"]
+    pid = srv.process.pid
+    noise = secrets.token_hex(8 * 1024)  # 16 kB
+    requests = 1500
+    with httpx.Client(base_url=srv.url, headers={"Authorization": f"Bearer {token}"},
+                      timeout=30) as client:
+        assert client.get("/api/device/today").status_code == 200
+        time.sleep(0.5)
+        before = _rss_kib(pid)
+        for n in range(requests):
+            answer = client.get(f"/api/device/today?n={n}&x={noise}")
+            assert answer.status_code == 200, answer.text[:200]
+    time.sleep(0.5)
+    grown_mb = (_rss_kib(pid) - before) / 1024
+    rows = srv.sql("SELECT count(*) FROM audit_log WHERE device_id = :d", d=kit["id"])
+    print(f"\n{requests} device reads with 16 kB query strings: server grew {grown_mb:.1f} MB, "
+          f"{rows[0][0]} audit entries")
+    assert rows[0][0] == 1
+    assert grown_mb < 10, f"the server grew {grown_mb:.1f} MB"
+
