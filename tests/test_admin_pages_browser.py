@@ -268,3 +268,39 @@ def test_the_admin_sees_every_entry_and_who_acted(srv, page, shots):  # noqa: F8
     # the patient is named for the admin too (from the admin's patient list), as text
     expect(rows.first.locator("td:nth-child(4)")).to_have_text("Audit <b>Two</b>")
     page.screenshot(path=str(shots / "audit-admin-1366.png"), full_page=True)
+
+
+def test_a_therapist_changes_their_name_and_password(srv, page, shots):  # noqa: F811
+    base = srv.url
+    root = srv.client("root")
+    made = root.http.post("/api/admin/therapists", json={"username": "erin",
+                                                         "password": "first-password-1"})
+    assert made.status_code == 201, made.text
+    page.set_viewport_size({"width": 390, "height": 844})
+    sign_in(page, base, "erin", "first-password-1")
+    page.click("#who-name")
+    page.wait_for_url(re.compile(r".*/account$"))
+    expect(page.locator("#account-facts")).to_have_text("User name erin · therapist")
+    page.fill("#full-name", "Dr Erin <i>Wu</i>")
+    page.click("#name-save")
+    expect(page.locator("#name-form .saved")).to_be_visible()
+    expect(page.locator("#who-name")).to_have_text("Dr Erin <i>Wu</i>")
+    erin = srv.client("erin", "first-password-1")
+    assert erin.http.get("/api/me").json()["full_name"] == "Dr Erin <i>Wu</i>"
+
+    page.fill("#old-password", "not-my-password")
+    page.fill("#new-password", "second-password-2")
+    page.fill("#new-again", "second-password-2")
+    page.click("#password-save")
+    expect(page.locator("#password-form .error")).to_contain_text("the old password is wrong")
+    assert token_works(base, "erin", "first-password-1")
+    page.fill("#old-password", "first-password-1")
+    page.click("#password-save")
+    expect(page.locator("#password-form .saved")).to_have_text("Password changed ✓")
+    assert token_works(base, "erin", "second-password-2")
+    assert not token_works(base, "erin", "first-password-1")
+    assert erin.http.get("/api/me").status_code == 401  # the other sign-in ended
+    page.reload()  # this one stays
+    expect(page.locator("#full-name")).to_have_value("Dr Erin <i>Wu</i>")
+    no_overflow(page)
+    page.screenshot(path=str(shots / "account-390.png"), full_page=True)

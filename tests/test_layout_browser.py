@@ -4,8 +4,9 @@ with demo-like data (issue 21): no horizontal scrolling of the page
 scrolls inside its card instead; at 1366 px the range tables fit their card, "% normal"
 column included. Pages: sign-in, patients, the patient page (sessions, kits, progress,
 programs and the programs editor), a finished session (range table), the live page
-during a stream, the audit log and the admin's accounts. Real server, real uploads and
-a kit streaming at real pace, real headless chromium; screenshots to the printed folder."""
+during a stream, the audit log, the therapist's own account and the admin's accounts.
+Real server, real uploads and a kit streaming at real pace, real headless chromium;
+screenshots to the printed folder."""
 
 from __future__ import annotations
 
@@ -163,6 +164,10 @@ def test_the_therapists_pages_fit(world, page, shots, width, height):  # noqa: F
     page.goto(base + "/audit")
     expect(page.locator("#audit-table tbody tr").first).to_be_visible()
     fits(page, shots, "audit", width)
+
+    page.click("#who-name")
+    expect(page.locator("#full-name")).to_have_value("Dr Alice Martin-Lefebvre")
+    fits(page, shots, "account", width)
 
     page.click("text=Sign out")
     sign_in_as(page, base, "root")

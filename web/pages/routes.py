@@ -74,6 +74,12 @@ def admin() -> FileResponse:
     return _page("admin.html")
 
 
+@router.get("/account")
+def account() -> FileResponse:
+    """The signed-in therapist's own account: full name and password."""
+    return _page("account.html")
+
+
 @router.get("/kit")
 def kit() -> FileResponse:
     """The phone kit (``docs/phone-kit.md``): the patient's page; its device token comes

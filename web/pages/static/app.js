@@ -279,7 +279,8 @@ function frame(crumbs) {
     el("nav", { class: "crumbs" }, crumbs.map((c, i) => [
       i ? el("span", { class: "sep" }, "›") : null,
       c.href ? el("a", { href: c.href }, c.text) : el("span", { id: c.id || null }, c.text)])),
-    el("div", { class: "who" }, el("span", { id: "who-name" }, sessionStorage.getItem(USER_KEY) || ""),
+    el("div", { class: "who" }, el("a", { id: "who-name", href: "/account", title: "Your account: name and password" },
+      sessionStorage.getItem(USER_KEY) || ""),
       el("button", { class: "link", onclick: signOut }, "Sign out")));
   document.body.prepend(bar);
   clinic().then((c) => {
@@ -289,7 +290,7 @@ function frame(crumbs) {
     document.getElementById("who-name").textContent = me.full_name || me.username;
     bar.querySelector(".who").prepend(el("nav", { class: "nav-links" },
       el("a", { href: "/audit", id: "nav-audit" }, "Audit log"),
-      me.is_admin ? el("a", { href: "/admin", id: "nav-admin" }, "Accounts") : null));
+      me.is_admin ? el("a", { href: "/admin", id: "nav-admin" }, "Clinic accounts") : null));
     window.ME = me;
     document.dispatchEvent(new CustomEvent("armtrack:me", { detail: me }));
   }).catch(() => {});
