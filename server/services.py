@@ -43,6 +43,7 @@ class ParkedLive:
     worker: LiveWorker
     feedback: Any
     expire: asyncio.TimerHandle
+    device_id: int | None = None
 
 
 class Services:
@@ -119,22 +120,30 @@ class Services:
         self.db_pool.shutdown(wait=True)
         self.engine.dispose()
 
-    def park_live(self, stream_id: str, worker: LiveWorker, feedback: Any) -> None:
+    def park_live(self, stream_id: str, worker: LiveWorker, feedback: Any,
+                  device_id: int | None = None) -> None:
         """Keep the live side (estimator, feedback's counts) of a stream whose connection
         was lost without ``bye``, for ``LIVE_PARK_S``: a resume of the stream on this
         server takes it over (``take_live``), so its live estimates need no calibration
-        again and its repetitions go on. At most ``MAX_PARKED_LIVE``; the oldest goes."""
+        again and its repetitions go on. At most ``ARMTRACK_MAX_STREAMS_PER_KIT`` of one
+        kit (its oldest goes: a kit dropping streams pushes out its own, not other
+        patients') and ``MAX_PARKED_LIVE`` in all (the oldest goes)."""
         worker.on_pose = None
         old = self.parked_live.pop(stream_id, None)
         if old is not None:
             old.expire.cancel()
             self._close_live(old.worker)
+        if device_id is not None:
+            own = [k for k, p in self.parked_live.items() if p.device_id == device_id]
+            for oldest in own[:max(0, len(own) - self.settings.max_streams_per_kit + 1)]:
+                self._drop_parked(oldest)
         while len(self.parked_live) >= MAX_PARKED_LIVE:
             oldest = next(iter(self.parked_live))
             self._drop_parked(oldest)
         loop = asyncio.get_running_loop()
         self.parked_live[stream_id] = ParkedLive(
-            worker, feedback, loop.call_later(LIVE_PARK_S, self._drop_parked, stream_id))
+            worker, feedback, loop.call_later(LIVE_PARK_S, self._drop_parked, stream_id),
+            device_id)
 
     def take_live(self, stream_id: str) -> ParkedLive | None:
         """The parked live side of ``stream_id`` (None when there is none)."""

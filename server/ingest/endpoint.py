@@ -538,7 +538,8 @@ class IngestConnection:
                     and self.worker.error is None
                     and self.services.connections.get(state.stream_id) is self)
             if lost:  # the kit may resume: its live side waits for it
-                self.services.park_live(state.stream_id, self.worker, self.feedback)
+                self.services.park_live(state.stream_id, self.worker, self.feedback,
+                                        self.device_id)
             else:
                 await self.worker.close()
         if state is None:

@@ -1,0 +1,107 @@
+"""A lost connection's live side (calibrated estimator, repetition counts) is kept for the
+kit's resume, at most 64 at once (``server/services.py``, issue 19). One kit token — any
+patient's phone — must not push every other patient's kept live side out by opening and
+dropping streams of its own: a kit keeps at most ``ARMTRACK_MAX_STREAMS_PER_KIT`` of them.
+Before, a foreign kit that dropped 64 streams while Ada's phone was cut made Ada's resumed
+stream start without its calibration: no estimate and no count for the rest of the
+exercise. A real server, real WebSocket clients, the live estimation process."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+
+import pytest
+from armtrack.server.emulator import MessagePlan, hello_message
+from server_support import ServerProcess
+from test_feedback_resume import CUT_AT_S, REPS, SPEED, _recording, kit_count
+from websockets.asyncio.client import connect
+
+FLOOD = 64  # as many as the server keeps
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    process = ServerProcess(tmp_path_factory.mktemp("park"))
+    process.create_user("alice")
+    process.create_user("mallory")
+    process.start(timeout=180)
+    yield process
+    process.stop()
+
+
+def test_a_foreign_kit_dropping_streams_does_not_evict_a_patients_live_side(server):
+    alice, mallory = server.client("alice"), server.client("mallory")
+    ada = alice.patient("Ada")
+    phone = alice.device(ada["id"], "phone")
+    other = mallory.device(mallory.patient("Mallory's own")["id"], "kit")
+    recording = _recording()
+    plan = MessagePlan(recording, rows_per_message=6)
+    url = f"{server.ws_url}?token={phone['token']}"
+    foreign_url = f"{server.ws_url}?token={other['token']}"
+    feedback: list[tuple[int, dict]] = []
+
+    async def reader(ws, connection: int):
+        async for raw in ws:
+            message = json.loads(raw)
+            if message["type"] == "feedback":
+                feedback.append((connection, message))
+
+    async def send_paced(ws, first: int, stop_at_s: float | None) -> int:
+        loop = asyncio.get_running_loop()
+        start, origin = loop.time(), plan.times[first]
+        for seq in range(first, len(plan)):
+            if stop_at_s is not None and plan.times[seq] >= stop_at_s:
+                return seq
+            if seq > first and plan.times[seq] >= 10.4 > plan.times[seq - 1]:
+                for _ in range(1200):  # the live estimation may start slowly when busy
+                    if feedback:
+                        break
+                    await asyncio.sleep(0.1)
+                start, origin = loop.time(), plan.times[seq]
+            await asyncio.sleep(max(0.0, start + (plan.times[seq] - origin) / SPEED
+                                    - loop.time()))
+            await ws.send(plan.encode(seq))
+        return len(plan)
+
+    async def flood() -> int:
+        """The foreign kit opens streams and drops them (no bye): each leaves a live side."""
+        hello = hello_message(recording, "kit")
+        opened = 0
+        for _ in range(FLOOD):
+            async with connect(foreign_url) as ws:
+                await ws.send(json.dumps(hello))
+                if json.loads(await ws.recv())["type"] == "ready":
+                    opened += 1
+            await asyncio.sleep(0.02)  # its socket's end is seen before the next
+        return opened
+
+    async def run():
+        hello = {**hello_message(recording, "phone"), "extensions": ["feedback/1"]}
+        ws = await connect(url)
+        await ws.send(json.dumps(hello))
+        ready = json.loads(await ws.recv())
+        task = asyncio.create_task(reader(ws, 0))
+        await send_paced(ws, 0, CUT_AT_S)
+        ws.transport.abort()  # Ada's network goes
+        task.cancel()
+        opened = await flood()
+        async with connect(url) as ws2:
+            await ws2.send(json.dumps({**hello, "resume": ready["stream"]}))
+            again = json.loads(await ws2.recv())
+            assert again["type"] == "ready" and again["session"] == ready["session"]
+            task2 = asyncio.create_task(reader(ws2, 1))
+            await send_paced(ws2, again["next_seq"], None)
+            await asyncio.sleep(1.5)
+            await ws2.send(json.dumps({"type": "bye"}))
+            await asyncio.wait_for(task2, 30)
+        return opened
+
+    opened = asyncio.run(run())
+    after = [m for c, m in feedback if c == 1 and m["exercise"] == "elbow_flexion"]
+    shown = kit_count(feedback)
+    print(f"\nforeign kit opened and dropped {opened} streams; after the resume "
+          f"{len(after)} feedback messages; the kit shows {shown} of {REPS}")
+    assert opened == FLOOD
+    assert after, "no feedback after the resume: Ada's live side was pushed out"
+    assert shown == REPS
