@@ -39,6 +39,15 @@ def world(tmp_path_factory):
     server.create_user("alice")
     server.create_admin("root")
     server.start()
+    try:  # a failed setup stops the server too
+        yield (server, *demo_like_data(server))
+    finally:
+        server.stop()
+
+
+def demo_like_data(server: ServerProcess):
+    """alice's patients (one with a long name, two processed sessions, a target, a
+    program and a kit)."""
     api = server.client("alice")
     api.http.patch("/api/me", json={"full_name": "Dr Alice Martin-Lefebvre"})
     patient = api.patient(LONG_NAME, side="right", height_m=1.68)
@@ -64,8 +73,7 @@ def world(tmp_path_factory):
                        "days_per_week": 5}]})
     assert made.status_code == 201, made.text
     api.device(patient["id"], "home kit")
-    yield server, api, patient, sessions
-    server.stop()
+    return api, patient, sessions
 
 
 def long_exercise(seed: int = 4):
