@@ -1,4 +1,4 @@
-"""The body: sides, sensor places and segment lengths (``spec/kinematics.md``).
+"""The body: sides, sensor places and segment lengths (``docs/spec/kinematics.md``).
 
 Lengths are in metres. Without measured lengths, they follow body height ``h`` as in the
 seed paper (Tsilomitrou et al. 2021): ``l_c = 0.129 h``, ``l_u = 0.186 h``,

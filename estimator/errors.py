@@ -6,7 +6,8 @@ class EstimatorError(Exception):
 
 
 class InvalidRecording(EstimatorError):
-    """A recording file breaks ``spec/recording.md``; the message names the line and the rule."""
+    """A recording file breaks ``docs/spec/recording.md``; the message names the line and the
+    rule."""
 
     def __init__(self, message: str, line: int | None = None):
         super().__init__(f"line {line}: {message}" if line is not None else message)

@@ -126,7 +126,7 @@ def to_scipy_matrix(R: np.ndarray) -> Rotation:
 def mirror_sagittal(R: np.ndarray) -> np.ndarray:
     """``M R M`` with ``M = diag(1, 1, -1)``: a right-arm rotation as its left-arm mirror image
     (and back). Mirroring through the sagittal plane flips the signs of rotations about X and Y
-    and keeps those about Z (``spec/kinematics.md``, left arm)."""
+    and keeps those about Z (``docs/spec/kinematics.md``, left arm)."""
     R = np.array(R, dtype=float, copy=True)
     R[..., 2, :2] *= -1.0
     R[..., :2, 2] *= -1.0

@@ -1,6 +1,6 @@
 """Sample timing of one sensor: its rate, gaps and lost samples, from timestamps alone.
 
-Equal time stamps are allowed (``spec/recording.md``: kits that pack samples stamp them
+Equal time stamps are allowed (``docs/spec/recording.md``: kits that pack samples stamp them
 alike): a run of equal stamps is one *packet* of samples stamped with its first
 sample's time, whose samples share the interval up to the next packet. So a stream
 stamped in pairs every 20 ms is a 100 Hz stream with nothing lost, not a 50 Hz one (nor

@@ -95,7 +95,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app = FastAPI(title="armtrack", version=estimator_version(), lifespan=lifespan,
                   docs_url=None, redoc_url=None,  # api_docs serves them, CDN-free
                   description="Remote arm rehabilitation: IMU streams in (`/ws/ingest`, "
-                  "spec/ingest.md), joint angles, sessions and reports out (spec/api.md). "
+                  "docs/spec/ingest.md), joint angles, sessions and reports out "
+                  "(docs/spec/api.md). "
                   "armtrack supports therapy; it is not a diagnostic device.")
     app.add_exception_handler(RequestValidationError, validation_error)
     app.include_router(auth_routes.router)

@@ -1,4 +1,5 @@
-"""The arm model of ``spec/kinematics.md``: forward kinematics, joint angles, seed DH tables."""
+"""The arm model of ``docs/spec/kinematics.md``: forward kinematics, joint angles, seed DH
+tables."""
 
 from .dh import (
     DHMap,

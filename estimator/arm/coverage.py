@@ -3,7 +3,7 @@
 
 An angle is measured when the segment it moves (the joint's distal segment) carries a
 sensor. Its proximal segment either carries one too, or is *assumed* where the chain
-keeps unsensored segments (``spec/recording.md``: their joints stay at 0): a phone on the
+keeps unsensored segments (``docs/spec/recording.md``: their joints stay at 0): a phone on the
 forearm alone measures the elbow's angles assuming the upper arm hangs still beside the
 trunk; a phone on the upper arm alone measures the shoulder's assuming an upright, still
 trunk. Every kit without a trunk sensor assumes the trunk upright and still.

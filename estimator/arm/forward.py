@@ -1,4 +1,4 @@
-"""Forward kinematics of the 9-DoF arm (``spec/kinematics.md``), vectorised over time.
+"""Forward kinematics of the 9-DoF arm (``docs/spec/kinematics.md``), vectorised over time.
 
 Joint angles [rad] → every segment's orientation in the thorax frame and every joint's
 position in the thorax frame [m]. Angles left out are 0 (a joint without a sensor).

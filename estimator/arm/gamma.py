@@ -22,7 +22,7 @@ Derivation, step by step
 ------------------------
 1. The elbow flexes about the upper arm's Z axis, so the forearm, and with it the wrist
    (whatever the pronation), lies in the upper arm's X–Y plane through ``S``
-   (``spec/kinematics.md``: ``R_HF = Rz(flexion) Ry(pronation)``, the forearm runs along its
+   (``docs/spec/kinematics.md``: ``R_HF = Rz(flexion) Ry(pronation)``, the forearm runs along its
    own −Y). With the corrected orientation that plane is
    ``Π(γ) = {S + R(γ) (x, y, 0)}``, of unit normal ``n(γ) = R_z(γ) ñ``, ``ñ = R̃ e_z``.
 2. The condition (the seed's eq. 1, corrected): the wrist's signed distance from ``Π(γ)`` is

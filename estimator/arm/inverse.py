@@ -7,7 +7,7 @@ segments' orientations disagree with the joint (a misaligned sensor, a soft-tiss
 artefact). Residuals are returned beside the angles.
 
 The shoulder (``Z·X·Y``) is singular at ±90° abduction, where only
-``flexion ∓ rotation`` is determined. Following ``spec/kinematics.md``:
+``flexion ∓ rotation`` is determined. Following ``docs/spec/kinematics.md``:
 
 * within ``singular_zone`` of the singularity, flexion is held at its last
   well-determined value and rotation takes the rest. With flexion ``f_h`` held,

@@ -1,4 +1,4 @@
-"""The joint chain of ``spec/kinematics.md`` as data: names, axes, signs, normal ranges.
+"""The joint chain of ``docs/spec/kinematics.md`` as data: names, axes, signs, normal ranges.
 
 Right arm, intrinsic rotations composed left to right::
 
@@ -18,7 +18,7 @@ from dataclasses import dataclass
 #: Segments of the chain, proximal to distal. The thorax is the root.
 SEGMENTS: tuple[str, ...] = ("thorax", "clavicle", "upper_arm", "forearm", "hand")
 
-#: The sensor place on each segment (``spec/recording.md``); only the thorax's differs.
+#: The sensor place on each segment (``docs/spec/recording.md``); only the thorax's differs.
 SENSOR_OF_SEGMENT = {"thorax": "trunk", "clavicle": "clavicle", "upper_arm": "upper_arm",
                      "forearm": "forearm", "hand": "hand"}
 SEGMENT_OF_SENSOR = {sensor: segment for segment, sensor in SENSOR_OF_SEGMENT.items()}
@@ -62,7 +62,7 @@ ELEVATION = "shoulder_elevation"
 #: Every angle the product reports.
 REPORTED_ANGLES: tuple[str, ...] = (*ANGLE_NAMES, ELEVATION)
 
-#: AAOS normal ranges in this contract's signs [deg] (``spec/kinematics.md``).
+#: AAOS normal ranges in this contract's signs [deg] (``docs/spec/kinematics.md``).
 NORMAL_RANGE_DEG: dict[str, tuple[float, float]] = {
     "shoulder_flexion": (-60.0, 180.0),
     "shoulder_abduction": (0.0, 180.0),

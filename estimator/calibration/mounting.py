@@ -6,7 +6,7 @@
   medially). Two directions fix the rotation whole (Wahba's problem, solved by
   ``scipy``'s ``align_vectors``).
 * N-pose only: gravity gives +Y; the rotation about it is taken from the default mounting
-  (``spec/recording.md``): the smallest turn of the default that agrees with gravity.
+  (``docs/spec/recording.md``): the smallest turn of the default that agrees with gravity.
 * Trunk and clavicle do not move between the poses: gravity gives their tilt, and their
   heading comes from the arm — in the N-pose every segment's axes are the thorax's, so
   ``R_world_thorax = R_world_upper_arm`` there (``heading_from_arm``).
@@ -25,7 +25,7 @@ ARM_SENSORS = ("upper_arm", "forearm", "hand")
 
 
 def default_R_segment_sensor(sensor: str, side: Side) -> np.ndarray:
-    """``R_segment_sensor`` of the default mounting (``spec/recording.md``)."""
+    """``R_segment_sensor`` of the default mounting (``docs/spec/recording.md``)."""
     turn = np.diag([-1.0, 1.0, -1.0]) if side == "left" else np.eye(3)  # 180° about Y
     if sensor in (*ARM_SENSORS, "clavicle"):
         return turn

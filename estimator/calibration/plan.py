@@ -1,6 +1,6 @@
 """Which calibration poses a session has, and when its calibration becomes final.
 
-``spec/kinematics.md`` ("Estimates"): calibration is final at the end of a T-pose; or 5 s
+``docs/spec/kinematics.md`` ("Estimates"): calibration is final at the end of a T-pose; or 5 s
 after the end of an N-pose when no T-pose has begun by then; or, with no pose at all,
 60 s after the first sample (then the default mounting is used). A file's
 ``calibration`` header and a stream's ``npose``/``tpose`` marks are the same poses.

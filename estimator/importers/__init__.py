@@ -1,4 +1,4 @@
-"""Importers of vendor IMU exports into strict recordings (``spec/recording.md``).
+"""Importers of vendor IMU exports into strict recordings (``docs/spec/recording.md``).
 
 One module per format (``xsens_dot``, ``apdm``, ``shimmer``, ``metamotion``,
 ``sensor_logger``, ``generic``), each with ``NAME``, ``TITLE``, ``sniff(source)`` and

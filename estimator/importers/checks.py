@@ -1,6 +1,6 @@
 """Checks every imported sensor passes before anything is written or stored: time order,
 one rate per file, a declared rate that matches the time stamps, the physical ranges of
-``spec/recording.md``, and plausibility (|a| at rest near 9.81 m/s²: catches a units row
+``docs/spec/recording.md``, and plausibility (|a| at rest near 9.81 m/s²: catches a units row
 that lies, and an "accelerometer" without gravity)."""
 
 from __future__ import annotations

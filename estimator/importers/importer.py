@@ -1,6 +1,6 @@
 """Vendor files → a strict recording: detect each file's format, read the sensors in it,
 put all sensors on one clock, check them, and build the
-:class:`~armtrack.estimator.recording.Recording` (``spec/recording.md``)."""
+:class:`~armtrack.estimator.recording.Recording` (``docs/spec/recording.md``)."""
 
 from __future__ import annotations
 

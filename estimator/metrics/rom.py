@@ -1,4 +1,4 @@
-"""Range of motion per angle against normal values, for reports (``spec/api.md``).
+"""Range of motion per angle against normal values, for reports (``docs/spec/api.md``).
 
 Input angles in [rad]; every figure out is in **degrees**, named ``_deg``: a range of
 motion is a clinical number compared with normal values printed in degrees
@@ -19,7 +19,7 @@ report's ``rom`` object is in degrees.
   which costs a fifth of the amplitude of a single 5-second repetition. ``percentile=0``
   gives the exact min and max. The extremes are those of the samples as given: noise on
   them widens the range by about its own peak values (smooth the angles first if noisy).
-* ``range = max − min``. ``percent_of_normal`` (``spec/api.md``): how far the session
+* ``range = max − min``. ``percent_of_normal`` (``docs/spec/api.md``): how far the session
   reached in the direction it moved most, as a share of the normal range on that side of
   zero, ``max(max ÷ normal_max, min ÷ normal_min) × 100``, a term only for a side the
   normal range has (``normal_max > 0``, ``normal_min < 0``), clamped at 0 (shoulder
@@ -92,7 +92,7 @@ class RangeOfMotion:
     percentile: float
 
     def to_report(self) -> dict[str, float | None]:
-        """The report's ``rom`` entry (``spec/api.md``), degrees."""
+        """The report's ``rom`` entry (``docs/spec/api.md``), degrees."""
         return {"min": self.min_deg, "max": self.max_deg, "range": self.range_deg,
                 "normal_min": self.normal_min_deg, "normal_max": self.normal_max_deg,
                 "percent_of_normal": self.percent_of_normal}
@@ -103,7 +103,7 @@ def percent_of(min_deg: float, max_deg: float,
     """How far ``min_deg…max_deg`` reached on the side it went furthest, as a share of
     ``reference`` (low, high) [deg] on that side of zero [%]:
     ``max(max ÷ high, min ÷ low) × 100``, the first term only where ``high > 0``, the
-    second only where ``low < 0``, clamped at 0 (``spec/api.md``). ``None`` without a
+    second only where ``low < 0``, clamped at 0 (``docs/spec/api.md``). ``None`` without a
     reference, or when it has no side away from zero."""
     if reference is None:
         return None
@@ -185,5 +185,5 @@ def range_of_motion_table(
 
 
 def rom_report(table: Mapping[str, RangeOfMotion]) -> dict[str, dict[str, float | None]]:
-    """The report's ``rom`` object (``spec/api.md``): angle name → entry, degrees."""
+    """The report's ``rom`` object (``docs/spec/api.md``): angle name → entry, degrees."""
     return {name: rom.to_report() for name, rom in table.items()}

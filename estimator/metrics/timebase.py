@@ -5,7 +5,7 @@ half-open interval ``[start_s, end_s)``; windows come as a sequence of pairs (or
 array of shape ``(W, 2)``), e.g. the calibration poses of a recording's header (to
 exclude) or a session's exercise marks (to include).
 
-Times may repeat (packed samples share a stamp, ``spec/recording.md``): a series'
+Times may repeat (packed samples share a stamp, ``docs/spec/recording.md``): a series'
 times are non-decreasing, and equal stamps are collapsed (their mean value) before a
 rate is estimated or a series interpolated.
 

@@ -15,7 +15,7 @@ Convention (the paper's axes, read in our right-handed frames)
 --------------------------------------------------------------
 The paper's sensor axes (its MPU-9150's accelerometer and gyroscope: y longitudinal, along
 the segment, x transverse, z normal to the board) are taken as ours, which
-``spec/recording.md`` mounts with ``+Y`` proximal and ``+Z`` out of the skin. Its angles
+``docs/spec/recording.md`` mounts with ``+Y`` proximal and ``+Z`` out of the skin. Its angles
 are roll φ about y, pitch θ about x and yaw ψ about the vertical, the "R_y(φ)R_x(θ)R_z(ψ)
 configuration" (passive) of its ref. [46]. As a proper ENU orientation that is
 

@@ -10,7 +10,7 @@ import numpy as np
 from ..arm.forward import POINTS
 from ..arm.joints import REPORTED_ANGLES, SEGMENTS
 
-#: The order a reference sensor is chosen in (``spec/kinematics.md``, "Estimates").
+#: The order a reference sensor is chosen in (``docs/spec/kinematics.md``, "Estimates").
 REFERENCE_ORDER = ("upper_arm", "forearm", "hand", "trunk", "clavicle")
 
 #: The rotations the 2-DoF joints cannot express, reported beside the angles.

@@ -139,7 +139,7 @@ class SensorTrack:
 
     def _retime(self, t: np.ndarray) -> np.ndarray:
         """Samples that share a stamp (kits that pack several samples stamp them alike,
-        ``spec/recording.md``) spread at the mean interval so far after it: the k-th of
+        ``docs/spec/recording.md``) spread at the mean interval so far after it: the k-th of
         a run at ``stamp + k · (stamp − first stamp) / (samples before it)``, so the
         filter integrates each over its own interval and estimates come at distinct
         times. Causal and independent of chunking; ``t`` itself when no stamp repeats."""

@@ -1,4 +1,4 @@
-"""Recording files (``spec/recording.md``, version 1): the data classes, a strict and
+"""Recording files (``docs/spec/recording.md``, version 1): the data classes, a strict and
 fast reader, and a writer whose files read back as the same float64 numbers.
 
 Units: time [s], specific force [m/s^2], angular rate [rad/s], magnetic field [µT],

@@ -1,4 +1,4 @@
-"""What a recording holds (``spec/recording.md``): per-sensor sample streams, body size,
+"""What a recording holds (``docs/spec/recording.md``): per-sensor sample streams, body size,
 calibration poses, exercise marks and free-form metadata.
 
 Units: time [s], specific force [m/s^2], angular rate [rad/s], magnetic field [µT],
@@ -43,7 +43,7 @@ HEADER_KEYS: tuple[str, ...] = (
 #: A header key: what may stand before the ``:`` of ``# key: value``.
 KEY_PATTERN = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.\-]*")
 
-#: A mark label (``spec/ingest.md``): ``npose``, ``tpose``, ``exercise:<name>``, each
+#: A mark label (``docs/spec/ingest.md``): ``npose``, ``tpose``, ``exercise:<name>``, each
 #: optionally prefixed by ``end:``. An exercise name is letters, digits, ``_ . -``.
 LABEL_PATTERN = re.compile(r"(?:end:)?(?:npose|tpose|exercise:[A-Za-z0-9_.\-]+)")
 
@@ -95,7 +95,7 @@ class Pose:
 @dataclass(frozen=True)
 class Mark:
     """A mark at time ``t`` [s]: ``npose``, ``tpose`` or ``exercise:<name>`` begins a
-    period, ``end:<label>`` ends it (``spec/ingest.md``)."""
+    period, ``end:<label>`` ends it (``docs/spec/ingest.md``)."""
 
     t: float
     label: str
@@ -151,7 +151,7 @@ class SensorStream:
 
 @dataclass(frozen=True, eq=False)
 class Recording:
-    """One IMU recording of one arm (``spec/recording.md``, version 1).
+    """One IMU recording of one arm (``docs/spec/recording.md``, version 1).
 
     side: ``right`` or ``left``.
     sensors: streams by sensor name; keys are kept in ``SENSOR_NAMES`` order.

@@ -1,4 +1,4 @@
-"""Reading recording files (``spec/recording.md``, version 1): strict, fast, all or nothing.
+"""Reading recording files (``docs/spec/recording.md``, version 1): strict, fast, all or nothing.
 
 A file that breaks a rule raises :class:`InvalidRecording` naming the first offending
 line (1-based, header lines included) and the rule; nothing is returned. The rules are

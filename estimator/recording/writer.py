@@ -1,4 +1,4 @@
-"""Writing recording files (``spec/recording.md``, version 1).
+"""Writing recording files (``docs/spec/recording.md``, version 1).
 
 The header lines come in the spec's order (version, side, height_m, lengths_m,
 calibration, marks, rate_hz, then metadata in its order), then the column line, then

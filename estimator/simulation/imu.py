@@ -43,7 +43,7 @@ class Mount:
 
 
 def default_mount_rotation(sensor: str, side: Side) -> np.ndarray:
-    """``R_segment_sensor`` of the default mounting (``spec/recording.md``)."""
+    """``R_segment_sensor`` of the default mounting (``docs/spec/recording.md``)."""
     turn = elemental("y", np.pi) if side == "left" else np.eye(3)
     if sensor in ("upper_arm", "forearm", "hand"):
         return turn  # lateral surface, +Y proximal, +Z out of the skin

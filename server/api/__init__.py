@@ -1,1 +1,1 @@
-"""The REST API, version 1 (``spec/api.md``)."""
+"""The REST API, version 1 (``docs/spec/api.md``)."""

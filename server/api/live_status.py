@@ -38,7 +38,7 @@ router = APIRouter(prefix="/api", tags=["live"])
 RATE_WINDOW_S = 3.0
 #: The newest stretch of samples judged for stillness while a pose is held [s].
 STILL_WINDOW_S = 1.0
-#: Poses the kit marks, and what the person does in each (``spec/kinematics.md``).
+#: Poses the kit marks, and what the person does in each (``docs/spec/kinematics.md``).
 POSES = {
     "npose": "Stand tall, arm hanging by your side, elbow straight, palm facing your thigh "
              "(thumb forward). Hold still.",

@@ -238,7 +238,7 @@ def get_target_history(patient_id: Id, db: Db, therapist: Therapist
 def put_target(patient_id: Id, angle: AngleName, body: TargetIn, db: Db,
                therapist: Therapist) -> TargetOut:
     """Set (or replace) the patient's target range for one angle [deg], in the signs of
-    ``spec/kinematics.md``."""
+    ``docs/spec/kinematics.md``."""
     own_patient(db, therapist, patient_id)
     set_target(db, patient_id, angle, body, set_by=therapist.id)
     return content.target_out(current_targets(db, patient_id)[angle])

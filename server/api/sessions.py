@@ -121,7 +121,7 @@ def upload_recording(db: Db, who: Annotated[models.Therapist | models.Device,
                      options: Annotated[str | None, Form(max_length=2000)] = None,
                      wait: Annotated[bool, Form()] = True,
                      ) -> SessionOut:
-    """A recording file (``spec/recording.md``) recorded offline: stored as a new closed
+    """A recording file (``docs/spec/recording.md``) recorded offline: stored as a new closed
     session and estimated. With a device token the patient is the device's own.
 
     Extension (docs/extensions/recordings-upload.md): vendor exports as ``files`` with a

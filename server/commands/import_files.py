@@ -52,7 +52,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="Sensor Logger: the phone's platform when its metadata.csv is "
                         "missing ('standardised' when Standardise Units & Frames was on)")
     parser.add_argument("-o", "--output", type=Path, metavar="FILE",
-                        help="the recording to write (spec/recording.md)")
+                        help="the recording to write (docs/spec/recording.md)")
 
 
 def parse_spec(spec: str) -> tuple[str, Path, str | None]:

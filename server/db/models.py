@@ -157,7 +157,7 @@ class Session(Base):
 
 
 class Stream(Base):
-    """An ingest stream (``spec/ingest.md``): its id, and the next ``seq`` it expects,
+    """An ingest stream (``docs/spec/ingest.md``): its id, and the next ``seq`` it expects,
     committed with the data so a resume after a crash starts where the store ends."""
 
     __tablename__ = "streams"
@@ -224,7 +224,7 @@ class EstimateBlock(Base):
 
 class PatientTarget(Base):
     """A therapist's prescription for one patient: the range one joint angle should reach
-    [deg] (``spec/kinematics.md`` names and signs). One row per patient and angle."""
+    [deg] (``docs/spec/kinematics.md`` names and signs). One row per patient and angle."""
 
     __tablename__ = "patient_targets"
     __table_args__ = (UniqueConstraint("patient_id", "angle",

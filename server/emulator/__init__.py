@@ -1,5 +1,5 @@
 """A sensor kit emulator: plays a recording to the server over the ingest protocol
-(``spec/ingest.md``), paced by the recording's clock, resuming after connection loss."""
+(``docs/spec/ingest.md``), paced by the recording's clock, resuming after connection loss."""
 
 from .kit import FATAL_CLOSE_CODES, KitEmulator
 from .messages import (

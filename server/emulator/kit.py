@@ -1,4 +1,4 @@
-"""A sensor kit played back from a recording: the device side of ``spec/ingest.md``.
+"""A sensor kit played back from a recording: the device side of ``docs/spec/ingest.md``.
 
 :class:`KitEmulator` connects to ``/ws/ingest``, says ``hello``, and sends the
 recording's ``samples`` and ``mark`` messages paced by the recording's clock (``speed``

@@ -1,4 +1,4 @@
-"""The device's messages of ``spec/ingest.md`` built from a recording, in sending order.
+"""The device's messages of ``docs/spec/ingest.md`` built from a recording, in sending order.
 
 A :class:`MessagePlan` fixes, before anything is sent, every ``samples`` and ``mark``
 message of a recording, its ``seq`` and the time on the recording's clock [s] when a
@@ -17,7 +17,7 @@ from armtrack.estimator.errors import InvalidArgument
 from armtrack.estimator.recording import Mark, Recording
 
 PROTOCOL_VERSION = 1
-#: Rows a ``samples`` message may carry (``spec/ingest.md``).
+#: Rows a ``samples`` message may carry (``docs/spec/ingest.md``).
 MAX_ROWS_PER_MESSAGE = 1000
 
 _SAMPLES, _MARK = 0, 1  # message kinds; at equal send times samples go before marks

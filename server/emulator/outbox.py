@@ -1,4 +1,4 @@
-"""What a kit has sent and the server has not yet acknowledged (``spec/ingest.md``).
+"""What a kit has sent and the server has not yet acknowledged (``docs/spec/ingest.md``).
 
 The :class:`Outbox` keeps every unacked message by ``seq`` with its text; an ``ack``
 drops everything up to its ``seq``, an ``error`` naming a ``seq`` drops that one (the

@@ -1,4 +1,4 @@
-"""``/ws/ingest``: one kit's connection (``spec/ingest.md``). Authenticates the device,
+"""``/ws/ingest``: one kit's connection (``docs/spec/ingest.md``). Authenticates the device,
 takes ``hello``, starts or resumes the stream's session, then takes messages strictly in
 ``seq`` order: accepted ones go to the group writer (acked once stored) and to the live
 worker; refused ones get an ``error`` naming their ``seq``.

@@ -1,4 +1,4 @@
-"""Messages of the stream protocol, version 1 (``spec/ingest.md``), checked whole: a
+"""Messages of the stream protocol, version 1 (``docs/spec/ingest.md``), checked whole: a
 message is either accepted as a whole or refused with a reason naming what is wrong.
 
 Rows are ``[t, ax, ay, az, gx, gy, gz, mx, my, mz]`` in the units of ``recording.md``

@@ -1,5 +1,5 @@
 """The exercise catalogue: every exercise the guided home session (``/kit``) and the
-programs know, with the joint angle that measures it (``spec/kinematics.md``'s names and
+programs know, with the joint angle that measures it (``docs/spec/kinematics.md``'s names and
 signs), its default target band [deg], the sensor that must be worn to measure it, a
 sentence for the patient and a picture (the name of a drawing the kit page has).
 

@@ -20,7 +20,7 @@ Codes, and where each was looked up:
   the right shoulder's term was not found, so the right side keeps SNOMED CT only).
 * LOINC 41387-2 "Shoulder External rotation Active Range of Motion Quantitative": the
   external rotation reached in a shoulder rotation exercise, −(lowest
-  ``shoulder_rotation``), internal rotation being + (``spec/kinematics.md``) (source:
+  ``shoulder_rotation``), internal rotation being + (``docs/spec/kinematics.md``) (source:
   https://www.healthassure.in/codes/loinc-41387-2-shoulder-external-rotation-active-range-of-motion-quantitative).
 * No LOINC term was found for elbow flexion, forearm pronation/supination, wrist flexion
   or a forward reach's shoulder flexion: SNOMED CT 364564000 with the joint as

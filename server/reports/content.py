@@ -7,7 +7,7 @@ percentages [%], smoothness and coefficients of variation dimensionless.
 * **Samples.** The stored estimates (``stored_estimates``). The calibration poses are not
   exercise: from the first estimate to ``CALIBRATION_TAIL_S`` after the end of the last
   pose is left out (as ``armtrack estimate`` does); with no pose, nothing is left out.
-* **``rom``** (``spec/api.md``): per angle of ``REPORTED_ANGLES`` that moved
+* **``rom``** (``docs/spec/api.md``): per angle of ``REPORTED_ANGLES`` that moved
   (``estimator.metrics.rom``: robust extremes whose tails hold 0.1 s of samples each, moved
   when the range is ≥ 10°): min, max, range, AAOS normal range and percentage of it, the
   seed paper's Table 2 range and percentage, and the patient's target (``targets``).
@@ -55,7 +55,7 @@ from ..store.processing import stored_estimates
 from ..store.recordings import session_recording
 from .targets import Target
 
-#: The angle names of ``spec/kinematics.md`` and ``shoulder_elevation``.
+#: The angle names of ``docs/spec/kinematics.md`` and ``shoulder_elevation``.
 AngleName = Literal[REPORTED_ANGLES]  # type: ignore[valid-type]
 
 #: Movements with the same leading angle closer than this are one detected exercise [s].
@@ -237,7 +237,7 @@ class SessionInfo(BaseModel):
 
 
 class SessionReport(BaseModel):
-    """A session's report (``spec/api.md``)."""
+    """A session's report (``docs/spec/api.md``)."""
 
     session: SessionInfo
     rom: dict[AngleName, RomEntry] = Field(

@@ -127,7 +127,7 @@ def observation(report: SessionReport, angle: str, rom: RomEntry, obs_id: str,
                            "calibration poses excluded"},
         "valueQuantity": _deg(rom.range),
         "component": components,
-        "note": [{"text": f"armtrack angle {angle}, spec/kinematics.md signs; "
+        "note": [{"text": f"armtrack angle {angle}, docs/spec/kinematics.md signs; "
                           f"{rom.samples} samples"}],
     }
     if ranges:

@@ -3,7 +3,7 @@
 **``.mot``** — joint angles as coordinates of the Rajagopal et al. (2015) full-body model,
 in degrees (``inDegrees=yes``), one row per estimate. The model's shoulder is a
 ball-and-socket joint turned about the humerus's Z (``arm_flex``), X (``arm_add``) and Y
-(``arm_rot``) axes in that order, the same axes and order as ``spec/kinematics.md``'s
+(``arm_rot``) axes in that order, the same axes and order as ``docs/spec/kinematics.md``'s
 shoulder chain, which turns about X by −abduction; so:
 
 =================== ================================ =====================================

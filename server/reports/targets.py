@@ -1,7 +1,7 @@
 """Targets: the range a therapist prescribes for one joint angle of one patient [deg],
-in ``spec/kinematics.md``'s names and signs (elbow 0…120: flex to 120° and extend fully).
+in ``docs/spec/kinematics.md``'s names and signs (elbow 0…120: flex to 120° and extend fully).
 Reports and progress show each session against them with the side rule of
-``percent_of_normal`` (``spec/api.md``): ``percent_of_target`` =
+``percent_of_normal`` (``docs/spec/api.md``): ``percent_of_target`` =
 max(max ÷ target_max, min ÷ target_min) × 100, a term only for a side the target has
 (``target_max > 0``, ``target_min < 0``), clamped at 0; ``target_reached`` when that is
 at least 100 % (so the percentage and the tick agree).

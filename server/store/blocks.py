@@ -17,7 +17,7 @@ import zlib
 
 import numpy as np
 
-#: Columns of a sample block (``spec/recording.md``'s, without ``sensor``).
+#: Columns of a sample block (``docs/spec/recording.md``'s, without ``sensor``).
 SAMPLE_COLUMNS = ("t", "ax", "ay", "az", "gx", "gy", "gz", "mx", "my", "mz")
 
 

@@ -1,4 +1,4 @@
-"""A stored session as a recording (``spec/recording.md``) and a recording as a stored
+"""A stored session as a recording (``docs/spec/recording.md``) and a recording as a stored
 session. Stored rows are the float64 numbers parsed from the file or the stream, so an
 export reads back to exactly them."""
 

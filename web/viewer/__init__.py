@@ -6,7 +6,7 @@ grants and proxies viser's page and WebSocket behind the therapist's sign-in (``
 ``arm``, ``rom``, ``panels``), driven by the patient's live feed (``live``) or by a
 stored session (``replay``).
 
-Frames (``spec/kinematics.md``): the scene's world is ENU with z up; the arm's nodes hang
+Frames (``docs/spec/kinematics.md``): the scene's world is ENU with z up; the arm's nodes hang
 under a thorax-frame node (X anterior, Y superior, Z right), origin at the sternal notch.
 Positions in metres, angles shown in degrees.
 """

@@ -3,7 +3,7 @@ coloured against the AAOS normal range, and a label with the current angle.
 
 An arc is the path of one point of the angle's distal segment when that angle alone runs
 through its range (the others held at their current values), by the chain of
-``spec/kinematics.md``. Arcs live in the thorax frame [m]; angles are in degrees.
+``docs/spec/kinematics.md``. Arcs live in the thorax frame [m]; angles are in degrees.
 """
 
 from __future__ import annotations
