@@ -107,11 +107,16 @@ def page(browser_context):
     page.close()
 
 
-def sign_in(page, base: str, name: str = "alice") -> None:
+def sign_in(page, base: str, name: str = "alice", shots: Path | None = None) -> None:
+    """Sign in as ``name`` (a wrong password first: its message shows); ``shots``: save
+    the sign-in page there as ``signin.png`` first."""
     from server_support import PASSWORD
 
     page.goto(base + "/")
     page.wait_for_url(re.compile(r".*/signin.*"))
+    if shots is not None:
+        sync_api.expect(page.locator("#submit")).to_be_visible()
+        page.screenshot(path=str(shots / "signin.png"), full_page=True)
     page.fill("#username", name)
     page.fill("#password", "wrong password")
     page.click("#submit")
@@ -137,7 +142,7 @@ def expect_viewer_canvas(page, shots: Path, name: str) -> None:
 def test_patients_page_search_add_and_device_token(module_server, page, shots):
     api = module_server.client("alice")
     api.patient("Grace Hopper", side="left", height_m=1.62)
-    sign_in(page, module_server.url)
+    sign_in(page, module_server.url, shots=shots)
     page.fill("#new-name", "Ada Lovelace")
     page.select_option("#new-side", "right")
     page.fill("#new-height", "1.68")
