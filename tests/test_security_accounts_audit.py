@@ -64,6 +64,19 @@ def test_a_reset_code_dies_when_the_account_is_disabled(srv):
     assert _sign_in(srv, "carol", PASSWORD) == 200
 
 
+def test_a_reset_code_dies_when_the_command_line_disables_the_account(srv):
+    """The same through ``armtrack create-user NAME --disable`` on the server."""
+    srv.create_user("cleo")
+    root = srv.client("root")
+    cleo = _id(srv, "cleo")
+    code = root.http.post(f"/api/admin/therapists/{cleo}/reset").json()["reset_token"]
+    done = srv.armtrack("create-user", "cleo", "--disable")
+    assert done.returncode == 0, done.stderr
+    assert root.http.post(f"/api/admin/therapists/{cleo}/enable").status_code == 200
+    assert _reset(srv, code, "holder-chose-this").status_code == 401
+    assert _sign_in(srv, "cleo", PASSWORD) == 200
+
+
 def test_a_reset_code_issued_to_a_disabled_account_waits_for_its_enabling(srv):
     """A code made for a disabled account sets nothing while it is disabled; enabled
     again, the therapist uses it (the admin meant it for their return)."""

@@ -93,6 +93,9 @@ def _disable(args: argparse.Namespace) -> int:
             therapist.disabled_at = therapist.disabled_at or datetime.now(UTC)
             db.execute(delete(models.AccessToken)
                        .where(models.AccessToken.therapist_id == therapist.id))
+            db.execute(delete(models.PasswordReset).where(  # unused reset codes end too
+                models.PasswordReset.therapist_id == therapist.id,
+                models.PasswordReset.used_at.is_(None)))
             db.commit()
     finally:
         engine.dispose()
