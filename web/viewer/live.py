@@ -56,8 +56,8 @@ class LiveDriver:
             while True:  # the chip is kept up to date even when nothing comes
                 try:
                     update = await asyncio.wait_for(subscription.get(), TICK_S)
-                except TimeoutError:
-                    await asyncio.to_thread(self._status)
+                except TimeoutError:  # the title only (sent when it changes)
+                    await asyncio.to_thread(self._label)
                     continue
                 await asyncio.to_thread(self.handle, update)
 
@@ -116,8 +116,11 @@ class LiveDriver:
             return "Live: receiving"  # the kit streams to another server instance
         return "Waiting for the kit"
 
-    def _status(self) -> None:
+    def _label(self) -> None:
         self.view.panels.set_label(self.stream_state())
+
+    def _status(self) -> None:
+        self._label()
         lines = [f"Live · {self.session}"]
         if self._pose is not None:
             latency = self._update.get("latency_s")
