@@ -158,3 +158,25 @@ def test_a_rating_is_stored_once_however_often_sent(setup):
     pain = w.alice.http.get(f"/api/programs/{w.program['id']}/adherence").json()["pain"]
     assert {"session_id": ready["session"], "pain": 3, "effort": 4.5} in [
         {k: p[k] for k in ("session_id", "pain", "effort")} for p in pain]
+
+
+def test_a_session_keeps_a_bounded_number_of_ratings(setup):
+    """A kit flooding ratings with new ids fills no table: past the most a session keeps
+    (``RATINGS_PER_SESSION_MAX``) a rating is refused naming the limit, nothing stored,
+    the connection open; a rating sent again under a stored id is still answered stored."""
+    from armtrack.server.programs.stream import RATINGS_PER_SESSION_MAX
+
+    w = setup
+    ratings = [json.dumps({"type": "effort_pain", "id": f"r{i}", "exercise": "elbow_flexion",
+                           "pain": 1}) for i in range(RATINGS_PER_SESSION_MAX + 1)]
+    answers = asyncio.run(exchange(w.server, w.device["token"],
+                                   hello(extensions=["effort-pain/1"]), *ratings, ratings[0]))
+    ready, stored, over, again = answers[0], answers[1:-2], answers[-2], answers[-1]
+    assert all(a["type"] == "effort_pain_stored" for a in stored), stored[-1]
+    assert over["type"] == "error" and over["seq"] is None, over
+    assert over["reason"].startswith("effort_pain: ") and str(RATINGS_PER_SESSION_MAX) in \
+        over["reason"], over
+    assert again == {"type": "effort_pain_stored", "id": "r0"}
+    rows = w.server.sql("SELECT count(*) FROM session_ratings WHERE session_id = :s",
+                        s=ready["session"])
+    assert rows == [(RATINGS_PER_SESSION_MAX,)]

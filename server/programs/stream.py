@@ -16,7 +16,7 @@ from datetime import date
 from typing import Any
 
 from armtrack.estimator.recording.model import LABEL_PATTERN
-from sqlalchemy import select
+from sqlalchemy import func, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session as DbSession
 
@@ -31,6 +31,9 @@ EFFORT_PAIN_EXTENSION = "effort-pain/1"
 #: The extensions of this module a server speaks.
 SPOKEN = (PROGRAMS_EXTENSION, EFFORT_PAIN_EXTENSION)
 RATING_ID_MAX = 64
+#: The most ratings a session keeps: a rating per exercise and set is far fewer; a kit
+#: sending more with new ids is refused rather than filling the table.
+RATINGS_PER_SESSION_MAX = 200
 
 
 def check_program(message: dict[str, Any], hello: Hello) -> int | str | None:
@@ -140,12 +143,18 @@ def _number(value: Any) -> bool:
 
 def store_effort_pain(db: DbSession, session_id: int, rating: EffortPain) -> bool:
     """Store a rating with its session (committed); False when that id was stored
-    already (a message sent again): the first one stands."""
+    already (a message sent again): the first one stands. Refused past
+    ``RATINGS_PER_SESSION_MAX`` ratings in the session."""
     exists = db.scalar(select(models.SessionRating.id).where(
         models.SessionRating.session_id == session_id,
         models.SessionRating.rating_id == rating.id))
     if exists is not None:
         return False
+    kept = db.scalar(select(func.count()).select_from(models.SessionRating).where(
+        models.SessionRating.session_id == session_id))
+    if kept >= RATINGS_PER_SESSION_MAX:
+        raise Refused(f"effort_pain: this session keeps {RATINGS_PER_SESSION_MAX} ratings "
+                      "already, the most a session keeps; this one is not stored")
     db.add(models.SessionRating(session_id=session_id, rating_id=rating.id,
                                 exercise=rating.exercise, t=rating.t, effort=rating.effort,
                                 pain=rating.pain, received_at=clock.now()))
