@@ -37,13 +37,15 @@ sync_api = pytest.importorskip("playwright.sync_api",
 pytestmark = pytest.mark.slow
 
 
-def _exercise(name: str, seed: int = 0):
-    """A simulated session: calibration poses, then ``name``, marked as an exercise."""
+def _exercise(name: str, seed: int = 0, repetitions: int | None = None):
+    """A simulated session: calibration poses, then ``name`` (``repetitions`` times, or the
+    simulator's default), marked as an exercise."""
     from armtrack.estimator.recording import Mark
     from armtrack.estimator.simulation import SimulationConfig, simulate
     from armtrack.estimator.simulation.scenarios import EXERCISE_START_S
 
-    recording = simulate(SimulationConfig(exercise=name, seed=seed)).recording
+    recording = simulate(SimulationConfig(exercise=name, seed=seed,
+                                         repetitions=repetitions)).recording
     end = min(float(s.t[-1]) for s in recording.sensors.values()) - 1.0
     return dataclasses.replace(recording, marks=(Mark(EXERCISE_START_S - 0.5, f"exercise:{name}"),
                                                  Mark(end, f"end:exercise:{name}")))
@@ -175,7 +177,10 @@ def test_live_session_angles_change_and_lost_connection_shows(module_server, pag
     api = module_server.client("alice")
     patient = api.patient("Live Patient")
     device = api.device(patient["id"])
-    kit = KitThread(_exercise("elbow_flexion"), module_server.ws_url, device["token"])
+    # long enough (~2 min) that the session is still live when a busy machine's page has
+    # got through calibration and the angles: the test cuts the link, not the kit's bye
+    kit = KitThread(_exercise("elbow_flexion", repetitions=25), module_server.ws_url,
+                    device["token"])
     try:
         sign_in(page, module_server.url)
         page.goto(f"{module_server.url}/patients/{patient['id']}")
