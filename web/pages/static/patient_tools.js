@@ -186,10 +186,22 @@ const PatientTools = (() => {
         el("a", { href: "/sessions/" + s.id }, `Session ${s.id} · ${fmtDate(s.started_at)}`),
         el("button", { class: "secondary close-session", onclick: async (event) => {
           event.currentTarget.disabled = true;
-          try { await api(`/api/sessions/${s.id}/close`, { method: "POST" }); interrupted(); }
+          try {
+            await api(`/api/sessions/${s.id}/close`, { method: "POST" });
+            interrupted();
+            whenEstimated(s.id).then(() => progress()).catch(() => {});
+          }
           catch (error) { showError(document.getElementById("interrupted-card"), error); }
         } }, "Close and estimate"))));
     document.getElementById("tools").prepend(document.getElementById("interrupted-card"));
+  }
+
+  // a closed session is estimated in the background: resolves once it is (or failed)
+  async function whenEstimated(sessionId, waitedS = 0) {
+    const s = await api(`/api/sessions/${sessionId}`);
+    if (s.processed || s.processing_error || waitedS > 600) return s;
+    await new Promise((resolve) => setTimeout(resolve, 2000));
+    return whenEstimated(sessionId, waitedS + 2);
   }
 
   async function start(id) {
