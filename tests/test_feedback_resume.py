@@ -137,28 +137,35 @@ def test_a_count_runs_from_its_mark_or_from_the_first_estimate_after_a_lost_stat
     """``count_from``: the exercise mark's time for a count that ran since the mark; the
     first estimate's time for one started at a resume that lost the live state (its
     marks read back from the session). A mark sent again is not a new exercise."""
+    import numpy as np
     from armtrack.server.ingest.feedback import Band, FeedbackTracker
 
     bands = {"elbow_flexion": Band("elbow_flexion", 0.0, 120.0)}
 
-    def pose(t: float, deg: float) -> dict:
-        return {"t": t, "angles_deg": {"elbow_flexion": deg}}
+    def pose(t0: float, up: bool = True) -> dict:
+        """A pose at ``t0 + 5`` s whose trace (20 per second) is one elbow flexion to 100°
+        and back from ``t0`` (``up``), or rest."""
+        t = t0 + 0.05 * np.arange(1, 101)
+        deg = (50.0 * (1.0 - np.cos(2 * np.pi * np.clip((t - t0 - 0.5) / 4.0, 0, 1)))
+               if up else np.zeros_like(t))
+        return {"t": float(t[-1]), "angles_deg": {"elbow_flexion": float(deg[-1])},
+                "trace": {"t": t.tolist(), "angles_deg": {"elbow_flexion": deg.tolist()}}}
 
     live = FeedbackTracker(bands, ("elbow_flexion",))
     live.mark(10.5, "exercise:elbow_flexion")
     now = 0.0
-    for i, deg in enumerate([5, 100, 5, 100, 5]):
+    for i in range(2):
         now += 1.0
-        message = live.pose(pose(11.0 + i, deg), now)
+        message = live.pose(pose(10.0 + 5 * i), now)
     assert (message["repetitions"], message["count_from"]) == (2, 10.5)
     live.mark(10.5, "exercise:elbow_flexion")  # sent again after a resume: no new count
-    message = live.pose(pose(16.0, 100), now + 1.0)
+    message = live.pose(pose(20.0), now + 1.0)
     assert (message["repetitions"], message["count_from"]) == (3, 10.5)
 
     lost = FeedbackTracker(bands, ("elbow_flexion",))
     lost.mark(10.5, "exercise:elbow_flexion", stored=True)
-    message = lost.pose(pose(30.0, 100), 1.0)
-    assert (message["repetitions"], message["count_from"]) == (1, 30.0)
+    message = lost.pose(pose(30.0), 1.0)
+    assert (message["repetitions"], message["count_from"]) == (1, 30.05)
     lost.mark(40.0, "end:exercise:elbow_flexion")
-    message = lost.pose(pose(41.0, 5), 2.0)
+    message = lost.pose(pose(36.0, up=False), 2.0)
     assert (message["exercise"], message["count_from"]) == (None, None)

@@ -4,13 +4,16 @@ estimates it computes anyway, the current exercise's angle, its target band and 
 repetitions counted so far, at most ``FEEDBACK_HZ`` times a second. Display only: what is
 stored and reported comes from the stored samples, as for any kit.
 
-A repetition is counted when the exercise's angle, having been in the lower part of its
-band (below ``LOW``, or at the exercise's start), rises into the upper part (above
-``HIGH``): fractions of the band from its ``min_deg`` to its ``max_deg``, so a patient who
-stops short of the top still gets their repetitions counted past two thirds of the way.
-It is counted on the live estimates: each pose carries a ``trace`` of the estimates since
-the previous pose (one per 0.05 s of stream time, ``live/estimator.py``), so a backlog a
-kit sends at once after a lost link is counted like a stream in real time.
+Repetitions are counted by the report's own rule (``estimator.metrics.detect_repetitions``:
+one excursion of the exercise's angle from rest and back is one repetition, each
+direction counting — a turn of the palm down and back is one, up and back another), on the
+catalogue's angle for the exercise (``Band.angle``), causally: a repetition counts once it
+is back at rest. So the kit shows the count the report and the therapist's live page
+(``server/live/motion.py``) give. The target band is shown, not used for counting (the
+report counts an excursion short of the target too). It is counted on the live
+estimates: each pose carries a ``trace`` of the estimates since the previous pose (one per
+0.05 s of stream time, ``live/estimator.py``), so a backlog a kit sends at once after a
+lost link is counted like a stream in real time.
 
 A count runs from its exercise's mark (``count_from``: the mark's time). A stream resumed
 on the server that kept its live side (``endpoint``'s parked live state) goes on with the
@@ -26,12 +29,16 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+from armtrack.estimator.metrics import detect_repetitions
+
 #: Extension name/version as a kit announces it in hello.
 FEEDBACK_EXTENSION = "feedback/1"
 #: Most feedback messages a second.
 FEEDBACK_HZ = 10.0
-#: Fractions of the band: below LOW arms a repetition, above HIGH counts it.
-LOW, HIGH = 0.35, 0.65
+#: Stream seconds of a count's angle kept for recounting: the samples before the end of
+#: a repetition that ended longer ago than this are dropped, its count kept [s].
+KEEP_S = 60.0
 
 
 @dataclass(frozen=True)
@@ -44,21 +51,45 @@ class Band:
 
 
 class RepetitionCounter:
-    """Counts rises from the lower third of a band into its upper third (hysteresis)."""
+    """The report's repetition rule on one exercise's angle since its count began.
+
+    ``add`` appends estimates; ``recount`` applies ``detect_repetitions`` to those of the
+    last ``KEEP_S`` seconds or so (older ones, before a repetition already counted, are
+    let go with their count). A repetition counts once its return to rest is seen; the
+    count shown never goes back (a later sample may move the rest level a little)."""
 
     def __init__(self, band: Band):
-        span = band.max_deg - band.min_deg
-        self.low = band.min_deg + LOW * span
-        self.high = band.min_deg + HIGH * span
+        self.band = band
         self.count = 0
-        self._armed = True  # an exercise starts from rest (its instruction says so)
+        self._t: list[float] = []
+        self._deg: list[float] = []
+        self._committed = 0  # repetitions counted on samples already let go
+        self._stale = False
 
-    def update(self, value: float) -> int:
-        if value <= self.low:
-            self._armed = True
-        elif value >= self.high and self._armed:
-            self._armed = False
-            self.count += 1
+    def add(self, t: np.ndarray, deg: np.ndarray) -> None:
+        """Estimates at stream times ``t`` [s] (n,), the angle [deg] (n,) (NaN: none);
+        times not after the last one kept are ignored."""
+        keep = np.isfinite(deg) & np.isfinite(t)
+        if self._t:
+            keep &= t > self._t[-1]
+        if keep.any():
+            self._t.extend(t[keep].tolist())
+            self._deg.extend(deg[keep].tolist())
+            self._stale = True
+
+    def recount(self) -> int:
+        """The repetitions so far (the report's rule on the samples kept)."""
+        if not self._stale:
+            return self.count
+        self._stale = False
+        t = np.asarray(self._t)
+        reps = detect_repetitions(np.deg2rad(np.asarray(self._deg)), t)
+        self.count = max(self.count, self._committed + len(reps))
+        done = [r for r in reps if r.end_s < t[-1] - KEEP_S]
+        if done:  # let go of the samples before the last repetition long done
+            cut = int(np.searchsorted(t, done[-1].end_s))
+            self._committed += len(done)
+            del self._t[:cut], self._deg[:cut]
         return self.count
 
 
@@ -101,32 +132,49 @@ class FeedbackTracker:
             elif self.exercise is not None and label == f"end:exercise:{self.exercise}":
                 self.exercise, self.counter, self.count_from = None, None, None
 
+    def _count(self, times: np.ndarray, series: Mapping[str, Any], a: int, b: int) -> None:
+        """Give the current count the estimates ``a:b`` of ``series`` at ``times``."""
+        band = self.bands.get(self.exercise) if self.exercise else None
+        if self.counter is None or band is None or band.angle not in series:
+            return
+        deg = np.array([np.nan if v is None else v for v in series[band.angle][a:b]],
+                       dtype=float)
+        finite = np.flatnonzero(np.isfinite(deg))
+        if not finite.size:
+            return
+        if self.count_from is None:
+            self.count_from = float(times[finite[0]])
+        self.counter.add(times, deg)
+
     def pose(self, pose: Mapping[str, Any], now: float) -> dict[str, Any] | None:
         """The feedback message for a live ``pose`` update (``now``: monotonic [s]). The
         repetitions count on the pose's ``trace`` (the estimates since the last pose, a
         few per second of stream time: a backlog counts like a live stream), then on the
         pose itself."""
         trace = pose.get("trace") or {}
-        times = trace.get("t") or []
+        times = np.asarray(trace.get("t") or [], dtype=float)
         series = trace.get("angles_deg") or {}
-        for i, ti in enumerate(times):  # at most 20 a second of stream time
-            self._pass_marks(float(ti))
-            band = self.bands.get(self.exercise) if self.exercise else None
-            if self.counter is not None and band is not None and band.angle in series:
-                value = series[band.angle][i]
-                if value is not None and math.isfinite(value):
-                    if self.count_from is None:
-                        self.count_from = float(ti)
-                    self.counter.update(value)
         t = float(pose["t"])
-        self._pass_marks(t)
         angles = pose.get("angles_deg") or {}
+        # the trace, then the pose itself (when it is newer), cut at the marks they pass
+        if not times.size or t > times[-1]:
+            times = np.append(times, t)
+            series = {k: [*(series.get(k) or [None] * (times.size - 1)), angles.get(k)]
+                      for k in set(series) | set(angles)}
+        first = 0
+        while first < times.size:
+            upto = (int(np.searchsorted(times, self._marks[0][0], side="left"))
+                    if self._marks else times.size)
+            if upto <= first:  # the next mark takes effect at this estimate
+                self._pass_marks(float(times[first]))
+                upto = (int(np.searchsorted(times, self._marks[0][0], side="left"))
+                        if self._marks else times.size)
+                upto = max(upto, first + 1)
+            self._count(times[first:upto], series, first, upto)
+            first = upto
+        self._pass_marks(t)
         band = self.bands.get(self.exercise) if self.exercise else None
         value = angles.get(band.angle) if band is not None else None
-        if self.counter is not None and value is not None and math.isfinite(value):
-            if self.count_from is None:
-                self.count_from = t
-            self.counter.update(value)
         if now - self._last_sent_t < 1.0 / FEEDBACK_HZ:
             return None
         self._last_sent_t = now
@@ -135,7 +183,7 @@ class FeedbackTracker:
             "angle": None if band is None else band.angle,
             "angle_deg": value if value is not None and math.isfinite(value) else None,
             "target": None if band is None else [band.min_deg, band.max_deg],
-            "repetitions": 0 if self.counter is None else self.counter.count,
+            "repetitions": 0 if self.counter is None else self.counter.recount(),
             "count_from": self.count_from if self.exercise is not None else None,
             "angles_deg": {k: v for k, v in angles.items() if k in self.measured
                            and v is not None and math.isfinite(v)},

@@ -9,7 +9,9 @@ without an exercise mark, the report's grouping of detected movements), so the c
 the live page is the count the report will give:
 
 * an exercise mark open (``exercise:<name>``): its repetitions since the mark, of the
-  angle it names (``exercise:elbow_flexion``) or else of its leading angle;
+  catalogue's angle for it (``programs/catalogue.py``: ``pronation`` on
+  ``forearm_pronation``, ``shoulder_flexion`` on ``shoulder_elevation``, as the kit's
+  feedback counts it), else of the angle it names, else of its leading angle;
 * no mark: the latest detected movement (``reports.content.detected_groups``) still
   going on (its last repetition less than ``GROUP_GAP_S`` ago), named as the report
   names it.
@@ -30,6 +32,7 @@ import numpy as np
 from armtrack.estimator.arm.joints import REPORTED_ANGLES
 from armtrack.estimator.metrics import detect_repetitions
 
+from ..programs.catalogue import exercise as catalogue_exercise
 from ..reports.words import exercise_words as words
 
 #: Seconds of poses kept per watched patient.
@@ -167,7 +170,9 @@ def current_exercise(motion: MotionWatch, session_id: int, mark: dict[str, Any] 
             continue
         found[angle] = detect_repetitions(column, t, include=include)
     if mark:
-        angle = mark["name"] if mark["name"] in found else _leading(found)
+        entry = catalogue_exercise(mark["name"])
+        angle = (entry.angle if entry is not None and entry.angle in found
+                 else mark["name"] if mark["name"] in found else _leading(found))
         return {"name": mark["name"], "label": words(mark["name"]), "source": "marks",
                 "since_s": mark["t"], "angle": angle, "counted_to_s": counted_to,
                 "repetitions": len(found.get(angle, ())) if angle else 0}

@@ -1,0 +1,121 @@
+"""One repetition count (issue 22): the kit's live count (``feedback/1``), the therapist's
+live page (``GET /api/patients/{id}/live`` → ``exercise``) and the session report count an
+exercise by the same rule — the report's (``estimator.metrics.detect_repetitions``: one
+excursion from rest and back is one repetition, each direction counting) — on the
+catalogue's angle for the exercise (``server/programs/catalogue.py``).
+
+Before: the kit counted rises from the lower third of the target band into its upper
+third, so a "Turn the palm" exercise (palm down ×N, then up ×N, from a thumb-up rest in
+the middle of the band −70..70°) was 1 on the phone while the report said 2N.
+
+A real server, a real WebSocket client, the live estimation process; the simulated phone
+streams at 2× real time."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import time
+from dataclasses import replace
+
+import pytest
+from armtrack.estimator.recording import Mark
+from armtrack.estimator.simulation import ImuErrors, SimulationConfig, simulate
+from armtrack.server.emulator import MessagePlan, hello_message
+from armtrack.server.programs.catalogue import CATALOGUE
+from server_support import ServerProcess
+from websockets.asyncio.client import connect
+
+SPEED = 2.0
+MARK_S = 10.5  # the simulator's exercise starts at 11 s
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    process = ServerProcess(tmp_path_factory.mktemp("one_count"))
+    process.create_user("alice")
+    process.start(timeout=180)
+    yield process
+    process.stop()
+
+
+def _simulation(exercise: str, turns: int):
+    config = SimulationConfig(exercise=exercise, sensors=("forearm",), rate_hz=60.0,
+                              nine_axis=False, seed=3, jitter_s=0.003, repetitions=turns,
+                              errors=ImuErrors(gyro_noise=0.01, acc_noise=0.1),
+                              gyro_bias_max=0.02, mount_axial_deg=30.0)
+    sim = simulate(config)
+    end = float(sim.recording.sensors["forearm"].t[-1]) - 0.5
+    marks = (*sim.recording.marks, Mark(MARK_S, f"exercise:{exercise}"),
+             Mark(end, f"end:exercise:{exercise}"))
+    return sim, replace(sim.recording, marks=tuple(sorted(marks, key=lambda m: m.t)))
+
+
+@pytest.mark.parametrize("exercise,turns", [("pronation", 2), ("elbow_flexion", 4)])
+def test_the_kit_the_live_page_and_the_report_give_one_count(server, exercise, turns):
+    angle = CATALOGUE[exercise].angle
+    sim, recording = _simulation(exercise, turns)
+    truth = len(sim.truth.repetitions(angle))
+    api = server.client("alice")
+    patient = api.patient(f"One count {exercise}")
+    device = api.device(patient["id"], "phone")
+    plan = MessagePlan(recording, rows_per_message=6)
+    feedback: list[dict] = []
+    page: list[dict] = []
+
+    async def reader(ws):
+        async for raw in ws:
+            message = json.loads(raw)
+            if message["type"] == "feedback":
+                feedback.append(message)
+
+    async def poll_live_page():  # a therapist's page open: the live side watches
+        while True:
+            await asyncio.to_thread(api.http.get, f"/api/patients/{patient['id']}/live")
+            await asyncio.sleep(1.0)
+
+    async def run():
+        watching = asyncio.create_task(poll_live_page())
+        hello = {**hello_message(recording, "phone"), "extensions": ["feedback/1"]}
+        async with connect(f"{server.ws_url}?token={device['token']}") as ws:
+            await ws.send(json.dumps(hello))
+            ready = json.loads(await ws.recv())
+            task = asyncio.create_task(reader(ws))
+            start, origin = time.monotonic(), plan.times[0]
+            for seq in range(len(plan)):
+                if seq and plan.times[seq] >= MARK_S - 0.1 > plan.times[seq - 1]:
+                    for _ in range(1200):  # the live estimation may start slowly
+                        if feedback:
+                            break
+                        await asyncio.sleep(0.1)
+                    start, origin = time.monotonic(), plan.times[seq]
+                await asyncio.sleep(max(0.0, start + (plan.times[seq] - origin) / SPEED
+                                        - time.monotonic()))
+                await ws.send(plan.encode(seq))
+            for _ in range(60):  # the live side catches up with the end of the stream
+                await asyncio.sleep(0.25)
+                live = await asyncio.to_thread(
+                    api.http.get, f"/api/patients/{patient['id']}/live")
+                status = live.json()
+                if (status.get("exercise") and status["exercise"]["counted_to_s"]
+                        and status["exercise"]["counted_to_s"] >= plan.times[-1] - 1.0):
+                    break
+            watching.cancel()
+            page.append(status.get("exercise") or {})
+            await ws.send(json.dumps({"type": "bye"}))
+            await asyncio.wait_for(task, 30)
+        return ready
+
+    ready = asyncio.run(run())
+    kit = max((m["repetitions"] for m in feedback if m["exercise"] == exercise), default=0)
+    live_page = page[0].get("repetitions")
+    api.wait_processed(ready["session"], timeout=120)
+    report = api.http.get(f"/api/sessions/{ready['session']}/report").json()
+    (marked,) = [e for e in report["exercises"] if e["name"] == exercise]
+    reported = next((a["repetitions"] for a in marked["angles"] if a["angle"] == angle), 0)
+    print(f"\n{exercise} ({angle}), {truth} simulated: kit {kit}, live page {live_page} "
+          f"(on {page[0].get('angle')}), report {reported}")
+    assert reported == truth
+    assert page[0].get("angle") == angle
+    assert kit == reported
+    assert live_page == reported
