@@ -68,12 +68,34 @@ def test_coverage_of_single_sensor_kits():
     assert set(assumptions(("trunk", "upper_arm", "forearm"))) == set()
 
 
-def test_repetitions_count_rises_into_the_upper_part_of_the_band():
-    counter = RepetitionCounter(Band("elbow_flexion", 0.0, 120.0))
-    for value in [90, 100, 60, 30, 10, 85, 70, 82, 20, 79, 5]:
-        counter.update(value)
-    # the start→90 counts, 10→85 counts; 70→82 does not (never back below 42), 20→79 does
-    assert counter.count == 3
+def test_the_live_counter_is_the_reports_rule_counted_once_back_at_rest():
+    """Issue 22: the kit's counter is ``detect_repetitions`` (the report's rule), applied
+    as the estimates come: pronation, supination, a flexion that turns back without
+    reaching rest (one), a wobble under 10° (none) — each counted once back at rest."""
+    import numpy as np
+    from armtrack.estimator.metrics import detect_repetitions
+
+    def excursion(peaks_deg, seconds=4.0):  # rest → peaks → rest, smooth, at 20 Hz
+        knots = np.array([0.0, *peaks_deg, 0.0])
+        x = np.linspace(0, len(knots) - 1, int(seconds * 20))
+        i = np.minimum(x.astype(int), len(knots) - 2)
+        f = 0.5 - 0.5 * np.cos(np.pi * (x - i))
+        return np.concatenate([knots[i] + (knots[i + 1] - knots[i]) * f, np.zeros(30)])
+
+    deg = np.concatenate([np.zeros(40), excursion([70]), excursion([-65]),
+                          excursion([70, 35, 70], 6.0), excursion([6]), excursion([-70])])
+    t = 0.05 * np.arange(deg.size)
+    counter = RepetitionCounter(Band("forearm_pronation", -70.0, 70.0))
+    shown = []
+    for a in range(0, deg.size, 7):  # poses of 7 estimates
+        counter.add(t[a:a + 7], deg[a:a + 7])
+        shown.append(counter.recount())
+        reps = detect_repetitions(np.deg2rad(deg[:a + 7]), t[:a + 7])
+        assert shown[-1] == len(reps)  # the report's count of what has come so far
+    peak = int(np.argmax(deg[:120]))  # at the first turn's peak: not yet counted
+    assert shown[peak // 7] == 0
+    assert shown[-1] == 4 == len(detect_repetitions(np.deg2rad(deg), t))
+    assert shown == sorted(shown)
 
 
 def test_device_today_default_then_the_therapists_target(module_server):
