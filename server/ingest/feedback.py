@@ -36,8 +36,9 @@ from armtrack.estimator.metrics import detect_repetitions
 FEEDBACK_EXTENSION = "feedback/1"
 #: Most feedback messages a second.
 FEEDBACK_HZ = 10.0
-#: Stream seconds of a count's angle kept for recounting: the samples before the end of
-#: a repetition that ended longer ago than this are dropped, its count kept [s].
+#: Stream seconds of a count's angle kept for recounting: once twice this is kept, the
+#: samples before a repetition that ended longer ago than this are let go, their count
+#: kept [s].
 KEEP_S = 60.0
 
 
@@ -85,9 +86,13 @@ class RepetitionCounter:
         t = np.asarray(self._t)
         reps = detect_repetitions(np.deg2rad(np.asarray(self._deg)), t)
         self.count = max(self.count, self._committed + len(reps))
+        if t[-1] - t[0] < 2 * KEEP_S:
+            return self.count
         done = [r for r in reps if r.end_s < t[-1] - KEEP_S]
-        if done:  # let go of the samples before the last repetition long done
-            cut = int(np.searchsorted(t, done[-1].end_s))
+        if done:  # let go of the samples before the last repetition long done: cut in
+            # the rest between it and the next (so that the next starts from rest)
+            after = reps[len(done)].start_s if len(reps) > len(done) else t[-1] - KEEP_S
+            cut = int(np.searchsorted(t, 0.5 * (done[-1].end_s + after)))
             self._committed += len(done)
             del self._t[:cut], self._deg[:cut]
         return self.count
