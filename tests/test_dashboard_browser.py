@@ -136,6 +136,10 @@ def test_the_dashboard_reaches_progress_targets_record_interrupted_and_erasure(
         box = page.locator("#progress-card svg.progress-chart").first.bounding_box()
         print(f"progress chart at {width}: {box['width']:.0f} x {box['height']:.0f} px")
         assert box["width"] <= width and box["height"] > 50
+        # its axis text readable on a phone too: drawn at the shown width, not scaled down
+        tick = page.locator("#progress-card svg.progress-chart text.tick").first.bounding_box()
+        print(f"axis label at {width}: {tick['height']:.1f} px high")
+        assert tick["height"] >= 9, f"axis labels {tick['height']:.1f} px high at {width} px"
 
     page.set_viewport_size({"width": 1366, "height": 900})
 

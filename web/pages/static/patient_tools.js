@@ -26,7 +26,11 @@ const PatientTools = (() => {
 
   // ------------------------------------------------------------ progress
   function chart(angle, rows, normal, today) {
-    const W = 560, H = 220, L = 46, R = 12, T = 14, B = 34;
+    // drawn at the width it is shown (a phone's ~330 px too), so its 11 px text stays 11 px
+    const room = (document.getElementById("tools") || {}).clientWidth || 0;
+    const W = room ? Math.round(Math.min(560, Math.max(280, room - 36))) : 560;
+    const H = 220, L = 46, R = 12, T = 14, B = 34;
+    const dateLabels = W < 450 ? 6 : 12;
     const values = [];
     for (const r of rows) { values.push(r.rom.min, r.rom.max); if (r.rom.target_max !== null) values.push(r.rom.target_min, r.rom.target_max); }
     if (normal) values.push(normal[0], normal[1]);
@@ -57,7 +61,7 @@ const PatientTools = (() => {
       g.append(svg("rect", { x: cx - 5, width: 10, y: y(r.rom.max), height: Math.max(2, y(r.rom.min) - y(r.rom.max)), rx: 3,
         fill: "var(--accent)", class: "session-bar" }, svg("title", {}, `${fmtDate(r.started_at)}: ${deg(r.rom.min)} to ${deg(r.rom.max)}`
           + (r.rom.percent_of_normal !== null ? `, ${Math.round(r.rom.percent_of_normal)} % of normal` : ""))));
-      if (n <= 12 || i % Math.ceil(n / 12) === 0) g.append(svg("text", { x: cx, y: H - 12, "text-anchor": "middle", class: "tick" },
+      if (n <= dateLabels || i % Math.ceil(n / dateLabels) === 0) g.append(svg("text", { x: cx, y: H - 12, "text-anchor": "middle", class: "tick" },
         fmtDate(r.started_at, { dateOnly: true }).replace(/,? \d{4}$/, "")));
     });
     return g;
