@@ -16,6 +16,7 @@ from armtrack.estimator.orientation import DEFAULT_FILTER
 from armtrack.estimator.pipeline import Calibration, Estimates, run_recording
 from armtrack.estimator.pipeline.quality import residual_warnings
 from armtrack.estimator.recording import Recording
+from armtrack.estimator.recording.mismatch import recording_mismatch
 from armtrack.estimator.rotations import matrix_to_quat
 from sqlalchemy import delete, select
 from sqlalchemy.orm import Session as DbSession
@@ -78,6 +79,9 @@ def process_session(db: DbSession, session_id: int, filter_name: str = DEFAULT_F
         session.estimator = {"version": estimator_version(), "filter": filter_name}
         db.commit()
         return
+    patient = db.get(models.Patient, session.patient_id)
+    if patient is not None:  # an uploaded file whose body differs from the record
+        warnings = [*record_mismatch_warnings(recording, patient), *warnings]
     # the writes, in one short transaction
     db.execute(delete(models.EstimateBlock).where(models.EstimateBlock.session_id == session_id))
     if blocks:
@@ -94,6 +98,19 @@ def process_session(db: DbSession, session_id: int, filter_name: str = DEFAULT_F
     session.estimate_columns = columns
     session.processing_error = None
     db.commit()
+
+
+def record_mismatch_warnings(recording: Recording, patient: models.Patient) -> list[str]:
+    """A warning in words when the session's side or body height (an uploaded file's
+    header) differs from the patient's record: it was processed as the file says, and the
+    therapist decides which is right (edit the record, or upload again with the record's)."""
+    problems = recording_mismatch(recording, patient.side, patient.height_m)
+    if not problems:
+        return []
+    return ["This recording differs from the patient's record: " + "; ".join(problems)
+            + ". It was processed as the file says; if the record is right, upload the file "
+            "again with the record's side and height (the upload dialog offers it), or "
+            "correct the record."]
 
 
 def _estimated_blocks(recording: Recording, filter_name: str, session_id: int
