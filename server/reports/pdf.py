@@ -17,6 +17,7 @@ pyplot state, so requests may draw at once in threads). A4 portrait, four pages:
 from __future__ import annotations
 
 import io
+import textwrap
 from collections.abc import Sequence
 from datetime import UTC, datetime
 
@@ -27,6 +28,7 @@ from matplotlib.figure import Figure
 
 from .content import SessionData, SessionReport
 from .pdf_summary import Letterhead, local, style_table, summary_page
+from .words import exercise_words
 
 # Names and notes are a user's text: "$…$" in a patient's name is no formula (mathtext made
 # such a name fail the whole PDF, issue 17). Set once for the process, not per call with
@@ -219,13 +221,17 @@ def _angles_page(fig: Figure, report: SessionReport, data: SessionData) -> None:
         ax.set_xlim(float(t[0]) if t.size else 0, float(t[-1]) if t.size else 1)
 
 
+#: Characters on a line of the appendix (7 pt across the page's 0.87 width).
+APPENDIX_CHARS = 150
+
+
 def _details_page(fig: Figure, report: SessionReport) -> None:
     fig.text(0.06, 0.92, "Repetitions and smoothness", fontsize=11, weight="bold")
     header = ["Exercise", "Angle", "Reps", "Amplitude", "Move time", "Peak vel.",
               "SPARC", "LDLJ", "CV ampl.", "CV time"]
     rows = []
     for k, exercise in enumerate(report.exercises, 1):
-        name = f"{k}. " + exercise.name.replace("shoulder_", "sh. ").replace("_", " ")
+        name = f"{k}. {exercise_words(exercise.name)}"
         name = name if len(name) <= 40 else name[:39] + "…"
         for a in exercise.angles:
             main = max(a.consistency, key=lambda c: c.repetitions, default=None)
@@ -282,8 +288,11 @@ def _details_page(fig: Figure, report: SessionReport) -> None:
                                   or "–") + f"; kit: {report.session.kit or 'uploaded file'}")
     lines += [f"Warning: {w}" for w in q.warnings] or ["No warnings."]
     y -= 0.025
-    for line in lines[: max(1, int((y - 0.05) / 0.016))]:
-        fig.text(0.07, y, line, fontsize=7, wrap=True, color="#333")
+    # wrapped here (matplotlib's wrap=True overlaps the next line), a line per 0.016
+    wrapped = [part for line in lines
+               for part in textwrap.wrap(line, APPENDIX_CHARS, subsequent_indent="  ")]
+    for line in wrapped[: max(1, int((y - 0.05) / 0.016))]:
+        fig.text(0.07, y, line, fontsize=7, color="#333")
         y -= 0.016
 
 

@@ -190,7 +190,7 @@ def summary_page(fig: Figure, report: SessionReport, letterhead: Letterhead,
         ax = fig.add_axes((0.06, y - height, 0.88, height))
         ax.axis("off")
         table = ax.table(cellText=table_rows, colLabels=header, cellLoc="center",
-                         colWidths=[0.2, 0.14, 0.1, 0.2, 0.26, 0.1], bbox=(0, 0, 1, 1))
+                         colWidths=[0.19, 0.13, 0.13, 0.2, 0.25, 0.1], bbox=(0, 0, 1, 1))
         style_table(table)
         y -= height + 0.02
     else:
