@@ -214,12 +214,16 @@ def test_the_patient_follows_the_program_on_the_phone(kit_server, phone, shots):
           f"repetitions counted {counted}, week {week['week']}: done {week['done']} of "
           f"{week['prescribed']} ({week['adherence_percent']} %)")
     # what the simulation did: 2 × 3 elbow flexions (each set ended by the kit after the
-    # last one came back), 2 palm turns down and 2 up (the report counts each turn out and
-    # back one way: 2 per simulated one, as test_programs_followed.py)
-    assert counted == {"elbow_flexion": ELBOW_SETS * ELBOW_REPS, "pronation": 2 * PALM_REPS}
+    # last one came back), then palm turns; the kit counts by the report's rule (each turn
+    # out and back one way is one, as test_programs_followed.py and
+    # test_one_repetition_count.py), so it ends the palm set once the prescribed 2 are in
+    # (the simulated patient goes on turning after the set's end: not counted)
+    assert counted == {"elbow_flexion": ELBOW_SETS * ELBOW_REPS, "pronation": PALM_REPS}
+    palm_end = next(t for label, t in timed if label == "end:exercise:pronation")
+    assert palm_end < timeline.palm[1], "the palm set ended by the kit's count"
     assert week["done"]["sessions"] == 1 and week["done"]["days"] == 1
     assert week["done"]["exercises"] == 2
-    assert week["done"]["repetitions"] == ELBOW_SETS * ELBOW_REPS + 2 * PALM_REPS
+    assert week["done"]["repetitions"] == ELBOW_SETS * ELBOW_REPS + PALM_REPS
     assert [(p["session_id"], p["pain"], p["effort"]) for p in followed["pain"]] == [
         (session_id, 3, 6.0)]  # the session's highest, docs/programs.md
     assert np.isfinite(week["adherence_percent"])

@@ -163,7 +163,9 @@ def test_hostile_texts_are_shown_as_text_and_run_nothing(srv, hostile, browser, 
         frame = page.frame_locator("#viewer-frame")
         canvas = frame.locator("canvas").first
         sync_api.expect(canvas).to_be_visible(timeout=60_000)
-        # the panel's heading shows the name literally, markup and all
+        # the panel starts minimised to its title ("Replay controls"): opened, its heading
+        # shows the name literally, markup and all
+        frame.get_by_text("Replay controls").click(timeout=60_000)
         sync_api.expect(frame.locator("body")).to_contain_text(STEAL, timeout=30_000)
         sync_api.expect(frame.locator("body")).to_contain_text("**bold** $x$")
         page.wait_for_timeout(2000)  # time for anything injected to run
