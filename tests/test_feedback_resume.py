@@ -16,6 +16,7 @@ import time
 from dataclasses import replace
 
 import pytest
+from armtrack.estimator.arm.joints import REPORTED_ANGLES
 from armtrack.estimator.recording import Mark
 from armtrack.estimator.simulation import ImuErrors, SimulationConfig, simulate
 from armtrack.server.emulator import MessagePlan, hello_message
@@ -143,13 +144,15 @@ def test_a_count_runs_from_its_mark_or_from_the_first_estimate_after_a_lost_stat
     bands = {"elbow_flexion": Band("elbow_flexion", 0.0, 120.0)}
 
     def pose(t0: float, up: bool = True) -> dict:
-        """A pose at ``t0 + 5`` s whose trace (20 per second) is one elbow flexion to 100°
-        and back from ``t0`` (``up``), or rest."""
+        """A pose at ``t0 + 5`` s whose trail (20 per second, rows in ``REPORTED_ANGLES``
+        order) is one elbow flexion to 100° and back from ``t0`` (``up``), or rest."""
         t = t0 + 0.05 * np.arange(1, 101)
         deg = (50.0 * (1.0 - np.cos(2 * np.pi * np.clip((t - t0 - 0.5) / 4.0, 0, 1)))
                if up else np.zeros_like(t))
         return {"t": float(t[-1]), "angles_deg": {"elbow_flexion": float(deg[-1])},
-                "trace": {"t": t.tolist(), "angles_deg": {"elbow_flexion": deg.tolist()}}}
+                "trail": {"t": t.tolist(), "angles_deg": [
+                    [d if a == "elbow_flexion" else 0.0 for a in REPORTED_ANGLES]
+                    for d in deg.tolist()]}}
 
     live = FeedbackTracker(bands, ("elbow_flexion",))
     live.mark(10.5, "exercise:elbow_flexion")

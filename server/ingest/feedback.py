@@ -11,8 +11,8 @@ catalogue's angle for the exercise (``Band.angle``), causally: a repetition coun
 is back at rest. So the kit shows the count the report and the therapist's live page
 (``server/live/motion.py``) give. The target band is shown, not used for counting (the
 report counts an excursion short of the target too). It is counted on the live
-estimates: each pose carries a ``trace`` of the estimates since the previous pose (one per
-0.05 s of stream time, ``live/estimator.py``), so a backlog a kit sends at once after a
+estimates: each pose carries the ``trail`` of the estimates since the previous pose (25 per
+second of stream time, ``live/estimator.py``; docs/extensions/live-exercise.md), so a backlog a kit sends at once after a
 lost link is counted like a stream in real time.
 
 A count runs from its exercise's mark (``count_from``: the mark's time). A stream resumed
@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from armtrack.estimator.arm.joints import REPORTED_ANGLES
 from armtrack.estimator.metrics import detect_repetitions
 
 #: Extension name/version as a kit announces it in hello.
@@ -153,15 +154,17 @@ class FeedbackTracker:
 
     def pose(self, pose: Mapping[str, Any], now: float) -> dict[str, Any] | None:
         """The feedback message for a live ``pose`` update (``now``: monotonic [s]). The
-        repetitions count on the pose's ``trace`` (the estimates since the last pose, a
-        few per second of stream time: a backlog counts like a live stream), then on the
+        repetitions count on the pose's ``trail`` (the estimates since the last pose, 25
+        per second of stream time: a backlog counts like a live stream), then on the
         pose itself."""
-        trace = pose.get("trace") or {}
-        times = np.asarray(trace.get("t") or [], dtype=float)
-        series = trace.get("angles_deg") or {}
+        trail = pose.get("trail") or {}
+        times = np.asarray(trail.get("t") or [], dtype=float)
+        rows = trail.get("angles_deg") or []  # in REPORTED_ANGLES order (live-exercise.md)
+        series = ({name: [row[i] for row in rows] for i, name in enumerate(REPORTED_ANGLES)}
+                  if rows else {})
         t = float(pose["t"])
         angles = pose.get("angles_deg") or {}
-        # the trace, then the pose itself (when it is newer), cut at the marks they pass
+        # the trail, then the pose itself (when it is newer), cut at the marks they pass
         if not times.size or t > times[-1]:
             times = np.append(times, t)
             series = {k: [*(series.get(k) or [None] * (times.size - 1)), angles.get(k)]

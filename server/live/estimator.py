@@ -23,48 +23,6 @@ CALIBRATION_TAIL_S = 2.5
 #: Stream seconds after which a sensor named in hello that sent nothing is left out of
 #: the live estimates (the others would wait for it for ever).
 SILENT_SENSOR_S = 10.0
-#: The pose's ``trace``: the estimates since the last pose, one per TRACE_DT_S of stream
-#: time [s], at most TRACE_MAX of them (the oldest go) — what the kit feedback counts
-#: repetitions on, so a backlog sent at once after a lost link is counted like a live
-#: stream (a pose goes out at most ``max_rate_hz`` times a second of wall time).
-TRACE_DT_S = 0.05
-TRACE_MAX = 2400
-
-
-class Trace:
-    """Estimates decimated to one per ``TRACE_DT_S`` of stream time, kept until taken."""
-
-    def __init__(self) -> None:
-        self._t: list[np.ndarray] = []
-        self._angles: list[np.ndarray] = []
-        self._count = 0
-        self._last_slot = -np.inf
-
-    def add(self, t: np.ndarray, radians: np.ndarray) -> None:
-        """Estimates at times ``t`` (n,) [s], angles (n, len(REPORTED_ANGLES)) [rad]."""
-        slots = np.floor(t / TRACE_DT_S)
-        keep = np.flatnonzero(np.diff(slots, prepend=self._last_slot) > 0)
-        if not keep.size:
-            return
-        self._last_slot = float(slots[keep[-1]])
-        self._t.append(t[keep])
-        self._angles.append(radians[keep])
-        self._count += keep.size
-        while self._count > TRACE_MAX and len(self._t) > 1:
-            self._count -= self._t.pop(0).size
-            self._angles.pop(0)
-
-    def take(self) -> dict[str, object]:
-        """``{"t": [s…], "angles_deg": {name: [deg…]}}`` since the last take (NaN: null)."""
-        if not self._t:
-            return {"t": [], "angles_deg": {}}
-        t = np.concatenate(self._t)[-TRACE_MAX:]
-        deg = np.rad2deg(np.concatenate(self._angles)[-TRACE_MAX:])
-        self._t, self._angles, self._count = [], [], 0
-        values = np.where(np.isfinite(deg), np.round(deg, 2), np.nan)
-        return {"t": np.round(t, 4).tolist(),
-                "angles_deg": {name: [None if v != v else v for v in values[:, i].tolist()]
-                               for i, name in enumerate(REPORTED_ANGLES)}}
 #: Rate of the angle trail a pose carries [Hz, on the stream's clock]: every estimate
 #: since the previous pose, thinned to this rate. The live repetition count
 #: (``server/live/motion.py``) reads the trail, not the poses, which come one per batch
@@ -74,6 +32,10 @@ class Trace:
 TRAIL_HZ = 25.0
 #: Decimals of the trail's angles [deg]: 0.01° is far below any estimate's accuracy.
 TRAIL_DECIMALS = 2
+#: The most estimates a trail keeps until taken (the oldest go): two minutes at
+#: ``TRAIL_HZ``, for a backlog sent at once after a lost link (the kit's feedback counts
+#: its repetitions on the trail too, so a backlog counts like a live stream).
+TRAIL_MAX = 3000
 
 
 class RunningRange:
@@ -151,6 +113,7 @@ class AngleTrail:
         self._last_slot = -np.inf
         self._t: list[np.ndarray] = []
         self._angles: list[np.ndarray] = []
+        self._count = 0
 
     def add(self, t: np.ndarray, radians: np.ndarray) -> None:
         """Estimates at times ``t`` [s] (n,), angles ``radians`` (n, len(REPORTED_ANGLES))."""
@@ -162,14 +125,19 @@ class AngleTrail:
             self._t.append(np.asarray(t)[keep])
             self._angles.append(radians[keep])
             self._last_slot = float(slots[keep][-1])
+            self._count += int(keep.sum())
+            while self._count > TRAIL_MAX and len(self._t) > 1:
+                self._count -= self._t.pop(0).size
+                self._angles.pop(0)
 
     def take(self) -> tuple[list[float], list[list[float | None]]]:
         """The kept times [s] and angles [deg] (rows in ``REPORTED_ANGLES`` order; a NaN
         stays NaN, which the pose's JSON writes as null), then forgets them."""
         if not self._t:
             return [], []
-        t, angles = np.concatenate(self._t), np.vstack(self._angles)
-        self._t, self._angles = [], []
+        t = np.concatenate(self._t)[-TRAIL_MAX:]
+        angles = np.vstack(self._angles)[-TRAIL_MAX:]
+        self._t, self._angles, self._count = [], [], 0
         return t.tolist(), np.round(np.rad2deg(angles), TRAIL_DECIMALS).tolist()
 
 
@@ -187,7 +155,6 @@ class LiveEstimator:
         self.warnings: list[str] = []
         self._dropped: set[str] = set()
         self.estimates = 0
-        self.trace = Trace()
         self._first_t = np.inf
         self._last_pose = -np.inf  # monotonic time the last pose was returned
         self._trail = AngleTrail(TRAIL_HZ)
@@ -231,7 +198,6 @@ class LiveEstimator:
             return None
         self.estimates += len(estimates.t)
         self.rom.update(estimates.t, estimates.angles)
-        self.trace.add(estimates.t, estimates.angles)
         self._trail.add(estimates.t, estimates.angles)
         now = time.monotonic()
         if now - self._last_pose < self._min_interval:
@@ -248,7 +214,6 @@ class LiveEstimator:
                            for s, rows in zip(SEGMENTS, segments, strict=True)},
             "rom_deg": self.rom.as_dict(),
             "estimates": self.estimates,
-            "trace": self.trace.take(),
             "warnings": list(self.warnings),
             "trail": {"t": trail_t, "angles_deg": trail_deg},
             **({"elbow_source": pipeline.elbow_source} if pipeline.gamma is not None else {}),
