@@ -12,8 +12,8 @@ is back at rest. So the kit shows the count the report and the therapist's live 
 (``server/live/motion.py``) give. The target band is shown, not used for counting (the
 report counts an excursion short of the target too). It is counted on the live
 estimates: each pose carries the ``trail`` of the estimates since the previous pose (25 per
-second of stream time, ``live/estimator.py``; docs/extensions/live-exercise.md), so a backlog a kit sends at once after a
-lost link is counted like a stream in real time.
+second of stream time, ``live/estimator.py``; docs/extensions/live-exercise.md), so a
+backlog a kit sends at once after a lost link is counted like a stream in real time.
 
 A count runs from its exercise's mark (``count_from``: the mark's time). A stream resumed
 on the server that kept its live side (``endpoint``'s parked live state) goes on with the
