@@ -7,7 +7,8 @@ elbow flexion and pronation (forearm phone) and shoulder flexion, abduction and 
 over a minute (upper-arm phone).
 
 Each case prints its RMSE per seed (each seed draws its own mounting, biases, noise,
-jitter and repeated stamps). The cases the estimator does not meet yet are marked
+jitter and repeated stamps), on seeds 0–5 and again on seeds 6–15 that no tuning looked
+at. The cases the estimator does not meet yet are marked
 ``xfail(strict=True)`` with the figures (issue 19's note); when they pass, the mark goes."""
 
 from __future__ import annotations
@@ -17,25 +18,29 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from armtrack.estimator.orientation import FILTERS, QcfParams, QuaternionComplementaryFilter
 from armtrack.estimator.pipeline import estimate_recording
 from armtrack.estimator.recording import SensorStream
 from armtrack.estimator.simulation import SCORED_FROM_S, ImuErrors, SimulationConfig, simulate
 
 BAR_DEG = 2.0
 SEEDS = (0, 1, 2, 3, 4, 5)
+#: The single-phone cases also run on seeds nobody looked at while the estimator was tuned
+#: on 0–5 (issue 19's check that nothing was fitted to them).
+UNSEEN_SEEDS = tuple(range(6, 16))
 #: Share of readings stamped like the one before (phones deliver readings in bursts).
 REPEATED_SHARE = 0.03
 
 
 def phone_like(exercise: str, sensor: str, seed: int, repetitions: int | None = None,
-               side: str = "right"):
+               side: str = "right", gyro_bias_max: float = 0.02):
     """A phone on ``sensor`` of the ``side`` arm doing ``exercise``; its recording with
-    repeated stamps."""
+    repeated stamps. (``gyro_bias_max`` 0: no bias; the same noise, mounting and stamps.)"""
     rng = np.random.default_rng(1000 + seed)
     config = SimulationConfig(
         exercise=exercise, sensors=(sensor,), side=side, rate_hz=60.0, nine_axis=False,
         seed=seed,
-        errors=ImuErrors(gyro_noise=0.01, acc_noise=0.1), gyro_bias_max=0.02,
+        errors=ImuErrors(gyro_noise=0.01, acc_noise=0.1), gyro_bias_max=gyro_bias_max,
         jitter_s=float(rng.uniform(0.002, 0.005)), mount_axial_deg=60.0,
         repetitions=repetitions)
     sim = simulate(config)
@@ -50,7 +55,7 @@ def phone_like(exercise: str, sensor: str, seed: int, repetitions: int | None = 
     return recording, sim.truth, len(repeated)
 
 
-@functools.lru_cache(maxsize=32)
+@functools.lru_cache(maxsize=256)
 def _errors(exercise: str, sensor: str, seed: int, repetitions, side: str) -> dict:
     """Every angle's RMSE [°] against the truth after the poses (one run for all)."""
     recording, truth, _ = phone_like(exercise, sensor, seed, repetitions, side)
@@ -74,11 +79,14 @@ def _pending(reason: str):
 
 
 SIDE_RAISE_FLEXION = (
-    "measured 1.2–2.7° (right arm) and 1.8–5.5° (left) over seeds 0–5 (bar 2°): in a side "
-    "raise to 80° the spec's Z·X·Y flexion is tan(80°) = 5.7 times the heading error, and "
-    "the heading drifts 1–3° in the minute (the bias learnt from the poses' ~4 s of "
-    "stillness at 0.01 rad/s noise is known to ~0.7 mrad/s); with the bias known exactly "
-    "the gyroscope's noise alone gives 0.6–1.5°")
+    "measured 1.2–2.7° (right arm) and 1.8–5.5° (left) over seeds 0–5, 1.6–7.1° and "
+    "0.9–7.4° over seeds 6–15 (bar 2°; the sides differ by seed only, means 3.0° and "
+    "3.2° over 0–15): in a side raise to 80° the spec's Z·X·Y flexion is tan(80°) = 5.7 "
+    "times the heading error, and the heading drifts 1–5° in the minute (the bias learnt "
+    "from the poses' stillness at 0.01 rad/s noise is known to ~0.5–2 mrad/s). Even with "
+    "the bias known exactly the gyroscope's noise alone gives 0.4–2.2° "
+    "(test_side_raise_flexion_with_the_bias_known): no bias estimate reaches the bar on "
+    "every seed")
 
 CASES = [
     # forearm phone: elbow flexion and pronation, in both of its exercises
@@ -105,16 +113,69 @@ def test_phone_like_recordings_are_what_the_issue_asks():
     assert stream.t[-1] - 11.0 >= 60.0  # a minute of exercise after the poses
 
 
+def _single_phone_params():
+    return [pytest.param(*c[:4], marks=c[4], id=f"{c[1]}-{c[0]}-{c[2]}") for c in CASES]
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("side", ["right", "left"])
-@pytest.mark.parametrize(("exercise", "sensor", "angle", "repetitions"),
-                         [pytest.param(*c[:4], marks=c[4], id=f"{c[1]}-{c[0]}-{c[2]}")
-                          for c in CASES])
+@pytest.mark.parametrize(("exercise", "sensor", "angle", "repetitions"), _single_phone_params())
 def test_single_phone_reaches_the_bar(exercise, sensor, angle, repetitions, side):
     figures = [rmse(exercise, sensor, angle, seed, repetitions, side) for seed in SEEDS]
     print(f"\n{side} {sensor} phone, {exercise}: {angle} RMSE "
           + ", ".join(f"{f:.2f}°" for f in figures) + f" (seeds {SEEDS})")
     assert max(figures) < BAR_DEG
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("side", ["right", "left"])
+@pytest.mark.parametrize(("exercise", "sensor", "angle", "repetitions"), _single_phone_params())
+def test_single_phone_reaches_the_bar_on_unseen_seeds(exercise, sensor, angle, repetitions,
+                                                      side):
+    """The same cases on seeds 6–15, which no tuning looked at."""
+    figures = [rmse(exercise, sensor, angle, seed, repetitions, side) for seed in UNSEEN_SEEDS]
+    print(f"\n{side} {sensor} phone, {exercise}: {angle} RMSE "
+          + ", ".join(f"{f:.2f}°" for f in figures) + " (seeds 6–15)")
+    assert max(figures) < BAR_DEG
+
+
+class _BiasKnown(QuaternionComplementaryFilter):
+    """``qcf`` told the gyroscope has no bias (its estimate held at zero)."""
+
+    def __init__(self):
+        super().__init__(params=QcfParams(bias_max=1e-12))
+
+
+FLEXION_FLOOR = (
+    "measured 0.4–2.2° over seeds 0–15 (right 0.44–2.19°, left 0.50–2.13°; 1.79° at most "
+    "over 0–5): the heading then drifts only by the gyroscope's noise (0.01 rad/s at 60 Hz, "
+    "an angle random walk of 1.3 mrad/√s: 0.6° after a minute), and tan(80°) = 5.7 turns "
+    "that into more than 2° of flexion on some seeds; a 6-axis phone on the upper arm alone "
+    "has nothing else to hold its heading")
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason=FLEXION_FLOOR)
+def test_side_raise_flexion_with_the_bias_known(monkeypatch):
+    """The floor under the side raise's flexion: the same recordings with no gyroscope bias,
+    and the filter told so (the bias needs no learning). What is left is the gyroscope's
+    noise integrated into the heading."""
+    monkeypatch.setitem(FILTERS, "qcf", _BiasKnown)
+    figures = {}
+    for side in ("right", "left"):
+        figures[side] = []
+        for seed in (*SEEDS, *UNSEEN_SEEDS):
+            recording, truth, _ = phone_like("shoulder_abduction", "upper_arm", seed, 14, side,
+                                             gyro_bias_max=0.0)
+            estimates, _ = estimate_recording(recording)
+            scored = estimates.t >= SCORED_FROM_S
+            expected = np.rad2deg(np.interp(estimates.t[scored], truth.t,
+                                            truth.angles["shoulder_flexion"]))
+            error = estimates.degrees()["shoulder_flexion"][scored] - expected
+            figures[side].append(float(np.sqrt(np.mean(error ** 2))))
+        print(f"\n{side} upper_arm phone, side raise, bias known: shoulder_flexion RMSE "
+              + ", ".join(f"{f:.2f}°" for f in figures[side]) + " (seeds 0–15)")
+    assert max(max(f) for f in figures.values()) < BAR_DEG
 
 
 LONG_SESSION_FLEXION = (
