@@ -82,9 +82,9 @@ SIDE_RAISE_FLEXION = (
     "measured 1.2–2.7° (right arm) and 1.8–5.5° (left) over seeds 0–5, 1.6–7.1° and "
     "0.9–7.4° over seeds 6–15 (bar 2°; the sides differ by seed only, means 3.0° and "
     "3.2° over 0–15): in a side raise to 80° the spec's Z·X·Y flexion is tan(80°) = 5.7 "
-    "times the heading error, and the heading drifts 1–5° in the minute (the bias learnt "
-    "from the poses' stillness at 0.01 rad/s noise is known to ~0.5–2 mrad/s). Even with "
-    "the bias known exactly the gyroscope's noise alone gives 0.4–2.2° "
+    "times the heading error, and the heading drifts by up to 5° in the minute (the bias "
+    "learnt from the poses' stillness at 0.01 rad/s noise is known to 0.1–2.5 mrad/s an "
+    "axis). Even with the bias known exactly the gyroscope's noise alone gives 0.4–2.2° "
     "(test_side_raise_flexion_with_the_bias_known): no bias estimate reaches the bar on "
     "every seed")
 
