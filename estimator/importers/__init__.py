@@ -8,7 +8,7 @@ One module per format (``xsens_dot``, ``apdm``, ``shimmer``, ``metamotion``,
 proposes calibration poses. See ``docs/importing.md``.
 """
 
-from .base import ImportFailure, ReadOptions, Signal, SourceFile
+from .base import ImportFailure, ReadOptions, Signal, SourceFile, TooLarge
 from .importer import (
     Assignment,
     ImportResult,
@@ -26,6 +26,7 @@ __all__ = [
     "ReadOptions",
     "Signal",
     "SourceFile",
+    "TooLarge",
     "describe",
     "detect",
     "formats",

@@ -16,7 +16,7 @@ import io
 
 import numpy as np
 
-from .base import ImportFailure, ReadOptions, Signal, SourceFile
+from .base import ImportFailure, ReadOptions, Signal, SourceFile, TooLarge
 
 NAME = "apdm"
 TITLE = "APDM Opal .h5"
@@ -43,6 +43,7 @@ def read(sources: list[SourceFile], options: ReadOptions) -> list[Signal]:
         raise ImportFailure(sources[0].name, "reading APDM .h5 files needs h5py: "
                             "pip install 'armtrack[apdm]'") from None
     signals = []
+    budget = [options.max_bytes] * 2  # [left, in all] the datasets may unpack to [bytes]
     for source in sources:
         if not sniff(source):
             continue
@@ -52,13 +53,20 @@ def read(sources: list[SourceFile], options: ReadOptions) -> list[Signal]:
             raise ImportFailure(source.name, f"not a readable HDF5 file, truncated or damaged "
                                 f"({exc})") from None
         with h5:
-            signals.extend(_sensors(source, h5))
+            signals.extend(_sensors(source, h5, budget))
     if not signals:
         raise ImportFailure(sources[0].name if sources else "?", "no APDM sensors found")
     return signals
 
 
-def _sensors(source: SourceFile, h5) -> list[Signal]:
+def _declared_bytes(group, names) -> int:
+    """What the datasets ``names`` of ``group`` hold unpacked [bytes], from their declared
+    shapes and types (nothing is read; read as float64 they take at most twice that)."""
+    return sum(group[name].dtype.itemsize * int(np.prod(group[name].shape, dtype=object))
+               for name in names if name in group)
+
+
+def _sensors(source: SourceFile, h5, budget: list[int]) -> list[Signal]:
     version = h5.attrs.get("FileFormatVersion")
     version = int(np.asarray(version).flat[0]) if version is not None else None
     if "Sensors" not in h5:
@@ -76,6 +84,13 @@ def _sensors(source: SourceFile, h5) -> list[Signal]:
         if missing:
             raise ImportFailure(where, f"dataset {', '.join(missing)} is missing (Time, "
                                 "Accelerometer and Gyroscope are needed)")
+        size = _declared_bytes(group, ("Time", "Accelerometer", "Gyroscope", "Magnetometer"))
+        if size > budget[0]:
+            raise TooLarge(source.name, f"/Sensors/{sid} declares datasets of {size} bytes "
+                           f"unpacked, more than the {budget[0]} left of the {budget[1]} "
+                           "bytes the files of an import may unpack to "
+                           "(ARMTRACK_MAX_UPLOAD_BYTES on a server)")
+        budget[0] -= size
         try:
             time_us = np.asarray(group["Time"][()], dtype=np.int64)
             acc = np.asarray(group["Accelerometer"][()], dtype=np.float64)

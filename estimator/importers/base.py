@@ -23,6 +23,16 @@ class ImportFailure(EstimatorError):
         self.problem = problem
 
 
+class TooLarge(ImportFailure):
+    """A file that holds, unpacked or decoded, more than the reader may take (``413`` on
+    the API, like an upload over its limit)."""
+
+
+#: Largest total size [bytes] the files of one import may unpack or decode to (a zip
+#: bomb, an HDF5 file declaring huge datasets is refused, not read).
+MAX_UNPACKED_BYTES = 2 << 30
+
+
 @dataclass(frozen=True)
 class SourceFile:
     """One file's bytes and the name the user knows it by (a path, or ``zip/member``)."""
@@ -43,11 +53,14 @@ class ReadOptions:
     columns: the generic reader's column map (``t=Time:ms ax=AccX:g …``).
     platform: Sensor Logger's platform when no metadata file says it (``android``,
     ``ios`` or ``standardised``).
+    max_bytes: the most the files' datasets may hold unpacked [bytes] (the server passes
+    its upload limit, as for a zip), checked against what a file declares before reading.
     """
 
     field_ut: float = DEFAULT_FIELD_UT
     columns: str | None = None
     platform: str | None = None
+    max_bytes: int = MAX_UNPACKED_BYTES
 
 
 @dataclass

@@ -8,10 +8,8 @@ import zipfile
 import zlib
 from pathlib import Path
 
-from .base import ImportFailure, SourceFile
+from .base import MAX_UNPACKED_BYTES, ImportFailure, SourceFile, TooLarge
 
-#: Largest total size [bytes] a zip may unpack to (a zip bomb is refused, not unpacked).
-MAX_UNPACKED_BYTES = 2 << 30
 #: Most files a zip may hold (an export holds a few dozen; listing a zip of millions of
 #: empty members costs minutes and gigabytes).
 MAX_ZIP_MEMBERS = 1000
@@ -40,7 +38,7 @@ def unzip(name: str, data: bytes, limit: int = MAX_UNPACKED_BYTES) -> list[Sourc
                and not m.filename.rsplit("/", 1)[-1].startswith(".")]
     total = sum(m.file_size for m in members)
     if total > limit:
-        raise ImportFailure(name, f"unpacks to {total} bytes, more than {limit}")
+        raise TooLarge(name, f"unpacks to {total} bytes, more than {limit}")
     out = []
     for m in sorted(members, key=lambda m: m.filename):
         try:

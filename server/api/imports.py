@@ -25,6 +25,7 @@ from armtrack.estimator.importers import (
     Assignment,
     ImportFailure,
     ReadOptions,
+    TooLarge,
     describe,
     detect,
     import_recording,
@@ -129,6 +130,8 @@ def uploaded(files: list[UploadFile], limit: int) -> list:
         name = (f.filename or "file").replace("\\", "/").rsplit("/", 1)[-1]
         try:
             sources = expand_upload(name, f.file.read(), max(limit - total, 0))
+        except TooLarge as exc:
+            raise too_large(exc) from None
         except ImportFailure as exc:
             raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from None
         total += sum(len(s.data) for s in sources)
@@ -138,6 +141,10 @@ def uploaded(files: list[UploadFile], limit: int) -> list:
                                 "(ARMTRACK_MAX_UPLOAD_BYTES)")
         out.extend(sources)
     return out
+
+
+def too_large(exc: TooLarge) -> HTTPException:
+    return HTTPException(status.HTTP_413_CONTENT_TOO_LARGE, str(exc))
 
 
 def patient_for(db, who, patient_id: int | None) -> models.Patient:
@@ -163,7 +170,7 @@ def inspect_files(db: Db, who: Annotated[models.Therapist | models.Device, Depen
     duration, a suggested segment), side/height mismatches of armtrack recordings with the
     patient's record, and a calibration proposal. Nothing is stored."""
     patient = patient_for(db, who, patient_id)
-    read_options = _options(options)
+    read_options = _options(options, svc.settings.max_upload_bytes)
     out, suggested = [], {}
     groups: dict[str, list] = {}
     for source in uploaded(files, svc.settings.max_upload_bytes):
@@ -191,6 +198,8 @@ def inspect_files(db: Db, who: Annotated[models.Therapist | models.Device, Depen
     for name, fmt, sources in readable:
         try:
             found = read_signals(sources, fmt, read_options)
+        except TooLarge as exc:
+            raise too_large(exc) from None
         except EstimatorError as exc:
             out.append(InspectedFile(name=name, format=fmt, sensors=[], error=str(exc)))
             continue
@@ -240,13 +249,14 @@ def _rate(stream) -> float:
     return float(1 / np.median(dt)) if dt.size else 0.0
 
 
-def _options(text: str | None) -> ReadOptions:
+def _options(text: str | None, limit: int) -> ReadOptions:
+    """The ``options`` form field; ``limit``: what the files' data may decode to [bytes]."""
     if not text:
-        return ReadOptions()
+        return ReadOptions(max_bytes=limit)
     try:
         raw = json.loads(text)
         return ReadOptions(field_ut=float(raw.get("field_ut", 50.0)), columns=raw.get("columns"),
-                           platform=raw.get("platform"))
+                           platform=raw.get("platform"), max_bytes=limit)
     except (ValueError, TypeError, AttributeError) as exc:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
                             f"options must be JSON {{field_ut, columns, platform}}: {exc}"
@@ -302,7 +312,10 @@ def import_upload(files: list[UploadFile], sensor_map: str, patient: models.Pati
     try:
         result = import_recording(chosen, side=side or patient.side,
                                   height_m=height_m or patient.height_m,
-                                  calibration=calibration or None, options=_options(options))
+                                  calibration=calibration or None,
+                                  options=_options(options, limit))
+    except TooLarge as exc:
+        raise too_large(exc) from None
     except ImportFailure as exc:
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, str(exc)) from None
     return result.recording
