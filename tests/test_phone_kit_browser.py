@@ -466,3 +466,27 @@ def test_the_patient_page_gives_the_phone_kit_link_and_qr_code(kit_server, phone
         assert phone.locator("#kit-link-insecure").count() == 0
         phone.locator("#kit-link").scroll_into_view_if_needed()
         phone.screenshot(path=str(shots / f"c-patient-kit-link-{width}.png"), full_page=True)
+
+
+def test_a_new_link_opened_in_the_same_tab_is_taken(kit_server, phone, shots):
+    """The patient had the kit page open (without a link, or with a revoked one) and opens
+    the therapist's new link in the same tab: only the fragment changes, so the browser
+    does not load the page again; the page must still take the new token (it stayed on
+    "Open your link")."""
+    api = kit_server.client("alice")
+    patient = api.patient("Same Tab Patient")
+    old = api.device(patient["id"], "old phone")
+    phone.goto(f"{kit_server.url}/kit")
+    sync_api.expect(phone.locator("h1")).to_contain_text("Open your link")
+    phone.goto(f"{kit_server.url}/kit#token={old['token']}")  # a fragment navigation
+    sync_api.expect(phone.locator("#start")).to_be_visible(timeout=10_000)
+    assert "token" not in phone.url
+    answer = api.http.delete(f"/api/devices/{old['id']}")
+    answer.raise_for_status()
+    phone.reload()
+    sync_api.expect(phone.locator("h1")).to_contain_text("no longer works")
+    new = api.device(patient["id"], "new phone")
+    phone.goto(f"{kit_server.url}/kit#token={new['token']}")
+    sync_api.expect(phone.locator("#start")).to_be_visible(timeout=10_000)
+    assert "token" not in phone.url
+    phone.screenshot(path=str(shots / "d-new-link-same-tab.png"))

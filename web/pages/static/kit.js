@@ -543,6 +543,11 @@ async function main() {
     history.replaceState(null, "", location.pathname);  // the token leaves the address bar
   }
   kit.token = localStorage.getItem(TOKEN_KEY);
+  // a new link opened in this tab changes only the fragment (no page load): start again
+  // with it, as on a fresh open (it was left on "Open your link" or a revoked link's screen)
+  window.addEventListener("hashchange", () => {
+    if (new URLSearchParams(location.hash.slice(1)).get("token")) location.reload();
+  });
   if ("serviceWorker" in navigator) {
     navigator.serviceWorker.register("/kit-sw.js", { scope: "/kit" }).catch(() => {});
   }
