@@ -1,0 +1,147 @@
+"""Benchmark: how the real data sets' gyroscopes are timed against their optical references,
+and what that does to BROAD's inclination score. Run by hand (~2 min; not a test):
+
+    python bench/timing.py [--broad DIR] [--ring DIR] [--no-vqf]
+
+1. **Lag of the gyroscope behind the optical reference**, measured without any filter: the
+   optical rate (finite differences of consecutive optical quaternions, at the midpoint of
+   each interval, in the sensor frame) against the gyroscope interpolated at ``t + L``;
+   the ``L`` (a grid of 0.05 samples over ±3 samples) with the least squared difference is
+   the time by which a gyroscope sample lags the rate it measured. BROAD: over the movement
+   phase; RING (``../shared/data/ring/chain``, sensor truth as ``bench/ring.py``): where
+   |ω| > 0.3 rad/s.
+2. **BROAD's 6D inclination with the estimate read later**: qcf's and VQF's 6D estimates
+   slerped to ``t + s·dt`` and scored against the optical reference at ``t`` (BROAD's
+   metric, ``bench/broad.py``), for s = 0 (the benchmark), ½, 1 and the trial's measured
+   lag. An estimator that integrates a lagging gyroscope lags by as much; reading it
+   later scores the tilt physics apart from the timing.
+
+Prints per-trial lags and the means. Writes nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+import broad  # noqa: E402
+import ring  # noqa: E402
+
+SHIFTS = (0.0, 0.5, 1.0)  # [samples], besides each trial's measured lag
+
+
+def optical_rate(q: np.ndarray, dt: float) -> np.ndarray:
+    """Body rate [rad/s] (N−1, 3) between consecutive orientations ``q`` (N, 4) wxyz."""
+    d = ring.qmul(ring.qinv(q[:-1]), q[1:])
+    d *= np.sign(d[:, :1] + (d[:, :1] == 0))
+    norm = np.linalg.norm(d[:, 1:], axis=1)
+    angle = 2.0 * np.arctan2(norm, d[:, 0])
+    return d[:, 1:] / np.maximum(norm, 1e-12)[:, None] * (angle / dt)[:, None]
+
+
+def gyro_lag(t_gyr: np.ndarray, gyr: np.ndarray, t_opt: np.ndarray, q_opt: np.ndarray,
+             use: np.ndarray) -> float:
+    """Lag [s] of the gyroscope behind the optical rate (see the module docstring);
+    ``use`` (len(t_opt) − 1,) selects the optical intervals scored."""
+    dt_opt = float(t_opt[1] - t_opt[0])
+    dt_gyr = float(t_gyr[1] - t_gyr[0])
+    omega = optical_rate(q_opt, dt_opt)
+    t_mid = t_opt[:-1] + 0.5 * dt_opt
+    use = use & np.isfinite(omega).all(axis=1)
+    best, best_lag = np.inf, 0.0
+    for lag in np.arange(-3.0, 3.0001, 0.05) * dt_gyr:
+        g = np.column_stack([np.interp(t_mid[use] + lag, t_gyr, gyr[:, k]) for k in range(3)])
+        err = float(np.mean(np.sum((g - omega[use]) ** 2, axis=1)))
+        if err < best:
+            best, best_lag = err, float(lag)
+    return best_lag
+
+
+def broad_part(path: Path, with_vqf: bool) -> None:
+    from armtrack.estimator.orientation import make_filter
+    files = sorted(path.glob("*.mat"))
+    if not files:
+        print(f"no BROAD trials at {path}", file=sys.stderr)
+        return
+    names = ["qcf"] + (["vqf"] if with_vqf else [])
+    scores = {n: [] for n in names}
+    lags = []
+    print(f"{'BROAD trial':<46}{'lag':>7}   6D inclination [°] at s = 0, ½, 1, lag")
+    for file in files:
+        trial = broad.load_trial(file, ())
+        movement = trial.movement[:-1] & trial.movement[1:]
+        lag = gyro_lag(trial.t, trial.gyr, trial.t, trial.opt_quat, movement) * trial.rate
+        lags.append(lag)
+        line = f"{trial.name:<46}{lag:+7.2f}"
+        for name in names:
+            if name == "qcf":
+                q = make_filter("qcf").update_batch(trial.t, trial.acc, trial.gyr, None).q
+            else:
+                from vqf import VQF
+                q = VQF(1.0 / trial.rate).updateBatch(trial.gyr, trial.acc)["quat6D"]
+            row = []
+            for s in (*SHIFTS, lag):
+                shifted = ring.qslerp(trial.t, q, trial.t + s / trial.rate)
+                row.append(broad.broad_errors(shifted, trial.opt_quat, trial.movement)[2])
+            scores[name].append(row)
+            line += f"   {name} " + " ".join(f"{x:.2f}" for x in row)
+        print(line, flush=True)
+    print(f"\nBROAD: the gyroscope lags the optical reference by {np.mean(lags):.2f} samples "
+          f"({np.mean(lags) / trials_rate(files) * 1000:.1f} ms) on average "
+          f"(trials {min(lags):.2f}…{max(lags):.2f})")
+    for name in names:
+        mean = np.mean(scores[name], axis=0)
+        print(f"  {name} 6D inclination, estimate read s samples later: "
+              + ", ".join(f"s={s:g}: {m:.3f}°" for s, m in zip(SHIFTS, mean[:3], strict=True))
+              + f", s=lag: {mean[3]:.3f}°")
+
+
+def trials_rate(files: list[Path]) -> float:
+    return broad.load_trial(files[0], ()).rate
+
+
+def ring_part(path: Path) -> None:
+    if not (path / "chain").is_dir():
+        print(f"no RING data at {path}", file=sys.stderr)
+        return
+    print("\nRING: lag of each sensor's gyroscope behind the optical truth [40 Hz samples]")
+    for trial in (1, 2):
+        for mounting in ("rigid", "nonrigid"):
+            chain = ring.load_chain(path, trial, mounting)
+            lags = []
+            for s in range(1, 6):
+                truth = ring.truth_sensor(chain, s)
+                imu = chain.imus[s]
+                dt_opt = float(chain.t_omc[1] - chain.t_omc[0])
+                fast = np.linalg.norm(np.nan_to_num(optical_rate(truth, dt_opt)), axis=1) > 0.3
+                lags.append(gyro_lag(imu.t, imu.gyr, chain.t_omc, truth, fast)
+                            / float(imu.t[1] - imu.t[0]))
+            print(f"  trial {trial} {mounting:<9}" + " ".join(f"{x:+.2f}" for x in lags)
+                  + f"   (median {np.median(lags):+.2f} = {np.median(lags) * 25:+.1f} ms)")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--broad", type=Path, default=broad.DEFAULT_DATA)
+    parser.add_argument("--ring", type=Path, default=ring.DEFAULT_DATA)
+    parser.add_argument("--no-vqf", action="store_true")
+    args = parser.parse_args(argv)
+    with_vqf = not args.no_vqf
+    if with_vqf:
+        try:
+            import vqf  # noqa: F401
+        except ImportError:
+            with_vqf = False
+    broad_part(args.broad, with_vqf)
+    ring_part(args.ring)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
