@@ -33,12 +33,14 @@ T = TypeVar("T")
 LIVE_PARK_S = 120.0
 #: The most lost streams' live sides kept at once.
 MAX_PARKED_LIVE = 64
+#: Threads for the async side's CPU work (``Services.run_cpu``).
+CPU_THREADS = 2
 
 
 @dataclass
 class ParkedLive:
     """The live side of a stream whose connection was lost: its ``LiveWorker``, its kit
-    feedback tracker (or None), and the timer that lets them go."""
+    feedback (``FeedbackRunner``, or None), and the timer that lets them go."""
 
     worker: LiveWorker
     feedback: Any
@@ -58,6 +60,9 @@ class Services:
         self.writer = GroupWriter(self.engine, settings.ack_interval_s)
         #: short database reads and writes of the async side
         self.db_pool = ThreadPoolExecutor(4, thread_name_prefix="armtrack-db")
+        #: CPU work of the async side (the kits' feedback recounts): off the event loop,
+        #: two at a time
+        self.cpu_pool = ThreadPoolExecutor(CPU_THREADS, thread_name_prefix="armtrack-cpu")
         #: estimation of closed sessions (batch), in the processing process
         self.processing = SessionProcessing(
             settings.resolved_database_url(), settings.processing_processes,
@@ -118,6 +123,7 @@ class Services:
             await asyncio.gather(*self.background, return_exceptions=True)
         await asyncio.get_running_loop().run_in_executor(None, self.processing.stop)
         self.db_pool.shutdown(wait=True)
+        self.cpu_pool.shutdown(wait=True)
         self.engine.dispose()
 
     def park_live(self, stream_id: str, worker: LiveWorker, feedback: Any,
@@ -172,6 +178,12 @@ class Services:
         context = contextvars.copy_context()
         return await asyncio.get_running_loop().run_in_executor(self.db_pool, context.run,
                                                                 call)
+
+    async def run_cpu(self, fn: Callable[..., T], *args: Any) -> T:
+        """``fn(*args)`` on the CPU thread pool: CPU work never blocks the event loop."""
+        context = contextvars.copy_context()
+        return await asyncio.get_running_loop().run_in_executor(self.cpu_pool, context.run,
+                                                                fn, *args)
 
     def process_later(self, session_id: int, filter_name: str) -> asyncio.Future:
         """Estimate a closed session (``store.background``) without waiting; tracked until

@@ -46,7 +46,7 @@ from ..programs.today import exercise_bands
 from ..services import Services
 from ..store.processing import mark_closed
 from . import protocol
-from .feedback import FEEDBACK_EXTENSION, Band, FeedbackTracker
+from .feedback import FEEDBACK_EXTENSION, Band, FeedbackRunner, FeedbackTracker
 from .protocol import Hello, Refused
 from .writer import (
     MAX_PENDING_PER_STREAM,
@@ -128,7 +128,7 @@ class IngestConnection:
         self.ended = asyncio.Event()  # set once _end is through
         self.received = 0
         self.sensor_stats: dict[str, dict[str, Any]] = {}
-        self.feedback: FeedbackTracker | None = None
+        self.feedback: FeedbackRunner | None = None
         #: programs/1 (docs/extensions/programs-hello.md): the program hello named, and
         #: what ready says of it
         self.program_ref: int | str | None = None
@@ -318,15 +318,17 @@ class IngestConnection:
         if FEEDBACK_EXTENSION in hello.extensions:
             if parked is not None and parked.feedback is not None:
                 self.feedback = parked.feedback
+                self.feedback.send = self.send
             else:
                 bands, marks = await services.run_db(_feedback_start, self.patient_id,
                                                      session_id)
-                self.feedback = FeedbackTracker({k: Band(*v) for k, v in bands.items()},
-                                                measured_angles(hello.sensors))
+                tracker = FeedbackTracker({k: Band(*v) for k, v in bands.items()},
+                                          measured_angles(hello.sensors))
                 for t, label in marks:  # a resumed stream: the exercise under way goes on
-                    self.feedback.mark(t, label, stored=True)
+                    tracker.mark(t, label, stored=True)
+                self.feedback = FeedbackRunner(tracker, services.run_cpu, self.send)
             if self.worker is not None:
-                self.worker.on_pose = self._send_feedback
+                self.worker.on_pose = self.feedback.pose
         if program_stream.PROGRAMS_EXTENSION in hello.extensions:
             extra["program"] = self.program
             if self.program_error:
@@ -335,13 +337,6 @@ class IngestConnection:
                                                "status": "live"})
         return {"type": "ready", "stream": stream_id, "session": session_id,
                 "next_seq": state.next_seq, **extra}
-
-    def _send_feedback(self, pose: Any) -> None:
-        """A live pose of this stream's session: its feedback message, when one is due."""
-        assert self.feedback is not None
-        message = self.feedback.pose(pose, time.monotonic())
-        if message is not None and not self._closed:
-            asyncio.get_running_loop().create_task(self.send(message))
 
     def _check_own(self, db: DbSession, hello: Hello) -> None:
         """Refuse a ``hello`` naming a session or stream that is not this device's

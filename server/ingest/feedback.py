@@ -20,18 +20,28 @@ on the server that kept its live side (``endpoint``'s parked live state) goes on
 same tracker, so the count goes on; one that lost it (the server restarted, the stream
 went to another instance, a new stream in the session) starts a new count at its first
 estimate (``count_from``: that estimate's time), which the kit adds to what it showed.
+
+The counting is CPU work (a recount is ~2 ms on two minutes of angle): a stream's
+``FeedbackRunner`` does it on the server's CPU thread pool, never on the event loop, one
+job at a time per stream; what comes while a job runs waits for the next, which counts it
+all and answers for the newest pose only.
 """
 
 from __future__ import annotations
 
+import asyncio
+import logging
 import math
-from collections.abc import Mapping
+import time
+from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from armtrack.estimator.arm.joints import REPORTED_ANGLES
 from armtrack.estimator.metrics import detect_repetitions
+
+log = logging.getLogger("armtrack.ingest")
 
 #: Extension name/version as a kit announces it in hello.
 FEEDBACK_EXTENSION = "feedback/1"
@@ -143,8 +153,7 @@ class FeedbackTracker:
         band = self.bands.get(self.exercise) if self.exercise else None
         if self.counter is None or band is None or band.angle not in series:
             return
-        deg = np.array([np.nan if v is None else v for v in series[band.angle][a:b]],
-                       dtype=float)
+        deg = np.asarray(series[band.angle][a:b], dtype=float)
         finite = np.flatnonzero(np.isfinite(deg))
         if not finite.size:
             return
@@ -152,22 +161,43 @@ class FeedbackTracker:
             self.count_from = float(times[finite[0]])
         self.counter.add(times, deg)
 
+    def apply(self, events: list[tuple], now: float) -> dict[str, Any] | None:
+        """Queued ``("mark", t, label, stored)`` and ``("pose", pose)`` events in the order
+        they came (``FeedbackRunner``): every pose's trail counts; the message (or None) is
+        the newest pose's (``now``: monotonic [s])."""
+        last = None
+        for event in events:
+            if event[0] == "mark":
+                self.mark(*event[1:])
+            else:
+                last = event[1]
+                self._take(last)
+        return None if last is None else self._message(last, now)
+
     def pose(self, pose: Mapping[str, Any], now: float) -> dict[str, Any] | None:
         """The feedback message for a live ``pose`` update (``now``: monotonic [s]). The
         repetitions count on the pose's ``trail`` (the estimates since the last pose, 25
         per second of stream time: a backlog counts like a live stream), then on the
         pose itself."""
+        self._take(pose)
+        return self._message(pose, now)
+
+    def _take(self, pose: Mapping[str, Any]) -> None:
+        """Count a pose's trail, then the pose itself, passing the marks on the way."""
         trail = pose.get("trail") or {}
         times = np.asarray(trail.get("t") or [], dtype=float)
         rows = trail.get("angles_deg") or []  # in REPORTED_ANGLES order (live-exercise.md)
-        series = ({name: [row[i] for row in rows] for i, name in enumerate(REPORTED_ANGLES)}
+        table = np.array(rows, dtype=float).reshape(-1, len(REPORTED_ANGLES))  # null: NaN
+        series = ({name: table[:, i] for i, name in enumerate(REPORTED_ANGLES)}
                   if rows else {})
         t = float(pose["t"])
         angles = pose.get("angles_deg") or {}
         # the trail, then the pose itself (when it is newer), cut at the marks they pass
         if not times.size or t > times[-1]:
             times = np.append(times, t)
-            series = {k: [*(series.get(k) or [None] * (times.size - 1)), angles.get(k)]
+            series = {k: np.append(series[k] if k in series else np.full(times.size - 1,
+                                                                         np.nan),
+                                   np.nan if angles.get(k) is None else angles[k])
                       for k in set(series) | set(angles)}
         first = 0
         while first < times.size:
@@ -181,6 +211,11 @@ class FeedbackTracker:
             self._count(times[first:upto], series, first, upto)
             first = upto
         self._pass_marks(t)
+
+    def _message(self, pose: Mapping[str, Any], now: float) -> dict[str, Any] | None:
+        """The message for ``pose`` once counted (None while rate-limited)."""
+        t = float(pose["t"])
+        angles = pose.get("angles_deg") or {}
         band = self.bands.get(self.exercise) if self.exercise else None
         value = angles.get(band.angle) if band is not None else None
         if now - self._last_sent_t < 1.0 / FEEDBACK_HZ:
@@ -197,3 +232,45 @@ class FeedbackTracker:
                            and v is not None and math.isfinite(v)},
             "warnings": list(pose.get("warnings") or ()),
         }
+
+
+class FeedbackRunner:
+    """One stream's ``FeedbackTracker``, run off the event loop. On the loop, ``mark`` and
+    ``pose`` only queue; one job at a time (per stream) applies the queue in order on
+    ``run`` (a thread pool's caller) and sends the newest pose's message with ``send``.
+    So at most one recount per stream is under way, a stale pose's message is never
+    computed, and messages go out in order. Parked with the stream's live side; a resumed
+    connection sets ``send`` to its own."""
+
+    def __init__(self, tracker: FeedbackTracker,
+                 run: Callable[..., Awaitable[Any]],
+                 send: Callable[[dict[str, Any]], Awaitable[None]]):
+        self.tracker = tracker
+        self.send = send
+        self._run = run
+        self._queue: list[tuple] = []
+        self._job: asyncio.Task | None = None
+
+    def mark(self, t: float, label: str, stored: bool = False) -> None:
+        """As ``FeedbackTracker.mark``, applied before the next pose."""
+        self._queue.append(("mark", t, label, stored))
+
+    def pose(self, pose: Mapping[str, Any]) -> None:
+        """A published live pose (on the event loop): counted, its message sent if due."""
+        self._queue.append(("pose", pose))
+        if self._job is None or self._job.done():
+            self._job = asyncio.get_running_loop().create_task(self._work())
+
+    async def _work(self) -> None:
+        while any(event[0] == "pose" for event in self._queue):
+            events, self._queue = self._queue, []
+            try:
+                message = await self._run(self._apply, events)
+            except Exception:  # a fault of the count is the kit's display only: logged
+                log.exception("kit feedback failed")
+                continue
+            if message is not None:
+                await self.send(message)
+
+    def _apply(self, events: list[tuple]) -> dict[str, Any] | None:
+        return self.tracker.apply(events, time.monotonic())
