@@ -71,3 +71,19 @@ def test_joint_angles_in_blocks_equal_small_chunks():
     parts = [chunked.update(Rw[a:a + 7], present) for a in range(0, n, 7)]
     for i, got in enumerate(whole):
         np.testing.assert_array_equal(got, np.concatenate([p[i] for p in parts]))
+
+
+def test_turn_about_vertical_is_elemental_z_compiled_or_not():
+    """The whole arm's turn to its sensors' mean heading (6-axis kits): each sample's
+    segments by ``elemental('z', angle) @ R``; the others untouched."""
+    rng = np.random.default_rng(8)
+    _, Rw = stack(rng, 300)
+    angle = rng.uniform(-0.2, 0.2, len(Rw))
+    expected = Rw.copy()
+    for s in (1, 2, 3):
+        expected[:, s] = elemental("z", angle) @ Rw[:, s]
+    for kernel in (constraints.turn_about_vertical, constraints._turn_python):
+        got = Rw.copy()
+        kernel(got, np.array([1, 2, 3], dtype=np.int64), angle)
+        np.testing.assert_allclose(got, expected, atol=1e-12)
+        np.testing.assert_array_equal(got[:, (0, 4)], Rw[:, (0, 4)])

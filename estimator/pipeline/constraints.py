@@ -12,7 +12,9 @@ for the wrist ``u`` is the forearm's X axis and ``v`` the hand's Z axis. Lineari
 says how well the sample observes ``δ`` (zero with the elbow straight: then a heading error
 is a pronation error no joint reveals). The correction is the ``D²``-weighted mean of these
 per-sample values with exponential forgetting (time constant ``tau``) and a prior toward
-no correction, causal, so chunks give what the whole recording gives.
+no correction, causal, so chunks give what the whole recording gives. Where the headings
+are the gyroscopes' alone, the pipeline then turns the whole arm to its sensors' mean
+heading (``Pipeline._apply_constraints``).
 
 The running sums and the turn of the segments run in one compiled pass per chunk
 (``_constrain``): on a live stream's 10-sample chunks a dozen numpy calls cost far more
@@ -64,15 +66,28 @@ def _constrain_python(t, Rw, parent, child, u_axis, v_axis, turned, tau, prior, 
         state[0], state[1], state[2], state[3] = numerator, denominator, t_prev, 1.0
 
 
-def _compile():
+def _turn_python(Rw, segments, angle):
+    """Turn ``Rw[n, s]`` (N, S, 3, 3) for each ``s`` in ``segments`` (int array) about the
+    world's vertical by ``angle[n]`` [rad] (N,), in place."""
+    for n in range(Rw.shape[0]):
+        c, s = math.cos(angle[n]), math.sin(angle[n])
+        for segment in segments:
+            for k in range(3):
+                r0, r1 = Rw[n, segment, 0, k], Rw[n, segment, 1, k]
+                Rw[n, segment, 0, k] = c * r0 - s * r1
+                Rw[n, segment, 1, k] = s * r0 + c * r1
+
+
+def _compile(function):
     try:
         import numba
     except ImportError:  # the pure-Python fallback: same numbers, slower
-        return _constrain_python
-    return numba.njit(cache=True, nogil=True)(_constrain_python)
+        return function
+    return numba.njit(cache=True, nogil=True)(function)
 
 
-_constrain = _compile()
+_constrain = _compile(_constrain_python)
+turn_about_vertical = _compile(_turn_python)
 
 
 @dataclass
@@ -92,14 +107,16 @@ class HeadingConstraint:
     _state: np.ndarray = field(default_factory=lambda: np.zeros(4), init=False)
 
     def apply(self, t: np.ndarray, Rw: np.ndarray, parent: int, child: int, u_axis: int,
-              v_axis: int, turned: tuple[int, ...]) -> None:
+              v_axis: int, turned: tuple[int, ...]) -> np.ndarray:
         """Turn the segments ``turned`` of ``Rw`` (N, S, 3, 3) ``R_world_segment`` about the
         vertical, in place, by the heading correction of joint ``parent``–``child`` at times
         ``t`` [s] (N,): ``u`` is the parent's column ``u_axis``, ``v`` the child's column
-        ``v_axis``."""
+        ``v_axis``. Returns the turn [rad] (N,)."""
+        delta = np.empty(len(t))
         _constrain(np.ascontiguousarray(t, dtype=np.float64), Rw, parent, child, u_axis,
                    v_axis, np.array(turned, dtype=np.int64), self.tau, self.prior,
-                   self.gate, self._state, np.empty(len(t)))
+                   self.gate, self._state, delta)
+        return delta
 
     def update(self, t: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Heading correction δ [rad] (N,) at times ``t`` [s] from the joint's axes ``u``,

@@ -28,7 +28,7 @@ from ..orientation import DEFAULT_FILTER
 from ..recording import Mark, Pose
 from ..recording.points import PointsFrame
 from .calibrate import Calibration, calibrate
-from .constraints import HeadingConstraint
+from .constraints import HeadingConstraint, turn_about_vertical
 from .estimates import REFERENCE_ORDER, EstimateArrays, Estimates
 from .magnetic import disagreeing_sensors, disagreement_warning
 from .segment_kernel import segment_orientations
@@ -74,6 +74,7 @@ class Pipeline:
         self.calibration: Calibration | None = None
         self._finished = False
         self._constraints: dict[str, HeadingConstraint] = {}
+        self._mean_heading = False  # see ``_apply_constraints``
         # wrist points (a robot's handle, a camera) and an upper-arm IMU: the γ elbow
         self._wrist: WristTrack | None = None
         self.gamma: GammaElbow | None = None
@@ -207,6 +208,8 @@ class Pipeline:
         # near metal): the magnetometer is evidence, the joints decide.
         self._constraints = {s: HeadingConstraint() for s in ("forearm", "hand")
                              if s in present}
+        self._mean_heading = not all(track.nine_axis and not track.magnetometer_dropped
+                                     for track in present.values())
         if "forearm" in present and "upper_arm" not in present:
             # against the virtual upper arm hanging still (see ``_apply_constraints``)
             self._constraints["forearm"] = HeadingConstraint(gate=VIRTUAL_HINGE_GATE)
@@ -270,12 +273,20 @@ class Pipeline:
         (A left arm's medial Z flips ``u·v`` and ``D`` alike: the estimate is the same.)
         Without an upper-arm sensor the upper arm hangs still from its parent (the stated
         assumption of a forearm-only kit, ``metrics.assumptions``): the elbow's hinge
-        against that virtual upper arm ties the forearm's heading all the same."""
+        against that virtual upper arm ties the forearm's heading all the same.
+
+        The joints tie the arm's sensors' headings to one another, not to the world: where
+        they come from the gyroscopes alone (6-axis, or the kit's magnetometers left out)
+        each sensor's heading drifts on its own, so the chain is then turned as a whole to
+        the mean of its sensors' own headings (its drift the mean of independent drifts,
+        √3 smaller with three sensors) rather than left on the upper arm's alone."""
         forearm, hand = _SEGMENT_INDEX["forearm"], _SEGMENT_INDEX["hand"]
         upper_arm = next(s for s in (_SEGMENT_INDEX["upper_arm"], _SEGMENT_INDEX["clavicle"],
                                      _SEGMENT_INDEX["thorax"]) if present[s])
         pairs = {"forearm": (upper_arm, forearm, 2, 1),
                  "hand": (forearm, hand, 0, 2)}
+        total = np.zeros(len(times))
+        chain = [upper_arm] if upper_arm == _SEGMENT_INDEX["upper_arm"] else []
         for segment, constraint in self._constraints.items():
             parent, child, u_axis, v_axis = pairs[segment]
             if not present[parent]:
@@ -283,7 +294,13 @@ class Pipeline:
             turned = (child,)
             if segment == "forearm" and present[hand] and "hand" not in self._constraints:
                 turned = (forearm, hand)
-            constraint.apply(times, Rw, parent, child, u_axis, v_axis, turned)
+            delta = constraint.apply(times, Rw, parent, child, u_axis, v_axis, turned)
+            if chain and (parent in chain):
+                total += delta
+                chain.append(child)
+        if self._mean_heading and len(chain) > 1:
+            turn_about_vertical(Rw, np.array(chain, dtype=np.int64),
+                                -total / len(chain))
 
 
 _SEGMENT_INDEX = {segment: i for i, segment in enumerate(SEGMENTS)}
