@@ -77,3 +77,70 @@ def test_an_hdf5_declaring_huge_datasets_is_refused_before_it_is_read(small_limi
     assert elapsed < 5
     assert server.sql("SELECT COUNT(*) FROM sessions WHERE patient_id = :p",
                       p=patient["id"])[0][0] == 0
+
+
+@pytest.fixture
+def fresh_server(tmp_path):
+    """A server of its own, so its peak memory is this test's."""
+    process = ServerProcess(tmp_path / "server", {"ARMTRACK_MAX_UPLOAD_BYTES": str(LIMIT)})
+    process.create_user("alice")
+    process.start()
+    yield process
+    process.stop()
+
+
+DOT_HEADER = ("sep=,\nDeviceTag:,D1\nSyncStatus:,Synced\nOutputRate:,60Hz\n\n"
+              "PacketCounter,SampleTimeFine,Acc_X,Acc_Y,Acc_Z,Gyr_X,Gyr_Y,Gyr_Z\n")
+GENERIC_HEADER = "t,ax,ay,az,gx,gy,gz\n"
+
+
+def hostile_csv(kind: str, header: str, size: int) -> bytes:
+    """About ``size`` bytes of CSV that Arrow's fast reader refuses, so the reader falls
+    back to its line-by-line check: ``short`` millions of 3-byte lines; ``bad_tail``
+    plausible rows with a word in the last; ``wide`` a header of millions of columns."""
+    if kind == "short":
+        return (header + "1,1,1,1,1,1,1,1\n" + "10\n" * (size // 3)).encode()
+    if kind == "bad_tail":
+        row = "10,10,10,10,10,10,10,10\n"
+        return (header + row * (size // len(row)) + "1,x,1,1,1,1,1,1\n").encode()
+    return (header.rstrip("\n") + ",a" * (size // 2) + "\n1,1,1,1,1,1,1,1\n").encode()
+
+
+@pytest.mark.parametrize("kind", ["short", "bad_tail", "wide"])
+@pytest.mark.parametrize("route", ["/api/recordings/inspect", "/api/recordings"])
+def test_a_hostile_csv_costs_the_server_little_memory(fresh_server, route, kind):
+    """7.5 MB of CSV under the 8 MiB limit: 3-byte lines cost the server +600 MiB (80x
+    the file, 9-13 s; one 200 MiB upload at the default limit would take ~16 GB), a
+    damaged last row +235 MiB (31x: every row split into lists at once); a 3.75 M-cell
+    header +22 MiB but 2.5-4.3 s. Refused naming the file, with the server's peak memory
+    grown by less than 15x the file."""
+    server = fresh_server
+    alice = server.client("alice")
+    patient = alice.patient("Csv")
+    kit = alice.device(patient["id"], "phone")
+    size = 7_500_000
+    if route.endswith("inspect"):  # the format is found from the header
+        data, form = hostile_csv(kind, DOT_HEADER, size), {}
+    else:
+        data = hostile_csv(kind, GENERIC_HEADER.replace("\n", ",x\n"), size)
+        form = {"sensors": json.dumps({"forearm": "rows.csv"}), "format": "generic",
+                "options": json.dumps({"columns": "t=t ax=ax ay=ay az=az gx=gx gy=gy gz=gz"})}
+    before = peak_rss_mb(server.process.pid)
+    start = time.monotonic()
+    answer = alice.http.post(route, headers={"Authorization": f"Bearer {kit['token']}"},
+                             data=form, files=[("files", ("rows.csv", data, "text/csv"))],
+                             timeout=300)
+    elapsed = time.monotonic() - start
+    grown = peak_rss_mb(server.process.pid) - before
+    print(f"{kind} {route}: {len(data)} bytes, {answer.status_code} in {elapsed:.2f} s, "
+          f"peak memory +{grown:.0f} MiB: {answer.text[:240]}")
+    if route.endswith("inspect"):  # a file it cannot read is named in the answer
+        assert answer.status_code == 200, answer.text
+        (found,) = answer.json()["files"]
+        assert found["error"] and "rows.csv" in found["error"] and not found["sensors"], found
+    else:
+        assert answer.status_code == 422, answer.text
+        assert "rows.csv" in answer.json()["detail"]
+        assert server.sql("SELECT COUNT(*) FROM sessions WHERE patient_id = :p",
+                          p=patient["id"])[0][0] == 0
+    assert grown < 15 * len(data) / 2**20, f"peak memory grew by {grown:.0f} MiB"

@@ -9,14 +9,41 @@ import numpy as np
 
 from .base import ImportFailure, SourceFile
 
+#: Fewest bytes a sensor's data line averages: a time and three numbers with their
+#: separators and line end (``0,1,2,3`` + newline). A Python line costs ~60 bytes beyond
+#: its text, so a file of shorter lines would cost the reader over 8x its size.
+MIN_LINE_BYTES = 8
+#: Most cells a line among the first ``HEAD_LINES`` (the header) may hold: an export has
+#: a few dozen columns.
+MAX_HEADER_CELLS = 1000
+HEAD_LINES = 64
+#: Rows checked at a time where Arrow refused the data (the extra memory of the check).
+CHECK_ROWS = 1 << 16
+
 
 def text_lines(source: SourceFile) -> list[str]:
     """The file's lines without line endings (UTF-8, a BOM dropped; Latin-1 if not UTF-8,
-    as spreadsheet programs on Windows save)."""
+    as spreadsheet programs on Windows save).
+
+    Refuses, before splitting, a file whose lines average under ``MIN_LINE_BYTES`` (no
+    sensor data; its lines would cost the reader tens of times the file's size) and a
+    header line of more than ``MAX_HEADER_CELLS`` cells."""
+    data = source.data
+    lines = data.count(b"\n") or data.count(b"\r")
+    if lines > 1000 and len(data) < MIN_LINE_BYTES * lines:
+        raise ImportFailure(source.name, f"holds {lines} lines of {len(data) / lines:.1f} "
+                            f"bytes on average: a sensor's data line holds at least a time "
+                            f"and three numbers ({MIN_LINE_BYTES} bytes)")
+    head = data[:1 << 20].splitlines()[:HEAD_LINES]
+    for number, line in enumerate(head, 1):
+        cells = 1 + max(line.count(sep) for sep in (b",", b";", b"\t"))
+        if cells > MAX_HEADER_CELLS:
+            raise ImportFailure(source.name, f"{cells} cells: an export's header holds at "
+                                f"most {MAX_HEADER_CELLS}", number)
     try:
-        text = source.data.decode("utf-8-sig")
+        text = data.decode("utf-8-sig")
     except UnicodeDecodeError:
-        text = source.data.decode("latin-1")
+        text = data.decode("latin-1")
     return text.splitlines()
 
 
@@ -50,17 +77,39 @@ def numeric_columns(source: SourceFile, lines: list[str], first: int, delimiter:
     fast = _arrow_columns(rows, delimiter, width, wanted, optional, integers)
     if fast is not None:
         return fast, np.arange(first + 1, first + 1 + len(rows))
-    # Arrow refused something: find the line and say what, cell by cell
-    split = [row.split(delimiter) for row in rows]
+    # Arrow refused something: find the line and say what, cell by cell, a block of
+    # CHECK_ROWS rows at a time (splitting every row at once cost ~40x the file's size)
+    parts: dict[str, list[np.ndarray]] = {key: [] for key in wanted}
+    for start in range(0, len(rows), CHECK_ROWS):
+        block = _checked_block(source, rows, start, first, delimiter, width, wanted, names,
+                               optional, integers)
+        for key, values in block.items():
+            parts[key].append(values)
+    # int64 only where every block was whole numbers (else float64, as if read whole)
+    out = {key: np.concatenate(values) for key, values in parts.items()}
+    return out, np.arange(first + 1, first + 1 + len(rows))
+
+
+def _checked_block(source: SourceFile, rows: list[str], start: int, first: int,
+                   delimiter: str, width: int, wanted: dict[str, int],
+                   names: dict[str, str] | None, optional: frozenset[str],
+                   integers: frozenset[str]) -> dict[str, np.ndarray]:
+    """The wanted columns of ``rows[start:start + CHECK_ROWS]``, or the refusal naming its
+    first bad line (``first``: the index of ``rows[0]`` among the file's lines)."""
+    block = rows[start:start + CHECK_ROWS]
+    fast = _arrow_columns(block, delimiter, width, wanted, optional, integers)
+    if fast is not None:  # the fault is in another block
+        return fast
+    split = [row.split(delimiter) for row in block]
+    first += start
     counts = np.fromiter(map(len, split), dtype=np.int64, count=len(split))
     short = np.flatnonzero(counts < width)
     if short.size:
         i = int(short[0])
-        what = ("the last line is cut short: the file is truncated" if i == len(rows) - 1
-                else "the line is cut short or damaged")
+        what = ("the last line is cut short: the file is truncated"
+                if start + i == len(rows) - 1 else "the line is cut short or damaged")
         raise ImportFailure(source.name, f"{counts[i]} cells where the header has {width}: "
                             f"{what}", first + i + 1)
-    line_numbers = np.arange(first + 1, first + 1 + len(rows))
     out: dict[str, np.ndarray] = {}
     for key, index in wanted.items():
         cells = [cells[index].strip().strip('"') for cells in split]
@@ -78,14 +127,14 @@ def numeric_columns(source: SourceFile, lines: list[str], first: int, delimiter:
                 values = np.array(cells, dtype=np.float64)
         except ValueError:
             _refuse_cell(source, cells, first, label, key in optional)
-        if key not in optional or not np.isnan(values).all():
+        if key not in optional:
             bad = np.flatnonzero(~np.isfinite(values))
-            if bad.size and key not in optional:
+            if bad.size:
                 i = int(bad[0])
                 raise ImportFailure(source.name, f"{label} is not a finite number "
                                     f"({cells[i]!r})", first + i + 1)
         out[key] = values
-    return out, line_numbers
+    return out
 
 
 def _arrow_columns(rows: list[str], delimiter: str, width: int, wanted: dict[str, int],
