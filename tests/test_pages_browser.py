@@ -279,6 +279,12 @@ def test_replay_of_a_stored_session(module_server, page, shots):
     with page.expect_download() as download:
         page.click('[data-export$="angles.csv"]')
     assert download.value.suggested_filename == "angles.csv"
+    # every export the therapist's guide names, from the page (not only the API)
+    for kind in ("report.pdf", "report.csv", "report.mot", "report.sto", "report.fhir.json"):
+        sync_api.expect(page.locator("#exports")).to_contain_text(kind)
+    with page.expect_download(timeout=60_000) as download:
+        page.locator('[data-export$="/report.mot"]').dispatch_event("click")
+    assert download.value.suggested_filename == "report.mot"
     page.screenshot(path=str(shots / "replay.png"), full_page=True, timeout=90_000)
     expect_viewer_canvas(page, shots, "replay")
     page.wait_for_timeout(2000)

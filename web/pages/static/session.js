@@ -427,7 +427,7 @@ async function showReplay() {
   if (summary.processed) {
     try {
       const paths = (await (await fetch("/openapi.json")).json()).paths || {};
-      for (const kind of ["report.pdf", "report.csv"]) {
+      for (const kind of ["report.pdf", "report.csv", "report.mot", "report.sto", "report.fhir.json"]) {
         if (paths["/api/sessions/{session_id}/" + kind])
           document.getElementById("exports").append(download(`/api/sessions/${session.id}/${kind}`, kind));
       }
