@@ -7,12 +7,13 @@ matplotlib's object API (no pyplot state), as the session report."""
 from __future__ import annotations
 
 import io
+import math
 from collections.abc import Sequence
 from datetime import date, datetime, time, timedelta
 from zoneinfo import ZoneInfo
 
 from matplotlib.backends.backend_pdf import PdfPages
-from matplotlib.dates import AutoDateLocator, DateFormatter
+from matplotlib.dates import AutoDateLocator, DateFormatter, DayLocator
 from matplotlib.figure import Figure
 
 from ..db import models
@@ -69,27 +70,34 @@ def _program_page(fig: Figure, patient: models.Patient, p: ProgramProgress, toda
     span = (datetime.combine(first, time(0), ZoneInfo(zone)),
             datetime.combine(today + timedelta(days=1), time(0), ZoneInfo(zone)))
 
+    days = (span[1] - span[0]).days
+
     def dates(ax) -> None:
         ax.set_xlim(*span)
-        ax.xaxis.set_major_locator(AutoDateLocator(maxticks=8))
+        # whole days, each named once (a short span's automatic ticks fell every 12 h)
+        ax.xaxis.set_major_locator(
+            DayLocator(interval=math.ceil(days / 7), tz=ZoneInfo(zone)) if days <= 60
+            else AutoDateLocator(maxticks=8, tz=ZoneInfo(zone)))
         ax.xaxis.set_major_formatter(DateFormatter("%d %b", tz=ZoneInfo(zone)))
         ax.tick_params(labelsize=7)
         ax.grid(alpha=0.3)
     n = len(shown) + 1
-    height = max(0.08, (y - 0.06) / n - 0.035)
+    height = max(0.08, (y - 0.06) / n - 0.045)
     for i, e in enumerate(shown):
-        top = y - i * (height + 0.035)
+        top = y - i * (height + 0.045)
         ax = fig.add_axes((0.1, top - height, 0.84, height))
         xs = [pt.started_at for pt in e.points]
         ax.plot(xs, [pt.range_deg for pt in e.points], "o-", color="#4C72B0", label="range")
         low = [pt.target_max_deg - pt.target_min_deg for pt in e.points]
-        ax.step(xs, low, where="post", color="#55A868", linestyle="--", label="target arc")
+        # the target in force from each session on, drawn on to today's end
+        ax.step([*xs, span[1]], [*low, low[-1]], where="post", color="#55A868",
+                linestyle="--", label="target arc")
         ax.set_title(f"{e.title} — {LABELS.get(e.angle, e.angle)}: range per session [°]",
                      fontsize=9, loc="left")
         ax.set_ylim(0, 1.15 * max([*low, *(pt.range_deg or 0 for pt in e.points), 10]))
         dates(ax)
         ax.legend(fontsize=7, loc="lower left")
-    top = y - len(shown) * (height + 0.035)
+    top = y - len(shown) * (height + 0.045)
     ax = fig.add_axes((0.1, top - height, 0.84, height))
     pain = [pt for pt in p.pain if pt.pain is not None]
     effort = [pt for pt in p.pain if pt.effort is not None]
