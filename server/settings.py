@@ -95,7 +95,7 @@ class Settings(BaseSettings):
     audit_repeat_s: float = Field(60.0, ge=0, description="a repeated view of the same data "
                                   "by the same person within this time is logged once [s]")
 
-    # -- the clinic (pages, reports; README "Settings") ----------------------------------
+    # -- the clinic (pages, reports; docs/operator.md "Settings") -------------------------------
     clinic_name: str = Field("", max_length=200, description="the clinic's name, printed "
                              "on reports and shown on pages")
     clinic_address: str = Field("", max_length=500, description="the clinic's address, "
