@@ -152,3 +152,29 @@ def test_query_strings_neither_grow_the_server_nor_the_audit_log(srv):
     assert rows[0][0] == 1
     assert grown_mb < 10, f"the server grew {grown_mb:.1f} MB"
 
+
+
+def test_a_reset_code_sets_a_password_once_when_sent_many_times_at_once(srv):
+    """A code sent 8 times at once (two tabs, a double click, or its holder racing the
+    therapist): each request read it unused, hashed its password, then marked it used,
+    so several were 204 and the last one's password stood. Exactly one is 204, the others
+    401, and the account opens with that one's password only."""
+    import concurrent.futures
+
+    srv.create_user("rita")
+    root = srv.client("root")
+    rita = _id(srv, "rita")
+    for attempt in range(3):
+        code = root.http.post(f"/api/admin/therapists/{rita}/reset").json()["reset_token"]
+        passwords = [f"race-{attempt}-{k}-{secrets.token_hex(4)}" for k in range(8)]
+        with concurrent.futures.ThreadPoolExecutor(8) as pool:
+            answers = list(pool.map(lambda p, c=code: httpx.post(
+                srv.url + "/api/auth/reset", json={"new_password": p}, timeout=120,
+                headers={"Authorization": f"Bearer {c}"}), passwords))
+        codes = [a.status_code for a in answers]
+        print(f"attempt {attempt}: {codes}")
+        assert sorted(codes) == [204] + [401] * 7, codes
+        (winner,) = [p for p, a in zip(passwords, answers, strict=True) if a.status_code == 204]
+        loser = next(p for p in passwords if p != winner)  # one: failures slow sign-in
+        assert _sign_in(srv, "rita", loser) == 401
+        assert _sign_in(srv, "rita", winner) == 200

@@ -143,18 +143,23 @@ async def reset_password(body: PasswordReset,
     the bearer token (``Authorization: Bearer rt_…``). Every sign-in of the account ends,
     with its live feeds and 3D views."""
     def work(db: DbSession) -> None:
-        reset = db.get(models.PasswordReset, row.id)
-        if reset is None or reset.used_at is not None:  # used meanwhile
-            raise unauthorized("the reset token is unknown, used or expired: ask your admin")
-        account = db.get(models.Therapist, reset.therapist_id)
+        password_hash = hash_password(body.new_password)  # slow: before the code is taken
+        account = db.get(models.Therapist, row.therapist_id)
         if account is None or account.disabled_at is not None:
             raise HTTPException(status.HTTP_403_FORBIDDEN,
                                 "this account is disabled: ask your clinic's admin")
-        db.execute(update(models.Therapist).where(models.Therapist.id == reset.therapist_id)
-                   .values(password_hash=hash_password(body.new_password)))
-        reset.used_at = datetime.now(UTC)
+        # taken by one request only: the row is marked used where it still is unused, so
+        # of requests sent at once (or to two servers) one sets the password
+        taken = db.execute(update(models.PasswordReset).where(
+            models.PasswordReset.id == row.id, models.PasswordReset.used_at.is_(None))
+            .values(used_at=datetime.now(UTC)))
+        if taken.rowcount != 1:  # used meanwhile
+            db.rollback()
+            raise unauthorized("the reset token is unknown, used or expired: ask your admin")
+        db.execute(update(models.Therapist).where(models.Therapist.id == row.therapist_id)
+                   .values(password_hash=password_hash))
         db.execute(delete(models.AccessToken).where(
-            models.AccessToken.therapist_id == reset.therapist_id))
+            models.AccessToken.therapist_id == row.therapist_id))
         db.commit()
 
     await svc.run_db(work)
