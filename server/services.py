@@ -46,6 +46,8 @@ class ParkedLive:
     feedback: Any
     expire: asyncio.TimerHandle
     device_id: int | None = None
+    #: the stream's patient's therapist: the holder whose share the side counts in
+    therapist_id: int | None = None
 
 
 class Services:
@@ -127,13 +129,16 @@ class Services:
         self.engine.dispose()
 
     def park_live(self, stream_id: str, worker: LiveWorker, feedback: Any,
-                  device_id: int | None = None) -> None:
+                  device_id: int | None = None, therapist_id: int | None = None) -> None:
         """Keep the live side (estimator, feedback's counts) of a stream whose connection
         was lost without ``bye``, for ``LIVE_PARK_S``: a resume of the stream on this
         server takes it over (``take_live``), so its live estimates need no calibration
         again and its repetitions go on. At most ``ARMTRACK_MAX_STREAMS_PER_KIT`` of one
         kit (its oldest goes: a kit dropping streams pushes out its own, not other
-        patients') and ``MAX_PARKED_LIVE`` in all (the oldest goes)."""
+        patients') and ``MAX_PARKED_LIVE`` in all, shared fairly among therapists: when
+        full, the oldest of the therapist holding the most goes (this one's own when it
+        holds as many as any), so one therapist's kits, however many, push out their
+        own sides before anyone else's."""
         worker.on_pose = None
         old = self.parked_live.pop(stream_id, None)
         if old is not None:
@@ -144,12 +149,23 @@ class Services:
             for oldest in own[:max(0, len(own) - self.settings.max_streams_per_kit + 1)]:
                 self._drop_parked(oldest)
         while len(self.parked_live) >= MAX_PARKED_LIVE:
-            oldest = next(iter(self.parked_live))
-            self._drop_parked(oldest)
+            self._drop_parked(self._evictee(therapist_id))
         loop = asyncio.get_running_loop()
         self.parked_live[stream_id] = ParkedLive(
             worker, feedback, loop.call_later(LIVE_PARK_S, self._drop_parked, stream_id),
-            device_id)
+            device_id, therapist_id)
+
+    def _evictee(self, newcomer: int | None) -> str:
+        """The parked side to let go for the ``newcomer`` therapist's: the oldest of the
+        biggest holder, counting the newcomer's own as one more (at a tie: the newcomer's
+        own, else the holder whose oldest is oldest)."""
+        held: dict[int | None, list[str]] = {}
+        for key, parked in self.parked_live.items():  # oldest first
+            held.setdefault(parked.therapist_id, []).append(key)
+        most = max(len(v) + (k == newcomer) for k, v in held.items())
+        if newcomer in held and len(held[newcomer]) + 1 == most:
+            return held[newcomer][0]
+        return next(v[0] for v in held.values() if len(v) == most)
 
     def take_live(self, stream_id: str) -> ParkedLive | None:
         """The parked live side of ``stream_id`` (None when there is none)."""

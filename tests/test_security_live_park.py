@@ -4,7 +4,10 @@ patient's phone — must not push every other patient's kept live side out by op
 dropping streams of its own: a kit keeps at most ``ARMTRACK_MAX_STREAMS_PER_KIT`` of them.
 Before, a foreign kit that dropped 64 streams while Ada's phone was cut made Ada's resumed
 stream start without its calibration: no estimate and no count for the rest of the
-exercise. A real server, real WebSocket clients, the live estimation process."""
+exercise. Nor may one therapist's many kits (``KITS`` kits each dropping the most
+streams a kit may keep) fill the 64 and push out another therapist's patient: the bound is
+shared fairly, the oldest of the biggest holder going first. A real server, real
+WebSocket clients, the live estimation process."""
 
 from __future__ import annotations
 
@@ -18,6 +21,7 @@ from test_feedback_resume import CUT_AT_S, REPS, SPEED, _recording, kit_count
 from websockets.asyncio.client import connect
 
 FLOOD = 64  # as many as the server keeps
+KITS = 16  # × ARMTRACK_MAX_STREAMS_PER_KIT (4) = 64
 
 
 @pytest.fixture(scope="module")
@@ -31,14 +35,28 @@ def server(tmp_path_factory):
 
 
 def test_a_foreign_kit_dropping_streams_does_not_evict_a_patients_live_side(server):
-    alice, mallory = server.client("alice"), server.client("mallory")
-    ada = alice.patient("Ada")
-    phone = alice.device(ada["id"], "phone")
+    mallory = server.client("mallory")
     other = mallory.device(mallory.patient("Mallory's own")["id"], "kit")
+    _ada_resumes_after_a_flood(server, "Ada", [other["token"]] * FLOOD)
+
+
+def test_one_therapists_many_kits_do_not_evict_another_therapists_live_side(server):
+    mallory = server.client("mallory")
+    tokens = [mallory.device(mallory.patient(f"Mallory's {i}")["id"], "kit")["token"]
+              for i in range(KITS)]
+    per_kit = FLOOD // KITS
+    _ada_resumes_after_a_flood(server, "Ada B", [t for t in tokens for _ in range(per_kit)])
+
+
+def _ada_resumes_after_a_flood(server, name: str, flood_tokens: list[str]) -> None:
+    """Ada's phone (alice's patient) is cut mid-exercise; kits of ``flood_tokens`` (one
+    stream each) open streams and drop them; Ada's phone resumes: its count goes on."""
+    alice = server.client("alice")
+    ada = alice.patient(name)
+    phone = alice.device(ada["id"], "phone")
     recording = _recording()
     plan = MessagePlan(recording, rows_per_message=6)
     url = f"{server.ws_url}?token={phone['token']}"
-    foreign_url = f"{server.ws_url}?token={other['token']}"
     feedback: list[tuple[int, dict]] = []
 
     async def reader(ws, connection: int):
@@ -68,8 +86,8 @@ def test_a_foreign_kit_dropping_streams_does_not_evict_a_patients_live_side(serv
         """The foreign kit opens streams and drops them (no bye): each leaves a live side."""
         hello = hello_message(recording, "kit")
         opened = 0
-        for _ in range(FLOOD):
-            async with connect(foreign_url) as ws:
+        for token in flood_tokens:
+            async with connect(f"{server.ws_url}?token={token}") as ws:
                 await ws.send(json.dumps(hello))
                 if json.loads(await ws.recv())["type"] == "ready":
                     opened += 1
@@ -100,8 +118,8 @@ def test_a_foreign_kit_dropping_streams_does_not_evict_a_patients_live_side(serv
     opened = asyncio.run(run())
     after = [m for c, m in feedback if c == 1 and m["exercise"] == "elbow_flexion"]
     shown = kit_count(feedback)
-    print(f"\nforeign kit opened and dropped {opened} streams; after the resume "
+    print(f"\nforeign kits opened and dropped {opened} streams; after the resume "
           f"{len(after)} feedback messages; the kit shows {shown} of {REPS}")
-    assert opened == FLOOD
+    assert opened == len(flood_tokens)
     assert after, "no feedback after the resume: Ada's live side was pushed out"
     assert shown == REPS

@@ -63,13 +63,17 @@ router = APIRouter()
 ACK_EVERY_S = 0.25
 
 
-def find_device(db: DbSession, token: str | None) -> tuple[int, int] | None:
-    """(device id, patient id) of a valid, unrevoked device token."""
+def find_device(db: DbSession, token: str | None) -> tuple[int, int, int | None] | None:
+    """(device id, patient id, the patient's therapist's id) of a valid, unrevoked device
+    token."""
     if not token:
         return None
-    device = db.scalar(select(models.Device).where(
-        models.Device.token_hash == hash_token(token), models.Device.revoked_at.is_(None)))
-    return None if device is None else (device.id, device.patient_id)
+    found = db.execute(select(models.Device.id, models.Device.patient_id,
+                              models.Patient.therapist_id)
+                       .join(models.Patient, models.Patient.id == models.Device.patient_id)
+                       .where(models.Device.token_hash == hash_token(token),
+                              models.Device.revoked_at.is_(None))).first()
+    return None if found is None else tuple(found)
 
 
 def bearer(websocket: WebSocket) -> str | None:
@@ -111,12 +115,13 @@ async def ingest(websocket: WebSocket) -> None:
 
 class IngestConnection:
     def __init__(self, services: Services, websocket: WebSocket, device_id: int,
-                 patient_id: int):
+                 patient_id: int, therapist_id: int | None = None):
         self.services = services
         self.settings = services.settings
         self.websocket = websocket
         self.device_id = device_id
         self.patient_id = patient_id
+        self.therapist_id = therapist_id
         self.hello: Hello | None = None
         self.state: StreamState | None = None
         self.worker: LiveWorker | None = None
@@ -534,7 +539,7 @@ class IngestConnection:
                     and self.services.connections.get(state.stream_id) is self)
             if lost:  # the kit may resume: its live side waits for it
                 self.services.park_live(state.stream_id, self.worker, self.feedback,
-                                        self.device_id)
+                                        self.device_id, self.therapist_id)
             else:
                 await self.worker.close()
         if state is None:
