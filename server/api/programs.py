@@ -153,21 +153,10 @@ class PatientFlags(BaseModel):
 def get_flags(db: Db, therapist: Therapist, settings: SettingsDep) -> list[PatientFlags]:
     """The therapist's patients who need a look (``docs/programs.md``, "Flags"): no
     session for days, range falling, pain rising. Patients without a flag are left out."""
-    out = []
-    patients = db.scalars(select(models.Patient).where(
-        models.Patient.therapist_id == therapist.id).order_by(models.Patient.id))
-    for patient in patients:
-        flags = [f for p in adherence.patient_programs_progress(db, patient, settings)
-                 for f in p.flags]
-        seen, unique = set(), []
-        for f in flags:  # the patient's no_session flag once, not per program
-            key = (f.kind, f.exercise, f.program_id if f.kind != "no_session" else None)
-            if key not in seen:
-                seen.add(key)
-                unique.append(f)
-        if unique:
-            out.append(PatientFlags(patient_id=patient.id, flags=unique))
-    return out
+    patients = list(db.scalars(select(models.Patient.id).where(
+        models.Patient.therapist_id == therapist.id).order_by(models.Patient.id)))
+    found = adherence.flags_by_patient(db, patients, settings)
+    return [PatientFlags(patient_id=p, flags=found[p]) for p in patients if p in found]
 
 
 @router.get("/programs/{program_id}/careplan.fhir.json", response_class=JSONResponse,

@@ -9,6 +9,8 @@ each marked period. Days are the clinic's (``calendar.py``).
 
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import date, datetime, timedelta
@@ -19,6 +21,7 @@ import numpy as np
 from pydantic import BaseModel, Field
 from sqlalchemy import select
 from sqlalchemy.orm import Session as DbSession
+from sqlalchemy.orm import selectinload
 
 from .. import clock
 from ..db import models
@@ -171,11 +174,25 @@ def program_sessions(db: DbSession, patient_id: int, programs: Sequence[models.P
     sessions = list(db.scalars(select(models.Session)
                                .where(models.Session.patient_id == patient_id)
                                .order_by(models.Session.started_at, models.Session.id)))
-    versions = {v.id: (p, v) for p in programs for v in p.versions}
+    links, marked = _links_and_marks(db, sessions)
+    return _attributed(sessions, programs, links, marked, zone)
+
+
+def _links_and_marks(db: DbSession, sessions: Sequence[models.Session]
+                     ) -> tuple[dict[int, int], dict[int, set[str]]]:
+    """The program versions sessions named (session id → version id), and the marked
+    exercises of the others."""
     links = dict(db.execute(select(models.SessionProgram.session_id,
                                    models.SessionProgram.version_id).where(
         models.SessionProgram.session_id.in_([s.id for s in sessions]))).all())
-    marked = _marked_exercises(db, [s.id for s in sessions if s.id not in links])
+    return links, _marked_exercises(db, [s.id for s in sessions if s.id not in links])
+
+
+def _attributed(sessions: Sequence[models.Session], programs: Sequence[models.Program],
+                links: Mapping[int, int], marked: Mapping[int, set[str]], zone: ZoneInfo
+                ) -> dict[int, list[ProgramSession]]:
+    """``program_sessions`` of one patient's ``sessions`` (oldest first)."""
+    versions = {v.id: (p, v) for p in programs for v in p.versions}
     out: dict[int, list[ProgramSession]] = {p.id: [] for p in programs}
     newest_first = sorted(programs, key=lambda p: (aware(p.created_at), p.id), reverse=True)
     for s in sessions:
@@ -213,10 +230,34 @@ def _fill(db: DbSession, items: Sequence[ProgramSession]) -> None:
         sid = item.session.id
         item.pain = max(pains[sid]) if sid in pains else None
         item.effort = max(efforts[sid]) if sid in efforts else None
-        try:
-            item.results = exercise_results(content.session_report(db, item.session, {}))
-        except NoEstimates:
-            item.results = {}
+        item.results = session_results(db, item.session)
+
+
+#: Exercise results of sessions, by what identifies their estimates (the report cache's
+#: key: a new estimate, reprocessing, a resumed stream make a new key): a few numbers a
+#: session, so that the flags of every patient need no report built again.
+_RESULTS: OrderedDict[tuple, dict[str, ExerciseResult]] = OrderedDict()
+_RESULTS_SIZE = 50_000
+_RESULTS_LOCK = threading.Lock()
+
+
+def session_results(db: DbSession, session: models.Session) -> dict[str, ExerciseResult]:
+    """``exercise_results`` of the session's report ({} while it has no estimates)."""
+    key = content.report_key(session)
+    with _RESULTS_LOCK:
+        found = _RESULTS.get(key)
+        if found is not None:
+            _RESULTS.move_to_end(key)
+            return found
+    try:  # the results need no targets: none are looked up
+        found = exercise_results(content.session_report(db, session, {}, current={}))
+    except NoEstimates:
+        found = {}
+    with _RESULTS_LOCK:
+        _RESULTS[key] = found
+        while len(_RESULTS) > _RESULTS_SIZE:
+            _RESULTS.popitem(last=False)
+    return found
 
 
 # --- adherence ------------------------------------------------------------------------
@@ -360,12 +401,21 @@ def program_flags(program: models.Program, items: Sequence[ProgramSession], toda
 
 def no_session_flag(db: DbSession, patient_id: int, programs: Sequence[models.Program],
                     today: date, zone: ZoneInfo, settings: Settings) -> Flag | None:
-    active = [p for p in programs if store.is_active(p, today)]
-    if not active:
+    if not any(store.is_active(p, today) for p in programs):
         return None
     last = db.scalar(select(models.Session.started_at)
                      .where(models.Session.patient_id == patient_id)
                      .order_by(models.Session.started_at.desc()).limit(1))
+    return _no_session(last, programs, today, zone, settings)
+
+
+def _no_session(last: datetime | None, programs: Sequence[models.Program], today: date,
+                zone: ZoneInfo, settings: Settings) -> Flag | None:
+    """The ``no_session`` flag, given the start of the patient's last session (None: no
+    session yet)."""
+    active = [p for p in programs if store.is_active(p, today)]
+    if not active:
+        return None
     since = (local_day(last, zone) if last is not None
              else min(p.versions[-1].start_date for p in active))
     days = (today - since).days
@@ -387,6 +437,48 @@ def filled_sessions(db: DbSession, patient_id: int, program: models.Program,
 
 
 # --- together -------------------------------------------------------------------------
+
+def flags_by_patient(db: DbSession, patient_ids: Sequence[int], settings: Settings,
+                     now: datetime | None = None) -> dict[int, list[Flag]]:
+    """Each patient's flags (those with none left out), as ``patient_programs_progress``
+    gives them per program, the ``no_session`` flag once (on the first active program);
+    without the weeks and progress the flags do not need, and in a few queries for all
+    the patients (their sessions' results come from ``session_results``)."""
+    zone = clinic_zone(settings.clinic_timezone)
+    today = local_day(now or clock.now(), zone)
+    programs: dict[int, list[models.Program]] = {}
+    for p in db.scalars(select(models.Program)
+                        .where(models.Program.patient_id.in_(patient_ids))
+                        .options(selectinload(models.Program.versions)
+                                 .selectinload(models.ProgramVersion.exercises))
+                        .order_by(models.Program.created_at, models.Program.id)):
+        if p.versions:
+            programs.setdefault(p.patient_id, []).append(p)
+    flagged = [pid for pid in patient_ids
+               if any(store.is_active(p, today) for p in programs.get(pid, ()))]
+    sessions: dict[int, list[models.Session]] = {pid: [] for pid in flagged}
+    for s in db.scalars(select(models.Session)
+                        .where(models.Session.patient_id.in_(flagged))
+                        .order_by(models.Session.started_at, models.Session.id)):
+        sessions[s.patient_id].append(s)
+    links, marked = _links_and_marks(db, [s for v in sessions.values() for s in v])
+    by_patient = {pid: _attributed(sessions[pid], programs[pid], links, marked, zone)
+                  for pid in flagged}
+    _fill(db, [i for pid in flagged for p in programs[pid] if store.is_active(p, today)
+               for i in by_patient[pid][p.id]])
+    out: dict[int, list[Flag]] = {}
+    for pid in flagged:
+        active = [p for p in programs[pid] if store.is_active(p, today)]
+        last = max((s.started_at for s in sessions[pid]), default=None, key=aware)
+        missed = _no_session(last, programs[pid], today, zone, settings)
+        flags = [] if missed is None else [missed.model_copy(update={"program_id":
+                                                                    active[0].id})]
+        for p in programs[pid]:
+            flags += program_flags(p, by_patient[pid][p.id], today, settings)
+        if flags:
+            out[pid] = flags
+    return out
+
 
 def patient_programs_progress(db: DbSession, patient: models.Patient, settings: Settings,
                               now: datetime | None = None) -> list[ProgramProgress]:

@@ -518,7 +518,8 @@ _CACHE_SIZE = 64
 _CACHE_LOCK = threading.Lock()
 
 
-def _cache_key(session: models.Session) -> tuple:
+def report_key(session: models.Session) -> tuple:
+    """What identifies a session's estimates (the cached report's key)."""
     return (session.id, session.started_at.isoformat(), session.samples, session.status,
             json.dumps(session.calibration, sort_keys=True, default=str),
             json.dumps(session.estimator, sort_keys=True, default=str),
@@ -539,7 +540,7 @@ def session_report(db: DbSession, session: models.Session,
         targets = targets_at(db, session.patient_id, utc(session.started_at))
     if current is None:
         current = current_targets(db, session.patient_id)
-    key = _cache_key(session)
+    key = report_key(session)
     with _CACHE_LOCK:
         base = _CACHE.get(key)
         if base is not None:
