@@ -110,7 +110,8 @@ const KitStore = {
  *
  * Times: t [s] = (performance.timeOrigin + event.timeStamp) / 1000 − the session's start
  * (epoch seconds kept with the state), so a reload continues the same clock; a reading
- * older than the last kept one is stamped with the last time (t never goes back).
+ * older than the last kept one is stamped with the last time (t never goes back); a clock
+ * set back between two loads is made up by state.clockShift [s] (added to t).
  */
 class KitStream {
   constructor({ token, sensor, side, device, program, onChange, onFeedback, onClose, onReady }) {
@@ -140,6 +141,8 @@ class KitStream {
     this._flushTimer = null;
     this._sent = -1;       // highest seq sent on the current connection
     this._unsaved = new Map();  // seq → message queued, not yet in IndexedDB
+    this._storageError = false;  // this.error is a failed save's (cleared by the next save)
+    this._retrying = false;
   }
 
   /** The page is going away (reload, closed tab): what is not in IndexedDB yet — the
@@ -161,7 +164,7 @@ class KitStream {
     const kept = JSON.parse(localStorage.getItem(TAIL_KEY) || "[]");
     localStorage.removeItem(TAIL_KEY);
     for (const [seq, message] of kept) {
-      if (seq < this.state.nextSeq) continue;  // its save completed after all
+      if (seq <= this.state.savedThrough) continue;  // its save completed after all
       if (message.type === "samples" && message.rows.length) {
         this.state.lastT = Math.max(this.state.lastT, message.rows[message.rows.length - 1][0]);
       }
@@ -179,13 +182,23 @@ class KitStream {
       this.program = kept.program == null ? null : kept.program;
       this.state.ratings = kept.ratings || [];
       this.ended = Boolean(kept.ended);
+      // the outbox holds every seq up to savedThrough; a state saved while later messages
+      // were queued (ready, a rating, finish) names a nextSeq past messages that never
+      // reached IndexedDB: they are in the tail (or were never taken), numbered from here
+      if (kept.savedThrough == null) this.state.savedThrough = kept.nextSeq - 1;
+      this.state.nextSeq = this.state.savedThrough + 1;
       this._takeTail();
+      // the phone's clock set back while the page was away (a network time fix): the
+      // session clock goes on from its last time, not stuck there until the wall clock
+      // catches up (every reading stamped alike); clockShift [s] keeps startEpoch as it was
+      const behind = this.state.lastT - this._rawTime(performance.now());
+      if (behind > 0) this.state.clockShift = (this.state.clockShift || 0) + behind;
     } else {
       localStorage.removeItem(TAIL_KEY);
       await KitStore.clear();
       this.state = { stream: null, session: null, nextSeq: 0, acked: -1,
                      startEpoch: (performance.timeOrigin + performance.now()) / 1000,
-                     lastT: 0, sensor: this.sensor, side: this.side, finished: false,
+                     savedThrough: -1, lastT: 0, sensor: this.sensor, side: this.side, finished: false,
                      program: this.program, ratings: [] };
       await KitStore.setState("stream", this.state);
     }
@@ -197,8 +210,12 @@ class KitStream {
 
   /** Seconds on the session's clock of an event's time stamp [ms since timeOrigin]. */
   time(timeStampMs) {
-    const t = (performance.timeOrigin + timeStampMs) / 1000 - this.state.startEpoch;
-    return Math.max(t, this.state.lastT);
+    return Math.max(this._rawTime(timeStampMs), this.state.lastT);
+  }
+
+  _rawTime(timeStampMs) {
+    return (performance.timeOrigin + timeStampMs) / 1000 - this.state.startEpoch
+      + (this.state.clockShift || 0);
   }
 
   /** A DeviceMotionEvent: its reading joins the next message. */
@@ -256,23 +273,51 @@ class KitStream {
       const rows = this.rows.splice(0, 1000);
       this._queue((seq) => ({ type: "samples", seq, sensor: this.sensor, rows }));
     }
+    if (this._storageError && this._unsaved.size && !this._retrying) {
+      // no new message to carry the retry (ended, or no readings): try them again alone
+      this._retrying = true;
+      const upto = Math.max(...this._unsaved.keys());
+      const state = { ...this.state, nextSeq: upto + 1 };
+      this._saving = this._saving.then(() => this._save(upto, state)).catch(() => {})
+        .then(() => { this._retrying = false; if (this.ended) this._byeWhenDone(); });
+    }
     return this._saving;
   }
 
   _queue(make) {
     const seq = this.state.nextSeq++;
     const message = make(seq);
-    const text = JSON.stringify(message);
     const state = { ...this.state };
     this._unsaved.set(seq, message);
-    // saved before it is sent, in order; a failed save is shown and retried by the next
-    this._saving = this._saving.then(() => KitStore.append([[seq, text]], state)).then(() => {
-      this._unsaved.delete(seq);
-      this.unsent += 1;
-      if (this.connected && seq === this._sent + 1) this._send(seq, text);
+    // saved before it is sent, in order; a failed save keeps its messages in _unsaved and
+    // the next save takes them again first (the outbox never has a gap in its seqs)
+    this._saving = this._saving.then(() => this._save(seq, state)).catch((error) => {
+      const full = error && error.name === "QuotaExceededError";
+      this.error = full
+        ? `This phone's storage is full: ${this._unsaved.size} messages wait in memory and ` +
+          "are saved and sent as soon as there is room. Keep this page open; free some space on the phone."
+        : "could not save on this phone: " + error;
+      this._storageError = true;
       this.onChange(this);
-    }).catch((error) => { this.error = "could not save on this phone: " + error; this.onChange(this); });
+    });
     return this._saving;
+  }
+
+  /** Save the messages not yet saved up to `upto` (in seq order) with `state` (whose
+   * nextSeq is upto + 1), then send those the connection is ready for. */
+  async _save(upto, state) {
+    const batch = [...this._unsaved.entries()].filter(([s]) => s <= upto).sort((a, b) => a[0] - b[0])
+      .map(([s, message]) => [s, JSON.stringify(message)]);
+    if (!batch.length) return;  // an earlier retry saved it
+    await KitStore.append(batch, { ...state, savedThrough: upto });
+    for (const [s] of batch) this._unsaved.delete(s);
+    this.state.savedThrough = Math.max(this.state.savedThrough ?? -1, upto);
+    this.unsent += batch.length;
+    if (this._storageError) { this._storageError = false; this.error = null; }
+    for (const [s, text] of batch) {
+      if (this.connected && s === this._sent + 1) this._send(s, text);
+    }
+    this.onChange(this);
   }
 
   _send(seq, text) {
@@ -365,16 +410,18 @@ class KitStream {
     this.ended = true;
     this.state.ended = true;  // kept: a reload sends the rest, then says bye
     await KitStore.setState("stream", { ...this.state });
-    clearInterval(this._flushTimer);
-    this._byeWhenDone();
+    this._byeWhenDone();  // the flush timer goes on until then: it retries a failed save
     this.connect();
   }
 
   _byeWhenDone() {
     // ratings wait for their answer, unless this server cannot store them (no effort-pain/1)
     const ratingsDone = this.state.ratings.length === 0 || !this.extensions.includes("effort-pain/1");
-    if (this.connected && this.unsent === 0 && ratingsDone && this.ws.readyState === 1) {
+    // nothing may wait unsaved either (a failed save): bye would end the session without it
+    if (this.connected && this.unsent === 0 && this._unsaved.size === 0 && ratingsDone
+        && this.ws.readyState === 1) {
       this.ws.send(JSON.stringify({ type: "bye" }));
+      clearInterval(this._flushTimer);
       this.state.finished = true;
       KitStore.setState("stream", { ...this.state });
       this.onChange(this);

@@ -1,0 +1,210 @@
+"""The phone kit's outbox (``web/pages/static/kit-stream.js``) when the phone's storage
+fails, in Debian's headless chromium against a real server: every reading is still
+stored once, in order, and the page says what is wrong.
+
+A save to IndexedDB can fail (the phone's storage full, a transient ``UnknownError``); the
+fault is injected by wrapping the page's own ``KitStore.append`` so that chosen calls
+reject as IndexedDB would, the rest going to the real IndexedDB. Skips with the reason
+when chromium or Playwright is absent."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import test_phone_kit_browser as kit_page
+from test_phone_kit_browser import (
+    FEEDER,
+    _start_kit,
+    _stored_rows,
+    _wait,
+    motion_events,
+    phone_simulation,
+)
+
+# the kit page's fixtures: a phone-sized chromium, the screenshots' folder
+phone = kit_page.phone
+shots = kit_page.shots
+
+pytestmark = pytest.mark.slow
+
+#: Wraps KitStore.append: ``window.__failSaves`` more saves reject with ``__failName``.
+FAIL_SAVES = """
+(name) => {
+  window.__failName = name;
+  window.__failSaves = 0;
+  window.__failed = 0;
+  const real = KitStore.append.bind(KitStore);
+  KitStore.append = (messages, state) => {
+    if (window.__failSaves > 0) {
+      window.__failSaves -= 1;
+      window.__failed += 1;
+      return Promise.reject(new DOMException("simulated: " + window.__failName,
+                                             window.__failName));
+    }
+    return real(messages, state);
+  };
+}
+"""
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    from server_support import ServerProcess
+
+    process = ServerProcess(tmp_path_factory.mktemp("kit-storage"))
+    process.create_user("alice")
+    process.start(timeout=180)
+    yield process
+    process.stop()
+
+
+def _dispatched(phone) -> int:
+    return phone.evaluate("window.__feed.i")
+
+
+def _all_stored_once(server, phone, events, session_id: int, what: str) -> None:
+    api = server.client("alice")
+    sent = phone.evaluate("kit.stream.samples")
+    _wait(lambda: api.session(session_id)["samples"] >= sent, 60,
+          f"the {sent} readings stored ({what})")
+    stored = _stored_rows(server, api, session_id)
+    acc = np.array(events)[:, 1:4]
+    key = {tuple(np.round(r, 9)): i for i, r in enumerate(acc)}
+    index = [key[tuple(np.round(r[1:4], 9))] for r in stored]
+    print(f"\n{what}: {sent} readings taken, {len(index)} stored, "
+          f"{phone.evaluate('window.__failed')} saves failed")
+    assert index == list(range(index[0], index[0] + sent)), \
+        "a reading was lost, reordered or stored twice"
+    assert api.session(session_id)["samples"] == sent
+
+
+def test_a_failed_save_is_retried_and_nothing_is_lost(server, phone, shots):
+    """One save fails (IndexedDB's UnknownError): before, its message was only in memory,
+    the next ones were saved but never sent (the connection waits for the missing seq),
+    and after a reconnect the server refused them all as ahead: the stream stalled."""
+    api = server.client("alice")
+    device = api.device(api.patient("Storage Patient")["id"], "phone")
+    events = motion_events(phone_simulation(seed=5))
+    _start_kit(phone, server.url, device["token"], shots, "s")
+    phone.evaluate(FAIL_SAVES, "UnknownError")
+    phone.click("#ready")
+    phone.evaluate(FEEDER, events[:900])  # 15 s
+    _wait(lambda: phone.evaluate("kit.stream.connected && kit.stream.unsent === 0 "
+                                 "&& kit.stream.samples > 60"), 30, "streaming")
+    phone.evaluate("window.__failSaves = 1")
+    _wait(lambda: phone.evaluate("window.__failed") == 1, 10, "the failed save")
+    _wait(lambda: _dispatched(phone) >= 900, 60, "the readings dispatched")
+    phone.wait_for_timeout(500)
+    _wait(lambda: phone.evaluate("kit.stream.unsent === 0"), 30,
+          "every message sent and acked after the failed save")
+    session_id = phone.evaluate("kit.stream.state.session")
+    _all_stored_once(server, phone, events, session_id, "one failed save")
+    assert phone.evaluate("kit.stream.error") is None, "the passing fault is still shown"
+
+
+def test_a_full_phone_says_so_and_sends_all_once_it_has_room(server, phone, shots):
+    """The phone's storage full (QuotaExceededError) for several saves: the page says the
+    storage is full in words, keeps the readings, and sends them all once saves work."""
+    api = server.client("alice")
+    device = api.device(api.patient("Full Phone Patient")["id"], "phone")
+    events = motion_events(phone_simulation(seed=6))
+    _start_kit(phone, server.url, device["token"], shots, "q")
+    phone.evaluate(FAIL_SAVES, "QuotaExceededError")
+    phone.click("#ready")
+    phone.evaluate(FEEDER, events[:900])
+    _wait(lambda: phone.evaluate("kit.stream.connected && kit.stream.samples > 60"), 30,
+          "streaming")
+    phone.evaluate("window.__failSaves = 12")  # ~1.2 s of messages
+    _wait(lambda: phone.evaluate("window.__failed") >= 3, 10, "failing saves")
+    error = phone.evaluate("kit.stream.error") or ""
+    phone.screenshot(path=str(shots / "q1-storage-full.png"))
+    print(f"\nshown while full: {error!r}")
+    assert "storage is full" in error, error
+    _wait(lambda: _dispatched(phone) >= 900, 60, "the readings dispatched")
+    phone.wait_for_timeout(500)
+    _wait(lambda: phone.evaluate("kit.stream.unsent === 0 && kit.stream._unsaved.size === 0"),
+          30, "every message saved, sent and acked once there was room")
+    session_id = phone.evaluate("kit.stream.state.session")
+    _all_stored_once(server, phone, events, session_id, "storage full for 12 saves")
+    assert phone.evaluate("kit.stream.error") is None, "the storage message outlived the fault"
+
+
+def test_a_reload_while_saves_fail_loses_nothing(server, phone, shots):
+    """Saves failing, the connection lost and made again (ready saves the stream's state,
+    naming a next seq past the messages not saved), then the page reloaded: the messages
+    kept in memory go to the page's tail and are sent after the reload, none skipped."""
+    api = server.client("alice")
+    device = api.device(api.patient("Reload Full Patient")["id"], "phone")
+    events = motion_events(phone_simulation(seed=7))
+    _start_kit(phone, server.url, device["token"], shots, "r")
+    phone.evaluate(FAIL_SAVES, "QuotaExceededError")
+    phone.click("#ready")
+    phone.evaluate(FEEDER, events[:1200])
+    _wait(lambda: phone.evaluate("kit.stream.connected && kit.stream.samples > 120"), 30,
+          "streaming")
+    phone.evaluate("window.__failSaves = 1000000")
+    _wait(lambda: phone.evaluate("window.__failed") >= 5, 10, "failing saves")
+    closes = phone.evaluate("kit.stream.closes")
+    phone.evaluate("kit.stream.ws.close()")  # the link drops; the page connects again
+    _wait(lambda: phone.evaluate(f"kit.stream.closes > {closes} && kit.stream.connected"),
+          30, "connected again (ready handled)")
+    phone.wait_for_timeout(1000)
+    consumed = phone.evaluate("clearTimeout(window.__feed.timer), window.__feed.i")
+    waiting = phone.evaluate("kit.stream._unsaved.size")
+    session_id = phone.evaluate("kit.stream.state.session")
+    phone.reload()  # storage works again after the reload (the fault was the old page's)
+    phone.click("#continue")
+    _wait(lambda: phone.evaluate("kit.stream && kit.stream.connected "
+                                 "&& kit.stream.unsent === 0"), 60,
+          "everything sent and acked after the reload")
+    stored = _stored_rows(server, api, session_id)
+    acc = np.array(events)[:, 1:4]
+    key = {tuple(np.round(r, 9)): i for i, r in enumerate(acc)}
+    index = [key[tuple(np.round(r[1:4], 9))] for r in stored]
+    print(f"\nreload while full: {consumed} readings dispatched, {waiting} messages unsaved "
+          f"at the reload, {len(index)} stored")
+    assert waiting > 0
+    assert index == list(range(index[0], consumed)), \
+        "a reading was lost, reordered or stored twice across the reload"
+
+
+def test_a_clock_gone_back_across_a_reload_does_not_stamp_readings_alike(server, phone, shots):
+    """The session clock is the wall clock less the session's start (kept on the phone).
+    The phone's clock set back 30 s between two loads of the page (a network time fix),
+    simulated by moving the kept start 30 s later: before, every reading of the next 30 s
+    was stamped with the last kept time (t never goes back), so the server stored seconds
+    of motion at one instant; the clock must go on from the last time instead."""
+    api = server.client("alice")
+    device = api.device(api.patient("Clock Patient")["id"], "phone")
+    events = motion_events(phone_simulation(seed=8))
+    _start_kit(phone, server.url, device["token"], shots, "c")
+    phone.click("#ready")
+    phone.evaluate(FEEDER, events[:300])
+    _wait(lambda: phone.evaluate("window.__feed.i >= 300 && kit.stream.unsent === 0 "
+                                 "&& kit.stream._unsaved.size === 0"), 60, "5 s streamed")
+    session_id = phone.evaluate("kit.stream.state.session")
+    phone.evaluate("""async () => {
+      const state = await KitStore.getState("stream");
+      await KitStore.setState("stream", { ...state, startEpoch: state.startEpoch + 30 });
+    }""")
+    phone.reload()
+    phone.click("#continue")
+    _wait(lambda: phone.evaluate("kit.stream && kit.stream.connected"), 30, "resumed")
+    phone.evaluate(FEEDER, events[300:600])
+    _wait(lambda: phone.evaluate("window.__feed.i >= 300 && kit.stream.unsent === 0 "
+                                 "&& kit.stream._unsaved.size === 0"), 60, "5 s more")
+    _wait(lambda: api.session(session_id)["samples"] >= 600, 30, "600 readings stored")
+    stored = _stored_rows(server, api, session_id)
+    acc = np.array(events)[:, 1:4]
+    key = {tuple(np.round(r, 9)): i for i, r in enumerate(acc)}
+    index = np.array([key[tuple(np.round(r[1:4], 9))] for r in stored])
+    after = index >= 300
+    steps = np.diff(stored[after, 0])
+    truth = np.diff(np.array(events)[index[after], 0])
+    alike = int(np.count_nonzero(steps == 0))
+    print(f"\nclock back 30 s: {after.sum()} readings after the reload, {alike} stamped like "
+          f"the one before; worst step error {np.max(np.abs(steps - truth)) * 1e3:.1f} ms")
+    assert index.tolist() == list(range(index[0], 600))
+    assert alike == 0, "readings after the reload share one time stamp"
+    assert np.max(np.abs(steps - truth)) < 0.005
+    assert stored[after, 0][0] > stored[~after, 0][-1]
