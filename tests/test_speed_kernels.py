@@ -73,17 +73,41 @@ def test_joint_angles_in_blocks_equal_small_chunks():
         np.testing.assert_array_equal(got, np.concatenate([p[i] for p in parts]))
 
 
-def test_turn_about_vertical_is_elemental_z_compiled_or_not():
-    """The whole arm's turn to its sensors' mean heading (6-axis kits): each sample's
-    segments by ``elemental('z', angle) @ R``; the others untouched."""
+def test_mean_turn_is_elemental_z_by_the_weighted_mean_compiled_or_not():
+    """The whole arm's turn to its sensors' weighted mean heading (6-axis kits): each
+    sample's chain by ``elemental('z', −Σ wⱼ offsetⱼ / Σ w)`` with ``w = 1 / (floor +
+    turned)``, the other segments untouched."""
     rng = np.random.default_rng(8)
     _, Rw = stack(rng, 300)
-    angle = rng.uniform(-0.2, 0.2, len(Rw))
+    offsets = rng.uniform(-0.2, 0.2, (2, len(Rw)))
+    turned = rng.uniform(0.0, 50.0, (3, len(Rw)))
+    w = 1.0 / (1.0 + turned)
+    angle = -(w[1] * offsets[0] + w[2] * offsets[1]) / w.sum(axis=0)
     expected = Rw.copy()
     for s in (1, 2, 3):
         expected[:, s] = elemental("z", angle) @ Rw[:, s]
-    for kernel in (constraints.turn_about_vertical, constraints._turn_python):
+    for kernel in (constraints.mean_turn, constraints._mean_turn_python):
         got = Rw.copy()
-        kernel(got, np.array([1, 2, 3], dtype=np.int64), angle)
+        kernel(got, np.array([1, 2, 3], dtype=np.int64), offsets, turned, 1.0)
         np.testing.assert_allclose(got, expected, atol=1e-12)
         np.testing.assert_array_equal(got[:, (0, 4)], Rw[:, (0, 4)])
+
+
+def test_angle_turned_in_chunks_equals_whole_compiled_or_not():
+    """∫|ω| dt up to each estimate time, carried from chunk to chunk as the pipeline
+    does (each chunk starts at the last sample at or before the previous one's end)."""
+    rng = np.random.default_rng(9)
+    t = np.cumsum(rng.uniform(0.008, 0.012, 500))
+    gyr = rng.normal(size=(500, 3))
+    times = np.sort(rng.uniform(t[0], t[-1], 200))
+    step = np.diff(t) * np.linalg.norm(gyr[1:], axis=1)
+    expected = np.concatenate([[0.0], np.cumsum(step)])[np.searchsorted(t, times, "right") - 1]
+    for kernel in (constraints.turned_angle, constraints._turned_python):
+        state, parts = np.zeros(1), []
+        for a in range(0, len(times), 37):
+            chunk = times[a:a + 37]
+            first = int(np.searchsorted(t, times[a - 1], "right")) - 1 if a else 0
+            out = np.empty(len(chunk))
+            kernel(t[first:], gyr[first:], chunk, state, out)
+            parts.append(out)
+        np.testing.assert_allclose(np.concatenate(parts), expected, rtol=1e-12)

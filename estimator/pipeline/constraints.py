@@ -66,12 +66,38 @@ def _constrain_python(t, Rw, parent, child, u_axis, v_axis, turned, tau, prior, 
         state[0], state[1], state[2], state[3] = numerator, denominator, t_prev, 1.0
 
 
-def _turn_python(Rw, segments, angle):
-    """Turn ``Rw[n, s]`` (N, S, 3, 3) for each ``s`` in ``segments`` (int array) about the
-    world's vertical by ``angle[n]`` [rad] (N,), in place."""
+def _turned_python(t, gyr, times, state, out):
+    """The angle a sensor has turned [rad], ``∫|ω| dt`` over its samples (``t`` [s] (N,),
+    ``gyr`` [rad/s] (N, 3)) up to each of ``times`` [s] (M,), written to ``out`` (M,);
+    ``state[0]`` is the angle up to ``t[0]`` and becomes the angle up to the last sample
+    at or before ``times[-1]`` (a pipeline's next chunk starts at that sample)."""
+    total = state[0]
+    i = 0
+    for k in range(times.shape[0]):
+        while i + 1 < t.shape[0] and t[i + 1] <= times[k]:
+            i += 1
+            total += (t[i] - t[i - 1]) * math.sqrt(gyr[i, 0] * gyr[i, 0] + gyr[i, 1] * gyr[i, 1]
+                                                   + gyr[i, 2] * gyr[i, 2])
+        out[k] = total
+    state[0] = total
+
+
+def _mean_turn_python(Rw, chain, offsets, turned, floor):
+    """Turn the segments ``chain`` (int array, k) of ``Rw`` (N, S, 3, 3) about the world's
+    vertical to the weighted mean of their sensors' own headings, in place: segment
+    ``chain[j]`` (j ≥ 1) has its own heading at the chain's minus ``offsets[j − 1, n]``
+    [rad] ((k − 1, N)), the first the chain's; weights ``1 / (floor + turned[j, n])`` with
+    ``turned`` (k, N) the angle each sensor has turned [rad]."""
     for n in range(Rw.shape[0]):
-        c, s = math.cos(angle[n]), math.sin(angle[n])
-        for segment in segments:
+        total = 1.0 / (floor + turned[0, n])
+        shift = 0.0
+        for j in range(1, chain.shape[0]):
+            weight = 1.0 / (floor + turned[j, n])
+            total += weight
+            shift += weight * offsets[j - 1, n]
+        angle = -shift / total
+        c, s = math.cos(angle), math.sin(angle)
+        for segment in chain:
             for k in range(3):
                 r0, r1 = Rw[n, segment, 0, k], Rw[n, segment, 1, k]
                 Rw[n, segment, 0, k] = c * r0 - s * r1
@@ -87,7 +113,8 @@ def _compile(function):
 
 
 _constrain = _compile(_constrain_python)
-turn_about_vertical = _compile(_turn_python)
+mean_turn = _compile(_mean_turn_python)
+turned_angle = _compile(_turned_python)
 
 
 @dataclass

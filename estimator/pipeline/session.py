@@ -28,7 +28,7 @@ from ..orientation import DEFAULT_FILTER
 from ..recording import Mark, Pose
 from ..recording.points import PointsFrame
 from .calibrate import Calibration, calibrate
-from .constraints import HeadingConstraint, turn_about_vertical
+from .constraints import HeadingConstraint, mean_turn, turned_angle
 from .estimates import REFERENCE_ORDER, EstimateArrays, Estimates
 from .magnetic import disagreeing_sensors, disagreement_warning
 from .segment_kernel import segment_orientations
@@ -75,6 +75,7 @@ class Pipeline:
         self._finished = False
         self._constraints: dict[str, HeadingConstraint] = {}
         self._mean_heading = False  # see ``_apply_constraints``
+        self._turned: dict[int, np.ndarray] = {}  # segment → angle turned so far [rad]
         # wrist points (a robot's handle, a camera) and an upper-arm IMU: the γ elbow
         self._wrist: WristTrack | None = None
         self.gamma: GammaElbow | None = None
@@ -278,15 +279,17 @@ class Pipeline:
         The joints tie the arm's sensors' headings to one another, not to the world: where
         they come from the gyroscopes alone (6-axis, or the kit's magnetometers left out)
         each sensor's heading drifts on its own, so the chain is then turned as a whole to
-        the mean of its sensors' own headings (its drift the mean of independent drifts,
-        √3 smaller with three sensors) rather than left on the upper arm's alone."""
+        the mean of its sensors' own headings (the mean of independent drifts: up to √3
+        smaller with three sensors) rather than left on the upper arm's alone, each weighed
+        by ``1 / (MEAN_HEADING_FLOOR_RAD + the angle it has turned)``: a resting sensor's
+        heading holds (an elbow exercise's still upper arm keeps the arm's heading)."""
         forearm, hand = _SEGMENT_INDEX["forearm"], _SEGMENT_INDEX["hand"]
         upper_arm = next(s for s in (_SEGMENT_INDEX["upper_arm"], _SEGMENT_INDEX["clavicle"],
                                      _SEGMENT_INDEX["thorax"]) if present[s])
         pairs = {"forearm": (upper_arm, forearm, 2, 1),
                  "hand": (forearm, hand, 0, 2)}
-        total = np.zeros(len(times))
-        chain = [upper_arm] if upper_arm == _SEGMENT_INDEX["upper_arm"] else []
+        mean = self._mean_heading and upper_arm == _SEGMENT_INDEX["upper_arm"]
+        chain, offsets = [upper_arm], []
         for segment, constraint in self._constraints.items():
             parent, child, u_axis, v_axis = pairs[segment]
             if not present[parent]:
@@ -295,15 +298,26 @@ class Pipeline:
             if segment == "forearm" and present[hand] and "hand" not in self._constraints:
                 turned = (forearm, hand)
             delta = constraint.apply(times, Rw, parent, child, u_axis, v_axis, turned)
-            if chain and (parent in chain):
-                total += delta
+            if mean and parent in chain:
                 chain.append(child)
-        if self._mean_heading and len(chain) > 1:
-            turn_about_vertical(Rw, np.array(chain, dtype=np.int64),
-                                -total / len(chain))
+                offsets.append(delta)  # the child's own heading is the chain's − delta
+        if len(chain) > 1:
+            turned = np.empty((len(chain), len(times)))
+            for j, segment in enumerate(chain):
+                t, _, gyr, _ = self._tracks[_SENSOR_OF_SEGMENT[segment]].arrays()
+                turned_angle(t, gyr, times, self._turned.setdefault(segment, np.zeros(1)),
+                             turned[j])
+            mean_turn(Rw, np.array(chain, dtype=np.int64), np.array(offsets), turned,
+                      MEAN_HEADING_FLOOR_RAD)
 
 
 _SEGMENT_INDEX = {segment: i for i, segment in enumerate(SEGMENTS)}
+_SENSOR_OF_SEGMENT = {_SEGMENT_INDEX[segment]: sensor
+                      for sensor, segment in SEGMENT_OF_SENSOR.items()}
+#: The mean heading's weights: a sensor's heading drifts while it moves (at rest the filter
+#: holds it and learns the bias), so its drift is taken to grow with the angle it has
+#: turned, and its weight is 1 / (this + that angle) [rad].
+MEAN_HEADING_FLOOR_RAD = 1.0
 #: A forearm-only kit's elbow hinge against the virtual upper arm: the largest residual
 #: (the sine of the forearm's turn out of the hinge's plane) a sample may show and count.
 #: A 6-axis heading drift shows a few degrees at most; an arm raised shows tens.
