@@ -1,10 +1,13 @@
 """Every page a therapist sees fits the window at 390 px (a phone) and 1366 px (a laptop)
 with demo-like data (issue 21): no horizontal scrolling of the page
 (``document.scrollingElement.scrollWidth <= innerWidth``); a table wider than a phone
-scrolls inside its card instead; at 1366 px the range tables fit their card, "% normal"
-column included. Pages: sign-in, patients, the patient page (sessions, kits, progress,
-programs and the programs editor), a finished session (range table), the live page
-during a stream, the audit log, the therapist's own account and the admin's accounts.
+scrolls inside its card instead, but the patients list, a patient's sessions, the live
+sensor table (the live page's and the patient page's stream banner, "Last seen" in its
+card), a session's ranges, the audit log and the accounts stack to fit it; at 1366 px the
+range tables fit their card, "% normal" column included. Pages: sign-in, patients, the
+patient page (sessions, kits, progress, programs and the programs editor; its stream
+banner), a finished session (range table), the live page during a stream, the audit
+log, the therapist's own account and the admin's accounts.
 Real server, real uploads and a kit streaming at real pace, real headless chromium;
 screenshots to the printed folder."""
 
@@ -93,7 +96,9 @@ def long_exercise(seed: int = 4):
 
 
 #: Tables that must fit a phone's width without scrolling (their rows stack there).
-STACKED_ON_PHONES = {"patient": ("sessions",), "session": ("rom-table",),
+STACKED_ON_PHONES = {"patients": ("patients",), "patient": ("sessions",),
+                     "patient-live": ("sessions", "sensor-table"),
+                     "session": ("rom-table",), "live": ("sensor-table",),
                      "audit": ("audit-table",), "admin": ("therapists", "admin-patients")}
 
 
@@ -115,7 +120,9 @@ def fits(page, shots, name: str, width: int) -> None:  # noqa: F811
         });
       return { page: document.scrollingElement.scrollWidth, window: innerWidth, tables };
     }""")
-    page.screenshot(path=str(shots / f"layout-{name}-{width}.png"), full_page=True)
+    # software WebGL (the live page's 3D view) on a busy machine: a full page takes time
+    page.screenshot(path=str(shots / f"layout-{name}-{width}.png"), full_page=True,
+                    timeout=90_000)
     print(f"\n{name} at {width} px: page {measured['page']} px; tables "
           + ", ".join(f"{t['id'] or '?'} {t['width']}/{t['box']}" for t in measured["tables"]))
     assert measured["page"] <= measured["window"], \
@@ -196,6 +203,19 @@ def test_the_live_page_fits(world, page, shots):  # noqa: F811
         page.goto(f"{server.url}/patients/{patient['id']}")
         open_live = page.locator("text=Open the live view")
         expect(open_live).to_be_visible(timeout=30_000)
+        for width, height in WIDTHS:  # the stream's banner: its sensors, "Last seen" too
+            page.set_viewport_size({"width": width, "height": height})
+            expect(page.locator("#live #sensor-table td.seen").first).to_be_visible()
+            fits(page, shots, "patient-live", width)
+            seen = page.evaluate("""() => {
+              const cell = document.querySelector('#live #sensor-table td.seen');
+              const card = cell.closest('.card').getBoundingClientRect();
+              const box = cell.getBoundingClientRect();
+              return { left: box.left, right: box.right, card_left: card.left,
+                       card_right: card.right };
+            }""")
+            assert seen["card_left"] <= seen["left"] and seen["right"] <= seen["card_right"], \
+                f"'Last seen' is cut at {width} px: {seen}"
         open_live.click()
         page.wait_for_url(re.compile(r".*/sessions/\d+$"))
         rows = page.locator("#angles-table tbody tr")
