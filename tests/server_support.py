@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 import httpx
+import pytest
 
 PASSWORD = "correct horse battery"
 
@@ -114,6 +115,22 @@ class ServerProcess:
 
     def client(self, name: str, password: str = PASSWORD) -> Api:
         return Api(self.url, name, password)
+
+
+def server_fixture(name: str, *users: str, timeout: float = 180.0):
+    """A module-scoped pytest fixture: a started ``ServerProcess`` in a new folder
+    ``name`` with a therapist account for each of ``users``, stopped after the module."""
+
+    @pytest.fixture(scope="module")
+    def server(tmp_path_factory):
+        process = ServerProcess(tmp_path_factory.mktemp(name))
+        for user in users:
+            process.create_user(user)
+        process.start(timeout=timeout)
+        yield process
+        process.stop()
+
+    return server
 
 
 class Api:

@@ -17,19 +17,17 @@ import asyncio
 import json
 import threading
 import time
-from dataclasses import replace
 
 import pytest
-from armtrack.estimator.recording import Mark
-from armtrack.estimator.simulation import ImuErrors, SimulationConfig, simulate
 from armtrack.server.emulator import MessagePlan, hello_message
 from server_support import PASSWORD, Api, armtrack, free_port
+from test_feedback_resume import _simulation
 from websockets.asyncio.client import connect
 
 STREAMS = 4
 SPEED = 4.0
 REPS = 12
-MARK_S = 10.5  # the simulator's exercise starts at 11 s
+MARK_S = 10.5  # _simulation's exercise mark (the simulator's exercise starts at 11 s)
 
 
 class ThreadServer:
@@ -82,18 +80,6 @@ def server(tmp_path_factory):
     process.stop()
 
 
-def _recording():
-    config = SimulationConfig(exercise="elbow_flexion", sensors=("forearm",), rate_hz=60.0,
-                              nine_axis=False, seed=2, jitter_s=0.003, repetitions=REPS,
-                              errors=ImuErrors(gyro_noise=0.01, acc_noise=0.1),
-                              gyro_bias_max=0.02, mount_axial_deg=30.0)
-    sim = simulate(config)
-    end = float(sim.recording.sensors["forearm"].t[-1]) - 0.5
-    marks = (*sim.recording.marks, Mark(MARK_S, "exercise:elbow_flexion"),
-             Mark(end, "end:exercise:elbow_flexion"))
-    return sim, replace(sim.recording, marks=tuple(sorted(marks, key=lambda m: m.t)))
-
-
 def test_feedback_recounts_run_off_the_event_loop(server, monkeypatch):
     from armtrack.server.ingest import feedback as feedback_module
 
@@ -108,7 +94,7 @@ def test_feedback_recounts_run_off_the_event_loop(server, monkeypatch):
             recounts.append((threading.get_ident(), time.perf_counter() - start))
 
     monkeypatch.setattr(feedback_module, "detect_repetitions", watched)
-    sim, recording = _recording()
+    sim, recording = _simulation(seed=2, repetitions=REPS)
     truth = len(sim.truth.repetitions("elbow_flexion"))
     api = Api(server.url, "alice", PASSWORD)
     plan = MessagePlan(recording, rows_per_message=6)

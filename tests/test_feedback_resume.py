@@ -20,7 +20,7 @@ from armtrack.estimator.arm.joints import REPORTED_ANGLES
 from armtrack.estimator.recording import Mark
 from armtrack.estimator.simulation import ImuErrors, SimulationConfig, simulate
 from armtrack.server.emulator import MessagePlan, hello_message
-from server_support import ServerProcess
+from server_support import server_fixture
 from websockets.asyncio.client import connect
 
 SPEED = 2.0
@@ -28,25 +28,26 @@ REPS = 5
 CUT_AT_S = 20.5  # recording time: after the second repetition's return
 
 
-@pytest.fixture(scope="module")
-def server(tmp_path_factory):
-    process = ServerProcess(tmp_path_factory.mktemp("resume"))
-    process.create_user("alice")
-    process.start(timeout=180)
-    yield process
-    process.stop()
+server = server_fixture("resume", "alice")
 
 
-def _recording():
+def _simulation(seed: int = 1, repetitions: int = REPS):
+    """A forearm phone's elbow flexions, marked as an exercise from 10.5 s to its end:
+    (the simulation, its recording with the marks)."""
     config = SimulationConfig(exercise="elbow_flexion", sensors=("forearm",), rate_hz=60.0,
-                              nine_axis=False, seed=1, jitter_s=0.003, repetitions=REPS,
+                              nine_axis=False, seed=seed, jitter_s=0.003,
+                              repetitions=repetitions,
                               errors=ImuErrors(gyro_noise=0.01, acc_noise=0.1),
                               gyro_bias_max=0.02, mount_axial_deg=30.0)
     sim = simulate(config)
     end = float(sim.recording.sensors["forearm"].t[-1]) - 0.5
     marks = (*sim.recording.marks, Mark(10.5, "exercise:elbow_flexion"),
              Mark(end, "end:exercise:elbow_flexion"))
-    return replace(sim.recording, marks=tuple(sorted(marks, key=lambda m: m.t)))
+    return sim, replace(sim.recording, marks=tuple(sorted(marks, key=lambda m: m.t)))
+
+
+def _recording():
+    return _simulation()[1]
 
 
 def kit_count(feedback: list[tuple[int, dict]]) -> int:

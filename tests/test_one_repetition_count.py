@@ -23,20 +23,14 @@ from armtrack.estimator.recording import Mark
 from armtrack.estimator.simulation import ImuErrors, SimulationConfig, simulate
 from armtrack.server.emulator import MessagePlan, hello_message
 from armtrack.server.programs.catalogue import CATALOGUE
-from server_support import ServerProcess
+from server_support import server_fixture
 from websockets.asyncio.client import connect
 
 SPEED = 2.0
 MARK_S = 10.5  # the simulator's exercise starts at 11 s
 
 
-@pytest.fixture(scope="module")
-def server(tmp_path_factory):
-    process = ServerProcess(tmp_path_factory.mktemp("one_count"))
-    process.create_user("alice")
-    process.start(timeout=180)
-    yield process
-    process.stop()
+server = server_fixture("one_count", "alice")
 
 
 def _simulation(exercise: str, turns: int):

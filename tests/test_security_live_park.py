@@ -14,9 +14,8 @@ from __future__ import annotations
 import asyncio
 import json
 
-import pytest
 from armtrack.server.emulator import MessagePlan, hello_message
-from server_support import ServerProcess
+from server_support import server_fixture
 from test_feedback_resume import CUT_AT_S, REPS, SPEED, _recording, kit_count
 from websockets.asyncio.client import connect
 
@@ -24,14 +23,7 @@ FLOOD = 64  # as many as the server keeps
 KITS = 16  # × ARMTRACK_MAX_STREAMS_PER_KIT (4) = 64
 
 
-@pytest.fixture(scope="module")
-def server(tmp_path_factory):
-    process = ServerProcess(tmp_path_factory.mktemp("park"))
-    process.create_user("alice")
-    process.create_user("mallory")
-    process.start(timeout=180)
-    yield process
-    process.stop()
+server = server_fixture("park", "alice", "mallory")
 
 
 def test_a_foreign_kit_dropping_streams_does_not_evict_a_patients_live_side(server):
