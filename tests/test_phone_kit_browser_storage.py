@@ -208,3 +208,41 @@ def test_a_clock_gone_back_across_a_reload_does_not_stamp_readings_alike(server,
     assert alike == 0, "readings after the reload share one time stamp"
     assert np.max(np.abs(steps - truth)) < 0.005
     assert stored[after, 0][0] > stored[~after, 0][-1]
+
+
+def test_the_kit_opened_again_in_a_second_tab_leaves_the_first_streaming(server, phone, shots):
+    """The patient opens the kit's link again (a second tab) while a session streams: the
+    two tabs share one outbox (IndexedDB) and one stream. Before, the second tab resumed
+    the stream too: the server closed the first tab's connection (replaced by a resumed
+    one), the tabs took the stream from each other, and each numbered its messages from
+    its own count into the shared outbox (one tab's message put over the other's). The
+    second tab now says the session is open elsewhere and leaves it alone."""
+    api = server.client("alice")
+    device = api.device(api.patient("Two Tabs Patient")["id"], "phone")
+    events = motion_events(phone_simulation(seed=9))
+    _start_kit(phone, server.url, device["token"], shots, "t")
+    phone.click("#ready")
+    phone.evaluate(FEEDER, events[:900])
+    _wait(lambda: phone.evaluate("kit.stream.connected && kit.stream.samples > 60"), 30,
+          "streaming")
+    second = phone.context.new_page()
+    second.goto(f"{server.url}/kit")
+    second.wait_for_timeout(4000)
+    second.screenshot(path=str(shots / "t1-second-tab.png"))
+    text = second.locator("body").inner_text()
+    print(f"\nsecond tab shows: {text[:160]!r}; first tab's connections lost: "
+          f"{phone.evaluate('kit.stream.closes')}")
+    assert phone.evaluate("kit.stream.closes") == 0, \
+        "the second tab took the first tab's stream away"
+    assert "another tab" in text, text
+    assert second.evaluate("kit.stream") is None  # the second tab opened no stream
+    _wait(lambda: _dispatched(phone) >= 900, 60, "the readings dispatched")
+    phone.wait_for_timeout(500)
+    _wait(lambda: phone.evaluate("kit.stream.unsent === 0 && kit.stream._unsaved.size === 0"),
+          30, "everything sent")
+    _all_stored_once(server, phone, events, phone.evaluate("kit.stream.state.session"),
+                     "a second tab open")
+    phone.close()  # the first tab closed: the second goes on with the session by itself
+    _wait(lambda: second.evaluate("Boolean(kit.stream && kit.stream.connected)"), 30,
+          "the second tab took the session over")
+    second.close()

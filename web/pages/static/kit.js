@@ -150,6 +150,28 @@ function status() {
 }
 
 // -- the steps ----------------------------------------------------------------------------
+/** One tab of this phone holds the kit (Web Locks): a second tab (the link opened again)
+ * would resume the same stream, take its connection from the first and number messages
+ * into the same outbox. It waits, saying so, and goes on by itself once the other tab is
+ * closed. Without Web Locks (a page not served over https), as before. */
+function holdTheKit() {
+  if (!(navigator.locks && navigator.locks.request)) return Promise.resolve();
+  return new Promise((resolve) => {
+    let held = false;
+    navigator.locks.request("armtrack-kit", () => {
+      held = true;
+      resolve();
+      return new Promise(() => {});  // held while this page lives
+    });
+    setTimeout(() => {
+      if (!held) {
+        screen(el("h1", {}, "Open in another tab"),
+          el("p", { class: "lead" }, "Your exercise kit is already open in another tab or window on this phone. Go back to that one, or close it: this page then goes on by itself."));
+      }
+    }, 1000);
+  });
+}
+
 function noLink() {
   screen(el("h1", {}, "Open your link"),
     el("p", { class: "lead" }, "This page is your arm exercise kit. Open it from the link or QR code your therapist gave you."));
@@ -569,6 +591,7 @@ async function main() {
     }
   });
   status();
+  await holdTheKit();
   if (!kit.token) return noLink();
   const kept = await KitStore.getState("stream");
   kit.today = await loadToday();
