@@ -61,6 +61,9 @@ router = APIRouter()
 
 #: Least time between two acks of a streaming kit [s] (the spec asks for one a second).
 ACK_EVERY_S = 0.25
+#: Most marks a session keeps (a session of a dozen exercises has a few dozen): past
+#: that a mark is refused naming the limit, nothing stored, the connection open.
+MARKS_PER_SESSION_MAX = 1000
 
 
 def find_device(db: DbSession, token: str | None) -> tuple[int, int, int | None] | None:
@@ -134,6 +137,8 @@ class IngestConnection:
         self.received = 0
         self.sensor_stats: dict[str, dict[str, Any]] = {}
         self.feedback: FeedbackRunner | None = None
+        #: marks the session holds (counted from the database at this stream's first)
+        self.marks_kept: int | None = None
         #: programs/1 (docs/extensions/programs-hello.md): the program hello named, and
         #: what ready says of it
         self.program_ref: int | str | None = None
@@ -477,6 +482,14 @@ class IngestConnection:
                         self.services.writer.submit(Write(state, seq, samples=item))
                     else:
                         item = protocol.check_mark(message, seq, state.t_offset)
+                        if self.marks_kept is None:
+                            self.marks_kept = await self.services.run_db(
+                                _marks_in_session, state.session_id)
+                        if self.marks_kept >= MARKS_PER_SESSION_MAX:
+                            raise Refused(f"mark: this session keeps {MARKS_PER_SESSION_MAX} "
+                                          "marks already, the most a session keeps; this one "
+                                          "is not stored", seq)
+                        self.marks_kept += 1
                         self.services.writer.submit(Write(state, seq, mark=item))
                         if self.feedback is not None:
                             self.feedback.mark(item.t, item.label)
@@ -563,6 +576,11 @@ class IngestConnection:
         if self.websocket.application_state != WebSocketState.DISCONNECTED:
             with contextlib.suppress(Exception):
                 await self.websocket.close(1000)
+
+
+def _marks_in_session(db: DbSession, session_id: int) -> int:
+    return db.scalar(select(func.count()).select_from(models.Mark)
+                     .where(models.Mark.session_id == session_id)) or 0
 
 
 def _feedback_start(db: DbSession, patient_id: int, session_id: int

@@ -44,6 +44,9 @@ MAX_EXTENSIONS = 16
 EXTENSION_PATTERN = re.compile(r"[a-z][a-z0-9_-]{0,39}/[1-9][0-9]{0,3}")
 MAX_ROWS = 1000
 ROW_WIDTH = 10
+#: Longest mark label [characters] (``exercise:`` and a catalogue name is ~30): every
+#: feedback stream keeps the marks it saw, and the session pages show them.
+MARK_LABEL_MAX = 100
 
 #: Close codes of the spec.
 CLOSE_BAD_TOKEN = 4401
@@ -465,6 +468,9 @@ def check_mark(message: dict[str, Any], seq: int, t_offset: float = 0.0) -> Mark
     if not _is_number(t):
         raise Refused(f"mark: t must be a finite number of seconds, got {t!r}", seq)
     label = message.get("label")
+    if isinstance(label, str) and len(label) > MARK_LABEL_MAX:
+        raise Refused(f"mark: label is {len(label)} characters long, at most "
+                      f"{MARK_LABEL_MAX}", seq)
     if not isinstance(label, str) or not LABEL_PATTERN.fullmatch(label):
         raise Refused(f"mark: label must be npose, tpose, exercise:<name> or end:<label>, "
                       f"got {label!r}", seq)

@@ -22,7 +22,7 @@ from sqlalchemy.orm import Session as DbSession
 
 from .. import clock
 from ..db import models
-from ..ingest.protocol import CLOSE_BAD_PROTOCOL, Hello, Refused
+from ..ingest.protocol import CLOSE_BAD_PROTOCOL, MARK_LABEL_MAX, Hello, Refused
 from ..reports.targets import patient_targets
 from . import catalogue, store
 
@@ -116,6 +116,9 @@ def check_effort_pain(message: dict[str, Any]) -> EffortPain:
         raise bad(f"id must be the kit's id of this message, 1 to {RATING_ID_MAX} "
                   "characters")
     exercise = message.get("exercise")
+    if isinstance(exercise, str) and len(f"exercise:{exercise}") > MARK_LABEL_MAX:
+        raise bad(f"exercise must be the name the kit marked, a mark's label being at most "
+                  f"{MARK_LABEL_MAX} characters; got {len(exercise)}")
     if not isinstance(exercise, str) or not LABEL_PATTERN.fullmatch(f"exercise:{exercise}"):
         raise bad(f"exercise must be the name the kit marked (exercise:<name>), got "
                   f"{exercise!r}")
