@@ -141,9 +141,10 @@ def test_nine_axis_beats_six_axis_in_a_clean_field_without_rests(seed):
 
 
 @pytest.mark.parametrize("seed", [1, pytest.param(2, marks=pytest.mark.xfail(
-    strict=True, reason="measured shoulder rotation 1.01° (bar 1°): the upper arm's own "
-    "filter, its heading 0.68° RMS off in motion (the drifting bias learnt only from the "
-    "field's turning); with the true sensor-to-segment rotations 1.00°"))])
+    strict=True, reason="measured shoulder rotation 1.03° (bar 1°; 1.01° before qcf weighed "
+    "its heading corrections' bias gain by the time since a rest): the upper arm's own "
+    "filter, its heading 0.68° RMS off in motion at 1.01° (the drifting bias learnt only "
+    "from the field); with the true sensor-to-segment rotations 1.00° (at 1.01°)"))])
 def test_nine_axis_without_rests_meets_the_bar(seed):
     nine = no_rests(seed, True)
     assert nine[1] <= ANGLE_BAR_DEG[True] and nine[2] <= WRIST_BAR_CM

@@ -15,7 +15,8 @@ sensors need:
   disturbed from the first sample is replaced within seconds of moving;
 * the gyroscope bias estimated online: quickly whenever the sensor rests (rest detected
   from the low-passed gyroscope and accelerometer; half a second of stillness from the
-  first sample already gives a provisional one), slowly from the corrections in motion.
+  first sample already gives a provisional one), slowly from the corrections in motion
+  (from the heading's, after a rest, with a weight that grows back as the bias may drift).
 
 Parameters are one set for every sensor and session; see ``QcfParams``.
 """
@@ -63,7 +64,7 @@ class QcfParams:
     rest_time: float = 1.0
     #: Bias gain from tilt corrections in motion [1/s] (an integral time of 1/ki).
     ki_bias: float = 0.02
-    #: Bias gain from heading corrections in motion [1/s].
+    #: Bias gain from heading corrections in motion [1/s] (see ``mag_bias_half_time``).
     ki_bias_mag: float = 0.02
     #: Largest bias believed [rad/s].
     bias_max: float = 0.2
@@ -115,6 +116,11 @@ class QcfParams:
     #: its direction within twice mag_dip_tolerance of its mean) while the sensor turned
     #: this far becomes the reference in place of one confirmed by less turning [rad].
     mag_confirm_turn: float = 0.3
+    #: After a rest, the heading corrections' bias gain is ``ki_bias_mag · s / (s + this)``,
+    #: s the time since the rest [s]: it grows as the bias's variance does. A MEMS bias
+    #: random walk of ~2.5·10⁻⁴ rad/s/√s reaches the ~1.5 mrad/s by which a room's field
+    #: errors move the bias (its direction varying by degrees) after (1.5e-3 / 2.5e-4)² s.
+    mag_bias_half_time: float = 36.0
 
     def __post_init__(self) -> None:
         for name, value in self.__dict__.items():
@@ -131,7 +137,7 @@ class QcfParams:
                   self.tau_bias_mag, self.mag_bias_prior, self.rest_tilt,
                   self.rest_time_first, self.rest_guard_first, self.mag_confirm_turn,
                   self.rest_min_samples_first, self.mag_hold_weight, self.mag_restart,
-                  self.tau_rest_acc]
+                  self.tau_rest_acc, self.mag_bias_half_time]
         assert len(values) == PARAM_SIZE
         return np.array(values, dtype=np.float64)
 

@@ -30,7 +30,8 @@ with the candidate [rad] · ``[74]`` the same for the reference (its confirmatio
 · ``[75]`` when the heading's warm-up (running mean of the readings) began [s] · ``[76]``
 the time the candidate has held [s] · ``[77]`` the rest time [s] the bias was learnt
 from (a rest's second counts as much as any before, until ``tau_bias_rest`` of them) ·
-``[78:81]`` the accelerometer low-passed over ``tau_rest_acc`` (the rest detector's).
+``[78:81]`` the accelerometer low-passed over ``tau_rest_acc`` (the rest detector's) ·
+``[81]`` the time of the last rest sample [s].
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ import numpy as np
 
 from ..scalar_rotations import quat_to_rows
 
-STATE_SIZE = 81
+STATE_SIZE = 82
 
 # Indices into the parameter vector, see QcfParams.as_array.
 (P_TAU_ACC, P_TAU_MAG, P_TAU_LP, P_REST_GYR, P_REST_ACC, P_REST_TIME,
@@ -50,8 +51,8 @@ STATE_SIZE = 81
  P_REST_RATE, P_TAU_BIAS_REST, P_REST_RATE_KNOWN, P_ZUPT_DELAY, P_MAG_WINDOW,
  P_TAU_BIAS_MAG, P_MAG_BIAS_PRIOR, P_REST_TILT, P_REST_TIME_FIRST, P_REST_GUARD_FIRST,
  P_MAG_CONFIRM_TURN, P_REST_MIN_SAMPLES_FIRST, P_MAG_HOLD_WEIGHT, P_MAG_RESTART,
- P_TAU_REST_ACC) = range(32)
-PARAM_SIZE = 32
+ P_TAU_REST_ACC, P_MAG_BIAS_HALF_TIME) = range(33)
+PARAM_SIZE = 33
 
 
 def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out_rest,
@@ -101,6 +102,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     mag_hold_weight = params[P_MAG_HOLD_WEIGHT]
     mag_restart = params[P_MAG_HOLD_WEIGHT + 1]
     tau_rest_acc = params[P_TAU_REST_ACC]
+    mag_bias_half_time = params[P_MAG_BIAS_HALF_TIME]
 
     gw, gx, gy, gz = state[0], state[1], state[2], state[3]
     cw, cx, cy, cz = state[4], state[5], state[6], state[7]
@@ -130,6 +132,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     t_mag_start, cand_time = state[75], state[76]
     evidence = state[77]
     afx, afy, afz = state[78], state[79], state[80]
+    last_rest = state[81]
 
     for i in range(t.shape[0]):
         ax, ay, az = acc[i, 0], acc[i, 1], acc[i, 2]
@@ -240,6 +243,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
                     bx, by, bz = sx / count, sy / count, sz / count
             elif still_time >= rest_time_needed:
                 at_rest = True
+                last_rest = t[i]
                 if still_time - dt < rest_time_needed and not initial:
                     sx, sy, sz, count = 0.0, 0.0, 0.0, 0.0  # a new rest: a new mean
                     if bias_known == 0.0:
@@ -490,10 +494,18 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
                     delta += step
                     if not at_rest:
                         # the heading step is the drift about E's vertical; in the sensor
-                        # frame that axis is (q_acc q_gyr)ᵀ e_z
-                        bx -= ki_bias_mag * step * (r00 * q20 + r10 * q21 + r20 * q22)
-                        by -= ki_bias_mag * step * (r01 * q20 + r11 * q21 + r21 * q22)
-                        bz -= ki_bias_mag * step * (r02 * q20 + r12 * q21 + r22 * q22)
+                        # frame that axis is (q_acc q_gyr)ᵀ e_z. After a rest the steps are
+                        # mostly the field's own errors (its direction varies through a
+                        # room; a tilt error turns its horizontal part by tan(dip) times as
+                        # much), not the bias's: the gain grows back with the time since the
+                        # rest, as the bias's variance does (a random walk's).
+                        k_m = ki_bias_mag
+                        if bias_known != 0.0:
+                            since = t[i] - last_rest
+                            k_m = ki_bias_mag * since / (since + mag_bias_half_time)
+                        bx -= k_m * step * (r00 * q20 + r10 * q21 + r20 * q22)
+                        by -= k_m * step * (r01 * q20 + r11 * q21 + r21 * q22)
+                        bz -= k_m * step * (r02 * q20 + r12 * q21 + r22 * q22)
 
             if bx > bias_max:
                 bx = bias_max
@@ -551,6 +563,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     state[75], state[76] = t_mag_start, cand_time
     state[77] = evidence
     state[78], state[79], state[80] = afx, afy, afz
+    state[81] = last_rest
     return -1
 
 
