@@ -1,7 +1,7 @@
 """Issue 17, a clinic admin's reach, on a real server: an admin holds no patients — they
 cannot give one to themself (nor to another admin) to read it, cannot add one, and a
 patient the database says is theirs (made before this rule) is 404 to them like anyone
-else's (item 5); an admin cannot make an account named ``demo``, the name ``armtrack
+else's (item 5), an upload's progress too; an admin cannot make an account named ``demo``, the name ``armtrack
 serve`` refuses to start with (low)."""
 
 from __future__ import annotations
@@ -80,3 +80,28 @@ def test_an_admin_cannot_make_the_demo_account(clinic):
         assert answer.status_code == 422, answer.text
         assert "armtrack demo" in answer.text
     assert "demo" not in {n.lower() for n in ids(root)}
+
+
+def test_an_uploads_progress_is_404_to_an_admin_the_database_gives_the_patient(clinic):
+    """``GET /api/recordings/{id}/progress`` compared the patient's therapist id with the
+    caller's and so answered an admin holding a patient made before the rule (state,
+    samples, processing error): every other route of the patient was 404 to them."""
+    from armtrack.estimator.recording import format_recording
+    from armtrack.estimator.simulation import SimulationConfig, simulate
+
+    alice, root = clinic.client("alice"), clinic.client("root")
+    patient = alice.patient("Uploaded Person")
+    recording = simulate(SimulationConfig(exercise="elbow_flexion", sensors=("forearm",),
+                                          seed=2, repetitions=1)).recording
+    answer = alice.http.post("/api/recordings", data={"patient_id": patient["id"]},
+                             files={"file": ("r.csv", format_recording(recording))})
+    assert answer.status_code == 201, answer.text
+    session_id = answer.json()["id"]
+    assert alice.http.get(f"/api/recordings/{session_id}/progress").status_code == 200
+    clinic.sql("UPDATE patients SET therapist_id = :admin WHERE id = :id",
+               admin=ids(root)["root"], id=patient["id"])
+    answer = root.http.get(f"/api/recordings/{session_id}/progress")
+    print(answer.status_code, answer.text)
+    assert answer.status_code == 404, answer.text
+    assert answer.json() == root.http.get("/api/recordings/999999/progress").json() | {
+        "detail": f"no uploaded session {session_id}"}
