@@ -3,11 +3,12 @@ with demo-like data (issue 21): no horizontal scrolling of the page
 (``document.scrollingElement.scrollWidth <= innerWidth``); a table wider than a phone
 scrolls inside its card instead, but the patients list, a patient's sessions, the live
 sensor table (the live page's and the patient page's stream banner, "Last seen" in its
-card), a session's ranges, the audit log and the accounts stack to fit it; at 1366 px the
-range tables fit their card, "% normal" column included. Pages: sign-in, patients, the
-patient page (sessions, kits, progress, programs and the programs editor; its stream
-banner), a finished session (range table), the live page during a stream, the audit
-log, the therapist's own account and the admin's accounts.
+card), the live page's joint angles, a session's ranges, the audit log and the accounts
+stack to fit it (inside the card's padding); at 1366 px the range tables fit their card,
+"% normal" column included. Pages: sign-in, patients, the patient page (sessions, kits,
+progress, programs and the programs editor; its stream banner), a finished session (range
+table), the live page during a stream, the audit log, the therapist's own account and the
+admin's accounts.
 Real server, real uploads and a kit streaming at real pace, real headless chromium;
 screenshots to the printed folder."""
 
@@ -98,7 +99,7 @@ def long_exercise(seed: int = 4):
 #: Tables that must fit a phone's width without scrolling (their rows stack there).
 STACKED_ON_PHONES = {"patients": ("patients",), "patient": ("sessions",),
                      "patient-live": ("sessions", "sensor-table"),
-                     "session": ("rom-table",), "live": ("sensor-table",),
+                     "session": ("rom-table",), "live": ("sensor-table", "angles-table"),
                      "audit": ("audit-table",), "admin": ("therapists", "admin-patients")}
 
 
@@ -115,8 +116,12 @@ def fits(page, shots, name: str, width: int) -> None:  # noqa: F811
         .map((t) => {
           let box = t.parentElement;
           while (box && getComputedStyle(box).overflowX === 'visible') box = box.parentElement;
-          return { id: t.id, width: t.scrollWidth, box: box ? box.clientWidth : null,
-                   scrolls: box ? getComputedStyle(box).overflowX : null };
+          // the room inside the box: its width less its padding (a card's 18 px a side)
+          const style = box ? getComputedStyle(box) : null;
+          const room = box ? box.clientWidth - parseFloat(style.paddingLeft)
+            - parseFloat(style.paddingRight) : null;
+          return { id: t.id, width: t.scrollWidth, box: room,
+                   scrolls: box ? style.overflowX : null };
         });
       return { page: document.scrollingElement.scrollWidth, window: innerWidth, tables };
     }""")
