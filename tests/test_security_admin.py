@@ -1,8 +1,8 @@
 """Issue 17, a clinic admin's reach, on a real server: an admin holds no patients — they
 cannot give one to themself (nor to another admin) to read it, cannot add one, and a
 patient the database says is theirs (made before this rule) is 404 to them like anyone
-else's (item 5), an upload's progress too; an admin cannot make an account named ``demo``, the name ``armtrack
-serve`` refuses to start with (low)."""
+else's (item 5), an upload's progress too; an admin cannot make an account named
+``demo``, the name ``armtrack serve`` refuses to start with (low)."""
 
 from __future__ import annotations
 
