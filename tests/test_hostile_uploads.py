@@ -196,3 +196,30 @@ def test_a_programs_text_holds_no_control_characters(module_server, alice, where
     answer = alice.http.post(f"/api/patients/{patient['id']}/programs", json=body)
     assert answer.status_code == 201, answer.text
     assert answer.json()["version"]["note"] == "line one\nline two"
+
+
+@pytest.mark.parametrize("field, value", [
+    ("options", "[" * 1500),
+    ("sensors", "[" * 5000),
+    ("options", json.dumps({"columns": {"t": "time"}})),
+    ("options", json.dumps({"platform": ["ios"]})),
+    ("options", json.dumps({"field_ut": "nan"})),
+])
+def test_a_malformed_options_or_sensor_map_is_a_422_naming_the_field(module_server, alice,
+                                                                     field, value):
+    """Nested JSON past Python's recursion limit (a RecursionError) and options of the
+    wrong type were 500s (or a NaN field strength, taken)."""
+    patient = alice.patient(f"Form {field} {value[:12]}")
+    form = {"patient_id": str(patient["id"]), "sensors": json.dumps({"forearm": "a.csv"}),
+            "format": "generic", "options": json.dumps({"columns": "t=t ax=ax ay=ay az=az "
+                                                        "gx=gx gy=gy gz=gz"})}
+    form[field] = value
+    data = b"t,ax,ay,az,gx,gy,gz\n" + b"".join(
+        f"{k / 50},0,0,9.81,0,0,0\n".encode() for k in range(200))
+    with httpx.Client(base_url=module_server.url, headers=alice.http.headers,
+                      timeout=60) as http:
+        answer = http.post("/api/recordings", data=form,
+                           files=[("files", ("a.csv", data, "text/csv"))])
+    print(field, value[:40], answer.status_code, answer.text[:200])
+    assert answer.status_code == 422, answer.text
+    assert field in answer.text

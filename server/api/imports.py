@@ -254,14 +254,26 @@ def _options(text: str | None, limit: int) -> ReadOptions:
     """The ``options`` form field; ``limit``: what the files' data may decode to [bytes]."""
     if not text:
         return ReadOptions(max_bytes=limit)
+
+    def bad(problem: str) -> HTTPException:
+        return HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                             f"options must be JSON {{field_ut, columns, platform}}: {problem}")
+
     try:
         raw = json.loads(text)
-        return ReadOptions(field_ut=float(raw.get("field_ut", 50.0)), columns=raw.get("columns"),
-                           platform=raw.get("platform"), max_bytes=limit)
-    except (ValueError, TypeError, AttributeError) as exc:
-        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                            f"options must be JSON {{field_ut, columns, platform}}: {exc}"
-                            ) from None
+    except (ValueError, RecursionError) as exc:  # nesting past the limit: RecursionError
+        raise bad(f"not JSON ({exc})") from None
+    if not isinstance(raw, dict):
+        raise bad("not a JSON object")
+    field_ut = raw.get("field_ut", 50.0)
+    if isinstance(field_ut, bool) or not isinstance(field_ut, int | float) \
+            or not 0 < field_ut < 1e4:
+        raise bad(f"field_ut must be a field strength in µT, got {field_ut!r}")
+    for key in ("columns", "platform"):
+        if raw.get(key) is not None and not isinstance(raw[key], str):
+            raise bad(f"{key} must be text, got {raw[key]!r}")
+    return ReadOptions(field_ut=float(field_ut), columns=raw.get("columns"),
+                       platform=raw.get("platform"), max_bytes=limit)
 
 
 def assignments(sources: list, sensor_map: str, fmt: str | None) -> list[Assignment]:
@@ -271,7 +283,7 @@ def assignments(sources: list, sensor_map: str, fmt: str | None) -> list[Assignm
     try:
         mapping = json.loads(sensor_map)
         assert isinstance(mapping, dict)
-    except (ValueError, AssertionError):
+    except (ValueError, AssertionError, RecursionError):
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
                             'sensors must be a JSON object like {"forearm": "dot2.csv"}') from None
     out = []
