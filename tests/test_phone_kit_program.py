@@ -117,7 +117,8 @@ def test_the_patient_follows_the_program_on_the_phone(kit_server, phone, shots):
         sync_api.expect(phone.locator("#program-version")).to_have_text("Version 2")
         items = phone.locator("#program-list li").all_inner_texts()
         assert [i.split("\n")[0] for i in items] == ["Bend the elbow", "Turn the palm"]
-        assert "2 × 3 · hold 1 s · rest 5 s" in items[0] and "2 times" in items[1]
+        assert ("2 sets of 3 · hold 1 second · rest 5 seconds between sets" in items[0]
+                and "2 times" in items[1])
         phone.screenshot(path=str(shots / "p1-program-welcome.png"), full_page=True)
         phone.click("#start")
         phone.click("#segment-forearm")
@@ -127,7 +128,7 @@ def test_the_patient_follows_the_program_on_the_phone(kit_server, phone, shots):
         for set_index, (start, end) in enumerate(timeline.elbow):
             if set_index == 0:
                 sync_api.expect(phone.locator("#start-exercise")).to_be_visible(timeout=40_000)
-                sync_api.expect(phone.locator("#dose")).to_contain_text("2 × 3")
+                sync_api.expect(phone.locator("#dose")).to_contain_text("2 sets of 3")
                 phone.screenshot(path=str(shots / "p2-exercise-intro.png"), full_page=True)
                 phone.click("#start-exercise")
             sync_api.expect(phone.locator("#reps")).to_be_visible(timeout=20_000)

@@ -12,12 +12,14 @@ const BORG_WORDS = { 0: "Nothing at all", 1: "Very light", 2: "Light", 3: "Moder
 const PAIN_WORDS = { 0: "No pain", 10: "Worst pain imaginable" };
 
 const KitProgram = {
-  /** "2 × 10 · hold 2 s · rest 20 s" (the rest between sets only when there are sets). */
+  /** "2 sets of 10 · hold 2 seconds · rest 20 seconds between sets", in the patient's
+   * words (the rest only when there are sets). */
   dose(ex) {
     const sets = ex.sets || 1;
-    const parts = [sets > 1 ? `${sets} × ${ex.repetitions}` : `${ex.repetitions} times`];
-    if (ex.hold_s) parts.push(`hold ${ex.hold_s} s`);
-    if (sets > 1 && ex.rest_s) parts.push(`rest ${ex.rest_s} s`);
+    const seconds = (n) => `${n} ${n === 1 ? "second" : "seconds"}`;
+    const parts = [sets > 1 ? `${sets} sets of ${ex.repetitions}` : `${ex.repetitions} times`];
+    if (ex.hold_s) parts.push(`hold ${seconds(ex.hold_s)}`);
+    if (sets > 1 && ex.rest_s) parts.push(`rest ${seconds(ex.rest_s)} between sets`);
     return parts.join(" · ");
   },
 

@@ -334,7 +334,7 @@ function lowerArm() {
   saveStep("lower", 0);
   screen(el("h1", {}, "Lower your arm"), picture("npose"),
     el("p", { class: "lead" }, "Let it hang by your side. Calibration is done."),
-    el("p", { class: "check", id: "hold" }, "…"));
+    el("p", { class: "check", id: "hold" }, "Waiting for your arm to hang still…"));
   say("Lower your arm.");
   every(100, () => { if (still(hanging)) exerciseIntro(0); });
 }
@@ -349,7 +349,7 @@ function exerciseIntro(index) {
   if (index >= list.length) return finished();
   const ex = list[index];
   saveStep("intro", index);
-  const count = el("div", { class: "count", id: "count" }, "");
+  const count = el("div", { class: "count soon", id: "count" }, "");
   const hold = ex.hold_s ? ` Hold ${ex.hold_s} ${ex.hold_s === 1 ? "second" : "seconds"} at the end of each movement.` : "";
   screen(el("p", { class: "kicker" }, `Exercise ${index + 1} of ${list.length}`),
     el("h1", {}, ex.title), picture(ex.picture),
@@ -357,10 +357,10 @@ function exerciseIntro(index) {
     ex.note ? el("p", { class: "note", id: "exercise-note" }, ex.note) : null,
     el("p", { class: "dose", id: "dose" }, KitProgram.dose(ex) + "."), count,
     big("Start now", { id: "start-exercise", onclick: () => exercise(index, 0) }));
-  say(`${ex.title}. ${ex.instruction}${hold} ${KitProgram.dose(ex).replace(" × ", " sets of ")}.`);
+  say(`${ex.title}. ${ex.instruction}${hold} ${KitProgram.dose(ex).replaceAll(" · ", ", ")}.`);
   let left = 5;
   every(1000, () => {
-    count.textContent = String(left);
+    count.textContent = `Starts in ${left}`;  // by itself, or "Start now"
     if (left-- <= 0) exercise(index, 0);
   });
 }
@@ -475,8 +475,8 @@ function exercise(index, set = 0, resumed = false) {
       angle.textContent = "—";
       marker.hidden = true;
       note.textContent = kit.stream.connected
-        ? "Measuring… (the angle shows once the server has estimated it)"
-        : `Offline: keep going — your movements are saved on this phone (${kit.stream.unsent} messages waiting) and sent when it is back online.`;
+        ? "Measuring… your angle shows in a moment."
+        : "No internet: keep going. Your movements are saved on this phone and sent when the internet is back.";
     }
   });
 }
