@@ -209,8 +209,9 @@ class Pipeline:
         # near metal): the magnetometer is evidence, the joints decide.
         self._constraints = {s: HeadingConstraint() for s in ("forearm", "hand")
                              if s in present}
-        self._mean_heading = not all(track.nine_axis and not track.magnetometer_dropped
-                                     for track in present.values())
+        # headings from the gyroscopes alone, and no wrist points to hold the upper arm's
+        self._mean_heading = self.gamma is None and not all(
+            track.nine_axis and not track.magnetometer_dropped for track in present.values())
         if "forearm" in present and "upper_arm" not in present:
             # against the virtual upper arm hanging still (see ``_apply_constraints``)
             self._constraints["forearm"] = HeadingConstraint(gate=VIRTUAL_HINGE_GATE)
@@ -278,7 +279,8 @@ class Pipeline:
 
         The joints tie the arm's sensors' headings to one another, not to the world: where
         they come from the gyroscopes alone (6-axis, or the kit's magnetometers left out)
-        each sensor's heading drifts on its own, so the chain is then turned as a whole to
+        each sensor's heading drifts on its own (unless wrist points hold the upper arm's:
+        the γ elbow), so the chain is then turned as a whole to
         the mean of its sensors' own headings (the mean of independent drifts: up to √3
         smaller with three sensors) rather than left on the upper arm's alone, each weighed
         by ``1 / (MEAN_HEADING_FLOOR_RAD + the angle it has turned)``: a resting sensor's
