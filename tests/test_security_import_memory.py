@@ -144,3 +144,62 @@ def test_a_hostile_csv_costs_the_server_little_memory(fresh_server, route, kind)
         assert server.sql("SELECT COUNT(*) FROM sessions WHERE patient_id = :p",
                           p=patient["id"])[0][0] == 0
     assert grown < 15 * len(data) / 2**20, f"peak memory grew by {grown:.0f} MiB"
+
+
+def apdm_reading(path: str, samples: int, *, how: str) -> bytes:
+    """An APDM-like .h5 whose Accelerometer is not in the file: ``external`` raw storage
+    in the file at ``path`` on the reading machine, or a ``virtual`` dataset mapping an
+    HDF5 file there."""
+    h5py = pytest.importorskip("h5py")
+    import numpy as np
+
+    buf = io.BytesIO()
+    with h5py.File(buf, "w") as f:
+        group = f.create_group("Sensors/77")
+        group.create_dataset("Time", data=np.arange(samples, dtype="u8") * 20_000)
+        group.create_dataset("Gyroscope", data=np.zeros((samples, 3), "f4"))
+        if how == "external":
+            group.create_dataset("Accelerometer", shape=(samples, 3), dtype="f4",
+                                 external=[(path, 0, samples * 12)])
+        else:
+            layout = h5py.VirtualLayout(shape=(samples, 3), dtype="f4")
+            layout[:] = h5py.VirtualSource(path, "acc", shape=(samples, 3))
+            group.create_virtual_dataset("Accelerometer", layout)
+    return buf.getvalue()
+
+
+@pytest.mark.parametrize("how", ["external", "virtual"])
+def test_an_hdf5_cannot_make_the_server_read_its_own_files(small_limit_server, tmp_path, how):
+    """HDF5 lets a dataset's data live in another file, named by path: reading the
+    upload read that file of the server's disk (its database, keys …) as the sensor's
+    samples, which the therapist could then export as the recording. Refused naming the
+    dataset, nothing stored."""
+    import numpy as np
+
+    server = small_limit_server
+    alice = server.client("alice")
+    patient = alice.patient(f"H5 outside {how}")
+    samples = 500
+    secret = np.tile(np.array([0.123456, 9.81, 0.654321], "f4"), (samples, 1))
+    target = tmp_path / ("secret.bin" if how == "external" else "secret.h5")
+    if how == "external":
+        target.write_bytes(secret.tobytes())
+    else:
+        import h5py
+        with h5py.File(target, "w") as f:
+            f.create_dataset("acc", data=secret)
+    data = apdm_reading(str(target), samples, how=how)
+    answer = alice.http.post("/api/recordings", data={
+        "patient_id": str(patient["id"]), "sensors": json.dumps({"forearm": "in.h5:77"}),
+        "calibration": "npose 0 2; tpose 4 6"},
+        files=[("files", ("in.h5", data, "application/octet-stream"))])
+    leaked = None
+    if answer.status_code == 201:
+        exported = alice.http.get(f"/api/sessions/{answer.json()['id']}/recording.csv").text
+        leaked = "0.123456" in exported
+    print(f"{how}: {answer.status_code} {answer.text[:200]}; the export holds the server's "
+          f"file: {leaked}")
+    assert answer.status_code == 422, answer.text
+    assert "in.h5" in answer.json()["detail"] and "Accelerometer" in answer.json()["detail"]
+    assert server.sql("SELECT COUNT(*) FROM sessions WHERE patient_id = :p",
+                      p=patient["id"])[0][0] == 0

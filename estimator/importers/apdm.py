@@ -66,6 +66,24 @@ def _declared_bytes(group, names) -> int:
                for name in names if name in group)
 
 
+def _inside(source: SourceFile, parent, name: str, where: str):
+    """``parent[name]``, refused unless its data are in this file: HDF5 lets a link
+    (external, soft) or a dataset (external raw storage, virtual) name another file by
+    its path, which would read a file of the reading machine's disk."""
+    import h5py
+
+    link = parent.get(name, getlink=True)
+    if not isinstance(link, h5py.HardLink):
+        raise ImportFailure(source.name, f"{where} is a link ({type(link).__name__}); "
+                            "an import reads only what the file holds")
+    item = parent[name]
+    if isinstance(item, h5py.Dataset) and (
+            item.is_virtual or item.id.get_create_plist().get_external_count()):
+        raise ImportFailure(source.name, f"{where} keeps its data in another file "
+                            "(external or virtual); an import reads only what the file holds")
+    return item
+
+
 def _sensors(source: SourceFile, h5, budget: list[int]) -> list[Signal]:
     version = h5.attrs.get("FileFormatVersion")
     version = int(np.asarray(version).flat[0]) if version is not None else None
@@ -75,16 +93,21 @@ def _sensors(source: SourceFile, h5, budget: list[int]) -> list[Signal]:
                             f"{', '.join(map(str, READ_VERSIONS))}: export again from a "
                             "current Motion Studio or Mobility Lab")
     out = []
-    for sid, group in h5["Sensors"].items():
+    sensors = _inside(source, h5, "Sensors", "/Sensors")
+    for sid in sensors:
+        group = _inside(source, sensors, sid, f"/Sensors/{sid}")
         where = f"{source.name}:/Sensors/{sid}"
         label = ""
         if "Configuration" in group:
-            label = _text(group["Configuration"].attrs.get("Label 0", b""))
+            config = _inside(source, group, "Configuration", f"/Sensors/{sid}/Configuration")
+            label = _text(config.attrs.get("Label 0", b""))
         missing = [d for d in ("Time", "Accelerometer", "Gyroscope") if d not in group]
         if missing:
             raise ImportFailure(where, f"dataset {', '.join(missing)} is missing (Time, "
                                 "Accelerometer and Gyroscope are needed)")
-        size = _declared_bytes(group, ("Time", "Accelerometer", "Gyroscope", "Magnetometer"))
+        names = [n for n in ("Time", "Accelerometer", "Gyroscope", "Magnetometer") if n in group]
+        data = {n: _inside(source, group, n, f"/Sensors/{sid}/{n}") for n in names}
+        size = _declared_bytes(group, names)
         if size > budget[0]:
             raise TooLarge(source.name, f"/Sensors/{sid} declares datasets of {size} bytes "
                            f"unpacked, more than the {budget[0]} left of the {budget[1]} "
@@ -92,11 +115,11 @@ def _sensors(source: SourceFile, h5, budget: list[int]) -> list[Signal]:
                            "(ARMTRACK_MAX_UPLOAD_BYTES on a server)")
         budget[0] -= size
         try:
-            time_us = np.asarray(group["Time"][()], dtype=np.int64)
-            acc = np.asarray(group["Accelerometer"][()], dtype=np.float64)
-            gyr = np.asarray(group["Gyroscope"][()], dtype=np.float64)
-            mag = (np.asarray(group["Magnetometer"][()], dtype=np.float64)
-                   if "Magnetometer" in group else None)
+            time_us = np.asarray(data["Time"][()], dtype=np.int64)
+            acc = np.asarray(data["Accelerometer"][()], dtype=np.float64)
+            gyr = np.asarray(data["Gyroscope"][()], dtype=np.float64)
+            mag = (np.asarray(data["Magnetometer"][()], dtype=np.float64)
+                   if "Magnetometer" in data else None)
         except (OSError, KeyError) as exc:
             raise ImportFailure(where, f"cannot be read, the file is truncated or damaged "
                                 f"({exc})") from None
