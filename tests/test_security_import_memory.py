@@ -148,8 +148,8 @@ def test_a_hostile_csv_costs_the_server_little_memory(fresh_server, route, kind)
 
 def apdm_reading(path: str, samples: int, *, how: str) -> bytes:
     """An APDM-like .h5 whose Accelerometer is not in the file: ``external`` raw storage
-    in the file at ``path`` on the reading machine, or a ``virtual`` dataset mapping an
-    HDF5 file there."""
+    in the file at ``path`` on the reading machine, an external ``link`` to, or a
+    ``virtual`` dataset mapping, an HDF5 file there."""
     h5py = pytest.importorskip("h5py")
     import numpy as np
 
@@ -161,6 +161,8 @@ def apdm_reading(path: str, samples: int, *, how: str) -> bytes:
         if how == "external":
             group.create_dataset("Accelerometer", shape=(samples, 3), dtype="f4",
                                  external=[(path, 0, samples * 12)])
+        elif how == "link":
+            group["Accelerometer"] = h5py.ExternalLink(path, "/acc")
         else:
             layout = h5py.VirtualLayout(shape=(samples, 3), dtype="f4")
             layout[:] = h5py.VirtualSource(path, "acc", shape=(samples, 3))
@@ -168,7 +170,7 @@ def apdm_reading(path: str, samples: int, *, how: str) -> bytes:
     return buf.getvalue()
 
 
-@pytest.mark.parametrize("how", ["external", "virtual"])
+@pytest.mark.parametrize("how", ["external", "link", "virtual"])
 def test_an_hdf5_cannot_make_the_server_read_its_own_files(small_limit_server, tmp_path, how):
     """HDF5 lets a dataset's data live in another file, named by path: reading the
     upload read that file of the server's disk (its database, keys …) as the sensor's
