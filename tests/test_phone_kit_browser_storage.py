@@ -246,3 +246,52 @@ def test_the_kit_opened_again_in_a_second_tab_leaves_the_first_streaming(server,
     _wait(lambda: second.evaluate("Boolean(kit.stream && kit.stream.connected)"), 30,
           "the second tab took the session over")
     second.close()
+
+
+def test_a_session_closed_by_the_therapist_while_the_phone_was_offline(server, phone, shots):
+    """The link lost mid-session, the therapist closes the interrupted session ('Close and
+    estimate'), the phone records on, then comes back online. Before, the server refused
+    the resume (the session is closed, 4400) and the page stopped there for good: what it
+    recorded offline was never sent, 'Start another session' stayed disabled, and every
+    reload resumed the closed session again. Now the page sends the rest as a new session
+    (numbered from 0) and goes on: every reading is stored once, in one of the two."""
+    from test_phone_kit_browser import CuttableProxy
+
+    api = server.client("alice")
+    device = api.device(api.patient("Closed Offline Patient")["id"], "phone")
+    events = motion_events(phone_simulation(seed=10))
+    proxy = CuttableProxy(server.port)
+    try:
+        _start_kit(phone, f"http://127.0.0.1:{proxy.port}", device["token"], shots, "x")
+        phone.click("#ready")
+        phone.evaluate(FEEDER, events[:900])
+        _wait(lambda: phone.evaluate("kit.stream.connected && kit.stream.samples > 240 "
+                                     "&& kit.stream.unsent === 0"), 30, "4 s streamed")
+        first = phone.evaluate("kit.stream.state.session")
+        proxy.cut()
+        _wait(lambda: api.session(first)["status"] == "interrupted", 30, "interrupted")
+        answer = api.http.post(f"/api/sessions/{first}/close")
+        assert answer.status_code == 200, answer.text
+        _wait(lambda: _dispatched(phone) >= 900, 60, "the readings dispatched offline")
+        proxy.restore()
+        _wait(lambda: phone.evaluate("kit.stream.connected && kit.stream.unsent === 0 "
+                                     "&& kit.stream._unsaved.size === 0"), 60,
+              "connected again and everything sent")
+        second = phone.evaluate("kit.stream.state.session")
+        phone.screenshot(path=str(shots / "x1-after-closed.png"))
+        shown = phone.locator("#status").inner_text()
+        print(f"\nclosed while offline: sessions {first} then {second}; status {shown!r}")
+        assert second != first
+        assert phone.evaluate("kit.stream.error") is None
+        taken = phone.evaluate("kit.stream.samples")
+        _wait(lambda: api.session(first)["samples"] + api.session(second)["samples"] >= taken,
+              30, "all stored")
+        acc = np.array(events)[:, 1:4]
+        key = {tuple(np.round(r, 9)): i for i, r in enumerate(acc)}
+        index = [key[tuple(np.round(r[1:4], 9))] for session in (first, second)
+                 for r in _stored_rows(server, api, session)[:, :4]]
+        print(f"{taken} readings taken, {len(index)} stored in the two sessions")
+        assert index == list(range(index[0], index[0] + taken)), \
+            "a reading was lost, reordered or stored twice"
+    finally:
+        proxy.close()

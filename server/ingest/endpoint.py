@@ -59,6 +59,10 @@ from .writer import (
 log = logging.getLogger("armtrack.ingest")
 router = APIRouter()
 
+#: Extension (docs/extensions/README.md): the ``error`` refusing the resume of a closed
+#: session's stream carries ``next_seq``, what of the stream is stored.
+CLOSED_SESSION_EXTENSION = "closed-session/1"
+
 #: Least time between two acks of a streaming kit [s] (the spec asks for one a second).
 ACK_EVERY_S = 0.25
 #: Most marks a session keeps (a session of a dozen exercises has a few dozen): past
@@ -193,7 +197,8 @@ class IngestConnection:
 
     async def refuse(self, error: Refused) -> None:
         # always the spec's shape: ``seq`` is null when the message had none to name
-        await self.send({"type": "error", "seq": error.seq, "reason": error.reason})
+        await self.send({"type": "error", "seq": error.seq, "reason": error.reason,
+                         **error.extra})
         if error.close_code is not None:
             await self.close(error.close_code, error.reason[:120])
             return
@@ -324,7 +329,8 @@ class IngestConnection:
                 log.warning("no live estimates for session %s: %s", session_id, exc)
         if hello.extensions:  # docs/extensions/README.md: those this server speaks
             extra["extensions"] = [e for e in hello.extensions
-                                   if e == FEEDBACK_EXTENSION or e in program_stream.SPOKEN]
+                                   if e in (FEEDBACK_EXTENSION, CLOSED_SESSION_EXTENSION)
+                                   or e in program_stream.SPOKEN]
         if FEEDBACK_EXTENSION in hello.extensions:
             if parked is not None and parked.feedback is not None:
                 self.feedback = parked.feedback
@@ -425,9 +431,11 @@ class IngestConnection:
         session = None if stream is None else db.get(models.Session, stream.session_id)
         if session is None or session.patient_id != self.patient_id:
             raise Refused(f"hello: no stream {stream_id!r} to resume for this device's patient")
-        if session.status == "closed":
-            raise Refused(f"hello: the session of stream {stream_id} is closed; "
-                          "start a new stream (resume null)")
+        if session.status == "closed":  # what of it is stored: the kit sends the rest
+            raise Refused(f"hello: the session of stream {stream_id} is closed; "  # anew
+                          "start a new stream (resume null)",
+                          extra={"next_seq": stream.next_seq}
+                          if CLOSED_SESSION_EXTENSION in hello.extensions else None)
         if "~continued_by" in (stream.last_t or {}):
             raise Refused(f"hello: session {session.id} goes on in a newer stream; "
                           f"continue it with resume null and session {session.id}")

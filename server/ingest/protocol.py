@@ -59,11 +59,14 @@ class Refused(Exception):
     """A message refused whole. ``seq`` when it carried a valid one; ``close_code`` when
     the error ends the connection."""
 
-    def __init__(self, reason: str, seq: int | None = None, close_code: int | None = None):
+    def __init__(self, reason: str, seq: int | None = None, close_code: int | None = None,
+                 extra: dict | None = None):
         super().__init__(reason)
         self.reason = reason
         self.seq = seq
         self.close_code = close_code
+        #: more fields of the ``error`` message (``next_seq`` of a closed session's stream)
+        self.extra = extra or {}
 
 
 @dataclass(frozen=True)

@@ -3,7 +3,8 @@
 // kept in IndexedDB until the server acks it. No framework, no build step.
 // Extensions asked in hello (docs/extensions/): feedback/1 (live angle, repetitions),
 // programs/1 (the session follows the therapist's program the kit names), effort-pain/1
-// (effort and pain after each exercise, kept on the phone until the server stored them).
+// (effort and pain after each exercise, kept on the phone until the server stored them),
+// closed-session/1 (a session closed while offline: the rest goes as a new session).
 //
 // Axes (docs/phone-kit.md): the phone is strapped screen out (away from the skin), its top
 // toward the joint above (the elbow for the forearm, the shoulder for the upper arm), on
@@ -16,7 +17,7 @@
 "use strict";
 
 const TAIL_KEY = "armtrack.kit.tail";
-const EXTENSIONS = ["feedback/1", "programs/1", "effort-pain/1"];
+const EXTENSIONS = ["feedback/1", "programs/1", "effort-pain/1", "closed-session/1"];
 
 const KitAxes = {
   /** One DeviceMotionEvent's reading as a row's 6 numbers, or null when incomplete. */
@@ -322,6 +323,9 @@ class KitStream {
 
   _send(seq, text) {
     try {
+      // a session carried over (_carryOver) numbers its messages on the wire from 0
+      const base = this.state.seqBase || 0;
+      if (base) { const message = JSON.parse(text); message.seq = seq - base; text = JSON.stringify(message); }
       this.ws.send(text);
       this._sent = seq;
     } catch (_) { /* the close handler reconnects */ }
@@ -349,12 +353,35 @@ class KitStream {
       this.onClose(event);
       this.onChange(this);
       if (event.code === 4401) { this.error = "this link was revoked: ask your therapist for a new one"; return; }
+      if (event.code === 4400 && this._closedNext != null) { this._carryOver(this._closedNext); return; }
       if (event.code === 4400) { this.error = "the server refused the stream: " + event.reason; return; }
       if (!this.state.finished) {
         setTimeout(() => this.connect(), this._retry);
         this._retry = Math.min(this._retry * 2, 5000);
       }
     };
+  }
+
+  /** The server closed this session (its stream stored `nextSeq` messages, on the wire's
+   * numbers): the outbox's messages up to there are stored and go; the rest is sent as a
+   * new session (hello without resume), numbered on the wire from 0 (state.seqBase: the
+   * outbox's number of the new session's seq 0). Nothing recorded is dropped. */
+  _carryOver(nextSeq) {
+    this._closedNext = null;
+    this._saving = this._saving.then(async () => {
+      const stored = nextSeq + (this.state.seqBase || 0);
+      if (stored > 0) await KitStore.dropThrough(stored - 1);
+      this.state.seqBase = stored;
+      this.state.acked = stored - 1;
+      this.state.stream = null;
+      this.state.session = null;
+      await KitStore.setState("stream", { ...this.state });
+      this.unsent = await KitStore.count();
+      this.error = null;
+      this.carriedOver = (this.carriedOver || 0) + 1;
+      this.onChange(this);
+      this.connect();
+    }).catch((error) => { this.error = "could not save on this phone: " + error; this.onChange(this); });
   }
 
   async _message(ws, message) {
@@ -369,11 +396,12 @@ class KitStream {
       this._saving = this._saving.then(async () => {
         await KitStore.setState("stream", { ...this.state });
         // everything below next_seq is stored: drop it; send the rest again, in order
-        if (message.next_seq > 0) await KitStore.dropThrough(message.next_seq - 1);
-        const pending = await KitStore.pending(message.next_seq);
+        const next = message.next_seq + (this.state.seqBase || 0);  // in the outbox's numbers
+        if (next > 0) await KitStore.dropThrough(next - 1);
+        const pending = await KitStore.pending(next);
         if (this.ws !== ws) return;
         this.unsent = pending.length;
-        this._sent = message.next_seq - 1;
+        this._sent = next - 1;
         this.connected = true;
         for (const [seq, text] of pending) this._send(seq, text);
         this._sendRatings();
@@ -381,9 +409,10 @@ class KitStream {
         if (this.ended) this._byeWhenDone();
       }).catch((error) => { this.error = "could not read this phone's storage: " + error; });
     } else if (message.type === "ack") {
-      this.state.acked = Math.max(this.state.acked, message.seq);
+      const seq = message.seq + (this.state.seqBase || 0);
+      this.state.acked = Math.max(this.state.acked, seq);
       await this._saving;
-      await KitStore.dropThrough(message.seq);
+      await KitStore.dropThrough(seq);
       this.unsent = await KitStore.count();
       this.onChange(this);
       if (this.ended) this._byeWhenDone();
@@ -391,6 +420,10 @@ class KitStream {
       if (message.seq == null && /resume|session/.test(message.reason || "")) {
         this.error = message.reason;
       }
+      // the session was closed on the server (the therapist closed it while this phone
+      // was offline): next_seq says what of it is stored; the rest goes as a new session
+      if (message.seq == null && Number.isInteger(message.next_seq)
+          && /is closed/.test(message.reason || "")) this._closedNext = message.next_seq;
       // a refused message uses up its number: it is dropped with the next ack
     } else if (message.type === "feedback") {
       this.onFeedback(message);
