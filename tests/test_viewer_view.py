@@ -17,10 +17,12 @@ import pytest
 import viser
 from armtrack.estimator.body import SegmentLengths
 from armtrack.server.emulator import KitEmulator
+from armtrack.web.viewer.rom import LABEL_SCALE, VISER_LABEL_PX
 from armtrack.web.viewer.view import CAMERA_FOV_DEG, ClientView, framing_distance, reach_m
 from test_live_motion import short_exercise
-from test_viewer import grant, pose_from_angles, watch, ws_url
+from test_viewer import grant, names, pose_from_angles, watch, ws_url
 
+ELBOW_LABEL, FACING_LABEL = "/arm/thorax/rom/elbow_flexion/label", "/stance/facing/label"
 #: The browser's view in ``test_viewer.CAMERA``: 800 × 600 px.
 ASPECT = 800 / 600
 #: Poses at the edge of the arm's reach.
@@ -122,6 +124,41 @@ def test_the_panel_starts_minimised_and_titled_by_what_it_holds():
 
 
 # ---------------------------------------------------------------- a real server
+
+def test_a_phone_sized_view_gets_labels_that_read_as_large(module_server):
+    """A page that shows the view scaled down (a phone: 340 px of 600, 0.57) says so with
+    its request; the server sizes that viewer's angle labels to read at least 12 px on its
+    screen (the page's smallest print; they read 8.2 px before), "facing" as on a laptop;
+    a view shown whole keeps its labels as they were; a scale out of range is refused,
+    naming it."""
+    api = module_server.client("alice")
+    patient = api.patient("Phone View")
+
+    def label_px(display_scale: float | None) -> dict[str, float]:
+        body = {"patient_id": patient["id"]}
+        if display_scale is not None:
+            body["display_scale"] = display_scale
+        answer = api.http.post("/api/viewer", json=body)
+        assert answer.status_code == 200, answer.text
+        messages = asyncio.run(watch(ws_url(module_server, answer.json()["url"]),
+                                     until=lambda ms: ELBOW_LABEL in names(ms), seconds=15))
+        shown = display_scale or 1.0
+        return {m["name"]: m["props"]["font_screen_scale"] * VISER_LABEL_PX * shown
+                for m in messages if m["type"] == "LabelMessage"}
+
+    phone, laptop, unsaid = label_px(0.57), label_px(1.0), label_px(None)
+    print(f"on screen [px]: elbow label at 0.57 {phone[ELBOW_LABEL]:.1f} "
+          f"(at 1 {laptop[ELBOW_LABEL]:.1f}); facing at 0.57 {phone[FACING_LABEL]:.1f}")
+    angles = [px for name, px in phone.items() if name != FACING_LABEL]
+    assert len(angles) == 7 and min(angles) >= 12.0 - 1e-9, phone
+    assert phone[FACING_LABEL] >= laptop[FACING_LABEL] - 1e-9  # as large as on a laptop
+    assert laptop[ELBOW_LABEL] == unsaid[ELBOW_LABEL] == LABEL_SCALE * VISER_LABEL_PX
+    assert laptop[FACING_LABEL] == unsaid[FACING_LABEL] == 0.7 * VISER_LABEL_PX
+    for wrong in (0.0, 0.1, 1.5, "big"):
+        answer = api.http.post("/api/viewer", json={"patient_id": patient["id"],
+                                                    "display_scale": wrong})
+        assert answer.status_code == 422 and "display_scale" in answer.text, answer.text
+
 
 def _labels(messages: list[dict]) -> list[str]:
     """The panel's titles in the order sent, repeats left out."""

@@ -17,6 +17,7 @@ from armtrack.estimator.body import SegmentLengths
 
 from .geometry import HIP_HEIGHT, between, heading, notch_in_world, quat, yaw_quat
 from .pose import Pose
+from .rom import label_scale
 
 ROOT = "/arm/thorax"
 
@@ -30,9 +31,11 @@ FACING = (30, 30, 30)
 
 class ArmView:
     """The arm of one viewer: ``scene`` is that viewer's ``client.scene``; ``height_m`` the
-    subject's body height [m] (the trunk, head and legs are drawn in proportion)."""
+    subject's body height [m] (the trunk, head and legs are drawn in proportion);
+    ``display_scale``: how much the page shows the view scaled down (``rom.label_scale``)."""
 
-    def __init__(self, scene, height_m: float, lengths: SegmentLengths, side_sign: float):
+    def __init__(self, scene, height_m: float, lengths: SegmentLengths, side_sign: float,
+                 display_scale: float = 1.0):
         self.scene = scene
         self.height_m = h = height_m
         self.lengths = lengths
@@ -46,7 +49,7 @@ class ArmView:
         scene.add_arrows("/stance/facing", np.array([[[0.15, 0, 0.005], [0.75, 0, 0.005]]]),
                          FACING, shaft_radius=0.012, head_radius=0.035, head_length=0.08)
         scene.add_label("/stance/facing/label", "facing", position=(0.8, 0.0, 0.02),
-                        font_screen_scale=0.7)
+                        font_screen_scale=label_scale(0.7, display_scale))
         hip = HIP_HEIGHT * h
         for name, z in (("left", 0.05 * h), ("right", -0.05 * h)):  # stance frame: y left
             centre, wxyz, length = between(np.array([0.0, z, hip]), np.array([0.0, z, 0.02]))

@@ -47,6 +47,8 @@ class Grant:
     closed_at: float | None = None
     #: SHA-256 of the sign-in token it was issued to: the view ends with that sign-in
     token_hash: str = ""
+    #: How much the page shows the view scaled down (0.2–1): its labels grow to match
+    display_scale: float = 1.0
 
     @property
     def live(self) -> bool:
@@ -65,11 +67,11 @@ class GrantBook:
         self._lock = threading.Lock()
 
     def issue(self, *, therapist_id: int, patient_id: int, session_id: int | None,
-              token_hash: str = "") -> Grant:
+              token_hash: str = "", display_scale: float = 1.0) -> Grant:
         """A new grant, good for ``ttl_s``."""
         now = time.monotonic()
         grant = Grant(secrets.token_urlsafe(24), therapist_id, patient_id, session_id,
-                      now + self.ttl_s, token_hash=token_hash)
+                      now + self.ttl_s, token_hash=token_hash, display_scale=display_scale)
         with self._lock:
             self._prune(now)
             self._grants[grant.id] = grant

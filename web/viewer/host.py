@@ -206,7 +206,8 @@ class ViewerHost:
                 raise ViewerError(f"patient {grant.patient_id} is not the grant's therapist's")
             if grant.live:
                 view = ClientView(client, heading=f"{patient.name} · live",
-                                  height_m=patient.height_m, side=patient.side, live=True)
+                                  height_m=patient.height_m, side=patient.side, live=True,
+                                  display_scale=grant.display_scale)
                 patient_id = patient.id
                 return LiveDriver(view, services.hub, patient_id,
                                   dict(services.sensor_status.get(patient_id, {})),
@@ -216,7 +217,7 @@ class ViewerHost:
                 raise ViewerError(f"session {grant.session_id} is not patient {patient.id}'s")
             view = ClientView(client, heading=f"{patient.name} · session {session.id}",
                               height_m=session.height_m or patient.height_m, side=session.side,
-                              live=False)
+                              live=False, display_scale=grant.display_scale)
             data = load_session(db, session.id)
         if data is None:
             view.panels.show_status([f"Replay · session {session.id} has no estimates yet"

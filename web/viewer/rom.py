@@ -38,6 +38,23 @@ BANDS = (GREEN, AMBER, RED)
 #: The in-scene labels' size (viser's screen scale: 1 is its default text size): 0.8 was
 #: too small to read in the embedded view.
 LABEL_SCALE = 1.2
+#: viser 1.1's label text at screen scale 1 [CSS px of the view].
+VISER_LABEL_PX = 12.0
+#: An in-scene label reads at least this large on the page [CSS px]: the page's smallest
+#: print (its table headers). A phone shows the 600 px view scaled down (viewer_fit.js).
+LABEL_MIN_PX = 12.0
+#: The smallest display scale a page may report (a 120 px wide view).
+MIN_DISPLAY_SCALE = 0.2
+
+
+def label_scale(scale: float, display_scale: float = 1.0) -> float:
+    """viser's ``font_screen_scale`` for a label of screen scale ``scale`` in a view the
+    page shows scaled by ``display_scale`` (0.2–1): on the page it reads as large as in a
+    view shown whole, or ``LABEL_MIN_PX`` if that is less; a view shown whole keeps
+    ``scale``."""
+    display_scale = min(max(display_scale, MIN_DISPLAY_SCALE), 1.0)
+    on_page = min(scale * VISER_LABEL_PX, LABEL_MIN_PX)  # [CSS px]
+    return max(scale, on_page / (VISER_LABEL_PX * display_scale))
 #: How far outside the arc's point a label starts [m] (away from the body).
 LABEL_OUTSIDE_M = 0.04
 
@@ -124,9 +141,10 @@ class RomArcs:
 
     Each active angle shows a line along its arc (``ARC_LINE_PX`` wide on screen, coloured
     piece by piece) and a translucent fan from its joint to the arc, one fan per colour
-    band so a range beyond normal stands out in amber or red."""
+    band so a range beyond normal stands out in amber or red. ``display_scale``: how much
+    the page shows the view scaled down (``label_scale``)."""
 
-    def __init__(self, scene, root: str, side_sign: float = 1.0):
+    def __init__(self, scene, root: str, side_sign: float = 1.0, display_scale: float = 1.0):
         self._arcs = {}
         self._side_sign = side_sign
         self._fans: dict[str, list[Any]] = {}
@@ -146,11 +164,14 @@ class RomArcs:
                 for i, colour in enumerate(BANDS)]
             # legible, and written away from the body: the camera looks from the measured
             # arm's side, where the subject's outside is on the screen's left for a right
-            # arm (right for a left arm), so the text ends at its point and runs outward
+            # arm (right for a left arm), so the text ends at its point and runs outward;
+            # in a view shown scaled down (a phone) the larger text would leave the view
+            # there ("lbow flexion" at the arm's rest): it hangs centred below its point
+            anchor = ("top-center" if display_scale < 1
+                      else "center-right" if side_sign > 0 else "center-left")
             self._labels[name] = scene.add_label(
                 f"{root}/rom/{name}/label", exercise_words(name), visible=False,
-                font_screen_scale=LABEL_SCALE,
-                anchor="center-right" if side_sign > 0 else "center-left")
+                font_screen_scale=label_scale(LABEL_SCALE, display_scale), anchor=anchor)
         self.enabled = True
 
     def update(self, pose: Pose, lengths: SegmentLengths) -> None:

@@ -1,7 +1,9 @@
 """The viewer's routes on the app.
 
 * ``POST /api/viewer`` (therapist's bearer token), body ``{"patient_id": int,
-  "session_id": int | null}`` — a one-time grant to view the patient live (``null``) or a
+  "session_id": int | null, "display_scale": float}`` (``display_scale``, optional, 0.2–1:
+  how much the page scales the view down; its in-scene labels grow to read as large) — a
+  one-time grant to view the patient live (``null``) or a
   stored session of theirs: ``{"url": "/viewer/<grant>/", "expires_in": 60,
   "state_url": "/api/viewer/<grant>"}`` [s] (``ARMTRACK_VIEWER_GRANT_S``).
   Another therapist's patient or session is 404.
@@ -32,6 +34,7 @@ from pydantic import BaseModel, Field
 
 from .page import client_page, viewer_csp
 from .proxy import proxy
+from .rom import MIN_DISPLAY_SCALE
 
 router = APIRouter(tags=["viewer"])
 
@@ -45,6 +48,10 @@ class ViewerRequest(BaseModel):
     session_id: int | None = Field(
         None, ge=1, le=2**31 - 1,
         description="a stored session of the patient to replay; null: the live view")
+    display_scale: float = Field(
+        1.0, ge=MIN_DISPLAY_SCALE, le=1.0,
+        description="how much the page shows the view scaled down (its width on the page / "
+                    "the view's own width); the in-scene labels grow to read as large")
 
 
 class ViewerGrantOut(BaseModel):
@@ -72,7 +79,8 @@ def create_viewer(body: ViewerRequest, db: Db, therapist: Therapist, request: Re
                                 f"no session {body.session_id} of patient {body.patient_id}")
     grants = request.app.state.services.viewer.grants
     grant = grants.issue(therapist_id=therapist.id, patient_id=body.patient_id,
-                         session_id=body.session_id, token_hash=hash_token(token or ""))
+                         session_id=body.session_id, token_hash=hash_token(token or ""),
+                         display_scale=body.display_scale)
     return ViewerGrantOut(url=f"/viewer/{grant.id}/", expires_in=round(grants.ttl_s),
                           state_url=f"/api/viewer/{grant.id}")
 

@@ -47,10 +47,11 @@ def framing_distance(reach: float, fov_rad: float, aspect: float) -> float:
 class ClientView:
     """The view of one viser ``client``: ``heading`` titles the panels; ``height_m`` [m]
     and ``side`` (``"right"`` | ``"left"``) shape the figure until poses come; ``live``:
-    a live view (else a replay, whose controls stay in reach)."""
+    a live view (else a replay, whose controls stay in reach); ``display_scale``: how much
+    the page shows the view scaled down (0.2–1; its labels grow to match)."""
 
     def __init__(self, client, *, heading: str, height_m: float | None, side: str,
-                 live: bool = True):
+                 live: bool = True, display_scale: float = 1.0):
         lo, hi = HEIGHT_RANGE_M
         height = height_m if height_m is not None and lo <= height_m <= hi else DEFAULT_HEIGHT_M
         self.client = client
@@ -62,8 +63,9 @@ class ClientView:
         with client.atomic():
             self.panels = Panels(client.gui, heading, live=live)
             self.arm = ArmView(client.scene, height, self.lengths,
-                               1.0 if self.side == "right" else -1.0)
-            self.arcs = RomArcs(client.scene, ROOT, 1.0 if self.side == "right" else -1.0)
+                               1.0 if self.side == "right" else -1.0, display_scale)
+            self.arcs = RomArcs(client.scene, ROOT, 1.0 if self.side == "right" else -1.0,
+                                display_scale)
         self.panels.sensor_frames.on_update(
             lambda _: self.arm.set_sensor_frames(self.panels.sensor_frames.value))
         self.panels.arcs.on_update(lambda _: self._toggle_arcs())

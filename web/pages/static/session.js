@@ -23,6 +23,8 @@ let viewerMode = null;
 let viewerGrant = null;
 let viewerTimer = null;
 let viewerRetries = 0;
+let viewerScale = 1;  // how much the page scales the view down (viewer_fit.js)
+const VIEWER_RESCALE = 1.25;  // a view scaled by this much more or less is asked for anew
 
 function viewerNote(text) {
   const note = document.getElementById("viewer-note");
@@ -52,8 +54,10 @@ async function openViewer(mode, reconnecting = false) {
   }
   let grant;
   try {
+    viewerScale = Math.max(viewerFitScale(box), 0.2);  // its labels grow to read as large
     grant = await api("/api/viewer", { method: "POST", body: {
-      patient_id: session.patient_id, session_id: mode === "live" ? null : session.id } });
+      patient_id: session.patient_id, session_id: mode === "live" ? null : session.id,
+      display_scale: viewerScale } });
   } catch (error) {
     if (reconnecting) {  // the server may be restarting: try again later
       viewerRetries += 1;
@@ -97,6 +101,13 @@ async function checkViewer() {
   viewerCheckLater(VIEWER_CHECK_MS);
 }
 document.getElementById("reload-viewer").addEventListener("click", () => openViewer(viewerMode));
+// the view's box changed size a lot (a phone turned): a view with labels sized anew
+let rescaleTimer = null;
+document.getElementById("viewer").addEventListener("viewer-scale", (event) => {
+  clearTimeout(rescaleTimer);
+  if (!viewerGrant || Math.abs(Math.log(event.detail / viewerScale)) < Math.log(VIEWER_RESCALE)) return;
+  rescaleTimer = setTimeout(() => viewerGrant && openViewer(viewerMode), 1000);
+});
 
 // ---------------------------------------------------------------- live
 let lastPose = null;
