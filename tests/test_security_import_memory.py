@@ -10,6 +10,7 @@ import io
 import json
 import time
 
+import httpx
 import pytest
 from server_support import ServerProcess
 
@@ -74,7 +75,7 @@ def test_an_hdf5_declaring_huge_datasets_is_refused_before_it_is_read(small_limi
     detail = answer.json()["detail"]
     assert "bomb.h5" in detail and str(LIMIT) in detail, detail
     assert grown < 100, f"the server's peak memory grew by {grown:.0f} MiB"
-    assert elapsed < 5
+    assert elapsed < 20  # the .h5 reader's own process starts in 1-4 s on a busy machine
     assert server.sql("SELECT COUNT(*) FROM sessions WHERE patient_id = :p",
                       p=patient["id"])[0][0] == 0
 
@@ -205,3 +206,37 @@ def test_an_hdf5_cannot_make_the_server_read_its_own_files(small_limit_server, t
     assert "in.h5" in answer.json()["detail"] and "Accelerometer" in answer.json()["detail"]
     assert server.sql("SELECT COUNT(*) FROM sessions WHERE patient_id = :p",
                       p=patient["id"])[0][0] == 0
+
+
+FIXTURES = __import__("pathlib").Path(__file__).parent / "fixtures" / "hostile"
+
+
+@pytest.mark.parametrize("route", ["/api/recordings/inspect", "/api/recordings"])
+def test_an_hdf5_that_crashes_libhdf5_does_not_take_the_server_down(small_limit_server,
+                                                                    route):
+    """A valid APDM-like .h5 with a few bytes changed (found by fuzzing h5py 3.16: random
+    byte changes, one in ~300 files) makes libhdf5 dereference a bad pointer: reading it in
+    the server's process killed the server (SIGSEGV: every kit's stream and therapist's
+    page with it), on a kit's token. The file is read in a process of its own: refused
+    naming the file, the server answering on."""
+    server = small_limit_server
+    alice = server.client("alice")
+    patient = alice.patient(f"H5 crash {route[-7:]}")
+    kit = alice.device(patient["id"], "phone")
+    data = (FIXTURES / "apdm_crashes_libhdf5.h5").read_bytes()
+    try:
+        answer = alice.http.post(route, headers={"Authorization": f"Bearer {kit['token']}"},
+                                 data={"sensors": json.dumps({"forearm": "bad.h5:1"})},
+                                 files=[("files", ("bad.h5", data, "application/x-hdf5"))])
+        outcome = f"{answer.status_code} {answer.text[:200]}"
+    except httpx.HTTPError as exc:
+        answer, outcome = None, f"no answer ({type(exc).__name__})"
+    print(f"{route}: {outcome}; server exit code {server.process.poll()}")
+    assert server.process.poll() is None, "the server died"
+    assert httpx.get(server.url + "/healthz", timeout=10).status_code == 200
+    assert answer is not None
+    if route.endswith("inspect"):
+        (found,) = answer.json()["files"]
+        assert "bad.h5" in (found["error"] or ""), found
+    else:
+        assert answer.status_code == 422 and "bad.h5" in answer.json()["detail"], answer.text

@@ -13,6 +13,10 @@ share its time base (``unix``). A sensor is named ``<label> (<id>)``; LABEL in
 from __future__ import annotations
 
 import io
+import multiprocessing
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from typing import Any
 
 import numpy as np
 
@@ -37,26 +41,66 @@ def _text(value) -> str:
 
 
 def read(sources: list[SourceFile], options: ReadOptions) -> list[Signal]:
+    """The sensors of the ``.h5`` files, each file read in a process of its own (spawned):
+    libhdf5 parses a crafted or damaged file in C, and some such files crash it (SIGSEGV);
+    that must end the reader, not the program that asked (a server)."""
     try:
-        import h5py
+        import h5py  # noqa: F401  (the reader's process imports it again)
     except ImportError:
         raise ImportFailure(sources[0].name, "reading APDM .h5 files needs h5py: "
                             "pip install 'armtrack[apdm]'") from None
     signals = []
-    budget = [options.max_bytes] * 2  # [left, in all] the datasets may unpack to [bytes]
+    left = options.max_bytes  # what the datasets may still unpack to [bytes]
     for source in sources:
         if not sniff(source):
             continue
-        try:
-            h5 = h5py.File(io.BytesIO(source.data), "r")
-        except OSError as exc:
-            raise ImportFailure(source.name, f"not a readable HDF5 file, truncated or damaged "
-                                f"({exc})") from None
-        with h5:
-            signals.extend(_sensors(source, h5, budget))
+        found, used = _read_apart(source, left, options.max_bytes)
+        signals.extend(found)
+        left -= used
     if not signals:
         raise ImportFailure(sources[0].name if sources else "?", "no APDM sensors found")
     return signals
+
+
+def _read_apart(source: SourceFile, left: int, total: int) -> tuple[list[Signal], int]:
+    """:func:`_read_file` in a spawned process: its signals and the bytes they unpacked
+    to, or its refusal raised here; a reader that died names the file as unreadable."""
+    context = multiprocessing.get_context("spawn")  # a fork would copy a server's threads
+    with ProcessPoolExecutor(1, mp_context=context) as pool:
+        try:
+            ok, value = pool.submit(_read_file, source, left, total).result()
+        except BrokenProcessPool:
+            raise ImportFailure(source.name, "not a readable HDF5 file: reading it stopped "
+                                "the HDF5 library (damaged or crafted)") from None
+    if not ok:
+        too_large, file, problem, line, place = value
+        raise (TooLarge if too_large else ImportFailure)(file, problem, line, place)
+    return value
+
+
+def _read_file(source: SourceFile, left: int, total: int) -> tuple[bool, Any]:
+    """In the reader's process: ``(True, (signals, bytes used))`` or ``(False, the
+    refusal's fields)`` (an ImportFailure does not pickle back whole)."""
+    import h5py
+
+    budget = [left, total]
+    try:
+        try:
+            h5 = h5py.File(io.BytesIO(source.data), "r")
+        except OSError as exc:
+            raise ImportFailure(source.name, f"not a readable HDF5 file, truncated or "
+                                f"damaged ({exc})") from None
+        try:
+            with h5:
+                signals = _sensors(source, h5, budget)
+        except (OSError, KeyError, RuntimeError, ValueError, TypeError) as exc:
+            # what h5py raises on a damaged file's structure (a bad heap, an address
+            # past the end …)
+            raise ImportFailure(source.name, f"cannot be read, the file is damaged "
+                                f"({exc})") from None
+    except ImportFailure as exc:
+        return False, (isinstance(exc, TooLarge), exc.file, exc.problem, exc.line, exc.place)
+    return True, (signals, left - budget[0])
 
 
 def _declared_bytes(group, names) -> int:

@@ -21,6 +21,7 @@ class ImportFailure(EstimatorError):
         self.file = file
         self.line = line
         self.problem = problem
+        self.place = place
 
 
 class TooLarge(ImportFailure):
