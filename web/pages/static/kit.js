@@ -123,6 +123,7 @@ function screen(...children) {
   for (const id of kit.timers.splice(0)) clearInterval(id);
   const main = document.getElementById("screen");
   main.replaceChildren(...children.flat().filter((c) => c != null));
+  document.getElementById("gap").hidden = true;  // a screen-off notice lasts until the next step
   main.scrollTop = 0;
   window.scrollTo(0, 0);
 }
@@ -172,7 +173,11 @@ function holdTheKit() {
   });
 }
 
+/** Without a working link the status bar's "Ready" would say all is well: it goes. */
+function noStatus() { document.getElementById("status").hidden = true; }
+
 function noLink() {
+  noStatus();
   screen(el("h1", {}, "Open your link"),
     el("p", { class: "lead" }, "This page is your arm exercise kit. Open it from the link or QR code your therapist gave you."));
 }
@@ -596,6 +601,7 @@ async function main() {
   const kept = await KitStore.getState("stream");
   kit.today = await loadToday();
   if (kit.today.revoked) {
+    noStatus();
     return screen(el("h1", {}, "This link no longer works"),
       el("p", { class: "lead" }, "Your therapist has replaced or removed it. Ask them for a new link."));
   }
