@@ -19,6 +19,7 @@ from test_phone_kit_browser import (
     _wait,
     motion_events,
     phone_simulation,
+    sync_api,
 )
 
 # the kit page's fixtures: a phone-sized chromium, the screenshots' folder
@@ -295,3 +296,29 @@ def test_a_session_closed_by_the_therapist_while_the_phone_was_offline(server, p
             "a reading was lost, reordered or stored twice"
     finally:
         proxy.close()
+
+
+def test_a_session_erased_by_the_therapist_does_not_leave_the_kit_stuck(server, phone, shots):
+    """The therapist erases a session while the phone streams it: the server closes the
+    stream and then refuses its resume (no such stream). Before, the page stopped at the
+    refusal with the session kept on the phone: every reload resumed the erased session
+    again and the kit could never start another. Now the page says the session was
+    erased, stops sending, and a reload opens a new session's start."""
+    api = server.client("alice")
+    device = api.device(api.patient("Erased Patient")["id"], "phone")
+    events = motion_events(phone_simulation(seed=11))
+    _start_kit(phone, server.url, device["token"], shots, "e")
+    phone.click("#ready")
+    phone.evaluate(FEEDER, events[:600])
+    _wait(lambda: phone.evaluate("kit.stream.connected && kit.stream.samples > 120"), 30,
+          "streaming")
+    session_id = phone.evaluate("kit.stream.state.session")
+    answer = api.http.delete(f"/api/sessions/{session_id}")
+    assert answer.status_code == 204, answer.text
+    _wait(lambda: "erased" in (phone.evaluate("kit.stream.error") or ""), 30,
+          "the page saying the session was erased")
+    phone.screenshot(path=str(shots / "e1-erased.png"))
+    print(f"\nerased: the page says {phone.evaluate('kit.stream.error')!r}")
+    phone.evaluate("clearTimeout(window.__feed.timer)")
+    phone.reload()
+    sync_api.expect(phone.locator("#start")).to_be_visible(timeout=20_000)

@@ -354,6 +354,7 @@ class KitStream {
       this.onChange(this);
       if (event.code === 4401) { this.error = "this link was revoked: ask your therapist for a new one"; return; }
       if (event.code === 4400 && this._closedNext != null) { this._carryOver(this._closedNext); return; }
+      if (event.code === 4400 && this._gone) { this._abandon(); return; }
       if (event.code === 4400) { this.error = "the server refused the stream: " + event.reason; return; }
       if (!this.state.finished) {
         setTimeout(() => this.connect(), this._retry);
@@ -382,6 +383,21 @@ class KitStream {
       this.onChange(this);
       this.connect();
     }).catch((error) => { this.error = "could not save on this phone: " + error; this.onChange(this); });
+  }
+
+  /** The session was erased on the server: its data go from this phone too (nothing of
+   * it may be sent again), and the next load of the page starts a new session. */
+  _abandon() {
+    this._gone = false;
+    this.error = "This session was erased by your therapist: nothing more of it is sent. Reload the page to start a new session.";
+    this.ended = true;
+    this.state.finished = true;
+    clearInterval(this._flushTimer);
+    this.rows = [];
+    this._unsaved.clear();
+    localStorage.removeItem(TAIL_KEY);
+    this._saving = this._saving.then(() => KitStore.clear()).catch(() => {});
+    this.onChange(this);
   }
 
   async _message(ws, message) {
@@ -424,6 +440,8 @@ class KitStream {
       // was offline): next_seq says what of it is stored; the rest goes as a new session
       if (message.seq == null && Number.isInteger(message.next_seq)
           && /is closed/.test(message.reason || "")) this._closedNext = message.next_seq;
+      // the stream is gone on the server (the therapist erased the session)
+      if (message.seq == null && /no stream .* to resume/.test(message.reason || "")) this._gone = true;
       // a refused message uses up its number: it is dropped with the next ack
     } else if (message.type === "feedback") {
       this.onFeedback(message);
