@@ -97,7 +97,8 @@ def long_exercise(seed: int = 4):
 
 
 #: Tables that must fit a phone's width without scrolling (their rows stack there).
-STACKED_ON_PHONES = {"patients": ("patients",), "patient": ("sessions",),
+STACKED_ON_PHONES = {"patients": ("patients",),
+                     "patient": ("sessions", "program-exercises", "adherence"),
                      "patient-live": ("sessions", "sensor-table"),
                      "session": ("rom-table",), "live": ("sensor-table", "angles-table"),
                      "audit": ("audit-table",), "admin": ("therapists", "admin-patients")}
@@ -120,7 +121,8 @@ def fits(page, shots, name: str, width: int) -> None:  # noqa: F811
           const style = box ? getComputedStyle(box) : null;
           const room = box ? box.clientWidth - parseFloat(style.paddingLeft)
             - parseFloat(style.paddingRight) : null;
-          return { id: t.id, width: t.scrollWidth, box: room,
+          // a table without an id (a program's exercises, its adherence) goes by its class
+          return { id: t.id || t.classList[0] || '', width: t.scrollWidth, box: room,
                    scrolls: box ? style.overflowX : null };
         });
       return { page: document.scrollingElement.scrollWidth, window: innerWidth, tables };
