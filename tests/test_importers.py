@@ -581,3 +581,23 @@ def test_proposed_calibration_scores_like_the_true_windows(exercise, seed):
     print(f"{exercise}: proposal {proposal!r}: RMS vs truth {proposed:.3f} deg "
           f"(the simulator's windows: {true_windows:.3f} deg)")
     assert proposed <= true_windows + 0.05
+
+
+def test_apdm_reader_that_does_not_finish_is_stopped_and_named(tmp_path, monkeypatch):
+    """Each .h5 is read in a process of its own (a crafted file can crash libhdf5); one
+    that does not finish in its time (a file made to loop the library, a machine too busy)
+    is stopped and the file refused by name — it must not hold a server's worker, nor
+    leave its process behind. The limit is cut to 50 ms here: starting the reader alone
+    takes longer."""
+    import multiprocessing
+
+    from armtrack.estimator.importers import apdm
+
+    pytest.importorskip("h5py")
+    rec = session(128.0).recording
+    path = tmp_path / "slow.h5"
+    apdm_h5(path, {"1234": ("Right Forearm", rec.sensors["forearm"])})
+    monkeypatch.setattr(apdm, "READ_TIME_LIMIT_S", 0.05)
+    with pytest.raises(ImportFailure, match=r"slow\.h5: reading it took longer than 0\.05 s"):
+        read_signals([SourceFile(str(path), path.read_bytes())])
+    assert not multiprocessing.active_children()

@@ -14,8 +14,6 @@ from __future__ import annotations
 
 import io
 import multiprocessing
-from concurrent.futures import ProcessPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
 from typing import Any
 
 import numpy as np
@@ -26,6 +24,9 @@ NAME = "apdm"
 TITLE = "APDM Opal .h5"
 HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
 READ_VERSIONS = (5,)
+#: The longest one file's reader may take, its process's start included [s]: a file made
+#: to loop libhdf5 must not hold the caller (a server's worker) for good.
+READ_TIME_LIMIT_S = 120.0
 
 
 def sniff(source: SourceFile) -> bool:
@@ -64,18 +65,39 @@ def read(sources: list[SourceFile], options: ReadOptions) -> list[Signal]:
 
 def _read_apart(source: SourceFile, left: int, total: int) -> tuple[list[Signal], int]:
     """:func:`_read_file` in a spawned process: its signals and the bytes they unpacked
-    to, or its refusal raised here; a reader that died names the file as unreadable."""
+    to, or its refusal raised here; a reader that died or did not finish within
+    ``READ_TIME_LIMIT_S`` is stopped and names the file."""
     context = multiprocessing.get_context("spawn")  # a fork would copy a server's threads
-    with ProcessPoolExecutor(1, mp_context=context) as pool:
+    receive, send = context.Pipe(duplex=False)
+    reader = context.Process(target=_read_into, args=(send, source, left, total),
+                             name="armtrack-h5-reader", daemon=True)
+    reader.start()
+    send.close()  # the reader holds the only sending end: its death reads as EOF
+    try:
+        if not receive.poll(READ_TIME_LIMIT_S):
+            raise ImportFailure(source.name, f"reading it took longer than "
+                                f"{READ_TIME_LIMIT_S:g} s and was stopped (a damaged or "
+                                "crafted HDF5 file, or a machine too busy: try again)")
         try:
-            ok, value = pool.submit(_read_file, source, left, total).result()
-        except BrokenProcessPool:
+            ok, value = receive.recv()
+        except EOFError:
             raise ImportFailure(source.name, "not a readable HDF5 file: reading it stopped "
                                 "the HDF5 library (damaged or crafted)") from None
+    finally:
+        receive.close()
+        if reader.is_alive():
+            reader.kill()
+        reader.join()
     if not ok:
         too_large, file, problem, line, place = value
         raise (TooLarge if too_large else ImportFailure)(file, problem, line, place)
     return value
+
+
+def _read_into(send, source: SourceFile, left: int, total: int) -> None:
+    """The reader process's body: :func:`_read_file`'s answer sent back."""
+    send.send(_read_file(source, left, total))
+    send.close()
 
 
 def _read_file(source: SourceFile, left: int, total: int) -> tuple[bool, Any]:
