@@ -81,6 +81,9 @@ class Services:
         self.streams: dict[str, StreamState] = {}
         self.connections: dict[str, Any] = {}  # stream id → open IngestConnection
         self.kit_sockets: dict[int, int] = {}  # device id → its open ingest connections
+        #: sessions the therapist is closing: a resume or continuation of one is refused as
+        #: closed (a kit reconnecting between its stream's end and the close's commit)
+        self.closing: set[int] = set()
         #: stream id → the live side of a stream whose connection was lost, kept for its
         #: resume (``park_live``)
         self.parked_live: dict[str, ParkedLive] = {}

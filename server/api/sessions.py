@@ -73,8 +73,12 @@ async def close_session(session_id: Id, therapist: Therapist,
     session = await svc.run_db(lambda db: own_session(db, therapist, session_id))
     if session.status == "closed":
         raise HTTPException(status.HTTP_409_CONFLICT, f"session {session_id} is already closed")
-    await svc.end_session_streams(session_id, "session closed by the therapist")
-    await svc.run_db(mark_closed, session_id)
+    svc.closing.add(session_id)
+    try:
+        await svc.end_session_streams(session_id, "session closed by the therapist")
+        await svc.run_db(mark_closed, session_id)
+    finally:
+        svc.closing.discard(session_id)
     with contextlib.suppress(ProcessingFailed):  # logged; the session shows no estimates
         await svc.process_later(session_id, DEFAULT_FILTER)
     return await svc.run_db(lambda db: session_out(db.get(models.Session, session_id)))

@@ -397,7 +397,7 @@ class IngestConnection:
         if session is None or session.patient_id != self.patient_id:
             raise Refused(f"hello: no session {hello.session} to continue for this device's "
                           "patient")
-        if session.status == "closed":
+        if session.status == "closed" or session.id in self.services.closing:
             raise Refused(f"hello: session {session.id} is closed; start a new session "
                           "(resume null, no session)")
         if set(hello.sensors) != set(session.sensors) or hello.side != session.side:
@@ -431,7 +431,9 @@ class IngestConnection:
         session = None if stream is None else db.get(models.Session, stream.session_id)
         if session is None or session.patient_id != self.patient_id:
             raise Refused(f"hello: no stream {stream_id!r} to resume for this device's patient")
-        if session.status == "closed":  # what of it is stored: the kit sends the rest
+        # what of it is stored: the kit sends the rest (closing: the therapist's close is
+        # under way, its commit a moment away)
+        if session.status == "closed" or session.id in self.services.closing:
             raise Refused(f"hello: the session of stream {stream_id} is closed; "  # anew
                           "start a new stream (resume null)",
                           extra={"next_seq": stream.next_seq}

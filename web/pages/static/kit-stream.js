@@ -4,7 +4,8 @@
 // Extensions asked in hello (docs/extensions/): feedback/1 (live angle, repetitions),
 // programs/1 (the session follows the therapist's program the kit names), effort-pain/1
 // (effort and pain after each exercise, kept on the phone until the server stored them),
-// closed-session/1 (a session closed while offline: the rest goes as a new session).
+// closed-session/1 (a session closed while offline: the rest goes as a new session; one
+// the therapist closed while it streamed ends here too: the rest goes, nothing more).
 //
 // Axes (docs/phone-kit.md): the phone is strapped screen out (away from the skin), its top
 // toward the joint above (the elbow for the forearm, the shoulder for the upper arm), on
@@ -115,7 +116,8 @@ const KitStore = {
  * set back between two loads is made up by state.clockShift [s] (added to t).
  */
 class KitStream {
-  constructor({ token, sensor, side, device, program, onChange, onFeedback, onClose, onReady }) {
+  constructor({ token, sensor, side, device, program, onChange, onFeedback, onClose, onReady,
+                onEndedByTherapist }) {
     this.token = token;
     this.sensor = sensor;
     this.side = side;
@@ -125,6 +127,7 @@ class KitStream {
     this.onFeedback = onFeedback || (() => {});
     this.onClose = onClose || (() => {});
     this.onReady = onReady || (() => {});
+    this.onEndedByTherapist = onEndedByTherapist || (() => {});
     // {stream, session, nextSeq, startEpoch, lastT, sensor, side, acked, program, ratings}
     // ratings: effort_pain messages not yet stored by the server (effort-pain/1)
     this.state = null;
@@ -352,6 +355,9 @@ class KitStream {
       if (wasConnected) this.closes += 1;
       this.onClose(event);
       this.onChange(this);
+      // the therapist closed the session while it streamed (server/api/sessions.py): it
+      // ends here too; the reconnect below sends what was not acked (_carryOver) and bye
+      if (event.code === 1000 && /closed by the therapist/.test(event.reason || "")) this._endedByTherapist();
       if (event.code === 4401) { this.error = "this link was revoked: ask your therapist for a new one"; return; }
       if (event.code === 4400 && this._closedNext != null) { this._carryOver(this._closedNext); return; }
       if (event.code === 4400 && this._gone) { this._abandon(); return; }
@@ -380,9 +386,33 @@ class KitStream {
       this.unsent = await KitStore.count();
       this.error = null;
       this.carriedOver = (this.carriedOver || 0) + 1;
+      if (this.state.closedByTherapist && this.unsent === 0 && this._unsaved.size === 0
+          && this.state.ratings.length === 0) {
+        // all of it was stored before the close: no new session for nothing
+        clearInterval(this._flushTimer);
+        this.state.finished = true;
+        await KitStore.setState("stream", { ...this.state });
+        this.onChange(this);
+        return;
+      }
       this.onChange(this);
       this.connect();
     }).catch((error) => { this.error = "could not save on this phone: " + error; this.onChange(this); });
+  }
+
+  /** The therapist closed the session while this phone streamed it: the readings taken go
+   * with the rest, none is taken after (the phone does not carry on into a new session on
+   * its own); state.closedByTherapist is kept, so a reload shows the same end. */
+  _endedByTherapist() {
+    if (this.state.closedByTherapist || this.state.finished) return;
+    this.flush();
+    const already = this.ended;
+    this.ended = true;
+    this.state.ended = true;
+    this.state.closedByTherapist = true;
+    this._saving = this._saving.then(() => KitStore.setState("stream", { ...this.state }))
+      .catch((error) => { this.error = "could not save on this phone: " + error; });
+    if (!already) this.onEndedByTherapist(this);
   }
 
   /** The session was erased on the server: its data go from this phone too (nothing of

@@ -262,7 +262,7 @@ function onReady(message) {
 function newStream(program) {
   return new KitStream({
     token: kit.token, sensor: kit.sensor, side: kit.side, device: "phone " + (navigator.platform || "web").slice(0, 60),
-    program, onChange: status, onReady, onFeedback: (f) => { kit.feedback = f; kit.feedbackAt = Date.now(); },
+    program, onChange: status, onReady, onEndedByTherapist: () => finished(), onFeedback: (f) => { kit.feedback = f; kit.feedbackAt = Date.now(); },
   });
 }
 
@@ -497,15 +497,19 @@ function wellDone(index) {
   every(1000, () => { if (left-- <= 0) rateExercise(index); });
 }
 
+/** The session's end: the patient's, or the therapist's (closed on their page while the
+ * phone streamed it: the phone sends the rest and records no more). */
 async function finished() {
+  const byTherapist = Boolean(kit.stream.state && kit.stream.state.closedByTherapist);
   saveStep("finished", 0);
   const info = el("p", { class: "lead", id: "sent" }, "Sending your session…");
-  screen(el("h1", { class: "welldone" }, "Session finished"),
-    el("p", {}, "Thank you. Your therapist will see it."), info,
+  screen(el("h1", { class: "welldone" }, byTherapist ? "Session ended" : "Session finished"),
+    el("p", {}, byTherapist ? "Your therapist ended this session. Thank you — what you did is saved."
+      : "Thank you. Your therapist will see it."), info,
     // only once all is sent: a new session starts a new outbox
     big("Start another session", { id: "again", class: "big secondary", disabled: "",
       onclick: () => { localStorage.removeItem(STEP_KEY); welcome(); } }));
-  say("Session finished. Well done!");
+  say(byTherapist ? "Your therapist ended this session. Thank you." : "Session finished. Well done!");
   await kit.stream.finish();
   every(300, () => {
     const s = kit.stream;
