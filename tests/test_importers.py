@@ -601,3 +601,32 @@ def test_apdm_reader_that_does_not_finish_is_stopped_and_named(tmp_path, monkeyp
     with pytest.raises(ImportFailure, match=r"slow\.h5: reading it took longer than 0\.05 s"):
         read_signals([SourceFile(str(path), path.read_bytes())])
     assert not multiprocessing.active_children()
+
+
+def test_apdm_readers_at_once_are_bounded(tmp_path):
+    """Each .h5 reader is a process of its own (~100 MB with numpy and h5py): many uploads
+    at once must not start as many processes (a server's 40 workers would be 40 of
+    them); at most ``READERS_AT_ONCE`` run, the others wait their turn and still read."""
+    import multiprocessing
+    import threading
+    import time
+
+    from armtrack.estimator.importers import apdm
+
+    pytest.importorskip("h5py")
+    rec = session(128.0).recording
+    path = tmp_path / "one.h5"
+    apdm_h5(path, {"1234": ("Right Forearm", rec.sensors["forearm"])})
+    data = path.read_bytes()
+    results, most = [], 0
+    threads = [threading.Thread(target=lambda: results.append(
+        read_signals([SourceFile("one.h5", data)]))) for _ in range(5)]
+    for thread in threads:
+        thread.start()
+    while any(thread.is_alive() for thread in threads):
+        most = max(most, sum(p.name == "armtrack-h5-reader"
+                             for p in multiprocessing.active_children()))
+        time.sleep(0.01)
+    print(f"5 reads at once: at most {most} reader processes, {len(results)} read")
+    assert len(results) == 5
+    assert 1 <= most <= apdm.READERS_AT_ONCE

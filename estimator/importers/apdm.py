@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import io
 import multiprocessing
+import threading
 from typing import Any
 
 import numpy as np
@@ -27,6 +28,10 @@ READ_VERSIONS = (5,)
 #: The longest one file's reader may take, its process's start included [s]: a file made
 #: to loop libhdf5 must not hold the caller (a server's worker) for good.
 READ_TIME_LIMIT_S = 120.0
+#: Readers (processes of ~100 MB: numpy and h5py) running at once in this program; more
+#: files wait their turn (a server's workers would otherwise start one each).
+READERS_AT_ONCE = 2
+_readers = threading.BoundedSemaphore(READERS_AT_ONCE)
 
 
 def sniff(source: SourceFile) -> bool:
@@ -55,7 +60,8 @@ def read(sources: list[SourceFile], options: ReadOptions) -> list[Signal]:
     for source in sources:
         if not sniff(source):
             continue
-        found, used = _read_apart(source, left, options.max_bytes)
+        with _readers:
+            found, used = _read_apart(source, left, options.max_bytes)
         signals.extend(found)
         left -= used
     if not signals:
