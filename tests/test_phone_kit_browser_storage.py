@@ -382,3 +382,87 @@ def test_a_live_session_the_therapist_closes_ends_on_the_phone_too(server, phone
     phone.evaluate("clearTimeout(window.__feed.timer)")
     phone.click("#again")
     sync_api.expect(phone.locator("#start")).to_be_visible()
+
+
+#: navigator.wakeLock as browsers implement it (W3C Screen Wake Lock): request("screen")
+#: gives a sentinel, released by release() or when the page is hidden; the page's
+#: visibility is set by ``__setVisible``. Counts the locks held and the requests.
+FAKE_WAKE_LOCK = """
+(() => {
+  window.__wake = { held: 0, requests: 0, sentinels: [] };
+  window.__visible = true;
+  Object.defineProperty(Document.prototype, "visibilityState",
+    { configurable: true, get() { return window.__visible ? "visible" : "hidden"; } });
+  Object.defineProperty(Document.prototype, "hidden",
+    { configurable: true, get() { return !window.__visible; } });
+  const release = (s) => {
+    if (s.released) return;
+    s.released = true;
+    window.__wake.held -= 1;
+    s.dispatchEvent(new Event("release"));
+  };
+  const lock = {
+    async request(type) {
+      if (type !== "screen" || !window.__visible) {
+        throw new DOMException("hidden", "NotAllowedError");
+      }
+      window.__wake.requests += 1;
+      window.__wake.held += 1;
+      const s = new EventTarget();
+      s.released = false;
+      s.type = "screen";
+      s.release = async () => release(s);
+      window.__wake.sentinels.push(s);
+      return s;
+    },
+  };
+  Object.defineProperty(Navigator.prototype, "wakeLock", { configurable: true, get: () => lock });
+  window.__setVisible = (visible) => {
+    window.__visible = visible;
+    if (!visible) window.__wake.sentinels.forEach(release);
+    document.dispatchEvent(new Event("visibilitychange"));
+  };
+})();
+"""
+
+
+def _screen_off_and_on(phone) -> int:
+    """The screen off and on again; the wake locks held after it."""
+    phone.evaluate("__setVisible(false)")
+    phone.wait_for_timeout(300)
+    phone.evaluate("__setVisible(true)")
+    phone.wait_for_timeout(500)
+    return phone.evaluate("__wake.held")
+
+
+def test_the_wake_lock_is_held_only_while_a_session_runs(server, phone, shots):
+    """Before, the page asked for the screen wake lock again on every return to the page
+    (visibilitychange), before a session and after it had finished: the screen stayed on
+    at 'Session finished'. Now it is held from 'I'm ready' to the session's end only."""
+    api = server.client("alice")
+    device = api.device(api.patient("Wake Lock Patient")["id"], "phone")
+    events = motion_events(phone_simulation(seed=13))
+    phone.context.add_init_script(FAKE_WAKE_LOCK)
+    _start_kit(phone, server.url, device["token"], shots, "w")
+    before = _screen_off_and_on(phone)
+    phone.click("#ready")
+    phone.evaluate(FEEDER, events[:600])
+    _wait(lambda: phone.evaluate("kit.stream.connected && kit.stream.samples > 60"), 30,
+          "streaming")
+    during = phone.evaluate("__wake.held")
+    again = _screen_off_and_on(phone)
+    session_id = phone.evaluate("kit.stream.state.session")
+    answer = api.http.post(f"/api/sessions/{session_id}/close")  # the session's end
+    assert answer.status_code == 200, answer.text
+    _wait(lambda: phone.evaluate("kit.stream.state.finished"), 30, "the session's end")
+    phone.wait_for_timeout(500)
+    at_end = phone.evaluate("__wake.held")
+    asked = phone.evaluate("__wake.requests")
+    after = _screen_off_and_on(phone)
+    # (the finished screen released a lock it had taken again within 0.3 s: count asks)
+    asked_after = phone.evaluate("__wake.requests") - asked
+    phone.screenshot(path=str(shots / "w1-finished-no-wake-lock.png"))
+    print(f"\nwake locks held: before the session {before}, during {during}, after the screen "
+          f"off and on {again}, at the end {at_end}, after the screen off and on at the end "
+          f"{after} (asked again {asked_after} times); requests {asked + asked_after}")
+    assert (before, during, again, at_end, after, asked_after) == (0, 1, 1, 0, 0, 0)

@@ -67,13 +67,23 @@ function say(text) {
   } catch (_) { /* no voice on this phone: the screen says it */ }
 }
 function buzz(pattern) { try { if (navigator.vibrate) navigator.vibrate(pattern); } catch (_) { /* none */ } }
+/** A session runs: from "I'm ready" (or its resume) until it has ended and all is sent. */
+function sessionRuns() {
+  return Boolean(kit.stream && kit.stream.state && !kit.stream.state.finished);
+}
+/** The screen kept on (Wake Lock) while a session runs only; taken again on a return to
+ * the page (the browser lets it go when the page is hidden), released at the end. */
 async function keepAwake() {
   try {
-    if ("wakeLock" in navigator && !kit.wakeLock && document.visibilityState === "visible") {
+    if ("wakeLock" in navigator && !kit.wakeLock && document.visibilityState === "visible"
+        && sessionRuns()) {
       kit.wakeLock = await navigator.wakeLock.request("screen");
       kit.wakeLock.addEventListener("release", () => { kit.wakeLock = null; });
     }
   } catch (_) { /* refused (battery saver): the page says to keep the screen on */ }
+}
+function letSleep() {
+  if (kit.wakeLock && !sessionRuns()) { kit.wakeLock.release().catch(() => {}); kit.wakeLock = null; }
 }
 
 // -- sensors -------------------------------------------------------------------------------
@@ -148,6 +158,7 @@ function status() {
   bar.textContent = text;
   bar.className = "status " + kind;
   bar.dataset.connected = s && s.connected ? "yes" : "no";
+  letSleep();  // the session's end (all sent, or erased) lets the screen sleep
 }
 
 // -- the steps ----------------------------------------------------------------------------
@@ -519,7 +530,7 @@ async function finished() {
     if (s.state.finished) {
       localStorage.removeItem(STEP_KEY);
       document.getElementById("again").removeAttribute("disabled");
-      if (kit.wakeLock) kit.wakeLock.release();
+      letSleep();
     }
   });
 }
