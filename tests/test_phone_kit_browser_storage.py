@@ -466,3 +466,35 @@ def test_the_wake_lock_is_held_only_while_a_session_runs(server, phone, shots):
           f"off and on {again}, at the end {at_end}, after the screen off and on at the end "
           f"{after} (asked again {asked_after} times); requests {asked + asked_after}")
     assert (before, during, again, at_end, after, asked_after) == (0, 1, 1, 0, 0, 0)
+
+
+def test_the_session_page_names_the_phone_kit_as_the_therapist_did(server, phone, shots):
+    """The session page said 'streamed by phone Linux x86_64': the phone kit named itself
+    by navigator.platform in hello's device. It now names the kit as the therapist gave it
+    (the device's name), and the kit's hello no longer carries the browser's platform."""
+    from server_support import PASSWORD
+
+    api = server.client("alice")
+    device = api.device(api.patient("Named Kit Patient")["id"], "Ada's phone")
+    events = motion_events(phone_simulation(seed=14))
+    _start_kit(phone, server.url, device["token"], shots, "n")
+    phone.click("#ready")
+    phone.evaluate(FEEDER, events[:300])
+    _wait(lambda: phone.evaluate("kit.stream.connected && kit.stream.samples > 120"), 30,
+          "streaming")
+    platform = phone.evaluate("navigator.platform")
+    session_id = phone.evaluate("kit.stream.state.session")
+    answer = api.http.post(f"/api/sessions/{session_id}/close")
+    assert answer.status_code == 200, answer.text
+    stored = api.wait_processed(session_id, timeout=120)
+    phone.goto(f"{server.url}/signin?next=/sessions/{session_id}")
+    phone.fill("#username", "alice")
+    phone.fill("#password", PASSWORD)
+    phone.click("#submit")
+    sync_api.expect(phone.locator("#facts")).to_contain_text("streamed by", timeout=30_000)
+    facts = phone.locator("#facts").inner_text()
+    phone.screenshot(path=str(shots / "n1-session-page.png"))
+    print(f"\nsession page at 390 px: {facts!r}; hello's device "
+          f"{stored['metadata'].get('device')!r} (navigator.platform {platform!r})")
+    assert "streamed by Ada's phone" in facts, facts
+    assert platform not in facts and platform not in stored["metadata"].get("device", "")

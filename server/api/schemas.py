@@ -87,6 +87,9 @@ class SessionOut(BaseModel):
     id: int
     patient_id: int
     device_id: int | None
+    device_name: str | None = Field(
+        None, description="the kit's name as the therapist gave it (its device); null "
+        "without one (an upload by a therapist, a removed kit)")
     source: Literal["stream", "upload"]
     status: Literal["live", "closed", "interrupted"]
     started_at: datetime

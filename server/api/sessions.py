@@ -13,6 +13,7 @@ from armtrack.estimator.recording import format_recording, parse_recording
 from fastapi import APIRouter, Depends, Form, HTTPException, Request, UploadFile, status
 from fastapi.responses import Response
 from sqlalchemy import select
+from sqlalchemy.orm import object_session
 
 from .. import audit
 from ..auth import hash_token
@@ -38,8 +39,12 @@ ANGLE_COLUMNS_END = "hand_z"
 
 
 def session_out(session: models.Session) -> SessionOut:
+    db = object_session(session)
+    device = (db.get(models.Device, session.device_id)
+              if db is not None and session.device_id is not None else None)
     return SessionOut(
         id=session.id, patient_id=session.patient_id, device_id=session.device_id,
+        device_name=device.name if device is not None else None,
         source=session.source, status=session.status, started_at=session.started_at,
         ended_at=session.ended_at, side=session.side, sensors=list(session.sensors),
         nine_axis={k: bool(v.get("nine_axis")) for k, v in session.sensors.items()},

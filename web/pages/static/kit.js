@@ -11,6 +11,9 @@ const TOKEN_KEY = "armtrack.kit.token";
 const TODAY_KEY = "armtrack.kit.today";
 const STEP_KEY = "armtrack.kit.step";
 const SEGMENT_KEY = "armtrack.kit.segment";
+/** hello's device: what the kit is (the session page names it by the therapist's name for
+ * it); not the browser's platform string, which named no one's phone. */
+const PHONE_KIT = "phone kit";
 const G = 9.81;
 /** Stillness: over the last STILL_S, gyroscope under STILL_GYRO [rad/s] and |a| within
  * STILL_ACC [m/s²] of g. A calibration pose is held HOLD_S once still. */
@@ -272,7 +275,7 @@ function onReady(message) {
 
 function newStream(program) {
   return new KitStream({
-    token: kit.token, sensor: kit.sensor, side: kit.side, device: "phone " + (navigator.platform || "web").slice(0, 60),
+    token: kit.token, sensor: kit.sensor, side: kit.side, device: PHONE_KIT,
     program, onChange: status, onReady, onEndedByTherapist: () => finished(), onFeedback: (f) => { kit.feedback = f; kit.feedbackAt = Date.now(); },
   });
 }

@@ -400,13 +400,20 @@ function romTable(summary) {
     el("span", {}, "calibration poses are not counted"))];
 }
 
+/** The kit as the therapist named it; else the phone kit's or another kit's own word. */
+function streamedBy(session) {
+  if (session.device_name) return session.device_name;
+  if (session.metadata.device === "phone kit") return "the patient's phone";
+  return session.metadata.device || "a kit";
+}
+
 async function showReplay() {
   const summary = await api(`/api/sessions/${session.id}/summary`);
   document.getElementById("facts").replaceChildren(
     session.dated === "uploaded" ? "uploaded " + fmtDate(summary.started_at) + " (recording time unknown)"
       : (session.dated === "recorded" ? "recorded " : "") + fmtDate(summary.started_at),
     " · ", fmtDuration(summary.duration_s), " · ",
-    session.source === "upload" ? "uploaded recording" : "streamed by " + (session.metadata.device || "a kit"),
+    session.source === "upload" ? "uploaded recording" : "streamed by " + streamedBy(session),
     " · ", qualityBadge(summary.quality));
   clear(document.getElementById("angles-card"),
     el("h2", {}, "Range of motion"),
