@@ -365,7 +365,11 @@ def run_soak(n: int, duration_s: float, *, interval_s: float = 10.0, session_s: 
         if done.returncode != 0:
             raise RuntimeError(f"create-user failed: {done.stderr}")
         port = bench_ingest.free_port()
-        server = bench_ingest.start_server(data_dir, port, server_cpu, server_env or {})
+        # each simulated kit starts a session every --session-s, more than a patient's
+        # ARMTRACK_MAX_NEW_SESSIONS_PER_KIT_HOUR allows: not bounded here
+        server = bench_ingest.start_server(
+            data_dir, port, server_cpu,
+            {"ARMTRACK_MAX_NEW_SESSIONS_PER_KIT_HOUR": "1000000", **(server_env or {})})
         base = f"http://127.0.0.1:{port}"
         try:
             http = httpx.Client(base_url=base, timeout=60)

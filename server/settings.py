@@ -73,6 +73,11 @@ class Settings(BaseSettings):
                                   "a request body [s] (else 408)")
     max_streams_per_kit: int = Field(4, ge=1, description="most ingest connections one kit "
                                      "token holds open at once (more: 4429)")
+    max_new_sessions_per_kit_hour: int = Field(
+        20, ge=1, description="most new sessions one kit token starts in an hour (the "
+        "next hello without resume or session: error naming the limit, close 4429; the kit "
+        "keeps its data and tries again); resumes and new streams of a session are not "
+        "new sessions")
     login_max_failures: int = Field(10, gt=0, description="failed sign-ins per user name and "
                                     "per client address within the window that cost "
                                     "nothing; each one after slows the next attempt down")

@@ -498,3 +498,84 @@ def test_the_session_page_names_the_phone_kit_as_the_therapist_did(server, phone
           f"{stored['metadata'].get('device')!r} (navigator.platform {platform!r})")
     assert "streamed by Ada's phone" in facts, facts
     assert platform not in facts and platform not in stored["metadata"].get("device", "")
+
+
+@pytest.fixture(scope="module")
+def limited_server(tmp_path_factory):
+    """A server that lets a kit start one new session an hour."""
+    from server_support import ServerProcess
+
+    process = ServerProcess(tmp_path_factory.mktemp("kit-limited"),
+                            env={"ARMTRACK_MAX_NEW_SESSIONS_PER_KIT_HOUR": "1"})
+    process.create_user("alice")
+    process.start(timeout=180)
+    yield process
+    process.stop()
+
+
+def test_a_new_session_refused_at_the_kits_limit_is_kept_and_sent_later(limited_server,
+                                                                         phone, shots):
+    """The kit's one new session of the hour streams, the link is lost, the therapist
+    closes the session, the phone records on: its rest would be a new session, refused at
+    the limit (error naming it, close 4429). The page says so, keeps the readings and
+    tries again; once the hour has passed (the session's start moved back an hour in the
+    database) the rest goes as the new session: every reading stored once."""
+    from datetime import UTC, datetime, timedelta
+
+    from test_phone_kit_browser import CuttableProxy
+
+    server = limited_server
+    api = server.client("alice")
+    patient = api.patient("Limited Patient")
+    device = api.device(patient["id"], "phone")
+    events = motion_events(phone_simulation(seed=11))
+    proxy = CuttableProxy(server.port)
+    sessions = lambda: server.sql("SELECT count(*) FROM sessions WHERE patient_id = :p",  # noqa: E731
+                                  p=patient["id"])[0][0]
+    try:
+        _start_kit(phone, f"http://127.0.0.1:{proxy.port}", device["token"], shots, "y")
+        phone.click("#ready")
+        phone.evaluate(FEEDER, events[:900])
+        _wait(lambda: phone.evaluate("kit.stream.connected && kit.stream.samples > 240 "
+                                     "&& kit.stream.unsent === 0"), 30, "4 s streamed")
+        first = phone.evaluate("kit.stream.state.session")
+        proxy.cut()
+        _wait(lambda: api.session(first)["status"] == "interrupted", 30, "interrupted")
+        answer = api.http.post(f"/api/sessions/{first}/close")
+        assert answer.status_code == 200, answer.text
+        _wait(lambda: _dispatched(phone) >= 900, 60, "the readings dispatched offline")
+        proxy.restore()
+        _wait(lambda: phone.evaluate("kit.stream.carriedOver === 1 && !kit.stream.connected "
+                                     "&& /Many sessions/.test(kit.stream.error || '')"), 60,
+              "the rest refused as a new session over the limit")
+        phone.wait_for_timeout(6000)  # a retry or two (every 5 s at most), refused again
+        kept = phone.evaluate("kit.stream.unsent")
+        shown = phone.locator("#status").inner_text()
+        phone.screenshot(path=str(shots / "y1-refused-at-limit.png"))
+        print(f"\nrefused at the limit: {kept} messages kept on the phone; status {shown!r}")
+        assert kept > 0 and "saved on this phone" in shown, shown
+        assert phone.evaluate("kit.stream.connected") is False
+        assert sessions() == 1
+        hour_ago = (datetime.now(UTC) - timedelta(hours=1, minutes=1)).strftime(
+            "%Y-%m-%d %H:%M:%S.%f")
+        server.sql("UPDATE sessions SET started_at = :t WHERE patient_id = :p", t=hour_ago,
+                   p=patient["id"])
+        _wait(lambda: phone.evaluate("kit.stream.connected && kit.stream.unsent === 0 "
+                                     "&& kit.stream._unsaved.size === 0"), 60,
+              "let in once the hour passed, everything sent")
+        second = phone.evaluate("kit.stream.state.session")
+        phone.screenshot(path=str(shots / "y2-sent-later.png"))
+        assert second != first and sessions() == 2
+        assert phone.evaluate("kit.stream.error") is None
+        taken = phone.evaluate("kit.stream.samples")
+        _wait(lambda: api.session(first)["samples"] + api.session(second)["samples"] >= taken,
+              30, "all stored")
+        acc = np.array(events)[:, 1:4]
+        key = {tuple(np.round(r, 9)): i for i, r in enumerate(acc)}
+        index = [key[tuple(np.round(r[1:4], 9))] for session in (first, second)
+                 for r in _stored_rows(server, api, session)[:, :4]]
+        print(f"{taken} readings taken, {len(index)} stored in the two sessions")
+        assert index == list(range(index[0], index[0] + taken)), \
+            "a reading was lost, reordered or stored twice"
+    finally:
+        proxy.close()

@@ -25,6 +25,7 @@ import logging
 import secrets
 import time
 from collections import deque
+from datetime import timedelta
 from typing import Any
 
 from armtrack.estimator.arm.coverage import coverage, measured_angles
@@ -372,6 +373,18 @@ class IngestConnection:
     def _create_session(self, db: DbSession, hello: Hello, stream_id: str) -> tuple[int, float]:
         patient = db.get(models.Patient, self.patient_id)
         assert patient is not None
+        # one token, no flood of sessions (each one costs every later progress report):
+        # refused before anything is stored; the kit keeps its data and tries again later
+        limit = self.settings.max_new_sessions_per_kit_hour
+        since = clock.now() - timedelta(hours=1)
+        started = db.scalar(select(func.count()).select_from(models.Session).where(
+            models.Session.device_id == self.device_id, models.Session.source == "stream",
+            models.Session.started_at > since))
+        if started >= limit:
+            raise Refused(f"hello: this kit started {started} new sessions in the last hour, "
+                          f"the most one kit may (ARMTRACK_MAX_NEW_SESSIONS_PER_KIT_HOUR = "
+                          f"{limit}): keep the data and try again later",
+                          close_code=protocol.CLOSE_TOO_MANY_ERRORS)
         session = models.Session(
             patient_id=patient.id, device_id=self.device_id, source="stream", status="live",
             side=hello.side, height_m=patient.height_m, rate_hz=hello.rate_hz,

@@ -438,6 +438,7 @@ class KitStream {
       if (message.program) this.state.followed = message.program;  // the version that counts
       this.onReady(message);
       this._retry = 500;
+      if (this._helloRefused) { this._helloRefused = false; this.error = null; }
       // in the save chain: what is saved before goes out now, what is saved after follows
       this._saving = this._saving.then(async () => {
         await KitStore.setState("stream", { ...this.state });
@@ -465,6 +466,12 @@ class KitStream {
     } else if (message.type === "error") {
       if (message.seq == null && /resume|session/.test(message.reason || "")) {
         this.error = message.reason;
+        this._helloRefused = true;  // a later ready clears it
+      }
+      // too many new sessions of this kit in an hour (the server closes 4429): the
+      // readings stay on this phone and the close handler tries again until it is let in
+      if (message.seq == null && /new sessions in the last hour/.test(message.reason || "")) {
+        this.error = "Many sessions were started on this kit in the last hour: this one is saved on this phone and will be sent later.";
       }
       // the session was closed on the server (the therapist closed it while this phone
       // was offline): next_seq says what of it is stored; the rest goes as a new session
