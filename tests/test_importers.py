@@ -587,8 +587,8 @@ def test_apdm_reader_that_does_not_finish_is_stopped_and_named(tmp_path, monkeyp
     """Each .h5 is read in a process of its own (a crafted file can crash libhdf5); one
     that does not finish in its time (a file made to loop the library, a machine too busy)
     is stopped and the file refused by name — it must not hold a server's worker, nor
-    leave its process behind. The limit is cut to 50 ms here: starting the reader alone
-    takes longer."""
+    leave its process behind. The limit is cut to 0 s here: no reader answers the moment
+    it is started (a warm machine reads this file in ~30 ms, so any positive limit races)."""
     import multiprocessing
 
     from armtrack.estimator.importers import apdm
@@ -597,8 +597,8 @@ def test_apdm_reader_that_does_not_finish_is_stopped_and_named(tmp_path, monkeyp
     rec = session(128.0).recording
     path = tmp_path / "slow.h5"
     apdm_h5(path, {"1234": ("Right Forearm", rec.sensors["forearm"])})
-    monkeypatch.setattr(apdm, "READ_TIME_LIMIT_S", 0.05)
-    with pytest.raises(ImportFailure, match=r"slow\.h5: reading it took longer than 0\.05 s"):
+    monkeypatch.setattr(apdm, "READ_TIME_LIMIT_S", 0.0)
+    with pytest.raises(ImportFailure, match=r"slow\.h5: reading it took longer than 0 s"):
         read_signals([SourceFile(str(path), path.read_bytes())])
     assert not multiprocessing.active_children()
 
