@@ -62,6 +62,23 @@ def server(tmp_path_factory):
 def _dispatched(phone) -> int:
     return phone.evaluate("window.__feed.i")
 
+def _closed_while_offline(phone, api, proxy, token, events, shots, tag) -> int:
+    """The kit streams 4 s through ``proxy``, the link is cut, the therapist closes the
+    interrupted session, and the phone records the rest of ``events[:900]`` offline; the
+    link stays cut. Returns the closed session's id."""
+    _start_kit(phone, f"http://127.0.0.1:{proxy.port}", token, shots, tag)
+    phone.click("#ready")
+    phone.evaluate(FEEDER, events[:900])
+    _wait(lambda: phone.evaluate("kit.stream.connected && kit.stream.samples > 240 "
+                                 "&& kit.stream.unsent === 0"), 30, "4 s streamed")
+    first = phone.evaluate("kit.stream.state.session")
+    proxy.cut()
+    _wait(lambda: api.session(first)["status"] == "interrupted", 30, "interrupted")
+    answer = api.http.post(f"/api/sessions/{first}/close")
+    assert answer.status_code == 200, answer.text
+    _wait(lambda: _dispatched(phone) >= 900, 60, "the readings dispatched offline")
+    return first
+
 
 def _all_stored_once(server, phone, events, session_id: int, what: str) -> None:
     api = server.client("alice")
@@ -263,17 +280,7 @@ def test_a_session_closed_by_the_therapist_while_the_phone_was_offline(server, p
     events = motion_events(phone_simulation(seed=10))
     proxy = CuttableProxy(server.port)
     try:
-        _start_kit(phone, f"http://127.0.0.1:{proxy.port}", device["token"], shots, "x")
-        phone.click("#ready")
-        phone.evaluate(FEEDER, events[:900])
-        _wait(lambda: phone.evaluate("kit.stream.connected && kit.stream.samples > 240 "
-                                     "&& kit.stream.unsent === 0"), 30, "4 s streamed")
-        first = phone.evaluate("kit.stream.state.session")
-        proxy.cut()
-        _wait(lambda: api.session(first)["status"] == "interrupted", 30, "interrupted")
-        answer = api.http.post(f"/api/sessions/{first}/close")
-        assert answer.status_code == 200, answer.text
-        _wait(lambda: _dispatched(phone) >= 900, 60, "the readings dispatched offline")
+        first = _closed_while_offline(phone, api, proxy, device["token"], events, shots, "x")
         proxy.restore()
         _wait(lambda: phone.evaluate("kit.stream.connected && kit.stream.unsent === 0 "
                                      "&& kit.stream._unsaved.size === 0"), 60,
@@ -533,17 +540,7 @@ def test_a_new_session_refused_at_the_kits_limit_is_kept_and_sent_later(limited_
     sessions = lambda: server.sql("SELECT count(*) FROM sessions WHERE patient_id = :p",  # noqa: E731
                                   p=patient["id"])[0][0]
     try:
-        _start_kit(phone, f"http://127.0.0.1:{proxy.port}", device["token"], shots, "y")
-        phone.click("#ready")
-        phone.evaluate(FEEDER, events[:900])
-        _wait(lambda: phone.evaluate("kit.stream.connected && kit.stream.samples > 240 "
-                                     "&& kit.stream.unsent === 0"), 30, "4 s streamed")
-        first = phone.evaluate("kit.stream.state.session")
-        proxy.cut()
-        _wait(lambda: api.session(first)["status"] == "interrupted", 30, "interrupted")
-        answer = api.http.post(f"/api/sessions/{first}/close")
-        assert answer.status_code == 200, answer.text
-        _wait(lambda: _dispatched(phone) >= 900, 60, "the readings dispatched offline")
+        first = _closed_while_offline(phone, api, proxy, device["token"], events, shots, "y")
         proxy.restore()
         _wait(lambda: phone.evaluate("kit.stream.carriedOver === 1 && !kit.stream.connected "
                                      "&& /Many sessions/.test(kit.stream.error || '')"), 60,
