@@ -847,21 +847,27 @@ def test_a_bad_stream_does_not_disturb_another_patients_stream(srv, api):
         rounds = 0
         while not finished.is_set():
             kit = await Kit.open(srv, noisy_device["token"])
-            await kit.hello()
             rounds += 1
-            if rounds % 3 == 1:  # a flood of refusals
-                for seq in range(60):
-                    await kit.send({**good(seq), "sensor": "foot"})
-            elif rounds % 3 == 2:  # a message over 1 MiB
-                await kit.send(good(0))
-                await kit.send_too_big(padded(good(1), MiB + 100))
-            else:  # a second hello, junk, a gap, then gone without a word
-                await kit.send(HELLO)
-                await kit.send(b"\x00\x01 binary junk")
-                await kit.send(good(9))
-                await asyncio.sleep(0.05)
-                kit.drop()
-                continue
+            try:
+                await kit.hello()
+                if rounds % 3 == 1:  # a flood of refusals
+                    for seq in range(60):
+                        await kit.send({**good(seq), "sensor": "foot"})
+                elif rounds % 3 == 2:  # a message over 1 MiB
+                    await kit.send(good(0))
+                    await kit.send_too_big(padded(good(1), MiB + 100))
+                else:  # a second hello, junk, a gap, then gone without a word
+                    await kit.send(HELLO)
+                    await kit.send(b"\x00\x01 binary junk")
+                    await kit.send(good(9))
+                    await asyncio.sleep(0.05)
+                    kit.drop()
+                    continue
+            except ConnectionClosed:
+                # Closed while sending: on a loaded machine the server may not yet have
+                # seen the dropped streams end and refuses a fifth (4429, "too many
+                # streams open"), or closes on the errors before the last one is sent.
+                pass
             code = await kit.closed(timeout=10)
             closes[code] = closes.get(code, 0) + 1
         return closes

@@ -161,14 +161,18 @@ def test_the_live_page_names_counts_and_follows_the_patient(module_server, page,
                                                                      timeout=90_000)
         page.screenshot(path=str(shots / "live-followed-1366.png"), full_page=True,
                         timeout=90_000)
+        desktop_view = page.locator("#viewer-frame").get_attribute("src", timeout=30_000)
         page.set_viewport_size({"width": 390, "height": 844})
         sync_api.expect(page.locator("#exercise-name")).to_be_visible()
         # the 3D view keeps viser's desktop layout, scaled down (viewer_fit.js): its
-        # phone layout would open the control panel over the scene
-        page.wait_for_function("() => document.getElementById('viewer-frame')"
-                               "?.style.width === '600px'", timeout=30_000)
-        scale = page.evaluate("getComputedStyle(document.getElementById('viewer-frame'))"
-                              ".transform")
+        # phone layout would open the control panel over the scene. The page then asks
+        # for a view with labels sized for the scale (a new grant, a new frame): read
+        # that frame, not the one about to be replaced.
+        scale = page.wait_for_function(
+            "(old) => { const f = document.getElementById('viewer-frame');"
+            " return f && f.getAttribute('src') !== old && f.style.width === '600px'"
+            " && getComputedStyle(f).transform; }", arg=desktop_view,
+            timeout=60_000).json_value()
         assert scale.startswith("matrix(0.") or scale.startswith("matrix(0,"), scale
         no_horizontal_overflow(page, "live page at 390")
         page.screenshot(path=str(shots / "live-followed-390.png"), full_page=True,
