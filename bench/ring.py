@@ -4,6 +4,14 @@ on 2 cores; the tests in ``tests/test_real_data.py`` assert the bars):
 
     python bench/ring.py [--data DIR] [--out CSV] [--trials 1,2] [--no-vqf]
 
+Every armtrack figure comes twice: **cold** (each recording alone, as today) and with **kit
+memory** (``docs/gyro-bias-memory.md``): trial 2 started from the gyroscope biases trial 1
+learnt, the same sensors in the same mounting (rigid → rigid, foam → foam, 9D → 9D, 6D →
+6D; the RING README's chain: each of the ten IMUs' first-0.6 s mean gyroscope agrees
+between the trials within 0.6 mrad/s an axis, and differs between IMUs by mrad/s). Only
+biases stillness taught are remembered; never trial 2 → trial 1, never from the truth.
+Trial 1 has no earlier session: its kit-memory figures are its cold ones.
+
 Two parts:
 
 * **arm recordings** (``arm/ring_trial{1,2}_{rigid,nonrigid}_{9axis,6axis}.csv``): the whole
@@ -175,11 +183,16 @@ def pair_errors(t: np.ndarray, q_parent: np.ndarray, q_child: np.ndarray,
             float(np.rad2deg(np.sqrt(np.mean(incl[scored] ** 2)))))
 
 
-def orient_armtrack(imu: Imu, nine: bool) -> np.ndarray:
-    """``armtrack orient``'s estimate (µT for the magnetometer)."""
+def orient_armtrack(imu: Imu, nine: bool, prior=None, learnt: list | None = None
+                    ) -> np.ndarray:
+    """``armtrack orient``'s estimate (µT for the magnetometer), its filter started from
+    ``prior`` [rad/s] (None: zero); the filter's ``LearntGyroBias`` appended to ``learnt``."""
     from armtrack.estimator.orientation import make_filter
-    return make_filter("qcf").update_batch(imu.t, imu.acc, imu.gyr,
-                                           imu.mag * 49.0 if nine else None).q
+    flt = make_filter("qcf", gyr_bias_prior=prior)
+    q = flt.update_batch(imu.t, imu.acc, imu.gyr, imu.mag * 49.0 if nine else None).q
+    if learnt is not None:
+        learnt.append(flt.learnt_bias())
+    return q
 
 
 def orient_vqf(imu: Imu, nine: bool) -> np.ndarray:
@@ -193,14 +206,30 @@ def orient_vqf(imu: Imu, nine: bool) -> np.ndarray:
 FILTERS = {"armtrack": orient_armtrack, "vqf": orient_vqf}
 
 
-def score_chain(trial: ChainTrial, filters: dict) -> list[dict]:
-    """Rows: filter, mode, pair, rmse, drift, inclination."""
+def score_chain(trial: ChainTrial, filters: dict, memory: dict | None = None,
+                learnt: dict | None = None) -> list[dict]:
+    """Rows: filter, mode, pair, rmse, drift, inclination. ``memory``: (mode, segment) →
+    the bias armtrack's filter starts from (kit memory, the filter ``armtrack+memory``);
+    ``learnt``, if given, receives (mode, segment) → armtrack's cold ``LearntGyroBias``."""
     truth = {s: truth_sensor(trial, s) for s in range(1, 6)}
     rows = []
-    for name, orient in filters.items():
+    runs = [(name, orient, None) for name, orient in filters.items()]
+    if memory is not None:
+        runs.insert(1, ("armtrack+memory", orient_armtrack, memory))
+    for name, orient, priors in runs:
         for mode in ("9D", "6D"):
-            est = {s: qslerp(trial.imus[s].t, orient(trial.imus[s], mode == "9D"), trial.t_omc)
-                   for s in range(1, 6)}
+            est = {}
+            for s in range(1, 6):
+                if name == "armtrack":
+                    out: list = []
+                    q = orient(trial.imus[s], mode == "9D", learnt=out)
+                    if learnt is not None:
+                        learnt[(mode, s)] = out[0]
+                elif priors is not None:
+                    q = orient(trial.imus[s], mode == "9D", prior=priors.get((mode, s)))
+                else:
+                    q = orient(trial.imus[s], mode == "9D")
+                est[s] = qslerp(trial.imus[s].t, q, trial.t_omc)
             for parent, child in PAIRS:
                 ok = np.isfinite(truth[parent]).all(axis=1) & np.isfinite(truth[child]).all(axis=1)
                 rmse, drift, incl = pair_errors(trial.t_omc[ok], est[parent][ok], est[child][ok],
@@ -226,9 +255,22 @@ def arm_recordings(data: Path, trials=(1, 2)) -> list[tuple[str, Path, Path]]:
 
 def score_arm(recording: Path, truth: Path) -> tuple[dict[str, float], list[str]]:
     """RMSE [°] per angle of ``estimate_recording`` against the truth, and the warnings."""
-    from armtrack.estimator.pipeline import estimate_recording
+    scores, warnings, _ = run_arm(recording, truth)
+    return scores, warnings
+
+
+def run_arm(recording: Path, truth: Path, memory: dict | None = None
+            ) -> tuple[dict[str, float], list[str], dict]:
+    """``score_arm`` of the pipeline started from the kit's ``memory`` (sensor name →
+    ``RememberedBias``; None: cold), and the kit's memory after it (``remember``)."""
+    from armtrack.estimator.pipeline import run_recording
+    from armtrack.estimator.pipeline.bias_memory import priors, remember
     from armtrack.estimator.recording import read_recording
-    estimates, calibration = estimate_recording(read_recording(recording))
+    pipeline = run_recording(read_recording(recording),
+                             gyr_bias_priors=priors(memory) if memory else None)
+    estimates, calibration = pipeline.finish(), pipeline.calibration
+    assert calibration is not None
+    kept = remember(memory or {}, pipeline.learnt_biases())
     table = np.genfromtxt(truth, delimiter=",", names=True)
     scored = table["t"] >= SCORED_FROM_S
     out = {}
@@ -238,7 +280,26 @@ def score_arm(recording: Path, truth: Path) -> tuple[dict[str, float], list[str]
         diff = (diff + 180.0) % 360.0 - 180.0
         use = scored & np.isfinite(diff)
         out[angle] = float(np.sqrt(np.mean(diff[use] ** 2)))
-    return out, [w.message for w in calibration.warnings]
+    return out, [w.message for w in calibration.warnings], kept
+
+
+def arm_with_memory(data: Path, trials=(1, 2)) -> dict[str, dict]:
+    """Every arm recording cold and with kit memory: name → {"cold": scores, "memory":
+    scores, "warnings": …, "learnt": the kit's memory after the cold run}. Trial 2 starts
+    from trial 1's memory of the same mounting and axes; trial 1 has none (memory = cold)."""
+    out: dict[str, dict] = {}
+    for name, rec, truth in arm_recordings(data, trials):
+        cold, warnings, learnt = run_arm(rec, truth)
+        out[name] = dict(cold=cold, memory=cold, warnings=warnings, learnt=learnt)
+        earlier = name.replace("trial2", "trial1")
+        if name.startswith("ring_trial2") and earlier in out:
+            out[name]["memory"] = run_arm(rec, truth, out[earlier]["learnt"])[0]
+    return out
+
+
+def remembered_chain(learnt: dict) -> dict:
+    """(mode, segment) → the bias kept for the next session: only one stillness taught."""
+    return {key: value.bias for key, value in learnt.items() if value.remembered}
 
 
 # --- the run ------------------------------------------------------------------------------
@@ -258,37 +319,74 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     start = time.perf_counter()
     if args.skip != "arm":
-        print(f"{'arm recording (RMSE °)':<34}" + "".join(f"{a:>19}" for a in ANGLES))
-        for name, rec, truth in arm_recordings(args.data, trials):
-            scores, _ = score_arm(rec, truth)
-            print(f"{name:<34}" + "".join(f"{scores[a]:19.2f}" for a in ANGLES), flush=True)
+        print("arm recording, RMSE ° cold / with kit memory (trial 2 from trial 1's learnt "
+              "biases; trial 1 has no earlier session)")
+        print(f"{'':<30}" + "".join(f"{a:>20}" for a in ANGLES))
+        for name, result in arm_with_memory(args.data, trials).items():
+            cold, memory = result["cold"], result["memory"]
+            print(f"{name:<30}" + "".join(f"{cold[a]:11.2f} / {memory[a]:5.2f}" for a in ANGLES),
+                  flush=True)
             for a in ANGLES:
                 rows.append(dict(part="arm", item=name, hinge="", filter="armtrack", mode="",
-                                 rmse=scores[a], drift="", inclination="", angle=a))
+                                 rmse=cold[a], drift="", inclination="", angle=a))
+                rows.append(dict(part="arm", item=name, hinge="", filter="armtrack+memory",
+                                 mode="", rmse=memory[a], drift="", inclination="", angle=a))
     if args.skip != "pairs":
         filters = dict(FILTERS)
         if args.no_vqf:
             del filters["vqf"]
-        print(f"\n{'pair':<34}{'filter':>9}{'mode':>5}{'RMSE °':>9}{'drift °/min':>12}"
-              f"{'incl. °':>9}")
+        names = ["armtrack", "armtrack+memory", *[f for f in filters if f != "armtrack"]]
+        print("\nper joint: RMSE ° (6D: drift °/min) — armtrack cold, with kit memory (trial 2 "
+              "only), " + ", ".join(names[2:]))
+        print(f"{'pair':<30}{'mode':>5}" + "".join(f"{n:>22}" for n in names))
+        learnt: dict[str, dict] = {}
         for trial in trials:
             for mounting in ("rigid", "nonrigid"):
                 chain = load_chain(args.data, trial, mounting)
-                for row in score_chain(chain, filters):
-                    rows.append(row)
-                    print(f"{row['item']:<34}{row['filter']:>9}{row['mode']:>5}"
-                          f"{row['rmse']:9.2f}{row['drift']:12.1f}{row['inclination']:9.2f}",
-                          flush=True)
-        print("\nmean over the rigid hinge pairs (the bar's six)")
-        for f in filters:
-            for mode in ("9D", "6D"):
-                sel = [r for r in rows if r["part"] == "pair" and r["hinge"] and r["filter"] == f
-                       and r["mode"] == mode and "nonrigid" not in r["item"]]
-                if not sel:
-                    continue
-                drift = np.mean([abs(r["drift"]) for r in sel]) if mode == "6D" else float("nan")
-                print(f"  {f:<9}{mode}  RMSE {np.mean([r['rmse'] for r in sel]):6.2f}  "
-                      f"drift {drift:5.1f}  incl {np.mean([r['inclination'] for r in sel]):5.2f}")
+                memory = None
+                if trial == 2:
+                    if mounting not in learnt:  # trial 1 not run here: learn it silently
+                        learnt[mounting] = {}
+                        score_chain(load_chain(args.data, 1, mounting),
+                                    {"armtrack": orient_armtrack}, learnt=learnt[mounting])
+                    memory = remembered_chain(learnt[mounting])
+                found = score_chain(chain, filters, memory,
+                                    learnt=learnt.setdefault(mounting, {}) if trial == 1 else None)
+                rows.extend(found)
+                by = {(r["item"], r["mode"], r["filter"]): r for r in found}
+                for item, mode in dict.fromkeys((r["item"], r["mode"]) for r in found):
+                    cells = []
+                    for n in names:
+                        r = by.get((item, mode, n))
+                        if r is None:
+                            cells.append(f"{'(= cold)':>22}")
+                        elif mode == "6D":
+                            cells.append(f"{r['rmse']:13.2f} ({r['drift']:5.1f})")
+                        else:
+                            cells.append(f"{r['rmse']:22.2f}")
+                    print(f"{item:<30}{mode:>5}" + "".join(cells), flush=True)
+        # trial 1 has no earlier session: with kit memory it is its cold self
+        rows.extend([{**r, "filter": "armtrack+memory"} for r in list(rows)
+                     if r["part"] == "pair" and r["filter"] == "armtrack"
+                     and r["item"].startswith("trial1 ")])
+        for part, sel in (("rigid hinge pairs (the bar's six)",
+                           lambda r: r["hinge"] and "nonrigid" not in r["item"]),
+                          ("foam hinge pairs", lambda r: r["hinge"] and "nonrigid" in r["item"])):
+            for label, prefix in [*((f"trial {t}", f"trial{t} ") for t in trials),
+                                  ("both trials", "trial")]:
+                print(f"\nmean over the {label} {part}")
+                for f in names:
+                    for mode in ("9D", "6D"):
+                        chosen = [r for r in rows if r["part"] == "pair" and sel(r)
+                                  and r["filter"] == f and r["mode"] == mode
+                                  and r["item"].startswith(prefix)]
+                        if not chosen:
+                            continue
+                        drift = (np.mean([abs(r["drift"]) for r in chosen]) if mode == "6D"
+                                 else float("nan"))
+                        print(f"  {f:<16}{mode}  RMSE {np.mean([r['rmse'] for r in chosen]):6.2f}"
+                              f"  drift {drift:5.1f}  incl "
+                              f"{np.mean([r['inclination'] for r in chosen]):5.2f}")
     print(f"\n{time.perf_counter() - start:.0f} s")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     keys = ["part", "item", "hinge", "filter", "mode", "angle", "rmse", "drift", "inclination"]

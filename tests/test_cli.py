@@ -147,3 +147,74 @@ def test_orient_matches_the_filter_and_refuses_bad_files(tmp_path):
     broken.write_text("t,ax,ay,az,gx,gy,gz,mx,my,mz\n0,0,0,9.8,0,0,0,,,\n0.01,0,0,9.8,0,0,0,1,2,\n")
     result = run("orient", broken, check=False)
     assert result.returncode == 2 and "line 3" in result.stderr and "mx,my,mz" in result.stderr
+
+
+def test_estimate_remembers_the_kits_gyroscope_biases_for_its_next_session(tmp_path):
+    """Day 1: the kit's N-pose rest teaches each sensor's bias; ``--gyro-bias-out`` writes
+    them (docs/gyro-bias-memory.md). Day 2, the same kit on a patient whose trunk sways
+    from the first sample (nothing still, nothing learnt): started from day 1's memory its
+    forearm pronation holds against the truth; the memory it writes keeps day 1's biases,
+    never day 2's unlearnt ones."""
+    from dataclasses import replace
+
+    from armtrack.estimator.recording import write_recording
+    from armtrack.estimator.simulation import SimulationConfig, simulate, write_truth
+    day1 = SimulationConfig(exercise="elbow_wrist", seed=0, nine_axis=False)
+    day2 = replace(day1, trunk_sway=(8.0, 0.15))  # the same draws: the same sensors' biases
+    true = {}
+    for name, config in (("day1", day1), ("day2", day2)):
+        sim = simulate(config)
+        write_recording(sim.recording, tmp_path / f"{name}.csv")
+        write_truth(sim.truth, tmp_path / f"{name}.truth.csv")
+        unbiased = simulate(replace(config, gyro_bias_max=0.0)).recording.sensors
+        true[name] = {s: np.mean(st.gyr - unbiased[s].gyr, axis=0)
+                      for s, st in sim.recording.sensors.items()}
+    memory = tmp_path / "kit.json"
+    printed = run("estimate", tmp_path / "day1.csv", "-o", tmp_path / "a1.csv",
+                  "--gyro-bias-out", memory).stdout
+    assert "gyroscope bias forearm" in printed and "remembered" in printed
+    day1_memory = json.loads(memory.read_text())
+    assert day1_memory["format"] == "armtrack-gyro-bias/1"
+    for sensor, bias in true["day1"].items():
+        entry = day1_memory["sensors"][sensor]
+        error = np.linalg.norm(np.array(entry["bias_rad_s"]) - bias) * 1e3
+        print(f"day 1 {sensor}: learnt at a {entry['learnt']}, {entry['still_s']:.1f} s still, "
+              f"{error:.2f} mrad/s from the truth")
+        assert entry["learnt"] == "rest" and error < 1.0
+
+    def pronation_rmse(angles):
+        table = np.genfromtxt(angles, delimiter=",", names=True)
+        truth = np.genfromtxt(tmp_path / "day2.truth.csv", delimiter=",", names=True)
+        est = np.interp(truth["t"], table["t"], table["forearm_pronation"])
+        scored = truth["t"] > 10.5
+        return float(np.sqrt(np.mean((est - truth["forearm_pronation"])[scored] ** 2)))
+
+    run("estimate", tmp_path / "day2.csv", "-o", tmp_path / "cold.csv")
+    printed = run("estimate", tmp_path / "day2.csv", "-o", tmp_path / "warm.csv",
+                  "--gyro-bias-in", memory, "--gyro-bias-out", memory).stdout
+    cold, warm = pronation_rmse(tmp_path / "cold.csv"), pronation_rmse(tmp_path / "warm.csv")
+    print(f"day 2 (trunk swaying, never still): forearm pronation {cold:.2f}° cold → "
+          f"{warm:.2f}° from day 1's memory")
+    assert warm <= 2.0 < cold
+    assert "never still: not learnt" in printed and "older memory is kept" in printed
+    assert json.loads(memory.read_text()) == day1_memory
+
+
+@pytest.mark.parametrize("content, message", [
+    ("not json", "not JSON"),
+    ('{"format": "armtrack-gyro-bias/2", "sensors": {}}', "'format' must be"),
+    ('{"format": "armtrack-gyro-bias/1", "sensors": {"elbow": {}}}', "sensors.elbow: unknown"),
+    ('{"format": "armtrack-gyro-bias/1", "sensors": {"hand": {"bias_rad_s": [0, 1, 0], '
+     '"learnt": "rest", "still_s": 1, "age_s": 1}}}', "within ±0.2 rad/s"),
+    ('{"format": "armtrack-gyro-bias/1", "sensors": {"hand": {"bias_rad_s": [0, 0, 0], '
+     '"learnt": "none", "still_s": 0, "age_s": 0}}}', "a bias never learnt is not remembered"),
+])
+def test_estimate_refuses_a_bad_bias_memory(tmp_path, content, message):
+    rec, memory, out = tmp_path / "r.csv", tmp_path / "kit.json", tmp_path / "angles.csv"
+    run("simulate", "--exercise", "elbow_flexion", "-o", rec)
+    memory.write_text(content)
+    result = run("estimate", rec, "-o", out, "--gyro-bias-in", memory, check=False)
+    assert result.returncode == 2 and message in result.stderr, result.stderr
+    assert "Traceback" not in result.stderr and not out.exists()
+    result = run("estimate", rec, "--filter", "ekf", "--gyro-bias-out", memory, check=False)
+    assert result.returncode == 2 and "needs a filter that learns a bias" in result.stderr

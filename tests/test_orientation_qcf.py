@@ -226,3 +226,146 @@ def replace_bias(config, gyro_bias_max):
     from dataclasses import replace
 
     return replace(config, gyro_bias_max=gyro_bias_max)
+
+
+# --- a remembered gyroscope bias (issue 18: a kit remembers its sensors' last learnt bias) --
+
+#: A wrong prior: another sensor's bias, off by up to twice a MEMS bias (0.012 rad/s an
+#: axis). (One off by more than ``rest_rate``, 0.05 rad/s, would hide the rests that
+#: correct it, as an unknown bias that large does.)
+WRONG_PRIOR_OFFSET = np.array([0.015, -0.012, 0.018])
+
+
+def wobbling_sensor(seed: int, duration_s: float = 120.0, rest: tuple[float, float] | None = None,
+                    rate: float = 100.0):
+    """A sensor that moves from its first sample (an arm on foam, a trunk that sways): it
+    turns about the vertical ±45° and tilts ±20° at a few tenths of a hertz, never still
+    (unless ``rest`` = (start, end) [s], where it holds still), 6-axis, with realistic noise
+    and a constant bias up to 0.012 rad/s per axis. Returns (t, acc, gyr, R_true, bias)."""
+    rng = np.random.default_rng(100 + seed)
+    t = np.arange(0.0, duration_s, 1.0 / rate)
+    phases = rng.uniform(0.0, 2.0 * np.pi, 3)
+    # a rest holds the angles still: the motion's time stands still through it
+    clock = t if rest is None else t - np.clip(t - rest[0], 0.0, rest[1] - rest[0])
+    angles = np.column_stack([
+        0.8 * np.sin(2 * np.pi * clock / 9.0 + phases[0]),
+        0.35 * np.sin(2 * np.pi * clock / 5.0 + phases[1]),
+        0.3 * np.sin(2 * np.pi * clock / 3.7 + phases[2])])
+    R = Rotation.from_euler("ZYX", angles)
+    omega = (R[:-1].inv() * R[1:]).as_rotvec() * rate
+    omega = np.vstack([omega, omega[-1:]])
+    bias = rng.uniform(-0.012, 0.012, 3)
+    acc = R.inv().apply([0.0, 0.0, 9.81]) + rng.normal(0.0, 0.04, (t.size, 3))
+    gyr = omega + bias + rng.normal(0.0, 0.004, (t.size, 3))
+    return t, acc, gyr, R.as_matrix(), bias
+
+
+def heading_aligned_errors(R_true, q):
+    """(total error [deg] per sample, heading error [deg] per sample) of a 6-axis estimate
+    whose heading is the sensor's first one: the error's turn about the vertical at the
+    first sample is removed first."""
+    true, est = Rotation.from_matrix(R_true), Rotation.from_quat(q, scalar_first=True)
+    E = (true * est.inv()).as_quat(scalar_first=True)  # world-frame error
+    heading = np.unwrap(2.0 * np.arctan2(E[:, 3], E[:, 0]))
+    est = Rotation.from_euler("z", heading[0]) * est
+    return np.rad2deg((true.inv() * est).magnitude()), np.rad2deg(heading - heading[0])
+
+
+def test_a_remembered_bias_starts_a_never_resting_sensor_right():
+    """Nothing is ever still, so no rest teaches the bias, and about the vertical the tilt
+    corrections do not see it: without a prior the heading drifts by the bias's vertical
+    part. Started from the bias remembered from an earlier session (the truth off by a
+    MEMS bias's day-to-day change, 1 mrad/s an axis) the drift is that change's."""
+    for seed in range(3):
+        t, acc, gyr, R_true, bias = wobbling_sensor(seed)
+        prior = bias + np.random.default_rng(seed).normal(0.0, 1e-3, 3)
+        cold = make_filter().update_batch(t, acc, gyr)
+        warm_filter = make_filter(gyr_bias_prior=prior)
+        warm = warm_filter.update_batch(t, acc, gyr)
+        assert not cold.rest.any() and not warm.rest.any()
+        (total_cold, heading_cold), (total_warm, heading_warm) = (
+            heading_aligned_errors(R_true, out.q) for out in (cold, warm))
+        print(f"seed {seed}: bias {np.round(bias * 1e3, 2)} mrad/s, prior off by "
+              f"{np.linalg.norm(prior - bias) * 1e3:.2f}; over {t[-1]:.0f} s orientation RMSE "
+              f"{rms(total_cold):.2f}° cold → {rms(total_warm):.2f}° from the prior, heading "
+              f"error at the end {heading_cold[-1]:.1f}° → {heading_warm[-1]:.1f}°; final "
+              f"bias error {np.linalg.norm(cold.gyr_bias[-1] - bias) * 1e3:.2f} → "
+              f"{np.linalg.norm(warm.gyr_bias[-1] - bias) * 1e3:.2f} mrad/s")
+        # the prior's error integrated over the session, with room for the noise
+        allowed = np.rad2deg(np.linalg.norm(prior - bias) * t[-1]) + 1.0
+        assert abs(heading_warm).max() <= allowed
+        assert rms(total_warm) < rms(total_cold)
+        assert np.linalg.norm(warm.gyr_bias[-1] - bias) < np.linalg.norm(
+            cold.gyr_bias[-1] - bias)
+        # never taught by stillness: it must not be remembered as learnt
+        learnt = warm_filter.learnt_bias()
+        assert learnt.learnt == "none" and not learnt.remembered and learnt.prior
+        np.testing.assert_allclose(learnt.bias, warm.gyr_bias[-1], rtol=0, atol=0)
+
+
+def test_a_wrong_remembered_bias_is_replaced_at_a_rest():
+    """A prior is a prior, not a fix: a sensor moved to another kit (another sensor's bias:
+    off by up to twice a MEMS bias, here 26 mrad/s), or a bias that changed, is corrected
+    by the first rest as if there had been no prior."""
+    for seed in range(3):
+        t, acc, gyr, _, bias = wobbling_sensor(seed, duration_s=60.0, rest=(20.0, 28.0))
+        wrong = bias + WRONG_PRIOR_OFFSET
+        warm_filter = make_filter(gyr_bias_prior=wrong)
+        warm = warm_filter.update_batch(t, acc, gyr)
+        cold = make_filter().update_batch(t, acc, gyr)
+        assert warm.rest[(t > 25.0) & (t < 27.5)].all()
+        before, after = t < 20.0, t > 28.0
+        error = np.linalg.norm(warm.gyr_bias - bias, axis=1) * 1e3
+        error_cold = np.linalg.norm(cold.gyr_bias - bias, axis=1) * 1e3
+        print(f"seed {seed}: wrong prior off by {np.linalg.norm(wrong - bias) * 1e3:.1f} "
+              f"mrad/s; before the rest {error[before][-1]:.1f}, after it {error[after][0]:.2f} "
+              f"(no prior {error_cold[after][0]:.2f}) mrad/s")
+        assert error[after].max() < 1.0
+        learnt = warm_filter.learnt_bias()
+        assert learnt.learnt == "rest" and learnt.remembered and learnt.prior
+        assert 1.0 <= learnt.still_s <= 8.0
+        np.testing.assert_allclose(learnt.age_s, t[-1] - 28.0, atol=1.5)
+
+
+def test_a_still_start_replaces_the_prior_and_is_reported_as_provisional():
+    """A sensor still for its first second learns a provisional bias there, which replaces
+    the prior; ``learnt_bias`` says so, with its seconds of stillness and its age."""
+    t, acc, gyr, _, bias = wobbling_sensor(0, duration_s=30.0, rest=(0.0, 0.8))
+    flt = make_filter(gyr_bias_prior=bias + WRONG_PRIOR_OFFSET)
+    out = flt.update_batch(t, acc, gyr)
+    learnt = flt.learnt_bias()
+    print(f"still start: {learnt}; bias error at 1 s "
+          f"{np.linalg.norm(out.gyr_bias[t < 1.0][-1] - bias) * 1e3:.2f} mrad/s")
+    assert learnt.learnt == "still start" and learnt.remembered
+    assert 0.3 <= learnt.still_s <= 0.8
+    assert np.linalg.norm(out.gyr_bias[t < 1.0][-1] - bias) < 3e-3
+    assert make_filter().learnt_bias() is None
+
+
+def test_no_prior_and_a_zero_prior_are_the_same_filter():
+    """The default (no prior) is unchanged: a zero prior gives the very same numbers, and
+    chunks equal batch with a prior as without."""
+    t, acc, gyr, _, bias = wobbling_sensor(1, duration_s=20.0)
+    plain = make_filter().update_batch(t, acc, gyr)
+    zero = make_filter(gyr_bias_prior=(0.0, 0.0, 0.0)).update_batch(t, acc, gyr)
+    np.testing.assert_array_equal(plain.q, zero.q)
+    np.testing.assert_array_equal(plain.gyr_bias, zero.gyr_bias)
+    batch = make_filter(gyr_bias_prior=bias).update_batch(t, acc, gyr)
+    chunked = make_filter(gyr_bias_prior=bias)
+    q = np.vstack([chunked.update(t[i:i + 37], acc[i:i + 37], gyr[i:i + 37]).q
+                   for i in range(0, len(t), 37)])
+    np.testing.assert_allclose(q, batch.q, atol=1e-9, rtol=0)
+    if COMPILED:
+        python = QuaternionComplementaryFilter(gyr_bias_prior=tuple(bias), compiled=False)
+        np.testing.assert_allclose(python.update_batch(t, acc, gyr).q, batch.q, atol=1e-9)
+
+
+def test_a_bad_prior_is_named():
+    with pytest.raises(InvalidArgument, match="3 finite numbers"):
+        make_filter(gyr_bias_prior=(0.0, float("nan"), 0.0))
+    with pytest.raises(InvalidArgument, match="3 finite numbers"):
+        make_filter(gyr_bias_prior=(0.0, 0.0))
+    with pytest.raises(InvalidArgument, match=r"within ±0\.2 rad/s"):
+        make_filter(gyr_bias_prior=(0.0, 0.5, 0.0))
+    with pytest.raises(InvalidArgument, match="cannot start from a remembered"):
+        make_filter("ekf", gyr_bias_prior=(0.0, 0.0, 0.0))

@@ -16,7 +16,9 @@ sensors need:
 * the gyroscope bias estimated online: quickly whenever the sensor rests (rest detected
   from the low-passed gyroscope and accelerometer; half a second of stillness from the
   first sample already gives a provisional one), slowly from the corrections in motion
-  (from the heading's, after a rest, with a weight that grows back as the bias may drift).
+  (from the heading's, after a rest, with a weight that grows back as the bias may drift);
+  optionally starting from a remembered bias (``gyr_bias_prior``: the kit's last learnt
+  one), which the first stillness replaces and the corrections in motion refine.
 
 Parameters are one set for every sensor and session; see ``QcfParams``.
 """
@@ -142,6 +144,47 @@ class QcfParams:
         return np.array(values, dtype=np.float64)
 
 
+#: How a filter's final gyroscope bias was last taught by stillness (``LearntGyroBias.learnt``).
+LEARNT_NONE, LEARNT_STILL_START, LEARNT_REST = "none", "still start", "rest"
+
+
+@dataclass(frozen=True)
+class LearntGyroBias:
+    """A filter's gyroscope bias after its last sample, and how far to trust it.
+
+    ``bias`` [rad/s], sensor frame. ``learnt``: how stillness last taught it — ``"rest"``
+    (a rest of ``rest_time`` or more), ``"still start"`` (a provisional bias from the first
+    half second of a sensor still from its first sample) or ``"none"`` (never: the bias is
+    the starting one, zero or the prior, moved only by the corrections in motion; it must
+    not be remembered as a learnt one). ``still_s``: seconds of stillness it was averaged
+    from [s]; ``age_s``: from then to the last sample [s] (NaN when ``learnt`` is none);
+    ``prior``: whether the filter started from a remembered bias."""
+
+    bias: tuple[float, float, float]
+    learnt: str
+    still_s: float
+    age_s: float
+    prior: bool
+
+    @property
+    def remembered(self) -> bool:
+        """Whether a kit should remember this bias for its next session."""
+        return self.learnt != LEARNT_NONE
+
+
+def check_bias_prior(prior, bias_max: float) -> tuple[float, float, float]:
+    """A remembered gyroscope bias as three floats [rad/s], or InvalidArgument naming
+    what is wrong."""
+    values = np.asarray(prior, dtype=np.float64) if prior is not None else None
+    if values is None or values.shape != (3,) or not np.all(np.isfinite(values)):
+        raise InvalidArgument(f"a gyroscope bias prior must be 3 finite numbers [rad/s], "
+                              f"got {prior!r}")
+    if np.max(np.abs(values)) > bias_max:
+        raise InvalidArgument(f"a gyroscope bias prior must be within ±{bias_max} rad/s per "
+                              f"axis, got {values.tolist()}")
+    return float(values[0]), float(values[1]), float(values[2])
+
+
 @dataclass
 class QcfState:
     """Everything carried between chunks (see ``qcf_kernel`` for the layout)."""
@@ -161,10 +204,24 @@ class QuaternionComplementaryFilter:
     state: QcfState = field(default_factory=QcfState)
     #: Use the compiled kernel when numba is installed (False: the pure-Python fallback).
     compiled: bool = True
+    #: The bias to start from [rad/s] (sensor frame), e.g. the kit's last learnt one for
+    #: this sensor (``learnt_bias``); None: zero. A fresh state (``update_batch``) starts
+    #: from it too.
+    gyr_bias_prior: tuple[float, float, float] | None = None
     name: str = field(default="qcf", init=False)
 
     def __post_init__(self) -> None:
         self._params = self.params.as_array()
+        if self.gyr_bias_prior is not None:
+            self.gyr_bias_prior = check_bias_prior(self.gyr_bias_prior, self.params.bias_max)
+            if not self.state.vector[13]:
+                self.state.vector[9:12] = self.gyr_bias_prior
+
+    def _fresh_state(self) -> QcfState:
+        state = QcfState()
+        if self.gyr_bias_prior is not None:
+            state.vector[9:12] = self.gyr_bias_prior
+        return state
 
     def update(self, t, acc, gyr, mag=None) -> OrientationOutput:
         t, acc, gyr, mag = check_inputs(t, acc, gyr, mag)
@@ -191,8 +248,21 @@ class QuaternionComplementaryFilter:
         return float(v[27]), float(v[28]), float(v[74])
 
     def update_batch(self, t, acc, gyr, mag=None) -> OrientationOutput:
-        self.state = QcfState()
+        self.state = self._fresh_state()
         return self.update(t, acc, gyr, mag)
+
+    def learnt_bias(self) -> LearntGyroBias | None:
+        """The gyroscope bias after the last sample and how it was learnt; None before
+        the first sample."""
+        v = self.state.vector
+        if not v[13]:
+            return None
+        how = {1.0: LEARNT_STILL_START, 2.0: LEARNT_REST}.get(float(v[82]), LEARNT_NONE)
+        learnt = how != LEARNT_NONE
+        return LearntGyroBias(bias=(float(v[9]), float(v[10]), float(v[11])), learnt=how,
+                              still_s=float(v[84]) if learnt else 0.0,
+                              age_s=float(v[12] - v[83]) if learnt else float("nan"),
+                              prior=self.gyr_bias_prior is not None)
 
     def append_rows(self, rows: np.ndarray, nine_axis: bool, t_out: np.ndarray,
                     acc_out: np.ndarray, gyr_out: np.ndarray, q_out: np.ndarray,

@@ -31,7 +31,10 @@ with the candidate [rad] · ``[74]`` the same for the reference (its confirmatio
 the time the candidate has held [s] · ``[77]`` the rest time [s] the bias was learnt
 from (a rest's second counts as much as any before, until ``tau_bias_rest`` of them) ·
 ``[78:81]`` the accelerometer low-passed over ``tau_rest_acc`` (the rest detector's) ·
-``[81]`` the time of the last rest sample [s].
+``[81]`` the time of the last rest sample [s] · ``[82]`` how stillness last taught the
+bias (0 never, 1 a still start's provisional bias, 2 a rest) · ``[83]`` when [s] · ``[84]``
+the seconds of stillness it was learnt from then (the bias before any is the filter's
+starting one: zero, or a remembered bias, ``QuaternionComplementaryFilter.gyr_bias_prior``).
 """
 
 from __future__ import annotations
@@ -42,7 +45,7 @@ import numpy as np
 
 from ..scalar_rotations import quat_to_rows
 
-STATE_SIZE = 82
+STATE_SIZE = 85
 
 # Indices into the parameter vector, see QcfParams.as_array.
 (P_TAU_ACC, P_TAU_MAG, P_TAU_LP, P_REST_GYR, P_REST_ACC, P_REST_TIME,
@@ -133,6 +136,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     evidence = state[77]
     afx, afy, afz = state[78], state[79], state[80]
     last_rest = state[81]
+    learnt_how, learnt_at, learnt_still = state[82], state[83], state[84]
 
     for i in range(t.shape[0]):
         ax, ay, az = acc[i, 0], acc[i, 1], acc[i, 2]
@@ -241,6 +245,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
                     px, py, pz, pending, pending_time = 0.0, 0.0, 0.0, 0.0, 0.0
                 if still_time >= rest_time_first and count >= rest_min_samples_first:
                     bx, by, bz = sx / count, sy / count, sz / count
+                    learnt_how, learnt_at, learnt_still = 1.0, t[i], evidence
             elif still_time >= rest_time_needed:
                 at_rest = True
                 last_rest = t[i]
@@ -266,6 +271,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
                         if count >= rest_min_samples:
                             bx, by, bz = sx / count, sy / count, sz / count
                             bias_known = 1.0
+                            learnt_how, learnt_at, learnt_still = 2.0, t[i], evidence
                     else:
                         # later: follow a drifting bias, each block weighted by its length
                         k_b = pending_time / (min(evidence, tau_bias_rest) + pending_time)
@@ -273,6 +279,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
                         bx += k_b * (px / pending - bx)
                         by += k_b * (py / pending - by)
                         bz += k_b * (pz / pending - bz)
+                        learnt_how, learnt_at, learnt_still = 2.0, t[i], evidence
                     px, py, pz, pending, pending_time = 0.0, 0.0, 0.0, 0.0, 0.0
 
             # Strapdown: q_gyr ← q_gyr ⊗ exp(½ (ω̄ − b) dt), ω̄ the mean of the rates at the
@@ -564,6 +571,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     state[77] = evidence
     state[78], state[79], state[80] = afx, afy, afz
     state[81] = last_rest
+    state[82], state[83], state[84] = learnt_how, learnt_at, learnt_still
     return -1
 
 

@@ -1,28 +1,34 @@
 """The estimation pipeline: a recording (batch) or a stream (chunks) in, estimates out."""
 
+from collections.abc import Mapping, Sequence
+
 from ..recording import Recording
 from .calibrate import Calibration
 from .estimates import REFERENCE_ORDER, EstimateArrays, Estimates
 from .session import Pipeline, PipelineConfig
 
 
-def estimate_recording(recording: Recording, filter_name: str = "qcf"
+def estimate_recording(recording: Recording, filter_name: str = "qcf",
+                       gyr_bias_priors: Mapping[str, Sequence[float]] | None = None
                        ) -> tuple[Estimates, Calibration]:
-    """Estimates of a whole recording, and the calibration they used."""
-    pipeline = run_recording(recording, filter_name)
+    """Estimates of a whole recording, and the calibration they used (``gyr_bias_priors``:
+    see ``Pipeline``)."""
+    pipeline = run_recording(recording, filter_name, gyr_bias_priors)
     estimates = pipeline.finish()
     assert pipeline.calibration is not None
     return estimates, pipeline.calibration
 
 
-def run_recording(recording: Recording, filter_name: str = "qcf") -> Pipeline:
+def run_recording(recording: Recording, filter_name: str = "qcf",
+                  gyr_bias_priors: Mapping[str, Sequence[float]] | None = None) -> Pipeline:
     """A pipeline fed a whole recording (samples, marks, wrist points), not yet finished:
     ``finish()`` gives its estimates; ``elbow_source`` and ``gamma`` say what the points
-    did."""
+    did; ``learnt_biases()`` the gyroscope biases (``gyr_bias_priors``: see ``Pipeline``)."""
     config = PipelineConfig(side=recording.side, lengths=recording.segment_lengths(),
                             sensors=tuple(recording.sensors), filter=filter_name)
     pipeline = Pipeline(config, poses=recording.calibration,
-                        points_frame=recording.points_frame if recording.points else None)
+                        points_frame=recording.points_frame if recording.points else None,
+                        gyr_bias_priors=gyr_bias_priors)
     for mark in recording.marks:
         pipeline.add_mark(mark)
     for name, stream in recording.sensors.items():

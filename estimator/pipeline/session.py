@@ -13,7 +13,7 @@ chunks of any size and any interleaving of sensors, gives the same numbers.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -24,7 +24,7 @@ from ..arm.joints import REPORTED_ANGLES, SEGMENT_OF_SENSOR, SEGMENTS
 from ..body import SENSOR_NAMES, SegmentLengths, Side
 from ..calibration import CalibrationPlan, poses_from_marks
 from ..errors import InvalidArgument
-from ..orientation import DEFAULT_FILTER
+from ..orientation import DEFAULT_FILTER, LearntGyroBias
 from ..recording import Mark, Pose
 from ..recording.points import PointsFrame
 from .calibrate import Calibration, calibrate
@@ -62,9 +62,15 @@ class Pipeline:
     estimates with ``poll`` as they become available and the rest with ``finish``."""
 
     def __init__(self, config: PipelineConfig, poses: Iterable[Pose] = (),
-                 points_frame: PointsFrame | None = None):
+                 points_frame: PointsFrame | None = None,
+                 gyr_bias_priors: Mapping[str, Sequence[float]] | None = None):
+        """``gyr_bias_priors``: sensor name → the gyroscope bias its filter starts from
+        [rad/s] (sensor frame), the kit's last learnt ones (``learnt_biases``); sensors the
+        session does not wear are ignored."""
         self.config = config
-        self._tracks = {s: SensorTrack(s, config.filter) for s in config.sensors}
+        priors = gyr_bias_priors or {}
+        self._tracks = {s: SensorTrack(s, config.filter, _prior(priors.get(s)))
+                        for s in config.sensors}
         self._reference = config.reference
         self._others = [t for n, t in self._tracks.items() if n != self._reference]
         self._poses = list(poses)
@@ -124,6 +130,18 @@ class Pipeline:
             raise InvalidArgument(f"sensor {sensor!r} is not in this session "
                                   f"({', '.join(self._tracks)})")
         track.append_rows(rows)
+
+    def learnt_biases(self) -> dict[str, LearntGyroBias]:
+        """Each sensor's gyroscope bias after its last sample and how it was learnt (see
+        ``LearntGyroBias``: only a ``remembered`` one is for the kit's next session), for
+        the sensors with samples whose filter reports one (``qcf``)."""
+        out = {}
+        for name, track in self._tracks.items():
+            learnt = getattr(track.filter, "learnt_bias", None)
+            value = learnt() if learnt is not None else None
+            if value is not None:
+                out[name] = value
+        return out
 
     def silent_sensors(self) -> list[str]:
         """Sensors of the session that have not sent a sample yet."""
@@ -311,6 +329,18 @@ class Pipeline:
                              turned[j])
             mean_turn(Rw, np.array(chain, dtype=np.int64), np.array(offsets), turned,
                       MEAN_HEADING_FLOOR_RAD)
+
+
+def _prior(value: Sequence[float] | None) -> tuple[float, float, float] | None:
+    if value is None:
+        return None
+    try:
+        values = np.asarray(value, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        values = np.empty(0)
+    if values.shape != (3,):
+        raise InvalidArgument(f"a gyroscope bias prior must be 3 numbers [rad/s], got {value!r}")
+    return float(values[0]), float(values[1]), float(values[2])
 
 
 _SEGMENT_INDEX = {segment: i for i, segment in enumerate(SEGMENTS)}

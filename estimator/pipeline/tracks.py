@@ -43,6 +43,9 @@ class SensorTrack:
 
     name: str
     filter_name: str
+    #: The gyroscope bias the filter starts from [rad/s] (sensor frame; None: zero), the
+    #: kit's last learnt one for this sensor (``make_filter``).
+    gyr_bias_prior: tuple[float, float, float] | None = None
     filter: OrientationFilter = field(init=False)
     nine_axis: bool | None = field(default=None, init=False)
     #: The session left this 9-axis sensor's magnetometer out (``drop_magnetometer``).
@@ -67,7 +70,10 @@ class SensorTrack:
     _end: int = field(default=0, init=False)  # one past the last row
 
     def __post_init__(self) -> None:
-        self.filter = make_filter(self.filter_name)
+        self.filter = self._new_filter()
+
+    def _new_filter(self) -> OrientationFilter:
+        return make_filter(self.filter_name, gyr_bias_prior=self.gyr_bias_prior)
 
     def append(self, t, acc, gyr, mag) -> None:
         """Run the filter over a chunk and keep it."""
@@ -183,7 +189,7 @@ class SensorTrack:
         chunks the samples came in."""
         if not self.nine_axis or self._mag is None or not self._mag:
             return None
-        fresh = make_filter(self.filter_name)
+        fresh = self._new_filter()
         if not hasattr(fresh, "reference_field"):
             return None
         t, acc, gyr, _ = self.arrays()
@@ -218,7 +224,7 @@ class SensorTrack:
         magnetometer: a fresh filter re-runs over the kept samples (the caller does it
         before anything was discarded, at calibration) and takes the later ones."""
         self.magnetometer_dropped = True
-        self.filter = make_filter(self.filter_name)
+        self.filter = self._new_filter()
         kept = slice(self._start, self._end)
         if self._end > self._start:
             self._q[kept] = self.filter.update(self._t[kept], self._acc[kept],

@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
+
+from armtrack.estimator.errors import InvalidArgument
 
 from .choices import DEFAULT_FILTER, FILTER_NAMES
 from .output import open_output, write_angles_csv
@@ -26,16 +29,34 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the angles CSV to write (default: standard output)")
     parser.add_argument("--filter", choices=sorted(FILTER_NAMES), default=DEFAULT_FILTER,
                         help=f"orientation filter (default {DEFAULT_FILTER})")
+    parser.add_argument("--gyro-bias-in", type=Path, metavar="FILE",
+                        help="start each sensor's filter from the gyroscope bias the kit "
+                             "remembered (JSON, docs/gyro-bias-memory.md; qcf only)")
+    parser.add_argument("--gyro-bias-out", type=Path, metavar="FILE",
+                        help="write the kit's memory after this recording: the biases "
+                             "stillness taught, else those of --gyro-bias-in (may be the "
+                             "same file)")
 
 
 def run(args: argparse.Namespace) -> int:
     from armtrack.estimator.metrics import range_of_motion_table, repetitions_by_angle
+    from armtrack.estimator.orientation import BIAS_PRIOR_FILTERS
     from armtrack.estimator.pipeline import run_recording
+    from armtrack.estimator.pipeline.bias_memory import (
+        memory_to_json,
+        priors,
+        read_bias_memory,
+        remember,
+    )
     from armtrack.estimator.pipeline.quality import residual_warnings
     from armtrack.estimator.recording import read_recording
 
+    memory = read_bias_memory(args.gyro_bias_in) if args.gyro_bias_in else {}
+    if args.gyro_bias_out and args.filter not in BIAS_PRIOR_FILTERS:
+        raise InvalidArgument(f"--gyro-bias-out needs a filter that learns a bias: "
+                              f"{', '.join(sorted(BIAS_PRIOR_FILTERS))}")
     recording = read_recording(args.recording)
-    pipeline = run_recording(recording, args.filter)
+    pipeline = run_recording(recording, args.filter, priors(memory) if memory else None)
     estimates, calibration = pipeline.finish(), pipeline.calibration
     assert calibration is not None
     columns, values = estimates.table()
@@ -47,8 +68,13 @@ def run(args: argparse.Namespace) -> int:
     table = range_of_motion_table(estimates.angles, estimates.t, exclude=exclude)
     repetitions = (repetitions_by_angle({k: estimates.angles[k] for k in table},
                                         estimates.t, exclude=exclude) if table else {})
+    learnt = pipeline.learnt_biases()
     with open_output(args.output) as out:
         write_angles_csv(out, columns, values)
+    if args.gyro_bias_out:
+        with open_output(args.gyro_bias_out) as out:
+            json.dump(memory_to_json(remember(memory, learnt)), out, indent=2)
+            out.write("\n")
 
     report = sys.stderr if args.output is None else sys.stdout
     print(f"{args.recording}: {len(estimates)} estimates, filter {args.filter}, calibration "
@@ -63,6 +89,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"  elbow: from the {source}, upper-arm heading from the wrist points; heading "
               f"held in {stats.flagged_share:.0%} of samples (wrist near below the shoulder, or no "
               f"point){check}", file=report)
+    if args.gyro_bias_in or args.gyro_bias_out:
+        for name, value in learnt.items():
+            print(f"  gyroscope bias {name}: {_bias_words(value, name in memory)}", file=report)
     for warning in (*calibration.warnings,
                     *residual_warnings(estimates, tuple(recording.sensors))):
         print(f"  warning: {warning.message}", file=report)
@@ -78,3 +107,14 @@ def run(args: argparse.Namespace) -> int:
         print(f"  {name:<24}{rom.min_deg:8.1f}{rom.max_deg:8.1f}{rom.range_deg:8.1f}"
               f"{normal:>12}{percent:>10}{len(repetitions[name]):>6}", file=report)
     return 0
+
+
+def _bias_words(value, remembered: bool) -> str:
+    """How a sensor's gyroscope bias came out of the session, for the report."""
+    mrad = " ".join(f"{1e3 * b:+.2f}" for b in value.bias)
+    if value.remembered:
+        return (f"[{mrad}] mrad/s, learnt from {value.still_s:.1f} s of stillness "
+                f"({value.learnt}), {value.age_s:.0f} s before the end; remembered")
+    start = "the remembered one" if remembered else "zero"
+    return (f"[{mrad}] mrad/s, never still: not learnt (started from {start}); "
+            + ("the older memory is kept" if remembered else "nothing remembered"))
