@@ -534,7 +534,9 @@ def start_server(data_dir: Path, port: int, cpu: int | None, env_extra: dict[str
     import httpx
 
     log = open(data_dir / "server.log", "ab")
-    env = {**os.environ, **env_extra}
+    # one bench therapist watches every simulated patient at once, more than a real
+    # account's ARMTRACK_MAX_LIVE_FEEDS_PER_USER allows: not bounded here
+    env = {"ARMTRACK_MAX_LIVE_FEEDS_PER_USER": "1000000", **os.environ, **env_extra}
     process = subprocess.Popen(
         [sys.executable, "-m", "armtrack.server.cli", "serve", "--port", str(port),
          "--data-dir", str(data_dir)], stdout=log, stderr=subprocess.STDOUT, env=env,

@@ -21,6 +21,7 @@ from .ingest.writer import GroupWriter, StreamState
 from .live.access import AccessWatch
 from .live.broker import make_hub
 from .live.estimation import make_estimation
+from .live.slots import FeedSlots
 from .live.worker import LiveBatcher, LiveWorker
 from .settings import Settings
 from .store.background import SessionProcessing
@@ -91,6 +92,8 @@ class Services:
         self.background: set[asyncio.Future] = set()
         #: the open live feeds and 3D views, closed once their right is gone (live/access)
         self.access = AccessWatch(self.run_db, settings.demo_mode)
+        #: each account's live feeds, 3D views and unused viewer grants (live/slots)
+        self.feed_slots = FeedSlots(settings.max_live_feeds_per_user)
         self._access_task: asyncio.Task | None = None
 
     def migrate(self) -> None:

@@ -78,6 +78,11 @@ class Settings(BaseSettings):
         "next hello without resume or session: error naming the limit, close 4429; the kit "
         "keeps its data and tries again); resumes and new streams of a session are not "
         "new sessions")
+    max_live_feeds_per_user: int = Field(
+        20, ge=1, description="most live feeds one therapist account holds open at once, "
+        "all its sign-ins together, in one server instance: /ws/live feeds, open 3D views "
+        "and viewer grants not yet used (a live session page holds 2); more: /ws/live "
+        "closes 4429, POST /api/viewer answers 429, both naming the limit")
     login_max_failures: int = Field(10, gt=0, description="failed sign-ins per user name and "
                                     "per client address within the window that cost "
                                     "nothing; each one after slows the next attempt down")

@@ -5,7 +5,9 @@ sensor's battery and signal) and ``session`` (live, interrupted, closed). The th
 bearer token goes in the ``Authorization`` header or ``?token=``; a patient not theirs
 closes with 4404 like one that does not exist. A feed whose right goes while it is open
 (``live.access``) closes at once: 4401 when the sign-in ended, 4404 when the patient is
-no longer the therapist's."""
+no longer the therapist's. One account holds at most ``ARMTRACK_MAX_LIVE_FEEDS_PER_USER``
+feeds and views (``live.slots``): over it, an ``error`` update naming the limit, then close
+4429; a feed gives its place back when it ends."""
 
 from __future__ import annotations
 
@@ -24,22 +26,34 @@ from ..ingest.endpoint import bearer
 from ..ingest.protocol import CLOSE_BAD_TOKEN, dumps
 from .access import Watch, holds
 from .encoded import EncodedPose
+from .slots import FeedSlots, Slot
 
 router = APIRouter()
 CLOSE_NOT_FOUND = 4404
+#: Close code when the account holds all its live feeds (``ARMTRACK_MAX_LIVE_FEEDS_PER_USER``).
+CLOSE_TOO_MANY = 4429
 
 
-def _therapist_patient(db, token: str | None, patient_id: int, demo_mode: bool = False,
-                       client: str | None = None) -> int | str:
-    """The id of the token's therapist if they may watch the patient, else why not."""
+def _therapist_patient(db, token: str | None, patient_id: int, slots: FeedSlots,
+                       demo_mode: bool = False, client: str | None = None
+                       ) -> tuple[int, Slot] | str:
+    """The id of the token's therapist and the feed's slot if they may watch the patient,
+    else why not ("token", "patient", "full": the account holds all its slots)."""
     therapist = therapist_of_token(db, token, demo_mode)
     if therapist is None:  # unknown, expired, disabled (or the demo's, outside demo mode)
         return "token"
     if not holds(therapist, db.get(models.Patient, patient_id)):
         return "patient"
-    audit.record(db, action="viewed_live", route=f"WS /ws/live?patient={patient_id}",
-                 therapist_id=therapist.id, patient_id=patient_id, client=client)
-    return therapist.id
+    slot = slots.take(therapist.id)
+    if slot is None:
+        return "full"
+    try:
+        audit.record(db, action="viewed_live", route=f"WS /ws/live?patient={patient_id}",
+                     therapist_id=therapist.id, patient_id=patient_id, client=client)
+    except BaseException:
+        slot.release()
+        raise
+    return therapist.id, slot
 
 
 @router.websocket("/ws/live")
@@ -49,15 +63,32 @@ async def live(websocket: WebSocket,
     client = websocket.client.host if websocket.client else None
     token = bearer(websocket)
     checked_at = services.access.generation
-    allowed = await services.run_db(_therapist_patient, token, patient,
+    slots = services.feed_slots
+    allowed = await services.run_db(_therapist_patient, token, patient, slots,
                                     services.settings.demo_mode, client)
-    await websocket.accept()
-    if allowed == "token":
-        await websocket.close(CLOSE_BAD_TOKEN, "sign in first")
+    if isinstance(allowed, str):
+        await websocket.accept()
+        if allowed == "token":
+            await websocket.close(CLOSE_BAD_TOKEN, "sign in first")
+        elif allowed == "patient":
+            await websocket.close(CLOSE_NOT_FOUND, f"no patient {patient}")
+        else:  # its words first: the page shows an error update, then the close
+            with contextlib.suppress(WebSocketDisconnect, RuntimeError, OSError):
+                await websocket.send_text(dumps({"kind": "error",
+                                                 "reason": slots.refusal()}))
+                await websocket.close(CLOSE_TOO_MANY, slots.close_reason())
         return
-    if allowed == "patient":
-        await websocket.close(CLOSE_NOT_FOUND, f"no patient {patient}")
-        return
+    therapist_id, slot = allowed
+    try:
+        await websocket.accept()
+        await _watched(websocket, services, token, therapist_id, patient, checked_at)
+    finally:
+        slot.release()  # the feed is over: its place goes back at once
+
+
+async def _watched(websocket: WebSocket, services, token: str | None, therapist_id: int,
+                   patient: int, checked_at: int) -> None:
+    """The feed, for as long as its right holds."""
     revoked: list[tuple[int, str]] = []
 
     def revoke(code: int, reason: str) -> None:
@@ -65,7 +96,7 @@ async def live(websocket: WebSocket,
         subscription.put(None)
 
     with services.hub.subscribe(patient) as subscription:
-        watch = Watch(hash_token(token or ""), int(allowed), patient, None, revoke)
+        watch = Watch(hash_token(token or ""), therapist_id, patient, None, revoke)
         try:
             await services.access.added(watch, checked_at)
             if not revoked:

@@ -19,6 +19,7 @@ import secrets
 import threading
 import time
 from dataclasses import dataclass
+from typing import Any
 
 #: Seconds a grant stays good for its page and its WebSocket.
 GRANT_TTL_S = 60.0
@@ -49,6 +50,9 @@ class Grant:
     token_hash: str = ""
     #: How much the page shows the view scaled down (0.2–1): its labels grow to match
     display_scale: float = 1.0
+    #: its account's live-feed place (``live.slots.Slot``): lapses with the unused grant,
+    #: held while its view is open, given back when the view closes
+    slot: Any = None
 
     @property
     def live(self) -> bool:
@@ -67,11 +71,12 @@ class GrantBook:
         self._lock = threading.Lock()
 
     def issue(self, *, therapist_id: int, patient_id: int, session_id: int | None,
-              token_hash: str = "", display_scale: float = 1.0) -> Grant:
+              token_hash: str = "", display_scale: float = 1.0, slot: Any = None) -> Grant:
         """A new grant, good for ``ttl_s``."""
         now = time.monotonic()
         grant = Grant(secrets.token_urlsafe(24), therapist_id, patient_id, session_id,
-                      now + self.ttl_s, token_hash=token_hash, display_scale=display_scale)
+                      now + self.ttl_s, token_hash=token_hash, display_scale=display_scale,
+                      slot=slot)
         with self._lock:
             self._prune(now)
             self._grants[grant.id] = grant
@@ -94,6 +99,8 @@ class GrantBook:
             if grant is None or grant.used or grant.expires_at <= now:
                 return None
             grant.used = True
+            if grant.slot is not None:
+                grant.slot.hold()
             grant.ticket = secrets.token_urlsafe(24)
             grant.ticket_expires_at = now + self.ticket_ttl_s
             self._tickets[grant.ticket] = grant
@@ -106,6 +113,8 @@ class GrantBook:
             grant = self._claimed.get(grant_id)
             if grant is not None and grant.closed_at is None:
                 grant.closed_at = time.monotonic()
+                if grant.slot is not None:
+                    grant.slot.release()
 
     def state(self, grant_id: str) -> tuple[Grant, str] | None:
         """The grant and its state (``WAITING``: unused and unexpired; ``OPEN``: its

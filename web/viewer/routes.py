@@ -6,7 +6,9 @@
   one-time grant to view the patient live (``null``) or a
   stored session of theirs: ``{"url": "/viewer/<grant>/", "expires_in": 60,
   "state_url": "/api/viewer/<grant>"}`` [s] (``ARMTRACK_VIEWER_GRANT_S``).
-  Another therapist's patient or session is 404.
+  Another therapist's patient or session is 404. A grant, then its open view, holds one of
+  the account's ``ARMTRACK_MAX_LIVE_FEEDS_PER_USER`` places (with its ``/ws/live`` feeds)
+  until it lapses unused or the view closes; with all held: 429 naming the limit.
 * ``GET /api/viewer/<grant>`` (the grant's therapist) — ``{"state": "waiting" | "open" |
   "closed"}``: whether the viewer's WebSocket is still to come, open, or over (then the
   page asks for a new grant); 404 once the grant is unknown (also after a restart).
@@ -77,10 +79,16 @@ def create_viewer(body: ViewerRequest, db: Db, therapist: Therapist, request: Re
         if session.patient_id != body.patient_id:
             raise HTTPException(status.HTTP_404_NOT_FOUND,
                                 f"no session {body.session_id} of patient {body.patient_id}")
-    grants = request.app.state.services.viewer.grants
+    services = request.app.state.services
+    grants = services.viewer.grants
+    # the grant holds one of the account's live-feed places until it lapses unused or
+    # its view closes (armtrack.server.live.slots)
+    slot = services.feed_slots.take(therapist.id, grants.ttl_s)
+    if slot is None:
+        raise HTTPException(status.HTTP_429_TOO_MANY_REQUESTS, services.feed_slots.refusal())
     grant = grants.issue(therapist_id=therapist.id, patient_id=body.patient_id,
                          session_id=body.session_id, token_hash=hash_token(token or ""),
-                         display_scale=body.display_scale)
+                         display_scale=body.display_scale, slot=slot)
     return ViewerGrantOut(url=f"/viewer/{grant.id}/", expires_in=round(grants.ttl_s),
                           state_url=f"/api/viewer/{grant.id}")
 

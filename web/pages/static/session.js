@@ -195,7 +195,8 @@ function connectLive() {
       showError(document.getElementById("angles-card"), update.reason);
     }
   };
-  socket.onclose = () => { if (!ended) setTimeout(connectLive, 1000); };
+  // 4429: the account holds all its live feeds (the error update above said so): later
+  socket.onclose = (event) => { if (!ended) setTimeout(connectLive, event.code === 4429 ? 10000 : 1000); };
 }
 
 // One poll at a time, and never an answer older (by the stream's own clock) than the one
