@@ -7,7 +7,7 @@ lengths [m], rate [Hz].
 
 from .model import FORMAT_VERSION, Mark, Pose, Recording, SensorStream
 from .reader import parse_recording, read_recording
-from .writer import check_recording, format_recording, write_recording
+from .writer import check_recording, format_recording, write_recording, write_recording_to
 
 __all__ = [
     "FORMAT_VERSION",
@@ -20,4 +20,5 @@ __all__ = [
     "parse_recording",
     "read_recording",
     "write_recording",
+    "write_recording_to",
 ]

@@ -19,6 +19,7 @@ import os
 import secrets
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 import pyarrow as pa
@@ -82,6 +83,13 @@ def _check_stream(name: str, stream: SensorStream) -> None:
 def format_recording(recording: Recording) -> bytes:
     """The bytes of the recording file; refuses a recording that breaks the spec."""
     return b"".join(_parts(recording))
+
+
+def write_recording_to(recording: Recording, out: BinaryIO) -> None:
+    """Write the recording file's bytes to the binary file ``out`` piece by piece (no
+    joined copy); refuses a recording that breaks the spec before a byte is written."""
+    for part in _parts(recording):
+        out.write(part)
 
 
 def write_recording(recording: Recording, path: str | os.PathLike[str]) -> None:

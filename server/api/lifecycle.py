@@ -7,13 +7,15 @@ from __future__ import annotations
 import csv
 import io
 import json
+import tempfile
 import zipfile
+from collections.abc import Iterator
 from datetime import UTC, date, datetime, time, timedelta
-from typing import Annotated, Literal
+from typing import Annotated, BinaryIO, Literal
 
-from armtrack.estimator.recording import format_recording
+from armtrack.estimator.recording import write_recording_to
 from fastapi import APIRouter, Depends, Query
-from fastapi.responses import Response
+from fastapi.responses import Response, StreamingResponse
 from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy import Select, or_, select
 from sqlalchemy.orm import Session as DbSession
@@ -50,6 +52,11 @@ class AuditOut(BaseModel):
                               "and user name, or the kit's name (null: erased since)")
 
 
+#: An export's zip is kept in memory up to this size, then in a temporary file [B].
+EXPORT_SPOOL_BYTES = 1 << 20
+#: An export is sent this many bytes at a time [B].
+EXPORT_CHUNK_BYTES = 1 << 20
+
 #: The CSV's columns: the log's own (ids only, no names).
 AUDIT_FIELDS = [name for name in AuditOut.model_fields if name != "actor"]
 
@@ -63,12 +70,12 @@ def _entries(patient_id: int) -> Select:
             .order_by(models.AuditEntry.id))
 
 
-def patient_archive(db: DbSession, patient: models.Patient) -> bytes:
-    """patient.json, devices.json (no tokens), targets.json, target_history.json
-    (every setting and removal), sessions.json, and per
-    session ``sessions/<id>/recording.csv``, ``angles.csv`` and ``report.json`` (when
-    estimated), and audit.json: every logged access to the patient's data."""
-    out = io.BytesIO()
+def patient_archive(db: DbSession, patient: models.Patient, out: BinaryIO) -> None:
+    """Write to ``out`` (a seekable binary file) the zip of patient.json, devices.json (no
+    tokens), targets.json, target_history.json (every setting and removal), sessions.json,
+    and per session ``sessions/<id>/recording.csv``, ``angles.csv`` and ``report.json``
+    (when estimated), and audit.json: every logged access to the patient's data. One
+    session's data are in memory at a time; each file goes into the zip as it is made."""
     with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as archive:
         archive.writestr("patient.json", PatientOut.model_validate(patient).model_dump_json(
             indent=2))
@@ -92,13 +99,15 @@ def patient_archive(db: DbSession, patient: models.Patient) -> bytes:
             folder = f"sessions/{session.id}/"
             recording = session_recording(db, session)
             if recording.sensors:  # a session without samples has no recording file
-                archive.writestr(folder + "recording.csv", format_recording(recording))
+                with archive.open(folder + "recording.csv", "w", force_zip64=True) as member:
+                    write_recording_to(recording, member)
+            del recording
             columns, values = stored_estimates(db, session)
             if columns:
                 width = columns.index(ANGLE_COLUMNS_END) + 1
-                text = io.StringIO()
-                write_angles_csv(text, columns[:width], values[:, :width])
-                archive.writestr(folder + "angles.csv", text.getvalue())
+                with archive.open(folder + "angles.csv", "w", force_zip64=True) as member, \
+                        io.TextIOWrapper(member, encoding="utf-8", newline="") as text:
+                    write_angles_csv(text, columns[:width], values[:, :width])
                 try:
                     report = content.session_report(db, session, current=targets)
                     archive.writestr(folder + "report.json", report.model_dump_json(indent=2))
@@ -107,20 +116,37 @@ def patient_archive(db: DbSession, patient: models.Patient) -> bytes:
         archive.writestr("audit.json", _json(
             [AuditOut.model_validate(e).model_dump(mode="json", exclude={"actor"})
              for e in db.scalars(_entries(patient.id))]))
-    return out.getvalue()
 
 
 @router.get("/patients/{patient_id}/export", response_class=Response, responses={
     200: {"content": {"application/zip": {}}, "description": "a zip archive"},
     404: {"description": "no such patient of this therapist's"}})
-def export_patient(patient_id: Id, db: Db, therapist: Therapist) -> Response:
+def export_patient(patient_id: Id, db: Db, therapist: Therapist,
+                   svc: Annotated[Services, Depends(services)]) -> StreamingResponse:
     """Everything held about the patient, as one zip archive: the patient, their kits
     (without tokens), targets and sessions as JSON, each session's raw data
     (``recording.csv``), angles (``angles.csv``) and report (``report.json``), and the
     audit log's entries about them."""
     patient = own_patient(db, therapist, patient_id)
-    return Response(patient_archive(db, patient), media_type="application/zip", headers={
+    # the zip goes to a temporary file in the data folder (unnamed: gone with the answer,
+    # or a crash) past EXPORT_SPOOL_BYTES, then streams from it: the server's memory holds
+    # one session's data at a time, whatever the patient's number of sessions
+    spool = tempfile.SpooledTemporaryFile(EXPORT_SPOOL_BYTES, dir=svc.settings.data_dir)
+    try:
+        patient_archive(db, patient, spool)
+        spool.seek(0)
+    except BaseException:
+        spool.close()
+        raise
+    return StreamingResponse(_chunks(spool), media_type="application/zip", headers={
         "Content-Disposition": f'attachment; filename="patient-{patient_id}.zip"'})
+
+
+def _chunks(spool: BinaryIO) -> Iterator[bytes]:
+    """The file's bytes, EXPORT_CHUNK_BYTES at a time; closes it at the end."""
+    with spool:
+        while chunk := spool.read(EXPORT_CHUNK_BYTES):
+            yield chunk
 
 
 def _audit_query(db: DbSession, therapist: models.Therapist, patient_id: int | None,
