@@ -43,12 +43,16 @@ const KitPictures = (() => {
    * A figure: view "front" (arm moves in the frontal plane: `shoulder` is abduction) or
    * "side" (facing right: `shoulder` is flexion); `elbow` flexion [deg]; the phone on
    * `phone` ("forearm", "upper_arm" or none); `arrow` [from, to] degrees of the moving
-   * segment's swing, about the shoulder (or the elbow when `arrowAt` is "elbow").
+   * segment's swing, about the shoulder (or the elbow when `arrowAt` is "elbow"). `side`:
+   * the patient's arm, drawn as in a mirror (the right arm on the right of the picture);
+   * "left" is the same figure mirrored.
    */
   function figure({ view = "front", shoulder = 0, elbow = 0, phone = null, arrow = null,
-                    arrowAt = "shoulder", twist = false, label = "" } = {}) {
-    const svg = node("svg", { viewBox: "0 0 200 210", width: "100%", height: "100%",
-      role: "img", "aria-label": label });
+                    arrowAt = "shoulder", twist = false, label = "", side = "right" } = {}) {
+    const picture = node("svg", { viewBox: "0 0 200 210", width: "100%", height: "100%",
+      role: "img", "aria-label": label, "data-side": side === "left" ? "left" : "right" });
+    const svg = node("g", side === "left" ? { transform: "translate(200 0) scale(-1 1)" } : {});
+    picture.append(svg);
     const cx = view === "front" ? 90 : 95;
     const S = view === "front" ? [cx + 24, 58] : [cx, 58];
     svg.append(node("circle", { cx, cy: 28, r: 15, fill: "none", stroke: INK, "stroke-width": 4 }));
@@ -78,22 +82,24 @@ const KitPictures = (() => {
     }
     if (phone === "forearm") svg.append(phoneOn(W, E));
     if (phone === "upper_arm") svg.append(phoneOn(E, S));
-    return svg;
+    return picture;
   }
 
-  /** The picture of a named step or exercise for a phone on `sensor`. */
-  function named(name, sensor) {
+  /** The picture of a named step or exercise for a phone on `sensor`, on the patient's
+   * `side` arm ("right" or "left"). */
+  function named(name, sensor, side = "right") {
     const phone = sensor;
+    const drawn = (spec) => figure({ ...spec, side });
     switch (name) {
-      case "segment:forearm": return figure({ view: "front", phone: "forearm", label: "phone on the forearm" });
-      case "segment:upper_arm": return figure({ view: "front", phone: "upper_arm", label: "phone on the upper arm" });
-      case "npose": return figure({ view: "front", phone, label: "arm hanging, thumb forward" });
-      case "tpose": return figure({ view: "front", shoulder: 90, phone, label: "arm straight out to the side" });
-      case "elbow_flexion": return figure({ view: "side", elbow: 120, phone, arrow: [0, 120], arrowAt: "elbow", label: "bend the elbow" });
-      case "pronation": return figure({ view: "side", elbow: 90, phone, twist: true, label: "turn the palm down and up" });
-      case "shoulder_flexion": return figure({ view: "side", shoulder: 150, phone, arrow: [0, 150], label: "raise the arm forward" });
-      case "shoulder_abduction": return figure({ view: "front", shoulder: 90, phone, arrow: [0, 90], label: "raise the arm to the side" });
-      default: return figure({ view: "front", phone, label: name });
+      case "segment:forearm": return drawn({ view: "front", phone: "forearm", label: "phone on the forearm" });
+      case "segment:upper_arm": return drawn({ view: "front", phone: "upper_arm", label: "phone on the upper arm" });
+      case "npose": return drawn({ view: "front", phone, label: "arm hanging, thumb forward" });
+      case "tpose": return drawn({ view: "front", shoulder: 90, phone, label: "arm straight out to the side" });
+      case "elbow_flexion": return drawn({ view: "side", elbow: 120, phone, arrow: [0, 120], arrowAt: "elbow", label: "bend the elbow" });
+      case "pronation": return drawn({ view: "side", elbow: 90, phone, twist: true, label: "turn the palm down and up" });
+      case "shoulder_flexion": return drawn({ view: "side", shoulder: 150, phone, arrow: [0, 150], label: "raise the arm forward" });
+      case "shoulder_abduction": return drawn({ view: "front", shoulder: 90, phone, arrow: [0, 90], label: "raise the arm to the side" });
+      default: return drawn({ view: "front", phone, label: name });
     }
   }
 

@@ -141,7 +141,7 @@ function screen(...children) {
   window.scrollTo(0, 0);
 }
 function every(ms, fn) { const id = setInterval(fn, ms); kit.timers.push(id); fn(); return id; }
-function picture(name) { return el("div", { class: "picture" }, KitPictures.named(name, kit.sensor)); }
+function picture(name) { return el("div", { class: "picture" }, KitPictures.named(name, kit.sensor, kit.side)); }
 function big(text, attrs = {}) { return el("button", { class: "big", ...attrs }, text); }
 
 function status() {
@@ -223,7 +223,7 @@ function chooseSegment() {
     el("div", { class: "choices" },
       ["forearm", "upper_arm"].filter(usable).map((segment) => el("button", {
         class: "choice", id: "segment-" + segment, onclick: choose(segment) },
-        el("div", { class: "picture small" }, KitPictures.named("segment:" + segment)),
+        el("div", { class: "picture small" }, KitPictures.named("segment:" + segment, null, kit.side)),
         el("span", {}, "On my " + SEGMENT_WORDS[segment])))));
 }
 
