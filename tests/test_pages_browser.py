@@ -34,6 +34,8 @@ if not Path(CHROMIUM).is_file():
 sync_api = pytest.importorskip("playwright.sync_api",
                                reason="needs Playwright: pip install -e '.[test]'")
 
+from armtrack.server.emulator import KitEmulator  # noqa: E402 (after the skips)
+
 pytestmark = pytest.mark.slow
 
 
@@ -51,14 +53,44 @@ def _exercise(name: str, seed: int = 0, repetitions: int | None = None):
                                                  Mark(end, f"end:exercise:{name}")))
 
 
+class HeldKit(KitEmulator):
+    """A kit held at ``gates``: (recording time [s], ``threading.Event``) in time order.
+    It says hello, and before its first message at or after each gate's time waits for
+    the gate's event (as a patient holding still until told); its pacing (``due``) counts
+    from then, so the rest of the stream keeps its own pace."""
+
+    gates: list[tuple[float, threading.Event]]
+    held_s = 0.0
+
+    async def _send_text(self, ws, text: str) -> None:
+        seq = self.outbox.next_seq  # the plan's message being sent (not yet counted)
+        while (self.gates and self.ready is not None and seq < len(self.plan)
+               and float(self.plan.times[seq]) >= self.gates[0][0]):
+            _, event = self.gates.pop(0)
+            since = time.monotonic()
+            if not await asyncio.to_thread(event.wait, 300):
+                raise TimeoutError("the kit was never let go on")
+            self.held_s += time.monotonic() - since
+        await super()._send_text(ws, text)
+
+    def due(self, seq: int) -> float:
+        return super().due(seq) + self.held_s
+
+
 class KitThread:
     """A ``KitEmulator`` streaming at real pace on its own event loop and thread;
-    ``cut()`` drops it without ``bye``, as a kit whose link died."""
+    ``cut()`` drops it without ``bye``, as a kit whose link died. With ``gates``
+    (``HeldKit``'s: (recording time [s], ``threading.Event``)) the kit says hello (its
+    session opens) and waits at each gate's time until its event is set: a test lets
+    the stream go on once the page has shown what it must, however slow the page."""
 
-    def __init__(self, recording, url: str, token: str):
-        from armtrack.server.emulator import KitEmulator
-
-        self.kit = KitEmulator(recording, url, token, device="browser-test kit", speed=1.0)
+    def __init__(self, recording, url: str, token: str,
+                 gates: list[tuple[float, threading.Event]] | None = None):
+        self.kit = (KitEmulator if gates is None else HeldKit)(
+            recording, url, token, device="browser-test kit", speed=1.0)
+        if gates is not None:
+            self.kit.gates = sorted(gates, key=lambda gate: gate[0])
+        self._events = [event for _, event in gates or []]
         self.loop = asyncio.new_event_loop()
         self.task: asyncio.Task | None = None
         self.thread = threading.Thread(target=self._run, daemon=True)
@@ -71,6 +103,9 @@ class KitThread:
             self.loop.run_until_complete(self.task)
 
     def cut(self) -> None:
+        for event in self._events:  # a kit still held lets go (its thread ends)
+            event.set()
+
         def abort() -> None:
             assert self.task is not None
             self.task.cancel()
