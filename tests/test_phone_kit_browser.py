@@ -461,7 +461,11 @@ def test_the_patient_page_gives_the_phone_kit_link_and_qr_code(kit_server, phone
         link = phone.locator("#kit-url").inner_text()
         token = phone.locator("#token-value").inner_text()
         assert link == f"{kit_server.url}/kit#token={token}"
-        loaded = phone.evaluate("document.getElementById('kit-qr').naturalWidth")
+        # the QR image loads after the link shows: its width once it has (or has failed)
+        loaded = phone.wait_for_function(
+            "() => { const img = document.getElementById('kit-qr');"
+            " return img && img.complete && { width: img.naturalWidth }; }",
+            timeout=30_000).json_value()["width"]
         assert loaded > 100  # the QR image decoded and drew
         assert phone.locator("#kit-link-insecure").count() == 0
         phone.locator("#kit-link").scroll_into_view_if_needed()

@@ -46,8 +46,11 @@ def test_a_percent_encoded_token_in_a_url_is_redacted_in_the_log(srv):
             pass
 
     asyncio.run(live())
-    time.sleep(0.5)
+    deadline = time.monotonic() + 30  # the server writes its log lines in its own time
+    while "/ws/live" not in srv.log.read_text() and time.monotonic() < deadline:
+        time.sleep(0.1)
     log = srv.log.read_text()
+    assert "/ws/live" in log  # the feed's request too
     assert "/api/patients?" in log  # the requests were logged …
     assert secret not in log, [line for line in log.splitlines() if secret in line]
 
