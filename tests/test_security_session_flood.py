@@ -5,6 +5,7 @@ without resume or session gets the protocol's ``error`` naming the limit and clo
 ``4429``, nothing stored. Resuming a stream and a new stream in a session are no new
 sessions; a closed session's rest (closed-session/1) is one, refused at the limit and
 taken once the hour has passed (the kit keeps it meanwhile). Other kits are not limited.
+A kit's uploads are new sessions too, counted with its streams by when they arrived.
 Real server, real WebSocket client, real database file."""
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import asyncio
 import json
 from datetime import UTC, datetime, timedelta
 
+import httpx
 import pytest
 from server_support import ServerProcess
 from websockets.asyncio.client import connect
@@ -127,8 +129,8 @@ def test_a_kit_starts_a_bounded_number_of_new_sessions(srv):
         assert stored() == LIMIT
         hour_ago = (datetime.now(UTC) - timedelta(hours=1, minutes=1)).strftime(
             "%Y-%m-%d %H:%M:%S.%f")
-        srv.sql("UPDATE sessions SET started_at = :t WHERE patient_id = :p", t=hour_ago,
-                p=patient["id"])
+        srv.sql("UPDATE sessions SET started_at = :t, created_at = :t WHERE patient_id = :p",
+                t=hour_ago, p=patient["id"])
         ws, rest = await hello(srv, token, extensions=["closed-session/1"])
         assert rest["type"] == "ready" and rest["session"] != first["session"], rest
         await send_acked(ws, 0, 0.4)
@@ -137,3 +139,70 @@ def test_a_kit_starts_a_bounded_number_of_new_sessions(srv):
         assert stored() == LIMIT + 1
 
     asyncio.run(scenario())
+
+
+def kit_upload(srv, token: str, data: bytes, name: str = "offline.csv"):
+    return httpx.post(f"{srv.url}/api/recordings", headers={"Authorization": f"Bearer {token}"},
+                      data={"wait": "false"}, files={"file": (name, data)}, timeout=120)
+
+
+def dated(recording: bytes, moment: datetime) -> bytes:
+    """The recording with a start_time header (docs/extensions/start-time.md)."""
+    lines = recording.split(b"\n")
+    columns = next(i for i, line in enumerate(lines) if line.startswith(b"t,"))
+    lines.insert(columns, f"# start_time: {moment.isoformat()}".encode())
+    return b"\n".join(lines)
+
+
+def test_uploads_with_a_kit_token_count_as_its_new_sessions(srv, recordings_dir):
+    """A kit's token may also upload recordings (``POST /api/recordings``): each is a new
+    session of the kit, counted with its streamed ones, whenever the file says it was
+    recorded; over the limit the upload is refused (429 naming the setting), nothing
+    stored, and so is the next streamed session. A therapist's upload is not a kit's."""
+    alice = srv.client("alice")
+    patient = alice.patient("Uploads")
+    token = alice.device(patient["id"])["token"]
+    recording = (recordings_dir / "left_reach_50hz.csv").read_bytes()
+    stored = lambda: srv.sql("SELECT count(*) FROM sessions WHERE patient_id = :p",  # noqa: E731
+                             p=patient["id"])[0][0]
+    blocks = lambda: srv.sql("SELECT count(*) FROM sample_blocks")[0][0]  # noqa: E731
+
+    week_ago = datetime.now(UTC) - timedelta(days=7)
+    for data in (recording, dated(recording, week_ago)):  # recorded long ago: counts too
+        answer = kit_upload(srv, token, data)
+        assert answer.status_code == 202, answer.text
+
+    async def one_stream() -> dict:
+        ws, answer = await hello(srv, token)
+        if answer.get("type") == "ready":
+            await ws.send(json.dumps({"type": "bye"}))
+        await ws.close()
+        return answer
+
+    assert asyncio.run(one_stream())["type"] == "ready"  # the third new session
+    assert stored() == LIMIT
+    before = blocks()
+    refused = kit_upload(srv, token, recording)
+    print(f"\nupload {LIMIT + 1} of one kit in an hour: {refused.status_code} {refused.text}")
+    assert refused.status_code == 429, refused.text
+    assert "ARMTRACK_MAX_NEW_SESSIONS_PER_KIT_HOUR" in refused.json()["detail"]
+    assert f"= {LIMIT}" in refused.json()["detail"]
+    assert stored() == LIMIT and blocks() == before  # nothing stored in part
+    streamed = asyncio.run(one_stream())  # the kit's uploads count for its streams too
+    assert streamed.get("type") == "error" and "ARMTRACK_MAX_NEW_SESSIONS_PER_KIT_HOUR" \
+        in streamed["reason"], streamed
+    # the therapist's own upload for the patient is not the kit's
+    answer = alice.http.post("/api/recordings", data={"patient_id": patient["id"],
+                                                      "wait": "false"},
+                             files={"file": ("clinic.csv", recording)})
+    assert answer.status_code == 202, answer.text
+    # an hour later the kit may again
+    hour_ago = (datetime.now(UTC) - timedelta(hours=1, minutes=1)).strftime(
+        "%Y-%m-%d %H:%M:%S.%f")
+    srv.sql("UPDATE sessions SET started_at = :t WHERE patient_id = :p AND source = 'stream'",
+            t=hour_ago, p=patient["id"])
+    srv.sql("UPDATE sessions SET created_at = :t WHERE patient_id = :p", t=hour_ago,
+            p=patient["id"])
+    answer = kit_upload(srv, token, recording)
+    assert answer.status_code == 202, answer.text
+    assert stored() == LIMIT + 2

@@ -19,6 +19,7 @@ from .. import audit
 from ..auth import hash_token
 from ..commands.output import write_angles_csv
 from ..db import models
+from ..kit import new_sessions
 from ..services import Services
 from ..store.background import ProcessingFailed
 from ..store.coverage import plain_metadata, session_coverage
@@ -135,7 +136,9 @@ def upload_recording(db: Db, who: Annotated[models.Therapist | models.Device,
 
     Extension (docs/extensions/recordings-upload.md): vendor exports as ``files`` with a
     ``sensors`` map instead of ``file``; ``wait=false`` answers 202 once the session is
-    stored, its processing followed at ``Location`` (``/api/recordings/{id}/progress``)."""
+    stored, its processing followed at ``Location`` (``/api/recordings/{id}/progress``).
+    A kit's upload is one of its new sessions: past ``ARMTRACK_MAX_NEW_SESSIONS_PER_KIT_HOUR``
+    in the last hour, 429 naming the limit, nothing stored."""
     from . import imports  # vendor importers load only when used
 
     if (file is None) == (not files):
@@ -146,33 +149,44 @@ def upload_recording(db: Db, who: Annotated[models.Therapist | models.Device,
             raise HTTPException(status.HTTP_404_NOT_FOUND, f"no patient {patient_id}")
         patient = db.get(models.Patient, who.patient_id)
         device_id = who.id
+        # a kit's upload is one of its new sessions (ARMTRACK_MAX_NEW_SESSIONS_PER_KIT_HOUR):
+        # counted, then stored, one upload of the kit at a time
+        one_at_a_time = new_sessions.one_upload_at_a_time(device_id)
     else:
         if patient_id is None:
             raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
                                 "patient_id is required with a therapist's token")
         patient = own_patient(db, who, patient_id)
         device_id = None
+        one_at_a_time = contextlib.nullcontext()
     assert patient is not None
-    if file is not None:
+    with one_at_a_time:
+        if device_id is not None:
+            db.commit()  # nothing written yet: the count sees the kit's last upload
+            why = new_sessions.refusal(db, device_id, svc.settings.max_new_sessions_per_kit_hour)
+            if why is not None:
+                raise HTTPException(status.HTTP_429_TOO_MANY_REQUESTS, why)
+        if file is not None:
+            try:
+                recording = parse_recording(file.file.read())
+            except EstimatorError as exc:
+                raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                                    f"{file.filename or 'file'}: {exc}") from None
+        else:
+            if not sensors:
+                raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                                    "files need a sensors map (JSON: sensor → file name)")
+            recording = imports.import_upload(files, sensors, patient, format, calibration,
+                                              side, height_m, options,
+                                              svc.settings.max_upload_bytes)
         try:
-            recording = parse_recording(file.file.read())
-        except EstimatorError as exc:
+            session = add_recording(db, patient, recording, device_id)
+        except InvalidArgument as exc:
+            db.rollback()
+            name = file.filename if file is not None else "files"
             raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                                f"{file.filename or 'file'}: {exc}") from None
-    else:
-        if not sensors:
-            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                                "files need a sensors map (JSON: sensor → file name)")
-        recording = imports.import_upload(files, sensors, patient, format, calibration, side,
-                                          height_m, options, svc.settings.max_upload_bytes)
-    try:
-        session = add_recording(db, patient, recording, device_id)
-    except InvalidArgument as exc:
-        db.rollback()
-        name = file.filename if file is not None else "files"
-        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                            f"{name or 'file'}: {exc}") from None
-    db.commit()
+                                f"{name or 'file'}: {exc}") from None
+        db.commit()
     audit.note(patient_id=patient.id, session_id=session.id)
     # estimated where closed sessions are (store.background)
     job = imports.start_processing(svc, session.id)

@@ -129,7 +129,8 @@ class Session(Base):
     """
 
     __tablename__ = "sessions"
-    __table_args__ = never_reused()
+    __table_args__ = (Index("ix_sessions_device_created", "device_id", "created_at"),
+                      never_reused())
 
     id: Mapped[int] = mapped_column(primary_key=True)
     patient_id: Mapped[int] = mapped_column(
@@ -146,6 +147,9 @@ class Session(Base):
     meta: Mapped[dict[str, Any]] = mapped_column("metadata", JSON, default=dict)
     started_at: Mapped[datetime] = mapped_column(UtcDateTime, default=utcnow)
     ended_at: Mapped[datetime | None] = mapped_column(UtcDateTime)
+    #: when the server stored it (an upload's arrival, whatever the file says; a kit's
+    #: new sessions an hour are counted by it)
+    created_at: Mapped[datetime | None] = mapped_column(UtcDateTime, default=utcnow)
     samples: Mapped[int] = mapped_column(BigInteger, default=0)
     calibration: Mapped[dict[str, Any] | None] = mapped_column(JSON)
     estimator: Mapped[dict[str, Any] | None] = mapped_column(JSON)

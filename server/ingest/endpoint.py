@@ -25,7 +25,6 @@ import logging
 import secrets
 import time
 from collections import deque
-from datetime import timedelta
 from typing import Any
 
 from armtrack.estimator.arm.coverage import coverage, measured_angles
@@ -41,6 +40,7 @@ from starlette.websockets import WebSocketDisconnect, WebSocketState
 from .. import clock
 from ..auth import hash_token
 from ..db import models
+from ..kit import new_sessions
 from ..live.worker import LiveWorker
 from ..programs import stream as program_stream
 from ..programs.today import exercise_bands
@@ -375,23 +375,17 @@ class IngestConnection:
         assert patient is not None
         # one token, no flood of sessions (each one costs every later progress report):
         # refused before anything is stored; the kit keeps its data and tries again later
-        limit = self.settings.max_new_sessions_per_kit_hour
-        since = clock.now() - timedelta(hours=1)
-        started = db.scalar(select(func.count()).select_from(models.Session).where(
-            models.Session.device_id == self.device_id, models.Session.source == "stream",
-            models.Session.started_at > since))
-        if started >= limit:
-            raise Refused(f"hello: this kit started {started} new sessions in the last hour, "
-                          f"the most one kit may (ARMTRACK_MAX_NEW_SESSIONS_PER_KIT_HOUR = "
-                          f"{limit}): keep the data and try again later",
-                          close_code=protocol.CLOSE_TOO_MANY_ERRORS)
+        why = new_sessions.refusal(db, self.device_id,
+                                   self.settings.max_new_sessions_per_kit_hour)
+        if why is not None:
+            raise Refused(f"hello: {why}", close_code=protocol.CLOSE_TOO_MANY_ERRORS)
         session = models.Session(
             patient_id=patient.id, device_id=self.device_id, source="stream", status="live",
             side=hello.side, height_m=patient.height_m, rate_hz=hello.rate_hz,
             sensors={s: {"nine_axis": hello.nine_axis} for s in hello.sensors},
             meta={"device": hello.device, **coverage(hello.sensors),
                   **(hello.points.as_meta() if hello.points else {})},
-            started_at=clock.now())
+            started_at=(now := clock.now()), created_at=now)
         db.add(session)
         db.flush()
         db.add(models.Stream(id=stream_id, session_id=session.id, device_id=self.device_id,

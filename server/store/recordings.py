@@ -18,6 +18,7 @@ from armtrack.estimator.recording.points import POINT_NAMES, POINTS_HEADER_KEYS,
 from sqlalchemy import select
 from sqlalchemy.orm import Session as DbSession
 
+from .. import clock
 from ..db import models
 from ..ingest.points import POINT_PREFIX, frame_from_meta, frame_to_meta
 from .blocks import SAMPLE_COLUMNS, pack, unpack_many
@@ -91,7 +92,8 @@ def add_recording(db: DbSession, patient: models.Patient, recording: Recording,
         rate_hz=recording.rate_hz,
         sensors={n: {"nine_axis": s.nine_axis} for n, s in recording.sensors.items()},
         meta={**recording.metadata, **coverage(recording.sensors)},
-        samples=sum(len(s) for s in recording.sensors.values()))
+        samples=sum(len(s) for s in recording.sensors.values()),
+        created_at=clock.now())
     if start is not None:
         session.started_at = start
     if recording.points_frame is not None:  # docs/extensions/points.md
