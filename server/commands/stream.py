@@ -23,7 +23,9 @@ if TYPE_CHECKING:  # the estimator, the emulator (and websockets) load only when
 HELP = "play a recording to the server as a sensor kit (docs/spec/ingest.md)"
 DESCRIPTION = ("Connects to the ingest WebSocket with a device token and streams a recording "
                "(or a simulated exercise) paced by its clock, resuming after a lost "
-               "connection; prints progress to standard error and a summary at the end.")
+               "connection and waiting while the server refuses the kit for now (up to "
+               "--busy-retry seconds); prints progress to standard error and a summary at "
+               "the end.")
 
 #: Exit code when the server refuses the kit or cannot be reached (2 is bad input).
 EXIT_REFUSED = 1
@@ -53,6 +55,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="sample rows per message, 1 to 1000 (default 10)")
     parser.add_argument("--device", default="armtrack-emulator", metavar="NAME",
                         help="the device name sent in hello")
+    parser.add_argument("--busy-retry", type=float, default=60.0, metavar="SECONDS",
+                        help="how long to keep trying while the server refuses the kit for "
+                        "now (close 4429: too many new sessions this hour, streams open or "
+                        "refused messages), every 0.5 s doubling to 5 s; then give up "
+                        "(exit 1). Default %(default)g")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
     simulated = parser.add_argument_group("with --exercise")
     simulated.add_argument("--side", choices=("right", "left"), default="right")
@@ -117,14 +124,34 @@ def run(args: argparse.Namespace) -> int:
         raise InvalidArgument("give the device token with --token or $ARMTRACK_TOKEN")
     if not (args.speed >= 0) or math.isnan(args.speed):
         raise InvalidArgument(f"--speed must be >= 0, got {args.speed}")
-    from ..emulator import KitEmulator, KitError
+    if not (args.busy_retry >= 0) or math.isinf(args.busy_retry):
+        raise InvalidArgument(f"--busy-retry must be >= 0 seconds, got {args.busy_retry}")
+    from ..emulator import KitEmulator, KitError, KitRefused
+    from ..emulator.kit import CLOSE_BUSY
+
+    def busy(reason: str, wait_s: float, left_s: float) -> None:
+        # always said, --quiet or not: the user may want to stop and come back later
+        print(f"armtrack stream: the server refuses this kit for now: {reason}. Trying "
+              f"again in {wait_s:.1f} s (giving up in {left_s:.0f} s; --busy-retry)",
+              file=sys.stderr, flush=True)
 
     recording, what = _recording(args)
     kit = KitEmulator(recording, args.url, args.token, device=args.device,
-                      rows_per_message=args.rows_per_message, speed=args.speed)
+                      rows_per_message=args.rows_per_message, speed=args.speed,
+                      busy_retry_s=args.busy_retry, on_busy=busy)
     try:
         asyncio.run(_stream(kit, args.quiet))
-    except KitError as exc:  # KitRefused too: the message says what was refused
+    except KitRefused as exc:
+        if exc.code != CLOSE_BUSY:
+            print(f"armtrack stream: {exc}", file=sys.stderr)
+            return EXIT_REFUSED
+        s = kit.stats
+        stored = (f"{s.acked} of {s.total} messages acked are stored (session {s.session})"
+                  if s.acked else "Nothing of it was stored")
+        print(f"armtrack stream: gave up after {args.busy_retry:g} s: {exc}. {stored}; "
+              f"run the command again later, or with a longer --busy-retry", file=sys.stderr)
+        return EXIT_REFUSED
+    except KitError as exc:  # the message says what went wrong
         print(f"armtrack stream: {exc}", file=sys.stderr)
         return EXIT_REFUSED
     except KeyboardInterrupt:

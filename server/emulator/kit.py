@@ -36,12 +36,16 @@ FATAL_CLOSE_CODES: dict[int, str] = {
     4401: "the server refused the token",
     4400: "the server refused the protocol",
     1009: "the server refused a message as too big",
-    4429: "the server refused too many messages",
+    4429: "the server refuses this kit for now",
     1008: "the server closed the connection for a policy violation",
     1003: "the server refused the data",
 }
 
 _EXPECTED = re.compile(r"expected\s+(\d+)")
+
+#: The close code of a server that refuses the kit for now (too many new sessions this
+#: hour, streams open, refused messages): the kit waits and tries again (``busy_retry_s``).
+CLOSE_BUSY = 4429
 
 AckCallback = Callable[[int, KitStats], Awaitable[None] | None]
 
@@ -71,6 +75,10 @@ class KitEmulator:
     longest wait between reconnects [s] (doubling, with jitter). ack_timeout_s: how long
     [s] unacked messages may wait for any ``ack`` before the connection counts as dead.
     open_timeout_s: time [s] for the handshake and for ``ready``.
+    busy_retry_s: how long [s] it keeps trying while the server refuses the kit for now
+    (close 4429), waiting ``busy_backoff_s`` (first, longest; doubling, as the phone kit:
+    0.5 to 5 s) between tries; then it gives up (:class:`KitRefused`). on_busy: called as
+    ``on_busy(reason, wait_s, left_s)`` before each such wait.
     hello_extra: fields added to ``hello`` (extensions, e.g. ``{"extensions":
     ["programs/1"], "program": "Shoulder"}``); the last ``ready`` is kept in
     :attr:`ready`. ratings: ``effort_pain`` messages (``docs/extensions/effort-pain.md``)
@@ -89,7 +97,9 @@ class KitEmulator:
                  drop_after_seqs: Iterable[int] = (), max_retries: int = 8,
                  backoff_s: tuple[float, float] = (0.2, 5.0), ack_timeout_s: float = 15.0,
                  open_timeout_s: float = 10.0, hello_extra: dict[str, Any] | None = None,
-                 ratings: Iterable[dict[str, Any]] = ()):
+                 ratings: Iterable[dict[str, Any]] = (), busy_retry_s: float = 60.0,
+                 busy_backoff_s: tuple[float, float] = (0.5, 5.0),
+                 on_busy: Callable[[str, float, float], None] | None = None):
         if not (speed >= 0):
             raise InvalidArgument(f"speed must be >= 0 (0 or inf: as fast as possible), "
                                   f"got {speed}")
@@ -119,6 +129,11 @@ class KitEmulator:
         self.backoff_s = backoff_s
         self.ack_timeout_s = ack_timeout_s
         self.open_timeout_s = open_timeout_s
+        if not (busy_retry_s >= 0):
+            raise InvalidArgument(f"busy_retry_s must be >= 0 [s], got {busy_retry_s}")
+        self.busy_retry_s = busy_retry_s
+        self.busy_backoff_s = busy_backoff_s
+        self.on_busy = on_busy
         self.stats = KitStats(total=len(self.plan))
         self.outbox = Outbox(self.stats)
         self._t0 = self.plan.start_time  # the recording-clock time [s] of _wall0
@@ -148,8 +163,11 @@ class KitEmulator:
         """Stream the whole recording, reconnecting as needed; returns :attr:`stats`.
         Call it once per emulator."""
         failures = 0  # connections in a row that ended without any ack or refusal
+        busy_since: float | None = None  # the first of the refusals "for now" in a row
+        busy_tries = 0
         while True:
             handled = self.stats.acked + self.stats.refused
+            connections = self.stats.connections
             try:
                 await self._connection()
                 return self.stats
@@ -161,6 +179,22 @@ class KitEmulator:
                     raise KitError("the server keeps refusing messages as out of order: "
                                    f"{self.stats.errors[-1]['reason']}") from None
             except (ConnectionClosed, OSError, TimeoutError, InvalidHandshake) as exc:
+                if self.stats.connections > connections:  # let in meanwhile: a new spell
+                    busy_since, busy_tries = None, 0
+                if isinstance(exc, ConnectionClosed) and exc.rcvd is not None \
+                        and exc.rcvd.code == CLOSE_BUSY:
+                    now = time.monotonic()
+                    busy_since = now if busy_since is None else busy_since
+                    left = self.busy_retry_s - (now - busy_since)
+                    if left <= 0:
+                        self._raise_if_fatal(exc)  # KitRefused, with the server's words
+                    busy_tries += 1
+                    first, longest = self.busy_backoff_s
+                    delay = min(longest, first * 2 ** (busy_tries - 1), left)
+                    if self.on_busy is not None:
+                        self.on_busy(self._refusal_words(exc), delay, left)
+                    await asyncio.sleep(delay)
+                    continue
                 self._raise_if_fatal(exc)
                 failures = 0 if self.stats.acked + self.stats.refused > handled else failures + 1
                 if failures > self.max_retries:
@@ -338,14 +372,23 @@ class KitEmulator:
         if not isinstance(exc, ConnectionClosed) or exc.rcvd is None:
             return
         code, reason = exc.rcvd.code, exc.rcvd.reason
-        last = self.stats.errors[-1]["reason"] if self.stats.errors else ""
-        detail = reason or last
+        detail = self._refusal_words(exc)
         if code in FATAL_CLOSE_CODES:
             message = FATAL_CLOSE_CODES[code] + (f": {detail}" if detail else "")
             raise KitRefused(f"{message} (close code {code})", code, reason) from exc
         if code == 1000 and self._server_bye:
             raise KitRefused("the server ended the session (bye) before everything was "
                              "acked", code, reason) from exc
+
+
+    def _refusal_words(self, exc: ConnectionClosed) -> str:
+        """The server's words for a close: the ``error`` just before it (whole), else the
+        close reason (at most 123 bytes)."""
+        reason = exc.rcvd.reason if exc.rcvd is not None else ""
+        last = self.stats.errors[-1]["reason"] if self.stats.errors else ""
+        if last and (not reason or last.startswith(reason[:40])):
+            return last
+        return reason or last
 
 
 def _parse(raw: str | bytes) -> dict[str, Any]:

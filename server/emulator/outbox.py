@@ -21,8 +21,9 @@ class KitError(Exception):
 
 class KitRefused(KitError):
     """The server closed the connection for good: ``code`` is the WebSocket close code
-    (4401 bad token, 4400 protocol, 1009 too big, 4429 too many refusals, or the HTTP
-    status when the upgrade itself was refused), ``reason`` its text."""
+    (4401 bad token, 4400 protocol, 1009 too big, 4429 still refused for now after the
+    kit's ``busy_retry_s``, or the HTTP status when the upgrade itself was refused),
+    ``reason`` its text."""
 
     def __init__(self, message: str, code: int | None = None, reason: str = ""):
         super().__init__(message)
