@@ -17,6 +17,11 @@ sensors need:
   from the low-passed gyroscope and accelerometer; half a second of stillness from the
   first sample already gives a provisional one), slowly from the corrections in motion
   (from the heading's, after a rest, with a weight that grows back as the bias may drift);
+  until a rest, also by a Kalman step every ``mag_window`` from how the field turns in the
+  sensor frame and how the heading drifts, each weighed by its noise (the magnetometer's,
+  or the scatter the windows show in a room whose field varies) against the bias's own
+  covariance, so that the part of the bias a window barely sees (along the field, on a
+  sensor that hardly turns: a swaying trunk's) is not taken from its noise;
   optionally starting from a remembered bias (``gyr_bias_prior``: the kit's last learnt
   one), which the first stillness replaces and the corrections in motion refine.
 
@@ -72,11 +77,11 @@ class QcfParams:
     bias_max: float = 0.2
     #: Window over which the field's turning is summed for the bias [s] …
     mag_window: float = 2.0
-    #: … the time constant with which old windows are forgotten [s] …
-    tau_bias_mag: float = 60.0
-    #: … and the weight of the current bias against them [µT²·s²]. This estimator runs
-    #: only until a rest has taught the bias.
-    mag_bias_prior: float = 3e4
+    #: … the magnetometer's noise, per sample and axis [µT] …
+    mag_noise: float = 0.4
+    #: … and the random walk by which the bias may drift between windows [rad/s/√s].
+    #: This estimator runs only until a rest has taught the bias.
+    bias_walk: float = 2.5e-4
     #: Until a rest has taught the bias, a rest must also keep the low-passed specific
     #: force within this angle of its direction when the stillness began [rad]: a slow
     #: turn the loose ``rest_rate`` lets through (a trunk's sway) tilts it.
@@ -123,6 +128,11 @@ class QcfParams:
     #: random walk of ~2.5·10⁻⁴ rad/s/√s reaches the ~1.5 mrad/s by which a room's field
     #: errors move the bias (its direction varying by degrees) after (1.5e-3 / 2.5e-4)² s.
     mag_bias_half_time: float = 36.0
+    #: The spread of an unknown bias (a MEMS gyroscope's zero-rate offset) [rad/s].
+    bias_sigma: float = 0.01
+    #: The field-turning windows' scatter (a room's field varying as the sensor moves) is
+    #: the mean over this many of them.
+    mag_scatter_windows: float = 5.0
 
     def __post_init__(self) -> None:
         for name, value in self.__dict__.items():
@@ -136,10 +146,11 @@ class QcfParams:
                   self.mag_reaccept, self.max_dt, self.rest_min_samples, self.rest_guard,
                   self.tau_acc_rest, self.rest_rate, self.tau_bias_rest,
                   self.rest_rate_known, self.zupt_delay, self.mag_window,
-                  self.tau_bias_mag, self.mag_bias_prior, self.rest_tilt,
+                  self.bias_walk, self.mag_noise, self.rest_tilt,
                   self.rest_time_first, self.rest_guard_first, self.mag_confirm_turn,
                   self.rest_min_samples_first, self.mag_hold_weight, self.mag_restart,
-                  self.tau_rest_acc, self.mag_bias_half_time]
+                  self.tau_rest_acc, self.mag_bias_half_time, self.bias_sigma,
+                  self.mag_scatter_windows]
         assert len(values) == PARAM_SIZE
         return np.array(values, dtype=np.float64)
 
