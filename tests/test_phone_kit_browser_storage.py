@@ -555,8 +555,9 @@ def test_a_new_session_refused_at_the_kits_limit_is_kept_and_sent_later(limited_
         assert sessions() == 1
         hour_ago = (datetime.now(UTC) - timedelta(hours=1, minutes=1)).strftime(
             "%Y-%m-%d %H:%M:%S.%f")
-        server.sql("UPDATE sessions SET started_at = :t WHERE patient_id = :p", t=hour_ago,
-                   p=patient["id"])
+        # the kit's new sessions are counted by when they were stored (created_at)
+        server.sql("UPDATE sessions SET started_at = :t, created_at = :t "
+                   "WHERE patient_id = :p", t=hour_ago, p=patient["id"])
         _wait(lambda: phone.evaluate("kit.stream.connected && kit.stream.unsent === 0 "
                                      "&& kit.stream._unsaved.size === 0"), 60,
               "let in once the hour passed, everything sent")
