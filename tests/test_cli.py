@@ -218,3 +218,20 @@ def test_estimate_refuses_a_bad_bias_memory(tmp_path, content, message):
     assert "Traceback" not in result.stderr and not out.exists()
     result = run("estimate", rec, "--filter", "ekf", "--gyro-bias-out", memory, check=False)
     assert result.returncode == 2 and "needs a filter that learns a bias" in result.stderr
+
+
+def test_estimate_refuses_a_bias_memory_for_a_filter_that_cannot_take_one(tmp_path):
+    """--gyro-bias-in with a filter other than qcf is refused naming the option, whatever
+    the memory holds (an empty one, or only sensors the recording lacks, too), nothing
+    written: the user asked for a memory that would not be used."""
+    rec, memory, out = tmp_path / "r.csv", tmp_path / "kit.json", tmp_path / "angles.csv"
+    run("simulate", "--exercise", "elbow_flexion", "-o", rec)
+    for sensors in ("{}", '{"trunk": {"bias_rad_s": [0.001, 0, 0], "learnt": "rest", '
+                    '"still_s": 2, "age_s": 5}}', '{"forearm": {"bias_rad_s": [0.001, 0, 0], '
+                    '"learnt": "rest", "still_s": 2, "age_s": 5}}'):
+        memory.write_text('{"format": "armtrack-gyro-bias/1", "sensors": %s}' % sensors)
+        result = run("estimate", rec, "-o", out, "--filter", "ekf", "--gyro-bias-in", memory,
+                     check=False)
+        assert result.returncode == 2, (sensors, result.stderr)
+        assert "--gyro-bias-in" in result.stderr and "qcf" in result.stderr, result.stderr
+        assert "Traceback" not in result.stderr and not out.exists()

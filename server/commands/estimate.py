@@ -51,10 +51,14 @@ def run(args: argparse.Namespace) -> int:
     from armtrack.estimator.pipeline.quality import residual_warnings
     from armtrack.estimator.recording import read_recording
 
-    memory = read_bias_memory(args.gyro_bias_in) if args.gyro_bias_in else {}
+    if args.gyro_bias_in and args.filter not in BIAS_PRIOR_FILTERS:
+        raise InvalidArgument(f"--gyro-bias-in needs a filter that starts from a remembered "
+                              f"bias: {', '.join(sorted(BIAS_PRIOR_FILTERS))} (got --filter "
+                              f"{args.filter})")
     if args.gyro_bias_out and args.filter not in BIAS_PRIOR_FILTERS:
         raise InvalidArgument(f"--gyro-bias-out needs a filter that learns a bias: "
                               f"{', '.join(sorted(BIAS_PRIOR_FILTERS))}")
+    memory = read_bias_memory(args.gyro_bias_in) if args.gyro_bias_in else {}
     recording = read_recording(args.recording)
     pipeline = run_recording(recording, args.filter, priors(memory) if memory else None)
     estimates, calibration = pipeline.finish(), pipeline.calibration
