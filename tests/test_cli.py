@@ -229,7 +229,7 @@ def test_estimate_refuses_a_bias_memory_for_a_filter_that_cannot_take_one(tmp_pa
     for sensors in ("{}", '{"trunk": {"bias_rad_s": [0.001, 0, 0], "learnt": "rest", '
                     '"still_s": 2, "age_s": 5}}', '{"forearm": {"bias_rad_s": [0.001, 0, 0], '
                     '"learnt": "rest", "still_s": 2, "age_s": 5}}'):
-        memory.write_text('{"format": "armtrack-gyro-bias/1", "sensors": %s}' % sensors)
+        memory.write_text(f'{{"format": "armtrack-gyro-bias/1", "sensors": {sensors}}}')
         result = run("estimate", rec, "-o", out, "--filter", "ekf", "--gyro-bias-in", memory,
                      check=False)
         assert result.returncode == 2, (sensors, result.stderr)
