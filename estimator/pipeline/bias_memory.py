@@ -1,7 +1,8 @@
 """A kit's memory of its sensors' gyroscope biases (``docs/gyro-bias-memory.md``).
 
-A kit is used day after day with the same sensors, and a MEMS gyroscope's bias changes
-slowly between days (~1 mrad/s), while a session that never rests (a sensor on foam or
+A kit is used day after day with the same sensors, and a MEMS gyroscope's bias may change
+little between sessions (0.6 mrad/s between RING's trials, minutes apart; between days and
+with temperature it can move by more), while a session that never rests (a sensor on foam or
 skin wobbling from its first sample, a swaying trunk) cannot learn the bias about the
 vertical at all. So each session starts its filters from the bias each sensor last
 learnt (a prior: the first stillness replaces it, the corrections in motion refine it),
