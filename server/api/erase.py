@@ -56,6 +56,8 @@ def erase_patient(db: DbSession, patient_id: int) -> None:
     db.execute(delete(models.Program).where(models.Program.patient_id == patient_id))
     db.execute(delete(models.PatientTargetVersion)
                .where(models.PatientTargetVersion.patient_id == patient_id))
+    db.execute(delete(models.KitGyroBias).where(models.KitGyroBias.device_id.in_(
+        select(models.Device.id).where(models.Device.patient_id == patient_id))))
     db.execute(delete(models.Device).where(models.Device.patient_id == patient_id))
     db.execute(delete(models.Patient).where(models.Patient.id == patient_id))
     db.commit()

@@ -12,6 +12,7 @@ from ..auth import new_token
 from ..db import models
 from ..kit.link import kit_url, qr_svg_data_uri, secure_enough
 from ..services import Services
+from ..store.gyro_bias import forget_kit
 from .deps import Db, Page, Therapist, own_device, own_patient, services
 from .erase import erase_patient
 from .schemas import (
@@ -151,5 +152,6 @@ def _revoke(db, therapist, device_id: int) -> None:
     device = own_device(db, therapist, device_id)
     if device.revoked_at is None:
         device.revoked_at = datetime.now(UTC)
+        forget_kit(db, device.id)  # its sensors' biases go with it (docs/gyro-bias-memory.md)
         db.commit()
 

@@ -75,6 +75,7 @@ def _setup(services) -> tuple[str, int, str]:
 
     from armtrack.server.auth import hash_password, new_token
     from armtrack.server.db import models
+    from armtrack.server.store.gyro_bias import forget_kit
     from sqlalchemy import select
 
     password = secrets.token_urlsafe(9)
@@ -96,6 +97,7 @@ def _setup(services) -> tuple[str, int, str]:
         for old in db.scalars(select(models.Device).where(
                 models.Device.patient_id == patient.id, models.Device.revoked_at.is_(None))):
             old.revoked_at = datetime.now(UTC)
+            forget_kit(db, old.id)
         token, digest = new_token("dev_")
         db.add(models.Device(patient_id=patient.id, name="demo kit", token_hash=digest))
         return password, patient.id, token

@@ -155,9 +155,35 @@ class Session(Base):
     estimator: Mapped[dict[str, Any] | None] = mapped_column(JSON)
     estimate_columns: Mapped[list[Any] | None] = mapped_column(JSON)
     processing_error: Mapped[str | None] = mapped_column(String(2000))
+    #: the kit's remembered gyroscope biases the session's filters start from, as they
+    #: were when it began (docs/gyro-bias-memory.md's JSON); None: none remembered
+    gyro_bias_prior: Mapped[dict[str, Any] | None] = mapped_column(JSON)
 
     streams: Mapped[list[Stream]] = relationship(back_populates="session",
                                                  cascade="all, delete-orphan")
+
+
+class KitGyroBias(Base):
+    """A kit's memory of one sensor's gyroscope bias (docs/gyro-bias-memory.md): the last
+    one stillness taught, learnt in session ``session_id`` (begun ``session_started_at``:
+    an older session processed later never replaces it). Forgotten when the kit is
+    removed (a new kit, re-paired, starts with none)."""
+
+    __tablename__ = "kit_gyro_biases"
+
+    device_id: Mapped[int] = mapped_column(
+        ForeignKey("devices.id", ondelete="CASCADE"), primary_key=True)
+    sensor: Mapped[str] = mapped_column(String(12), primary_key=True)
+    bias_x: Mapped[float] = mapped_column(Float)
+    bias_y: Mapped[float] = mapped_column(Float)
+    bias_z: Mapped[float] = mapped_column(Float)
+    learnt: Mapped[str] = mapped_column(String(12))
+    still_s: Mapped[float] = mapped_column(Float)
+    age_s: Mapped[float] = mapped_column(Float)
+    session_id: Mapped[int | None] = mapped_column(
+        ForeignKey("sessions.id", ondelete="SET NULL"))
+    session_started_at: Mapped[datetime] = mapped_column(UtcDateTime)
+    updated_at: Mapped[datetime] = mapped_column(UtcDateTime, default=utcnow)
 
 
 class Stream(Base):

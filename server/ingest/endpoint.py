@@ -45,6 +45,7 @@ from ..live.worker import LiveWorker
 from ..programs import stream as program_stream
 from ..programs.today import exercise_bands
 from ..services import Services
+from ..store.gyro_bias import session_prior, session_priors_by_id
 from ..store.processing import mark_closed
 from . import protocol
 from .feedback import FEEDBACK_EXTENSION, Band, FeedbackRunner, FeedbackTracker
@@ -317,6 +318,8 @@ class IngestConnection:
         if parked is not None:
             self.worker = parked.worker
         else:
+            # the kit's remembered gyroscope biases, as the session keeps them
+            priors = await services.run_db(session_priors_by_id, session_id)
             try:
                 config = PipelineConfig(side=hello.side,
                                         lengths=SegmentLengths.from_height(height),
@@ -325,7 +328,8 @@ class IngestConnection:
                     config, patient_id=self.patient_id, session_id=session_id,
                     hub=services.hub, batcher=services.live,
                     max_rate_hz=self.settings.live_poses_hz,
-                    points_frame=hello.points.frame if hello.points else None)
+                    points_frame=hello.points.frame if hello.points else None,
+                    gyr_bias_priors=priors)
             except EstimatorError as exc:  # the data are still stored; only live view is off
                 log.warning("no live estimates for session %s: %s", session_id, exc)
         if hello.extensions:  # docs/extensions/README.md: those this server speaks
@@ -385,7 +389,8 @@ class IngestConnection:
             sensors={s: {"nine_axis": hello.nine_axis} for s in hello.sensors},
             meta={"device": hello.device, **coverage(hello.sensors),
                   **(hello.points.as_meta() if hello.points else {})},
-            started_at=(now := clock.now()), created_at=now)
+            started_at=(now := clock.now()), created_at=now,
+            gyro_bias_prior=session_prior(db, self.device_id))
         db.add(session)
         db.flush()
         db.add(models.Stream(id=stream_id, session_id=session.id, device_id=self.device_id,

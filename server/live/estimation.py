@@ -26,7 +26,7 @@ import pickle
 import struct
 import traceback
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
@@ -58,6 +58,9 @@ class Opening:
     max_rate_hz: float
     #: the stream's wrist points' frame (docs/extensions/points.md), or None
     points_frame: PointsFrame | None = None
+    #: the kit's remembered gyroscope biases the filters start from (sensor → [rad/s],
+    #: docs/gyro-bias-memory.md), or None
+    gyr_bias_priors: Mapping[str, tuple[float, float, float]] | None = None
 
 
 @dataclass(frozen=True)
@@ -111,7 +114,8 @@ def run_jobs(estimators: dict[int, LiveEstimator], jobs: Sequence[Job],
         try:
             if opening is not None:
                 estimators[key] = LiveEstimator(opening.config, opening.session_id,
-                                                opening.max_rate_hz, opening.points_frame)
+                                                opening.max_rate_hz, opening.points_frame,
+                                                opening.gyr_bias_priors)
             estimator = estimators.get(key)
             if estimator is None:
                 outcome = LiveFailure("the live estimation process stopped (a new one "

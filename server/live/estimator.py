@@ -5,6 +5,7 @@ wherever ``estimation`` puts it (the live estimation process, or a thread)."""
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping
 
 import numpy as np
 from armtrack.estimator.arm.forward import POINTS
@@ -146,8 +147,10 @@ class LiveEstimator:
     ``Pipeline``, running range of motion, and the sensors left out for silence."""
 
     def __init__(self, config: PipelineConfig, session_id: int, max_rate_hz: float,
-                 points_frame: PointsFrame | None = None):
-        self.pipeline = Pipeline(config, points_frame=points_frame)
+                 points_frame: PointsFrame | None = None,
+                 gyr_bias_priors: Mapping[str, tuple[float, float, float]] | None = None):
+        self.pipeline = Pipeline(config, points_frame=points_frame,
+                                 gyr_bias_priors=gyr_bias_priors)
         self.session_id = session_id
         self._min_interval = 1.0 / max_rate_hz
         self._pose_end = -np.inf

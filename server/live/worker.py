@@ -121,14 +121,16 @@ class LiveWorker:
 
     def __init__(self, config: PipelineConfig, *, patient_id: int, session_id: int,
                  hub: LiveHub, batcher: LiveBatcher, max_rate_hz: float,
-                 points_frame: PointsFrame | None = None):
+                 points_frame: PointsFrame | None = None,
+                 gyr_bias_priors: Mapping[str, tuple[float, float, float]] | None = None):
         self.patient_id = patient_id
         self.session_id = session_id
         self.key = batcher.new_key()
         self._hub = hub
         self._batcher = batcher
         #: what makes the estimator; sent with the first batch, then None
-        self._opening: Opening | None = Opening(config, session_id, max_rate_hz, points_frame)
+        self._opening: Opening | None = Opening(config, session_id, max_rate_hz, points_frame,
+                                                gyr_bias_priors)
         self._pending: list[Samples | MarkMessage] = []
         self._fed_seq = -1  # the highest seq fed: a resumed stream sends some again
         self._received = 0.0  # monotonic time the newest pending message arrived

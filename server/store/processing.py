@@ -1,6 +1,7 @@
 """Batch processing of a stored session: its recording through the estimator, the
 estimates stored as blocks with the estimator version and settings they came from.
-The same numbers as ``armtrack estimate`` on the session's exported recording."""
+The same numbers as ``armtrack estimate`` on the session's exported recording (with
+``--gyro-bias-in`` of the session's ``estimator.gyro_bias_prior``, when it has one)."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import numpy as np
 from armtrack.estimator.arm.joints import SEGMENTS
 from armtrack.estimator.errors import EstimatorError
 from armtrack.estimator.metrics.assumptions import assumption_warnings
-from armtrack.estimator.orientation import DEFAULT_FILTER
+from armtrack.estimator.orientation import BIAS_PRIOR_FILTERS, DEFAULT_FILTER
 from armtrack.estimator.pipeline import Calibration, Estimates, run_recording
 from armtrack.estimator.pipeline.quality import residual_warnings
 from armtrack.estimator.recording import Recording
@@ -26,6 +27,7 @@ from .. import clock
 from ..commands.estimate import CALIBRATION_TAIL_S
 from ..db import models
 from .blocks import pack, unpack_many
+from .gyro_bias import remember_session, session_priors
 from .recordings import session_recording
 
 #: Estimates per stored block.
@@ -68,10 +70,11 @@ def process_session(db: DbSession, session_id: int, filter_name: str = DEFAULT_F
     session = db.get(models.Session, session_id)
     if session is None:
         return
+    priors = session_priors(session) if filter_name in BIAS_PRIOR_FILTERS else None
     try:
         recording = session_recording(db, session)
-        calibration, columns, blocks, warnings, elbow = compute(
-            _estimated_blocks, recording, filter_name, session_id)
+        calibration, columns, blocks, warnings, elbow, learnt = compute(
+            _estimated_blocks, recording, filter_name, session_id, priors)
     except EstimatorError as exc:
         db.execute(delete(models.EstimateBlock)
                    .where(models.EstimateBlock.session_id == session_id))
@@ -94,9 +97,12 @@ def process_session(db: DbSession, session_id: int, filter_name: str = DEFAULT_F
         "warnings": warnings,
     }
     session.estimator = {"version": estimator_version(), "filter": filter_name,
-                         **({"elbow": elbow} if elbow else {})}
+                         **({"elbow": elbow} if elbow else {}),
+                         **({"gyro_bias_prior": session.gyro_bias_prior} if priors else {})}
     session.estimate_columns = columns
     session.processing_error = None
+    # the biases its stillness taught: the kit's next session starts from them
+    remember_session(db, session, learnt)
     db.commit()
 
 
@@ -113,12 +119,15 @@ def record_mismatch_warnings(recording: Recording, patient: models.Patient) -> l
             "correct the record."]
 
 
-def _estimated_blocks(recording: Recording, filter_name: str, session_id: int
-                      ) -> tuple[Calibration, list[str], list[dict], list[str], dict | None]:
-    """The CPU work of ``process_session``: the estimates of ``recording`` as the
-    estimate table's columns and packed blocks, with the calibration and its warnings,
-    and (a session with wrist points) what made its elbow (:func:`elbow_source`)."""
-    pipeline = run_recording(recording, filter_name)
+def _estimated_blocks(recording: Recording, filter_name: str, session_id: int,
+                      priors: dict | None = None
+                      ) -> tuple[Calibration, list[str], list[dict], list[str], dict | None,
+                                 dict]:
+    """The CPU work of ``process_session``: the estimates of ``recording`` (its filters
+    started from the gyroscope bias ``priors``) as the estimate table's columns and packed
+    blocks, with the calibration and its warnings, (a session with wrist points) what
+    made its elbow (:func:`elbow_source`), and the filters' learnt gyroscope biases."""
+    pipeline = run_recording(recording, filter_name, priors)
     estimates, calibration = pipeline.finish(), pipeline.calibration
     assert calibration is not None
     columns, values = estimate_table(estimates)
@@ -131,7 +140,8 @@ def _estimated_blocks(recording: Recording, filter_name: str, session_id: int
     warnings += assumption_warnings(estimates.t, estimates.residuals,
                                     tuple(recording.sensors),
                                     calibration.final_time_s + CALIBRATION_TAIL_S)
-    return calibration, columns, blocks, warnings, elbow_source(pipeline)
+    return (calibration, columns, blocks, warnings, elbow_source(pipeline),
+            pipeline.learnt_biases())
 
 
 def elbow_source(pipeline) -> dict[str, Any] | None:

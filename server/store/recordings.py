@@ -22,6 +22,7 @@ from .. import clock
 from ..db import models
 from ..ingest.points import POINT_PREFIX, frame_from_meta, frame_to_meta
 from .blocks import SAMPLE_COLUMNS, pack, unpack_many
+from .gyro_bias import session_prior
 
 #: Mark labels that delimit calibration poses (they become the ``calibration`` header).
 POSE_LABELS = frozenset({"npose", "end:npose", "tpose", "end:tpose"})
@@ -93,7 +94,9 @@ def add_recording(db: DbSession, patient: models.Patient, recording: Recording,
         sensors={n: {"nine_axis": s.nine_axis} for n, s in recording.sensors.items()},
         meta={**recording.metadata, **coverage(recording.sensors)},
         samples=sum(len(s) for s in recording.sensors.values()),
-        created_at=clock.now())
+        created_at=clock.now(),
+        # a kit's own upload (recorded offline) starts from the kit's memory too
+        gyro_bias_prior=session_prior(db, device_id))
     if start is not None:
         session.started_at = start
     if recording.points_frame is not None:  # docs/extensions/points.md
