@@ -1,8 +1,9 @@
 """A kit remembers its sensors' gyroscope biases on the server (docs/gyro-bias-memory.md),
 on a real server process with a real WebSocket kit, on SQLite and PostgreSQL: the second
 session of a kit starts from the biases the first one's stillness taught (its live
-estimates and its stored ones), a session that was never still leaves the memory as it
-was, and a removed kit's memory is forgotten (its replacement starts with none)."""
+estimates, its stored ones, and a recording the kit uploads), a session that was never
+still leaves the memory as it was, and a removed kit's memory is forgotten (its
+replacement starts with none)."""
 
 import asyncio
 import io
@@ -11,6 +12,7 @@ import threading
 import time
 from dataclasses import replace
 
+import httpx
 import numpy as np
 import pytest
 from armtrack.estimator.arm import REPORTED_ANGLES
@@ -210,6 +212,19 @@ def test_the_second_session_of_a_kit_starts_from_the_first_ones_biases(module_se
     after = server.sql("SELECT sensor, session_id FROM kit_gyro_biases WHERE device_id = :d",
                        d=kit["id"])
     assert {r[1] for r in after} == {first["id"]}
+
+    # a recording the kit made offline and uploads with its token starts from it too
+    answer = httpx.post(f"{server.url}/api/recordings", timeout=120,
+                        headers={"Authorization": f"Bearer {kit['token']}"},
+                        files={"file": ("offline.csv", alice.http.get(
+                            f"/api/sessions/{second['id']}/recording.csv").content)})
+    assert answer.status_code in (200, 201), answer.text
+    uploaded = alice.wait_processed(answer.json()["id"])
+    assert prior_of(uploaded) is not None
+    for sensor, value in prior_of(uploaded).items():
+        np.testing.assert_allclose(value, learnt[sensor].bias, atol=1e-12)
+    np.testing.assert_allclose(stored_angles(alice, uploaded["id"])["forearm_pronation"],
+                               np.rad2deg(warm.angles["forearm_pronation"]), atol=1e-3)
 
     # the kit is removed and a new one paired: the old memory is forgotten, none carried
     assert alice.http.delete(f"/api/devices/{kit['id']}").status_code == 204
