@@ -5,6 +5,7 @@ database."""
 
 from __future__ import annotations
 
+import asyncio
 import json
 import os
 import signal
@@ -24,6 +25,34 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+async def send_paced(ws, plan, speed: float, *, first: int = 0,
+                     stop_at_s: float | None = None, now_at_s: float | None = None,
+                     hold_at_s: float | None = None, until=None,
+                     hold_limit_s: float = 120.0) -> int:
+    """Send ``plan``'s messages (a ``MessagePlan``) from ``first`` on ``ws``, each when
+    its recording time comes at ``speed`` times real time; returns the seq it stopped at
+    (``len(plan)``: all sent). ``now_at_s``: the recording time [s] it is now (older
+    messages go at once, a backlog; default: the first message's). ``stop_at_s``: stop
+    before the first message at or after it [s]. ``hold_at_s`` with ``until``: before
+    the first message at or after it [s], wait (at most ``hold_limit_s``) until
+    ``until()`` is true — the live estimation may start slowly on a busy machine, so an
+    exercise begins once the first feedback is in — and pace from there."""
+    start, origin = time.monotonic(), plan.times[first] if now_at_s is None else now_at_s
+    for seq in range(first, len(plan)):
+        if stop_at_s is not None and plan.times[seq] >= stop_at_s:
+            return seq
+        if (hold_at_s is not None and seq > first
+                and plan.times[seq] >= hold_at_s > plan.times[seq - 1]):
+            deadline = time.monotonic() + hold_limit_s
+            while not until() and time.monotonic() < deadline:
+                await asyncio.sleep(0.1)
+            start, origin = time.monotonic(), plan.times[seq]
+        await asyncio.sleep(max(0.0, start + (plan.times[seq] - origin) / speed
+                                - time.monotonic()))
+        await ws.send(plan.encode(seq))
+    return len(plan)
 
 
 def armtrack(*args: str, **kwargs) -> subprocess.CompletedProcess:

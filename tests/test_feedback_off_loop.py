@@ -20,7 +20,7 @@ import time
 
 import pytest
 from armtrack.server.emulator import MessagePlan, hello_message
-from server_support import PASSWORD, Api, armtrack, free_port
+from server_support import PASSWORD, Api, armtrack, free_port, send_paced
 from test_feedback_resume import _simulation
 from websockets.asyncio.client import connect
 
@@ -128,17 +128,8 @@ def test_feedback_recounts_run_off_the_event_loop(server, monkeypatch):
             ready = json.loads(await ws.recv())
             assert ready["type"] == "ready" and ready["extensions"] == ["feedback/1"]
             task = asyncio.create_task(reader(ws, i))
-            start, origin = time.monotonic(), plan.times[0]
-            for seq in range(len(plan)):
-                if seq and plan.times[seq] >= MARK_S - 0.1 > plan.times[seq - 1]:
-                    for _ in range(1200):  # the live estimation may start slowly
-                        if feedback[i]:
-                            break
-                        await asyncio.sleep(0.1)
-                    start, origin = time.monotonic(), plan.times[seq]
-                await asyncio.sleep(max(0.0, start + (plan.times[seq] - origin) / SPEED
-                                        - time.monotonic()))
-                await ws.send(plan.encode(seq))
+            await send_paced(ws, plan, SPEED, hold_at_s=MARK_S - 0.1,
+                             until=lambda: bool(feedback[i]))
             await asyncio.sleep(2.0)  # the live side catches up with the end
             await ws.send(json.dumps({"type": "bye"}))
             await asyncio.wait_for(task, 60)

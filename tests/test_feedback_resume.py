@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import asyncio
 import json
-import time
 from dataclasses import replace
 
 import pytest
@@ -20,7 +19,7 @@ from armtrack.estimator.arm.joints import REPORTED_ANGLES
 from armtrack.estimator.recording import Mark
 from armtrack.estimator.simulation import ImuErrors, SimulationConfig, simulate
 from armtrack.server.emulator import MessagePlan, hello_message
-from server_support import server_fixture
+from server_support import send_paced, server_fixture
 from websockets.asyncio.client import connect
 
 SPEED = 2.0
@@ -80,25 +79,9 @@ def test_repetitions_go_on_across_a_resumed_stream(server, outage_s):
             if message["type"] == "feedback":
                 feedback.append((connection, message))
 
-    async def send_paced(ws, first: int, stop_at_s: float | None,
-                         now_at_s: float | None = None) -> int:
-        # now_at_s: the recording time it is now (what is older goes at once)
-        start, origin = time.monotonic(), plan.times[first] if now_at_s is None else now_at_s
-        for seq in range(first, len(plan)):
-            if stop_at_s is not None and plan.times[seq] >= stop_at_s:
-                return seq
-            if seq > first and plan.times[seq] >= 10.4 > plan.times[seq - 1]:
-                # the live estimation may start slowly on a busy machine: the exercise
-                # begins once the first feedback is in
-                for _ in range(1200):
-                    if feedback:
-                        break
-                    await asyncio.sleep(0.1)
-                start, origin = time.monotonic(), plan.times[seq]
-            await asyncio.sleep(max(0.0, start + (plan.times[seq] - origin) / SPEED
-                                    - time.monotonic()))
-            await ws.send(plan.encode(seq))
-        return len(plan)
+    def paced(ws, first: int, stop_at_s: float | None, now_at_s: float | None = None):
+        return send_paced(ws, plan, SPEED, first=first, stop_at_s=stop_at_s,
+                          now_at_s=now_at_s, hold_at_s=10.4, until=lambda: bool(feedback))
 
     async def run():
         hello = {**hello_message(recording, "phone"), "extensions": ["feedback/1"]}
@@ -106,7 +89,7 @@ def test_repetitions_go_on_across_a_resumed_stream(server, outage_s):
         await ws.send(json.dumps(hello))
         ready = json.loads(await ws.recv())
         task = asyncio.create_task(reader(ws, 0))
-        await send_paced(ws, 0, CUT_AT_S)
+        await paced(ws, 0, CUT_AT_S)
         ws.transport.abort()  # the network goes: no close frame
         task.cancel()
         await asyncio.sleep(0.3 + outage_s / SPEED)
@@ -115,7 +98,7 @@ def test_repetitions_go_on_across_a_resumed_stream(server, outage_s):
             again = json.loads(await ws2.recv())
             assert again["type"] == "ready" and again["session"] == ready["session"]
             task2 = asyncio.create_task(reader(ws2, 1))
-            await send_paced(ws2, again["next_seq"], None, CUT_AT_S + outage_s)
+            await paced(ws2, again["next_seq"], None, CUT_AT_S + outage_s)
             await asyncio.sleep(1.5)
             await ws2.send(json.dumps({"type": "bye"}))
             await asyncio.wait_for(task2, 30)

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import asyncio
 import json
-import time
 from dataclasses import replace
 
 import pytest
@@ -23,7 +22,7 @@ from armtrack.estimator.recording import Mark
 from armtrack.estimator.simulation import ImuErrors, SimulationConfig, simulate
 from armtrack.server.emulator import MessagePlan, hello_message
 from armtrack.server.programs.catalogue import CATALOGUE
-from server_support import server_fixture
+from server_support import send_paced, server_fixture
 from websockets.asyncio.client import connect
 
 SPEED = 2.0
@@ -75,17 +74,8 @@ def test_the_kit_the_live_page_and_the_report_give_one_count(server, exercise, t
             await ws.send(json.dumps(hello))
             ready = json.loads(await ws.recv())
             task = asyncio.create_task(reader(ws))
-            start, origin = time.monotonic(), plan.times[0]
-            for seq in range(len(plan)):
-                if seq and plan.times[seq] >= MARK_S - 0.1 > plan.times[seq - 1]:
-                    for _ in range(1200):  # the live estimation may start slowly
-                        if feedback:
-                            break
-                        await asyncio.sleep(0.1)
-                    start, origin = time.monotonic(), plan.times[seq]
-                await asyncio.sleep(max(0.0, start + (plan.times[seq] - origin) / SPEED
-                                        - time.monotonic()))
-                await ws.send(plan.encode(seq))
+            await send_paced(ws, plan, SPEED, hold_at_s=MARK_S - 0.1,
+                             until=lambda: bool(feedback))
             for _ in range(60):  # the live side catches up with the end of the stream
                 await asyncio.sleep(0.25)
                 live = await asyncio.to_thread(
