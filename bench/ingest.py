@@ -542,7 +542,7 @@ def start_server(data_dir: Path, port: int, cpu: int | None, env_extra: dict[str
          "--data-dir", str(data_dir)], stdout=log, stderr=subprocess.STDOUT, env=env,
         preexec_fn=(lambda: pin(cpu)) if cpu is not None else None)
     log.close()
-    deadline = time.monotonic() + 60
+    deadline = time.monotonic() + 180  # on a loaded machine its start took over 60 s
     while time.monotonic() < deadline:
         if process.poll() is not None:
             raise RuntimeError("server exited: "

@@ -47,14 +47,20 @@ def test_20_live_viewers_do_not_slow_ingestion_by_more_than_10_percent(tmp_path)
     """Two patients stream in real time all along; in alternating rounds (0, 20, 20, 0, 0,
     20, 20, 0 viewers) 20 /ws/live viewers watch them (10 each, ~10 poses/s each), or none,
     while a third kit streams 36 elbow flexions (~180,000 rows, 1–2 s) as fast as it can,
-    each round once the last one's session is processed. The best rate with viewers is at
-    least 90 % of the best without (best of four each: the machine's other work only slows
-    a round down)."""
+    each round once the last one's session is processed. With viewers the server ingests
+    at least 90 % of the rows per CPU second it does without (over the four rounds of
+    each; ``soak.viewer_cost_ratio``: the wall-clock rate is the test client's, which
+    runs the kit and the 20 viewers, not the server's)."""
     runs, ratio = soak.viewer_overhead(live=2, viewers=20, rounds=4, repetitions=36,
                                        workdir=tmp_path)
     for r in runs:
-        print(f"viewers {r.viewers:2d}: {r.rows_per_s:9,.0f} rows/s "
-              f"({r.poses_seen} poses viewed)")
-    print(f"best with / best without: {ratio:.3f}")
+        print(f"viewers {r.viewers:2d}: {r.rows_per_s:9,.0f} rows/s, "
+              f"{r.rows_per_cpu_s:9,.0f} rows per server CPU s ({r.server_cpu_s:.2f} s in "
+              f"{r.seconds:.2f} s, the client {r.client_cpu_s:.2f} CPU s; {r.poses_seen} "
+              f"poses viewed)")
+    wall = (max(r.rows_per_s for r in runs if r.viewers)
+            / max(r.rows_per_s for r in runs if not r.viewers))
+    print(f"rows per server CPU s with viewers / without: {ratio:.3f} (the client's wall "
+          f"rate, best with / best without: {wall:.3f})")
     assert all(r.poses_seen > 0 for r in runs if r.viewers)
     assert ratio >= 0.90
