@@ -18,7 +18,7 @@ from armtrack.estimator.pipeline.bias_memory import (
     memory_to_json,
     priors,
 )
-from sqlalchemy import delete, select
+from sqlalchemy import delete, select, update
 from sqlalchemy.orm import Session as DbSession
 
 from .. import clock
@@ -64,27 +64,39 @@ def remember_session(db: DbSession, session: models.Session,
                      learnt: dict[str, LearntGyroBias]) -> None:
     """The biases the session's stillness taught replace the kit's memory of those sensors,
     unless a later session of the kit taught one already (not committed). Sessions without
-    a kit (uploads), a removed kit and untaught biases change nothing."""
+    a kit (uploads), a removed kit and untaught biases change nothing. Safe beside another
+    session of the kit remembered at once (another instance, ``armtrack reprocess``): each
+    sensor's row is created if missing (nothing if it exists) and then replaced in one
+    statement only where it was begun no later, so no commit fails and the later-begun
+    session's bias stays whichever commits last."""
     if session.device_id is None or not learnt:
         return
     device = db.get(models.Device, session.device_id)
     if device is None or device.revoked_at is not None:
         return
-    rows = {row.sensor: row for row in db.scalars(
-        select(models.KitGyroBias).where(models.KitGyroBias.device_id == device.id))}
+    table = models.KitGyroBias.__table__
+    insert = _insert_ignoring_existing(db)
     for sensor, value in learnt.items():
         if not value.remembered:
             continue
-        row = rows.get(sensor)
-        if row is not None and row.session_started_at > session.started_at:
-            continue
-        if row is None:
-            row = models.KitGyroBias(device_id=device.id, sensor=sensor)
-            db.add(row)
-        row.bias_x, row.bias_y, row.bias_z = value.bias
-        row.learnt, row.still_s, row.age_s = value.learnt, value.still_s, value.age_s
-        row.session_id, row.session_started_at = session.id, session.started_at
-        row.updated_at = clock.now()
+        values = dict(bias_x=value.bias[0], bias_y=value.bias[1], bias_z=value.bias[2],
+                      learnt=value.learnt, still_s=value.still_s, age_s=value.age_s,
+                      session_id=session.id, session_started_at=session.started_at,
+                      updated_at=clock.now())
+        db.execute(insert(table).values(device_id=device.id, sensor=sensor, **values)
+                   .on_conflict_do_nothing(index_elements=["device_id", "sensor"]))
+        db.execute(update(table).where(
+            table.c.device_id == device.id, table.c.sensor == sensor,
+            table.c.session_started_at <= session.started_at).values(**values))
+
+
+def _insert_ignoring_existing(db: DbSession):
+    """The dialect's ``insert`` (with ``on_conflict_do_nothing``): SQLite or PostgreSQL."""
+    if db.get_bind().dialect.name == "postgresql":
+        from sqlalchemy.dialects.postgresql import insert
+    else:
+        from sqlalchemy.dialects.sqlite import insert
+    return insert
 
 
 def forget_kit(db: DbSession, device_id: int) -> None:
