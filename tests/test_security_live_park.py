@@ -15,7 +15,7 @@ import asyncio
 import json
 
 from armtrack.server.emulator import MessagePlan, hello_message
-from server_support import server_fixture
+from server_support import send_paced, server_fixture
 from test_feedback_resume import CUT_AT_S, REPS, SPEED, _recording, kit_count
 from websockets.asyncio.client import connect
 
@@ -57,22 +57,9 @@ def _ada_resumes_after_a_flood(server, name: str, flood_tokens: list[str]) -> No
             if message["type"] == "feedback":
                 feedback.append((connection, message))
 
-    async def send_paced(ws, first: int, stop_at_s: float | None) -> int:
-        loop = asyncio.get_running_loop()
-        start, origin = loop.time(), plan.times[first]
-        for seq in range(first, len(plan)):
-            if stop_at_s is not None and plan.times[seq] >= stop_at_s:
-                return seq
-            if seq > first and plan.times[seq] >= 10.4 > plan.times[seq - 1]:
-                for _ in range(1200):  # the live estimation may start slowly when busy
-                    if feedback:
-                        break
-                    await asyncio.sleep(0.1)
-                start, origin = loop.time(), plan.times[seq]
-            await asyncio.sleep(max(0.0, start + (plan.times[seq] - origin) / SPEED
-                                    - loop.time()))
-            await ws.send(plan.encode(seq))
-        return len(plan)
+    def paced(ws, first: int, stop_at_s: float | None):
+        return send_paced(ws, plan, SPEED, first=first, stop_at_s=stop_at_s, hold_at_s=10.4,
+                          until=lambda: bool(feedback))
 
     async def flood() -> int:
         """The foreign kit opens streams and drops them (no bye): each leaves a live side."""
@@ -92,7 +79,7 @@ def _ada_resumes_after_a_flood(server, name: str, flood_tokens: list[str]) -> No
         await ws.send(json.dumps(hello))
         ready = json.loads(await ws.recv())
         task = asyncio.create_task(reader(ws, 0))
-        await send_paced(ws, 0, CUT_AT_S)
+        await paced(ws, 0, CUT_AT_S)
         ws.transport.abort()  # Ada's network goes
         task.cancel()
         opened = await flood()
@@ -101,7 +88,7 @@ def _ada_resumes_after_a_flood(server, name: str, flood_tokens: list[str]) -> No
             again = json.loads(await ws2.recv())
             assert again["type"] == "ready" and again["session"] == ready["session"]
             task2 = asyncio.create_task(reader(ws2, 1))
-            await send_paced(ws2, again["next_seq"], None)
+            await paced(ws2, again["next_seq"], None)
             await asyncio.sleep(1.5)
             await ws2.send(json.dumps({"type": "bye"}))
             await asyncio.wait_for(task2, 30)
