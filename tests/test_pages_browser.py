@@ -213,9 +213,15 @@ def test_live_session_angles_change_and_lost_connection_shows(module_server, pag
     patient = api.patient("Live Patient")
     device = api.device(patient["id"])
     # long enough (~2 min) that the session is still live when a busy machine's page has
-    # got through calibration and the angles: the test cuts the link, not the kit's bye
-    kit = KitThread(_exercise("elbow_flexion", repetitions=25), module_server.ws_url,
-                    device["token"])
+    # got through calibration and the angles: the test cuts the link, not the kit's bye.
+    # The kit says hello, streams once the session's page is open and holds at the
+    # N-pose's end until the page has shown it: on a loaded machine the page opened after
+    # the poses (phases seen: between:npose, done)
+    recording = _exercise("elbow_flexion", repetitions=25)
+    npose = next(pose for pose in recording.calibration if pose.name == "npose")
+    start, hold_shown = threading.Event(), threading.Event()
+    kit = KitThread(recording, module_server.ws_url, device["token"],
+                    gates=[(0.0, start), (npose.end, hold_shown)])
     try:
         sign_in(page, module_server.url)
         page.goto(f"{module_server.url}/patients/{patient['id']}")
@@ -229,8 +235,11 @@ def test_live_session_angles_change_and_lost_connection_shows(module_server, pag
         # calibration guidance: which pose to hold, then calibrated
         box = page.locator("#calibration-box")
         sync_api.expect(box).to_be_visible()
+        start.set()
         seen_phases = set()
-        deadline = time.monotonic() + 60  # the poses end 8 s into the stream
+        # the poses end 8 s into the stream (later by the hold); the first live pose, which
+        # 'done' waits for, came 18-37 s after the start on a loaded machine
+        deadline = time.monotonic() + 120
         shot_hold = False
         while time.monotonic() < deadline:
             phase = box.get_attribute("data-phase") or ""
@@ -243,6 +252,7 @@ def test_live_session_angles_change_and_lost_connection_shows(module_server, pag
                 page.screenshot(path=str(shots / "live-patient-view.png"))
                 page.click("#close-patient-view")
                 shot_hold = True
+                hold_shown.set()
             if phase == "done":
                 break
             time.sleep(0.2)
