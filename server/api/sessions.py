@@ -138,7 +138,8 @@ def upload_recording(db: Db, who: Annotated[models.Therapist | models.Device,
     ``sensors`` map instead of ``file``; ``wait=false`` answers 202 once the session is
     stored, its processing followed at ``Location`` (``/api/recordings/{id}/progress``).
     A kit's upload is one of its new sessions: past ``ARMTRACK_MAX_NEW_SESSIONS_PER_KIT_HOUR``
-    in the last hour, 429 naming the limit, nothing stored."""
+    in the last hour, 429 naming the limit, nothing stored; while another upload of the
+    kit is being stored, 429 saying so (``new_sessions.BUSY``), nothing stored."""
     from . import imports  # vendor importers load only when used
 
     if (file is None) == (not files):
@@ -150,7 +151,8 @@ def upload_recording(db: Db, who: Annotated[models.Therapist | models.Device,
         patient = db.get(models.Patient, who.patient_id)
         device_id = who.id
         # a kit's upload is one of its new sessions (ARMTRACK_MAX_NEW_SESSIONS_PER_KIT_HOUR):
-        # counted, then stored, one upload of the kit at a time
+        # counted, then stored, one upload of the kit at a time; one coming meanwhile is
+        # refused at once rather than holding a worker thread while it waits
         one_at_a_time = new_sessions.one_upload_at_a_time(device_id)
     else:
         if patient_id is None:
@@ -158,9 +160,11 @@ def upload_recording(db: Db, who: Annotated[models.Therapist | models.Device,
                                 "patient_id is required with a therapist's token")
         patient = own_patient(db, who, patient_id)
         device_id = None
-        one_at_a_time = contextlib.nullcontext()
+        one_at_a_time = contextlib.nullcontext(True)
     assert patient is not None
-    with one_at_a_time:
+    with one_at_a_time as taken:
+        if not taken:
+            raise HTTPException(status.HTTP_429_TOO_MANY_REQUESTS, new_sessions.BUSY)
         if device_id is not None:
             db.commit()  # nothing written yet: the count sees the kit's last upload
             why = new_sessions.refusal(db, device_id, svc.settings.max_new_sessions_per_kit_hour)

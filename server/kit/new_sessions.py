@@ -4,7 +4,8 @@ together, counted in the database by when the server stored them (``sessions.cre
 an upload's arrival, whatever time the file says it was recorded), so restarts and
 instances agree. Uploads of one kit are taken one at a time in a process
 (``one_upload_at_a_time``), so that a burst of them at once cannot all pass the count
-before any is stored."""
+before any is stored; one that comes while another is being stored is refused at once
+(``BUSY``), so a burst holds no server threads waiting."""
 
 from __future__ import annotations
 
@@ -21,8 +22,10 @@ from ..db import models
 
 SETTING = "ARMTRACK_MAX_NEW_SESSIONS_PER_KIT_HOUR"
 
-_locks: dict[int, threading.Lock] = {}
-_locks_lock = threading.Lock()
+BUSY = "another upload from this kit is being stored; send this one when it is done"
+
+_storing: set[int] = set()  # kits with an upload being counted and stored
+_storing_lock = threading.Lock()
 
 
 def refusal(db: DbSession, device_id: int, limit: int) -> str | None:
@@ -37,9 +40,20 @@ def refusal(db: DbSession, device_id: int, limit: int) -> str | None:
 
 
 @contextmanager
-def one_upload_at_a_time(device_id: int) -> Iterator[None]:
-    """Hold the kit's upload lock (in this process) for the count and the store."""
-    with _locks_lock:
-        lock = _locks.setdefault(device_id, threading.Lock())
-    with lock:
-        yield
+def one_upload_at_a_time(device_id: int) -> Iterator[bool]:
+    """The kit's turn (in this process) for the count and the store: yields True, or
+    False at once when another upload of the kit has it (the caller refuses, ``BUSY``)."""
+    with _storing_lock:
+        if device_id in _storing:
+            taken = False
+        else:
+            _storing.add(device_id)
+            taken = True
+    if not taken:
+        yield False
+        return
+    try:
+        yield True
+    finally:
+        with _storing_lock:
+            _storing.discard(device_id)
