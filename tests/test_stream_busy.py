@@ -91,3 +91,42 @@ def test_the_command_line_kit_waits_while_the_server_refuses_it_for_now(srv):
     assert SETTING in last and "--busy-retry" in last, last
     assert err.lower().count("trying again in") >= 2, err
     assert len(stored()) == 2
+
+
+def test_the_command_line_kit_stops_at_once_when_its_own_messages_are_refused(
+        tmp_path_factory):
+    """Close 4429 after ``ready`` means the server refused too many of the kit's own
+    messages (``ARMTRACK_REFUSED_LIMIT`` in ``ARMTRACK_REFUSED_WINDOW_S``): trying again
+    sends the same bad data, so the command exits 1 at once with the server's words,
+    without "trying again". Here the bad data is marks past the most a session keeps
+    (1000): each one after is refused."""
+    server = ServerProcess(tmp_path_factory.mktemp("stream_refused"),
+                           env={"ARMTRACK_REFUSED_LIMIT": "2"})
+    server.create_user("alice")
+    server.start()
+    try:
+        alice = server.client("alice")
+        patient = alice.patient("Marks")
+        token = alice.device(patient["id"])["token"]
+        rows = "".join(f"{i / 50:.2f},forearm,0.0,9.81,0.0,0.0,0.0,0.0,,,\n"
+                       for i in range(50 * 30))
+        marks = "; ".join(f"{1 + i * 0.02:.2f} exercise:elbow_flexion" for i in range(1010))
+        recording = tmp_path_factory.mktemp("marks") / "marks.csv"
+        recording.write_text("# armtrack-recording: 1\n# side: right\n# height_m: 1.75\n"
+                             f"# rate_hz: 50\n# marks: {marks}\n"
+                             f"t,sensor,ax,ay,az,gx,gy,gz,mx,my,mz\n{rows}")
+        started = time.monotonic()
+        done = subprocess.run(
+            [sys.executable, "-m", "armtrack.server.cli", "stream", str(recording),
+             "--speed", "0", "--quiet", "--url", server.ws_url, "--token", token],
+            capture_output=True, text=True, timeout=170)
+        took = time.monotonic() - started
+        print(done.stderr, f"\nexited {done.returncode} after {took:.1f} s")
+        assert done.returncode == 1, done.stderr
+        assert "trying again" not in done.stderr.lower(), done.stderr
+        last = done.stderr.strip().splitlines()[-1]
+        assert "refused messages" in last and "4429" in last, last
+        assert "marks" in last, last  # the last refused message, whole
+        assert took < 30, took  # not the 60 s of --busy-retry, nor forever
+    finally:
+        server.stop()

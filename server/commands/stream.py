@@ -57,9 +57,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the device name sent in hello")
     parser.add_argument("--busy-retry", type=float, default=60.0, metavar="SECONDS",
                         help="how long to keep trying while the server refuses the kit for "
-                        "now (close 4429: too many new sessions this hour, streams open or "
-                        "refused messages), every 0.5 s doubling to 5 s; then give up "
-                        "(exit 1). Default %(default)g")
+                        "now (close 4429 in answer to hello: too many new sessions this "
+                        "hour or streams open; not too many refused messages, which ends "
+                        "it at once), every 0.5 s doubling to 5 s; then give up (exit 1). "
+                        "Default %(default)g")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
     simulated = parser.add_argument_group("with --exercise")
     simulated.add_argument("--side", choices=("right", "left"), default="right")
@@ -127,7 +128,6 @@ def run(args: argparse.Namespace) -> int:
     if not (args.busy_retry >= 0) or math.isinf(args.busy_retry):
         raise InvalidArgument(f"--busy-retry must be >= 0 seconds, got {args.busy_retry}")
     from ..emulator import KitEmulator, KitError, KitRefused
-    from ..emulator.kit import CLOSE_BUSY
 
     def busy(reason: str, wait_s: float, left_s: float) -> None:
         # always said, --quiet or not: the user may want to stop and come back later
@@ -142,7 +142,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         asyncio.run(_stream(kit, args.quiet))
     except KitRefused as exc:
-        if exc.code != CLOSE_BUSY:
+        if not exc.busy:  # a 4429 after ready: its own refused messages, no retry
             print(f"armtrack stream: {exc}", file=sys.stderr)
             return EXIT_REFUSED
         s = kit.stats

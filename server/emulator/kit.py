@@ -43,8 +43,10 @@ FATAL_CLOSE_CODES: dict[int, str] = {
 
 _EXPECTED = re.compile(r"expected\s+(\d+)")
 
-#: The close code of a server that refuses the kit for now (too many new sessions this
-#: hour, streams open, refused messages): the kit waits and tries again (``busy_retry_s``).
+#: The close code of a server that refuses the kit for now, in answer to its ``hello``
+#: (too many new sessions this hour, too many streams open): the kit waits and tries again
+#: (``busy_retry_s``). The same code after ``ready`` means the server refused too many of
+#: the kit's messages (its own bad data): fatal, no retry.
 CLOSE_BUSY = 4429
 
 AckCallback = Callable[[int, KitStats], Awaitable[None] | None]
@@ -183,11 +185,22 @@ class KitEmulator:
                     busy_since, busy_tries = None, 0
                 if isinstance(exc, ConnectionClosed) and exc.rcvd is not None \
                         and exc.rcvd.code == CLOSE_BUSY:
+                    if self.stats.connections > connections:  # after ready: its bad data
+                        last = self.stats.errors[-1]["reason"] if self.stats.errors else ""
+                        raise KitRefused(
+                            f"the server closed the stream for too many refused messages: "
+                            f"{exc.rcvd.reason or 'close code 4429'}"
+                            + (f" (the last refused: {last})" if last else "")
+                            + " (close code 4429)", CLOSE_BUSY, exc.rcvd.reason) from exc
                     now = time.monotonic()
                     busy_since = now if busy_since is None else busy_since
                     left = self.busy_retry_s - (now - busy_since)
                     if left <= 0:
-                        self._raise_if_fatal(exc)  # KitRefused, with the server's words
+                        try:
+                            self._raise_if_fatal(exc)  # KitRefused, with the server's words
+                        except KitRefused as refused:
+                            refused.busy = True
+                            raise
                     busy_tries += 1
                     first, longest = self.busy_backoff_s
                     delay = min(longest, first * 2 ** (busy_tries - 1), left)

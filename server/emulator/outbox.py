@@ -21,14 +21,16 @@ class KitError(Exception):
 
 class KitRefused(KitError):
     """The server closed the connection for good: ``code`` is the WebSocket close code
-    (4401 bad token, 4400 protocol, 1009 too big, 4429 still refused for now after the
-    kit's ``busy_retry_s``, or the HTTP status when the upgrade itself was refused),
-    ``reason`` its text."""
+    (4401 bad token, 4400 protocol, 1009 too big, 4429 too many refused messages, or
+    still refused for now after the kit's ``busy_retry_s``: ``busy`` true, or the HTTP
+    status when the upgrade itself was refused), ``reason`` its text."""
 
-    def __init__(self, message: str, code: int | None = None, reason: str = ""):
+    def __init__(self, message: str, code: int | None = None, reason: str = "",
+                 busy: bool = False):
         super().__init__(message)
         self.code = code
         self.reason = reason
+        self.busy = busy
 
 
 @dataclass
