@@ -3,7 +3,10 @@ thorax's heading, and (6-axis kits) the headings that put every sensor in one wo
 
 Order: arm sensors first (two-pose, N-pose-only or default mounting; with a trunk sensor
 on a 9-axis kit, each pose's up direction is the thorax's, not gravity's, so a trunk that
-sways through the poses does not tilt the arm's axes by the sway's mean); then the world
+sways through the poses does not tilt the arm's axes by the sway's mean, and the thorax's
+upright, the trunk's mean over the poses, is made square to the axis the arm turned about
+between them relative to the trunk, so a slow sway's lean left in that mean does not turn
+the arm's axes about the vertical); then the world
 thorax in the N-pose from the arm (every segment's axes are the thorax's there); then the
 trunk and clavicle sensors' headings from it. On a 6-axis kit each sensor's filter has a
 heading of its own: in the N-pose all segments point the same way, which gives each
@@ -34,11 +37,15 @@ from ..calibration import (
     turn_warning,
     two_pose_R_sensor_segment,
 )
+from ..calibration.quality import TPOSE_TURN_DEG
 from ..rotations import quat_to_matrix, yaw_of
 from .segment_kernel import segment_orientations
 from .tracks import SensorTrack
 
 ARM = ("upper_arm", "forearm", "hand")
+#: How well the arm's turn between the poses, relative to the trunk sensor, gives the
+#: thorax's X (9-axis filters' relative heading over the poses; a still trunk: 0.3–0.4°).
+AXIS_SIGMA_RAD = np.deg2rad(0.5)
 
 
 @dataclass(frozen=True)
@@ -87,6 +94,54 @@ def _thorax_up(arm: SensorTrack, trunk: SensorTrack, start: float, end: float,
     tilt_world = np.einsum("nij,nj->ni", R_trunk, trunk_up - gravity_trunk)
     tilt_arm = np.einsum("nji,nj->ni", quat_to_matrix(q), tilt_world)
     return _up(_unit_rows(acc) + tilt_arm)
+
+
+def _relative(arm: SensorTrack, trunk: SensorTrack, start: float, end: float
+              ) -> np.ndarray | None:
+    """The arm sensor's axes in the trunk sensor's frame, ``R_trunk_arm``, averaged over
+    ``start…end`` at the arm's sample times (None without samples): a sway that turns
+    both sensors alike drops out."""
+    t, _, _, q = arm.arrays()
+    a, b = np.searchsorted(t, start, "left"), np.searchsorted(t, end, "right")
+    t_trunk, _, _, q_trunk = trunk.arrays()
+    if b <= a or not len(t_trunk):
+        return None
+    R_trunk = segment_orientations(t_trunk, q_trunk, t[a:b], np.eye(3), 0.0)
+    return Rotation.from_matrix(np.einsum("nji,njk->nik", R_trunk, quat_to_matrix(q[a:b]))
+                                ).mean().as_matrix()
+
+
+def _abduction_axis(tracks: Mapping[str, SensorTrack], plan: CalibrationPlan
+                    ) -> np.ndarray | None:
+    """The axis (unit, trunk sensor frame) about which the arm turned from the N-pose to
+    the T-pose relative to the trunk sensor, mean over the arm's sensors: the thorax's X.
+    None when a window is empty or an arm sensor did not turn like a T-pose."""
+    assert plan.npose is not None and plan.tpose is not None
+    axes = []
+    for sensor in (s for s in ARM if s in tracks):
+        n = _relative(tracks[sensor], tracks["trunk"], plan.npose.start, plan.npose.end)
+        t = _relative(tracks[sensor], tracks["trunk"], plan.tpose.start, plan.tpose.end)
+        if n is None or t is None:
+            return None
+        turn = Rotation.from_matrix(t @ n.T).as_rotvec()
+        angle = np.linalg.norm(turn)
+        lo, hi = TPOSE_TURN_DEG
+        if not lo <= np.rad2deg(angle) <= hi:
+            return None
+        axis = turn / angle
+        axes.append(axis if not axes or axis @ axes[0] > 0 else -axis)
+    if not axes:
+        return None
+    mean = np.mean(axes, axis=0)
+    return mean / np.linalg.norm(mean)
+
+
+def _sway_range(trunk: SensorTrack, start: float, end: float, axis: np.ndarray) -> float:
+    """How far the trunk's up direction (its filter's tilt, trunk sensor frame) moved
+    along ``axis`` over ``start…end``: max − min [rad, small angles]."""
+    _, _, q = trunk.window(start, end)
+    along = quat_to_matrix(q)[:, 2, :] @ axis  # world z in the sensor frame, along axis
+    return float(along.max() - along.min()) if len(along) else 0.0
 
 
 def calibrate(tracks: Mapping[str, SensorTrack], plan: CalibrationPlan, side: Side,
@@ -140,6 +195,23 @@ def calibrate(tracks: Mapping[str, SensorTrack], plan: CalibrationPlan, side: Si
         acc_trunk, _, _ = tracks["trunk"].window(min(p.start for p in span),
                                                  max(p.end for p in span))
         trunk_up = _up(_unit_rows(acc_trunk))
+        # The mean keeps what a slow sway's partial cycles did not average out (~2° at
+        # 0.1–0.2 Hz over these 7.5 s). Its part toward the thorax's X (a forward lean)
+        # is what hurts: the T-pose turns the arm about X, so the two-direction arm
+        # calibration makes that lean a turn about the vertical; a side lean (about X)
+        # tilts every segment alike. The thorax's X is the axis the arm turned about
+        # between the poses relative to the trunk sensor (a sway turns both alike), and the
+        # upright is square to it. Weighed against the mean (Bayes): the mean's error is
+        # within half the trunk's tilt range along X (a sway seen over half a cycle or
+        # more), taken as 2σ; the axis's σ is AXIS_SIGMA_RAD; a still trunk keeps its mean.
+        axis = _abduction_axis(tracks, plan) if method == "two-pose" else None
+        if axis is not None:
+            along = trunk_up @ axis
+            sway = 0.25 * _sway_range(tracks["trunk"], min(p.start for p in span),
+                                      max(p.end for p in span), axis)
+            weight = sway**2 / (sway**2 + AXIS_SIGMA_RAD**2)
+            trunk_up = trunk_up - weight * along * axis
+            trunk_up /= np.linalg.norm(trunk_up)
 
     def pose_up(sensor: str, pose: str) -> np.ndarray:
         if sway_corrected and sensor in ARM:
