@@ -64,8 +64,10 @@ def test_packed_samples_with_equal_stamps(seed, pack):
 #: on seeds 1, 3, 4, 5, 7, 8 before). The calibration now takes the part of that lean
 #: toward the thorax's X out: the upright is square to the axis about which the arm turned
 #: between the poses relative to the trunk sensor (a sway turns both alike), weighed
-#: against the mean by the trunk's tilt range (a still trunk keeps the mean). No sensor
-#: ever rests (the arm sways with the trunk), so every bias is learnt in motion.
+#: against the mean by the trunk's tilt range (a still trunk keeps the mean): seeds 1–5
+#: 1.63/0.96/1.51/1.47/1.07° → 0.77/0.88/0.66/0.60/0.48°; scratch seeds 6–8
+#: 0.56/1.78/1.57° → 0.69/0.90/0.49°. No sensor ever rests (the arm sways with the trunk),
+#: so every bias is learnt in motion.
 def sway_config(seed: int) -> SimulationConfig:
     rng = np.random.default_rng(3000 + seed)
     return SimulationConfig(exercise="reach", seed=seed, height_m=body(seed),
@@ -75,7 +77,7 @@ def sway_config(seed: int) -> SimulationConfig:
                             jitter_s=float(rng.uniform(0.001, 0.003)))
 
 
-@pytest.mark.parametrize("seed", [1, 2, 3])
+@pytest.mark.parametrize("seed", [1, 2, 3, 4, 5])
 def test_trunk_sway_slow_and_large_with_jitter(seed):
     config = sway_config(seed)
     worst, worst_deg, wrist_cm, _ = run(config)
@@ -104,7 +106,10 @@ def irregular_sway(seed: int, amplitude_deg: float, frequency_hz: float) -> dict
     pytest.param(4, marks=pytest.mark.xfail(
         strict=True, reason="measured shoulder rotation 2.30°, wrist 1.44 cm (2.09°, 1.63 cm "
         "with the upright as the trunk's mean over the poses): the filters' — with the true "
-        "sensor-to-segment rotations 1.72°, 1.16 cm"))])
+        "sensor-to-segment rotations 1.72°, 1.16 cm; qcf alone, from 10.5 s, heading RMS "
+        "trunk 1.77°, hand 1.24° (tilt 0.74°), the others 0.25–0.46° (seeds 1–3, 5: "
+        "0.18–0.65°): the never-resting trunk's bias, learnt in motion only")),
+    5])
 def test_trunk_sway_irregular(seed):
     """The same kit and sway sizes, but a sway that is a sum of incommensurate sines."""
     config = sway_config(seed)
