@@ -86,6 +86,26 @@ def test_trunk_sway_slow_and_large_with_jitter(seed):
     assert worst_deg <= ANGLE_BAR_DEG[True] and wrist_cm <= WRIST_BAR_CM
 
 
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_a_still_trunk_keeps_its_mean_upright(seed, monkeypatch):
+    """The sway's correction of the thorax's upright is weighed by how far the trunk
+    leaned: on the same kit with a still trunk every sensor-to-segment rotation is the one
+    the mean upright gives (the correction off), to 0.02°."""
+    from armtrack.estimator.pipeline import calibrate as calibrate_module
+    from scipy.spatial.transform import Rotation
+
+    recording = simulate(replace(sway_config(seed), trunk_sway=None)).recording
+    _, corrected = estimate_recording(recording)
+    monkeypatch.setattr(calibrate_module, "AXIS_SIGMA_RAD", np.inf)
+    _, mean_only = estimate_recording(recording)
+    differences = {s: float(np.rad2deg(Rotation.from_matrix(
+        corrected.R_sensor_segment[s] @ mean_only.R_sensor_segment[s].T).magnitude()))
+        for s in corrected.R_sensor_segment}
+    print(f"still trunk, seed {seed}: " + ", ".join(f"{s} {d:.4f}°"
+                                                   for s, d in differences.items()))
+    assert max(differences.values()) < 0.02
+
+
 def irregular_sway(seed: int, amplitude_deg: float, frequency_hz: float) -> dict[str, Profile]:
     """A sway that is no sine: per axis three incommensurate sines (f, √2 f, 1.24 f; the
     side bend at 0.8 f and half the amplitude), amplitudes 0.7/0.5/0.35 of the case's,
