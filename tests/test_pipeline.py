@@ -431,7 +431,11 @@ def swaying_six_axis(seed: int):
 def test_a_remembered_bias_holds_a_never_resting_kit_at_the_bar(seed):
     """The elbow and wrist angles (the arm's sensors' relative orientations: the trunk's sway
     does not enter them) against the truth, from no prior and from the kit's remembered
-    biases; the learnt biases say nothing was learnt (none is remembered as if it were)."""
+    biases; the learnt biases say nothing was learnt (none is remembered as if it were).
+    Cold, the worst angle was 10.77 / 4.38 / 22.15° (seeds 0–2) until qcf's tilt windows
+    learnt the bias in motion as the sensors turn: now 1.43 / 0.91 / 6.19°, so the memory
+    is what holds seed 2 at the bar, and it makes the arm's angles better on the whole on
+    every seed (seed 1's pronation 0.91 → 1.43°: the prior is the truth ± 1 mrad/s)."""
     from armtrack.estimator.pipeline import run_recording
     sim, _, prior = swaying_six_axis(seed)
     rmse = {}
@@ -449,7 +453,7 @@ def test_a_remembered_bias_holds_a_never_resting_kit_at_the_bar(seed):
     print(f"seed {seed}, 6-axis, trunk swaying from the first sample: " + "; ".join(
         f"{k} {rmse['cold'][k]:.2f} → {rmse['remembered'][k]:.2f}°" for k in ARM_ANGLES))
     assert max(rmse["remembered"].values()) <= ANGLE_BAR_DEG[False]
-    assert max(rmse["cold"].values()) > ANGLE_BAR_DEG[False]
+    assert np.mean(list(rmse["remembered"].values())) < np.mean(list(rmse["cold"].values()))
 
 
 def test_remembered_biases_streamed_in_chunks_equal_batch():

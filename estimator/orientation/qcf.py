@@ -17,6 +17,13 @@ sensors need:
   from the low-passed gyroscope and accelerometer; half a second of stillness from the
   first sample already gives a provisional one), slowly from the corrections in motion
   (from the heading's, after a rest, with a weight that grows back as the bias may drift);
+  in motion also by a Kalman step every ``tilt_window`` from the tilt corrections, which
+  answer the drift R (b − b̂) through the specific force's low-pass: R (sensor → I) and
+  R b̂ low-passed alike make the equation exact in its lag (as VQF does), so every axis of
+  the bias is seen as the sensor's turning sweeps the horizontal through its frame; each
+  window weighed by its noise (the larger of ``tilt_noise`` and the scatter the windows
+  show, plus a MEMS scale-factor error, ``gyro_scale`` times the window's turn) against
+  the bias's covariance, which grows by its random walk and which a rest resets;
   until a rest, also by a Kalman step every ``mag_window`` from how the field turns in the
   sensor frame and how the heading drifts, each weighed by its noise (the magnetometer's,
   or the scatter the windows show in a room whose field varies) against the bias's own
@@ -133,6 +140,16 @@ class QcfParams:
     #: The field-turning windows' scatter (a room's field varying as the sensor moves) is
     #: the mean over this many of them.
     mag_scatter_windows: float = 5.0
+    #: The least noise of a window's tilt equation for the bias, per horizontal axis [rad].
+    tilt_noise: float = 1e-3
+    #: Window over which the tilt corrections are summed for the bias [s]: two of
+    #: ``tau_acc``, so that a body's slow accelerations the low-pass leaves (a sway at
+    #: 0.1–0.2 Hz) mostly cancel within it (2-s windows took them for bias).
+    tilt_window: float = 8.0
+    #: A MEMS gyroscope's scale-factor (and axis-misalignment) error: a window whose sensor
+    #: turned θ [rad] drifted by up to this times θ that is no bias (real sensors: without
+    #: it, RING's rigid chain lost 0.1° on its arm angles).
+    gyro_scale: float = 0.005
 
     def __post_init__(self) -> None:
         for name, value in self.__dict__.items():
@@ -150,7 +167,8 @@ class QcfParams:
                   self.rest_time_first, self.rest_guard_first, self.mag_confirm_turn,
                   self.rest_min_samples_first, self.mag_hold_weight, self.mag_restart,
                   self.tau_rest_acc, self.mag_bias_half_time, self.bias_sigma,
-                  self.mag_scatter_windows]
+                  self.mag_scatter_windows, self.tilt_noise,
+                  self.tilt_window, self.gyro_scale]
         assert len(values) == PARAM_SIZE
         return np.array(values, dtype=np.float64)
 

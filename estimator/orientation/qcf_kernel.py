@@ -40,7 +40,12 @@ the seconds of stillness it was learnt from then (the bias before any is the fil
 starting one: zero, or a remembered bias, ``QuaternionComplementaryFilter.gyr_bias_prior``)
 · ``[85]`` the last heading step [rad] · ``[86]`` the window's Σ(Δφ)² · ``[87]``, ``[88]``
 the scatter the field-turning and heading equations show [µT², rad²] · ``[89]`` the
-windows so far.
+windows so far · ``[90:99]`` R (sensor → I, rows) low-passed as the specific force is ·
+``[99:108]`` its rate · ``[108:111]`` R b_subtracted low-passed alike [rad/s] ·
+``[111:114]`` its rate · the tilt's bias window: ``[114:123]`` ∫ LP(R) dt [s],
+``[123:126]`` ∫ LP(R b_subtracted) dt minus the tilt corrections (in I) [rad],
+``[126]`` its time [s] · ``[127]`` the scatter its equations show [rad²] · ``[128]`` its
+equations so far · ``[129]`` the window's turn [rad].
 """
 
 from __future__ import annotations
@@ -51,7 +56,7 @@ import numpy as np
 
 from ..scalar_rotations import quat_to_rows
 
-STATE_SIZE = 90
+STATE_SIZE = 130
 
 # Indices into the parameter vector, see QcfParams.as_array.
 (P_TAU_ACC, P_TAU_MAG, P_TAU_LP, P_REST_GYR, P_REST_ACC, P_REST_TIME,
@@ -60,8 +65,9 @@ STATE_SIZE = 90
  P_REST_RATE, P_TAU_BIAS_REST, P_REST_RATE_KNOWN, P_ZUPT_DELAY, P_MAG_WINDOW,
  P_BIAS_WALK, P_MAG_NOISE, P_REST_TILT, P_REST_TIME_FIRST, P_REST_GUARD_FIRST,
  P_MAG_CONFIRM_TURN, P_REST_MIN_SAMPLES_FIRST, P_MAG_HOLD_WEIGHT, P_MAG_RESTART,
- P_TAU_REST_ACC, P_MAG_BIAS_HALF_TIME, P_BIAS_SIGMA, P_MAG_SCATTER_WINDOWS) = range(35)
-PARAM_SIZE = 35
+ P_TAU_REST_ACC, P_MAG_BIAS_HALF_TIME, P_BIAS_SIGMA, P_MAG_SCATTER_WINDOWS,
+ P_TILT_NOISE, P_TILT_WINDOW, P_GYRO_SCALE) = range(38)
+PARAM_SIZE = 38
 
 
 def _field_turn_update(bx, by, bz, p00, p11, p22, p01, p02, p12, vx, vy, vz, yx, yy, yz,
@@ -229,6 +235,12 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     mag_restart = params[P_MAG_HOLD_WEIGHT + 1]
     tau_rest_acc = params[P_TAU_REST_ACC]
     mag_bias_half_time = params[P_MAG_BIAS_HALF_TIME]
+    tilt_white = params[P_TILT_NOISE] * params[P_TILT_NOISE]
+    tilt_window = params[P_TILT_WINDOW]
+    gyro_scale = params[P_GYRO_SCALE]
+    # the bias's variance after a rest taught it: the rest's mean over tau_bias_rest
+    # of a random walk
+    rest_var = bias_walk * bias_walk * tau_bias_rest
 
     gw, gx, gy, gz = state[0], state[1], state[2], state[3]
     cw, cx, cy, cz = state[4], state[5], state[6], state[7]
@@ -262,6 +274,20 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     evidence = state[77]
     afx, afy, afz = state[78], state[79], state[80]
     last_rest = state[81]
+    l00, l01, l02, l10, l11, l12, l20, l21, l22 = (state[90], state[91], state[92], state[93],
+                                                   state[94], state[95], state[96], state[97],
+                                                   state[98])
+    d00, d01, d02, d10, d11, d12, d20, d21, d22 = (state[99], state[100], state[101], state[102],
+                                                   state[103], state[104], state[105],
+                                                   state[106], state[107])
+    lbx, lby, lbz, dbx, dby, dbz = (state[108], state[109], state[110], state[111], state[112],
+                                    state[113])
+    j00, j01, j02, j10, j11, j12, j20, j21, j22 = (state[114], state[115], state[116],
+                                                   state[117], state[118], state[119],
+                                                   state[120], state[121], state[122])
+    zx, zy, zz, tw_time, scatter_t, n_tw = (state[123], state[124], state[125], state[126],
+                                            state[127], state[128])
+    tw_turn = state[129]
 
     for i in range(t.shape[0]):
         ax, ay, az = acc[i, 0], acc[i, 1], acc[i, 2]
@@ -291,6 +317,13 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
             t_start = t[i]
             initialised = 1.0
             p00, p11, p22, p01, p02, p12 = bias_var, bias_var, bias_var, 0.0, 0.0, 0.0
+            # the tilt's bias equation: R (sensor → I) and R b low-passed as the force is,
+            # from the same start (the identity, still before)
+            l00, l01, l02, l10, l11, l12 = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0
+            l20, l21, l22 = 0.0, 0.0, 1.0
+            d00, d01, d02, d10, d11, d12 = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+            d20, d21, d22 = 0.0, 0.0, 0.0
+            lbx, lby, lbz, dbx, dby, dbz = bx, by, bz, 0.0, 0.0, 0.0
             if has_mag == 1:
                 mx, my, mz = mag[i, 0], mag[i, 1], mag[i, 2]
                 # field in E = q_acc m (q_gyr is the identity)
@@ -372,6 +405,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
                 if still_time >= rest_time_first and count >= rest_min_samples_first:
                     bx, by, bz = sx / count, sy / count, sz / count
                     learnt_how, learnt_at, learnt_still = 1.0, t[i], evidence
+                    p00, p11, p22, p01, p02, p12 = rest_var, rest_var, rest_var, 0.0, 0.0, 0.0
             elif still_time >= rest_time_needed:
                 at_rest = True
                 last_rest = t[i]
@@ -397,6 +431,8 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
                         if count >= rest_min_samples:
                             bx, by, bz = sx / count, sy / count, sz / count
                             bias_known = 1.0
+                            p00, p11, p22 = rest_var, rest_var, rest_var
+                            p01, p02, p12 = 0.0, 0.0, 0.0
                             learnt_how, learnt_at, learnt_still = 2.0, t[i], evidence
                     else:
                         # later: follow a drifting bias, each block weighted by its length
@@ -406,6 +442,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
                         by += k_b * (py / pending - by)
                         bz += k_b * (pz / pending - bz)
                         learnt_how, learnt_at, learnt_still = 2.0, t[i], evidence
+                        p00, p11, p22, p01, p02, p12 = rest_var, rest_var, rest_var, 0.0, 0.0, 0.0
                     px, py, pz, pending, pending_time = 0.0, 0.0, 0.0, 0.0, 0.0
 
             # Strapdown: q_gyr ← q_gyr ⊗ exp(½ (ω̄ − b) dt), ω̄ the mean of the rates at the
@@ -415,13 +452,20 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
             # (Only once the rest has outlasted the guard: a slow sway can look still for
             # a second, and freezing it would be worse than the drift.)
             if at_rest and still_time >= rest_time_needed + zupt_delay:
-                ox = (0.5 * (wx + lwx) - glx) * dt
-                oy = (0.5 * (wy + lwy) - gly) * dt
-                oz = (0.5 * (wz + lwz) - glz) * dt
+                sbx, sby, sbz = glx, gly, glz
             else:
-                ox = (0.5 * (wx + lwx) - bx) * dt
-                oy = (0.5 * (wy + lwy) - by) * dt
-                oz = (0.5 * (wz + lwz) - bz) * dt
+                sbx, sby, sbz = bx, by, bz
+            ox = (0.5 * (wx + lwx) - sbx) * dt
+            oy = (0.5 * (wy + lwy) - sby) * dt
+            oz = (0.5 * (wz + lwz) - sbz) * dt
+            # the bias may drift (a random walk) up to its prior spread
+            grow = bias_walk * bias_walk * dt
+            if p00 < bias_var:
+                p00 += grow
+            if p11 < bias_var:
+                p11 += grow
+            if p22 < bias_var:
+                p22 += grow
             angle = math.sqrt(ox * ox + oy * oy + oz * oz)
             if angle > 1e-12:
                 c, s = math.cos(0.5 * angle), math.sin(0.5 * angle) / angle
@@ -457,6 +501,48 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
             fx += dt * vx
             fy += dt * vy
             fz += dt * vz
+            # The tilt corrections answer the drift R (b − b_subtracted) (R: sensor → I)
+            # through the same low-pass: R and R b_subtracted low-passed alike make the
+            # tilt's bias equation exact in its lag (as VQF does), so that every axis of b
+            # is seen as the sensor turns the horizontal through its own frame.
+            d00 += kw * (r00 - l00) - kd * d00
+            d01 += kw * (r01 - l01) - kd * d01
+            d02 += kw * (r02 - l02) - kd * d02
+            d10 += kw * (r10 - l10) - kd * d10
+            d11 += kw * (r11 - l11) - kd * d11
+            d12 += kw * (r12 - l12) - kd * d12
+            d20 += kw * (r20 - l20) - kd * d20
+            d21 += kw * (r21 - l21) - kd * d21
+            d22 += kw * (r22 - l22) - kd * d22
+            l00 += dt * d00
+            l01 += dt * d01
+            l02 += dt * d02
+            l10 += dt * d10
+            l11 += dt * d11
+            l12 += dt * d12
+            l20 += dt * d20
+            l21 += dt * d21
+            l22 += dt * d22
+            dbx += kw * (r00 * sbx + r01 * sby + r02 * sbz - lbx) - kd * dbx
+            dby += kw * (r10 * sbx + r11 * sby + r12 * sbz - lby) - kd * dby
+            dbz += kw * (r20 * sbx + r21 * sby + r22 * sbz - lbz) - kd * dbz
+            lbx += dt * dbx
+            lby += dt * dby
+            lbz += dt * dbz
+            j00 += dt * l00
+            j01 += dt * l01
+            j02 += dt * l02
+            j10 += dt * l10
+            j11 += dt * l11
+            j12 += dt * l12
+            j20 += dt * l20
+            j21 += dt * l21
+            j22 += dt * l22
+            zx += dt * lbx
+            zy += dt * lby
+            zz += dt * lbz
+            tw_time += dt
+            tw_turn += angle
 
             # Tilt: turn q_acc by the whole angle that brings the filtered force (in E) up.
             (q00, q01, q02, q10, q11,
@@ -487,6 +573,44 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
                         bx -= ki_bias * (r00 * ix + r10 * iy + r20 * iz)
                         by -= ki_bias * (r01 * ix + r11 * iy + r21 * iz)
                         bz -= ki_bias * (r02 * ix + r12 * iy + r22 * iz)
+                        zx -= ix
+                        zy -= iy
+                        zz -= iz
+            if at_rest or elapsed < tau_acc:
+                # a rest teaches the bias itself, and the tilt's warm-up (its first tau_acc,
+                # the first sample's acceleration leaving the low-pass) is no drift: the
+                # window starts again after them
+                tw_time = 0.0
+                j00, j01, j02, j10, j11, j12, j20, j21, j22 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+                                                               0.0, 0.0, 0.0)
+                zx, zy, zz, tw_turn = 0.0, 0.0, 0.0, 0.0
+            elif tw_time >= tilt_window:
+                # Over the window, in E's two horizontal axes (rows e of q_acc, I → E):
+                # e·(∫LP(R) dt) b = e·(∫LP(R b_subtracted) dt − Σ corrections); each a
+                # Kalman step weighed by the larger of tilt_noise² and the scatter the
+                # windows' innovations show (a body's accelerations the low-pass leaves),
+                # plus the drift a gyroscope's scale-factor error makes of the window's turn.
+                # (Beside the integral above: that one answers at once, these windows see
+                # the axes the sensor's turning shows, with their lag.)
+                for row in range(2):
+                    n_tw += 1.0
+                    k_t = 1.0 / min(n_tw, 2.0 * mag_scatter_windows)
+                    if row == 0:
+                        ex, ey, ez = q00, q01, q02
+                    else:
+                        ex, ey, ez = q10, q11, q12
+                    thx = ex * j00 + ey * j10 + ez * j20
+                    thy = ex * j01 + ey * j11 + ez * j21
+                    thz = ex * j02 + ey * j12 + ez * j22
+                    (bx, by, bz, p00, p11, p22, p01, p02, p12,
+                     scatter_t) = heading_update(bx, by, bz, p00, p11, p22, p01, p02, p12,
+                                                 thx, thy, thz, ex * zx + ey * zy + ez * zz,
+                                                 tilt_white + (gyro_scale * tw_turn) ** 2,
+                                                 scatter_t, k_t)
+                tw_time = 0.0
+                j00, j01, j02, j10, j11, j12, j20, j21, j22 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+                                                               0.0, 0.0, 0.0)
+                zx, zy, zz, tw_turn = 0.0, 0.0, 0.0, 0.0
 
             if has_mag == 1:
                 mx, my, mz = mag[i, 0], mag[i, 1], mag[i, 2]
@@ -619,14 +743,6 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
                         lmx, lmy, lmz = mx, my, mz
                         if mw_time >= mag_window:
                             Yx, Yy, Yz = mYx, mYy, mYz
-                            # the bias may have walked since the last window
-                            grow = bias_walk * bias_walk * mw_time
-                            if p00 < bias_var:
-                                p00 += grow
-                            if p11 < bias_var:
-                                p11 += grow
-                            if p22 < bias_var:
-                                p22 += grow
                             # The field's noise reaches both equations through φ's steps;
                             # a room's field also varies as the sensor moves (by degrees),
                             # which the windows' scatter shows: each equation's noise is
@@ -735,6 +851,17 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     state[77] = evidence
     state[78], state[79], state[80] = afx, afy, afz
     state[81] = last_rest
+    (state[90], state[91], state[92], state[93], state[94], state[95], state[96], state[97],
+     state[98]) = l00, l01, l02, l10, l11, l12, l20, l21, l22
+    (state[99], state[100], state[101], state[102], state[103], state[104], state[105],
+     state[106], state[107]) = d00, d01, d02, d10, d11, d12, d20, d21, d22
+    state[108], state[109], state[110], state[111], state[112], state[113] = (lbx, lby, lbz,
+                                                                              dbx, dby, dbz)
+    (state[114], state[115], state[116], state[117], state[118], state[119], state[120],
+     state[121], state[122]) = j00, j01, j02, j10, j11, j12, j20, j21, j22
+    state[123], state[124], state[125], state[126], state[127], state[128] = (zx, zy, zz, tw_time,
+                                                                              scatter_t, n_tw)
+    state[129] = tw_turn
     return -1
 
 
