@@ -199,7 +199,7 @@ def test_the_second_session_of_a_kit_starts_from_the_first_ones_biases(module_se
     pronation = REPORTED_ANGLES.index("forearm_pronation")
     live_t = np.array(live.trail_t)
     live_deg = np.array([row[pronation] for row in live.trail_deg])
-    later = live_t > 20.0  # where the cold estimate has drifted away
+    later = live_t > 20.0  # where the cold estimate has drifted by degrees
     off_warm = np.abs(live_deg - np.interp(live_t, warm.t,
                                           np.rad2deg(warm.angles["forearm_pronation"])))
     off_cold = np.abs(live_deg - np.interp(live_t, cold.t,
@@ -208,8 +208,7 @@ def test_the_second_session_of_a_kit_starts_from_the_first_ones_biases(module_se
           f"pronation after 20 s within {off_warm[later].max():.3f}° of the stored ones, up "
           f"to {off_cold[later].max():.1f}° from the cold ones")
     assert later.sum() >= 100
-    # the live trail is the warm estimate's, at least ten times nearer it than the cold one's
-    assert off_warm[later].max() <= 0.011 and off_cold[later].max() > 0.11
+    assert off_warm[later].max() <= 0.011 and off_cold[later].max() > 2.0
     # session 2 taught nothing: the memory is session 1's still
     after = server.sql("SELECT sensor, session_id FROM kit_gyro_biases WHERE device_id = :d",
                        d=kit["id"])
