@@ -195,7 +195,8 @@ def test_estimate_remembers_the_kits_gyroscope_biases_for_its_next_session(tmp_p
     cold, warm = pronation_rmse(tmp_path / "cold.csv"), pronation_rmse(tmp_path / "warm.csv")
     print(f"day 2 (trunk swaying, never still): forearm pronation {cold:.2f}° cold → "
           f"{warm:.2f}° from day 1's memory")
-    assert warm <= 2.0 < cold
+    # (cold, qcf's tilt windows learn the bias in motion too: 1.43°, 10.77° before them)
+    assert warm <= 2.0 and warm < cold
     assert "never still: not learnt" in printed and "older memory is kept" in printed
     assert json.loads(memory.read_text()) == day1_memory
 
