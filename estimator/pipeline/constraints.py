@@ -14,7 +14,8 @@ is a pronation error no joint reveals). The correction is the ``D²``-weighted m
 per-sample values with exponential forgetting (time constant ``tau``) and a prior toward
 no correction, causal, so chunks give what the whole recording gives. Where the headings
 are the gyroscopes' alone, the pipeline then turns the whole arm to its sensors' mean
-heading (``Pipeline._apply_constraints``).
+heading, each sensor's own turned by the drift taken back at its rests (``drift``,
+``Pipeline._apply_constraints``).
 
 The running sums and the turn of the segments run in one compiled pass per chunk
 (``_constrain``): on a live stream's 10-sample chunks a dozen numpy calls cost far more
@@ -85,16 +86,16 @@ def _turned_python(t, gyr, times, state, out):
 def _mean_turn_python(Rw, chain, offsets, turned, floor):
     """Turn the segments ``chain`` (int array, k) of ``Rw`` (N, S, 3, 3) about the world's
     vertical to the weighted mean of their sensors' own headings, in place: segment
-    ``chain[j]`` (j ≥ 1) has its own heading at the chain's minus ``offsets[j − 1, n]``
-    [rad] ((k − 1, N)), the first the chain's; weights ``1 / (floor + turned[j, n])`` with
-    ``turned`` (k, N) the angle each sensor has turned [rad]."""
+    ``chain[j]`` has its own heading at the chain's minus ``offsets[j, n]`` [rad] ((k, N));
+    weights ``1 / (floor + turned[j, n])`` with ``turned`` (k, N) the angle each sensor
+    has turned [rad]."""
     for n in range(Rw.shape[0]):
-        total = 1.0 / (floor + turned[0, n])
+        total = 0.0
         shift = 0.0
-        for j in range(1, chain.shape[0]):
+        for j in range(chain.shape[0]):
             weight = 1.0 / (floor + turned[j, n])
             total += weight
-            shift += weight * offsets[j - 1, n]
+            shift += weight * offsets[j, n]
         angle = -shift / total
         c, s = math.cos(angle), math.sin(angle)
         for segment in chain:

@@ -57,6 +57,17 @@ class PipelineConfig:
         return next(s for s in REFERENCE_ORDER if s in self.sensors)
 
 
+def _turn_about_vertical(R: np.ndarray, h: np.ndarray) -> None:
+    """Turn ``R`` (N, 3, 3) ``R_world_segment`` about the world's vertical by ``h`` [rad]
+    (N,), in place (``Rz(h) · R``)."""
+    if not h.any():
+        return
+    c, s = np.cos(h)[:, None], np.sin(h)[:, None]
+    r0, r1 = R[:, 0, :].copy(), R[:, 1, :].copy()
+    R[:, 0, :] = c * r0 - s * r1
+    R[:, 1, :] = s * r0 + c * r1
+
+
 class Pipeline:
     """Feed samples with ``feed``, marks with ``add_mark`` (or poses up front); take
     estimates with ``poll`` as they become available and the rest with ``finish``."""
@@ -258,6 +269,7 @@ class Pipeline:
         n = len(times)
         Rw = np.empty((n, 5, 3, 3))  # R_world_segment in SEGMENTS order
         present = np.zeros(5)
+        taken: dict[int, np.ndarray] = {}  # segment → heading drift taken back [rad]
         for name, track in self._tracks.items():
             if track.first_t == np.inf:
                 continue
@@ -266,6 +278,8 @@ class Pipeline:
             segment_orientations(t, q, times, self.calibration.R_sensor_segment[name],
                                  self.calibration.heading[name], out=Rw[:, index])
             present[index] = 1.0
+            if track.nine_axis is False:
+                taken[index] = np.interp(times, t, track.headings_taken_back())
         if not present[0]:  # no trunk sensor: the thorax stays where calibration put it
             Rw[:, 0] = self.calibration.R_world_thorax
             present[0] = 1.0
@@ -275,7 +289,10 @@ class Pipeline:
                 Rw, present, self._wrist.at(times), self._wrist.shoulder_thorax,
                 _SEGMENT_INDEX["upper_arm"], _SEGMENT_INDEX["forearm"])
         if self._constraints:
-            self._apply_constraints(times, Rw, present)
+            self._apply_constraints(times, Rw, present, taken)
+        else:
+            for index, h in taken.items():
+                _turn_about_vertical(Rw[:, index], h)
         angles, residuals, positions, R_world_all = self._joints.update(Rw, present)
         if points_flexion is not None and self.gamma is not None and self.gamma.forearm_imu:
             self.gamma.compare(points_flexion, angles[:, _ELBOW_FLEXION], flagged)
@@ -287,8 +304,8 @@ class Pipeline:
             self._wrist.discard_before(last)
         return EstimateArrays(times, angles, residuals, positions, R_world_all)
 
-    def _apply_constraints(self, times: np.ndarray, Rw: np.ndarray, present: np.ndarray
-                           ) -> None:
+    def _apply_constraints(self, times: np.ndarray, Rw: np.ndarray, present: np.ndarray,
+                           taken: dict[int, np.ndarray]) -> None:
         """Turn the forearm and hand about the vertical by their joints' heading error.
         (A left arm's medial Z flips ``u·v`` and ``D`` alike: the estimate is the same.)
         Without an upper-arm sensor the upper arm hangs still from its parent (the stated
@@ -302,13 +319,21 @@ class Pipeline:
         the mean of its sensors' own headings (the mean of independent drifts: up to √3
         smaller with three sensors) rather than left on the upper arm's alone, each weighed
         by ``1 / (MEAN_HEADING_FLOOR_RAD + the angle it has turned)``: a resting sensor's
-        heading holds (an elbow exercise's still upper arm keeps the arm's heading)."""
+        heading holds (an elbow exercise's still upper arm keeps the arm's heading).
+
+        ``taken`` (segment → [rad] at ``times``) is each 6-axis sensor's heading drift taken
+        back at its rests (``drift``): with the mean it enters only the mean (each sensor's
+        own heading turned by it), so its steps never break the joints' ties; without the
+        mean each segment is turned by its own before the constraints."""
         forearm, hand = _SEGMENT_INDEX["forearm"], _SEGMENT_INDEX["hand"]
         upper_arm = next(s for s in (_SEGMENT_INDEX["upper_arm"], _SEGMENT_INDEX["clavicle"],
                                      _SEGMENT_INDEX["thorax"]) if present[s])
         pairs = {"forearm": (upper_arm, forearm, 2, 1),
                  "hand": (forearm, hand, 0, 2)}
         mean = self._mean_heading and upper_arm == _SEGMENT_INDEX["upper_arm"]
+        if not mean:
+            for index, h in taken.items():
+                _turn_about_vertical(Rw[:, index], h)
         chain, offsets = [upper_arm], []
         for segment, constraint in self._constraints.items():
             parent, child, u_axis, v_axis = pairs[segment]
@@ -321,13 +346,21 @@ class Pipeline:
             if mean and parent in chain:
                 chain.append(child)
                 offsets.append(delta)  # the child's own heading is the chain's − delta
+        if mean:
+            for index, h in taken.items():
+                if index not in chain or len(chain) == 1:
+                    _turn_about_vertical(Rw[:, index], h)
         if len(chain) > 1:
             turned = np.empty((len(chain), len(times)))
+            own = np.empty((len(chain), len(times)))  # chain's − own heading [rad]
             for j, segment in enumerate(chain):
                 t, _, gyr, _ = self._tracks[_SENSOR_OF_SEGMENT[segment]].arrays()
                 turned_angle(t, gyr, times, self._turned.setdefault(segment, np.zeros(1)),
                              turned[j])
-            mean_turn(Rw, np.array(chain, dtype=np.int64), np.array(offsets), turned,
+                own[j] = offsets[j - 1] if j else 0.0
+                if segment in taken:
+                    own[j] -= taken[segment]
+            mean_turn(Rw, np.array(chain, dtype=np.int64), own, turned,
                       MEAN_HEADING_FLOOR_RAD)
 
 

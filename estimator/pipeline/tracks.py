@@ -12,6 +12,7 @@ import numpy as np
 from ..errors import InvalidArgument
 from ..orientation import OrientationFilter, make_filter
 from ..rotations import quat_to_matrix
+from . import drift as drift_module
 
 
 def _not_increasing_python(t, last):
@@ -58,6 +59,8 @@ class SensorTrack:
     _acc: np.ndarray = field(default_factory=lambda: np.empty((1024, 3)), init=False)
     _gyr: np.ndarray = field(default_factory=lambda: np.empty((1024, 3)), init=False)
     _q: np.ndarray = field(default_factory=lambda: np.empty((1024, 4)), init=False)
+    #: The heading drift taken back so far at each sample [rad] (``drift``; 0: none).
+    _h: np.ndarray = field(default_factory=lambda: np.zeros(1024), init=False)
     #: The magnetometer's chunks until calibration (``forget_magnetometer``), [µT].
     _mag: list | None = field(default_factory=list, init=False)
     # Packed samples (equal stamps): the first stamp, samples seen, and the current run
@@ -66,6 +69,7 @@ class SensorTrack:
     _seen: int = field(default=0, init=False)
     _run_stamp: float = field(default=np.nan, init=False)
     _run_start: int = field(default=0, init=False)
+    _drift: drift_module.DriftTakeBack | None = field(default=None, init=False)
     _start: int = field(default=0, init=False)  # first kept row
     _end: int = field(default=0, init=False)  # one past the last row
 
@@ -98,10 +102,22 @@ class SensorTrack:
         self._acc[self._end:end] = acc
         self._gyr[self._end:end] = gyr
         self._q[self._end:end] = q
+        self._take_back_drift(self._end, end)
         self._end = end
         self.last_t = float(t[-1])
         if self.first_t == np.inf:
             self.first_t = float(t[0])
+
+    def _take_back_drift(self, start: int, end: int) -> None:
+        """A 6-axis sensor's heading drift between rests (``drift``) for the buffers' rows
+        ``start:end``, into ``_h`` (zero on a 9-axis sensor)."""
+        if self.nine_axis or not drift_module.ENABLED:
+            self._h[start:end] = 0.0
+            return
+        if self._drift is None:
+            self._drift = drift_module.DriftTakeBack()
+        self._drift.apply(self._t[start:end], self._acc[start:end], self._gyr[start:end],
+                          self._q[start:end], self._h[start:end])
 
     def append_rows(self, rows: np.ndarray) -> None:
         """``append`` of stream rows (n, 10) float64 ``[t, ax, ay, az, gx, gy, gz, mx, my,
@@ -138,6 +154,7 @@ class SensorTrack:
                       self._gyr, self._q, self._end):
             self.append(rows[:, 0], rows[:, 1:4], rows[:, 4:7], mag)  # no compiled kernel
             return
+        self._take_back_drift(self._end, self._end + n)
         self._end += n
         self.last_t = float(rows[n - 1, 0])
         if self.first_t == np.inf:
@@ -234,7 +251,7 @@ class SensorTrack:
         kept = slice(self._start, self._end)
         size = self._end - self._start
         capacity = max(len(self._t), 2 * (size + n))
-        for name in ("_t", "_acc", "_gyr", "_q"):
+        for name in ("_t", "_acc", "_gyr", "_q", "_h"):
             old = getattr(self, name)
             new = np.empty((capacity, *old.shape[1:]))
             new[:size] = old[kept]
@@ -252,6 +269,11 @@ class SensorTrack:
         """``(t, acc, gyr, q)`` of the samples kept (contiguous views, not copies)."""
         kept = slice(self._start, self._end)
         return self._t[kept], self._acc[kept], self._gyr[kept], self._q[kept]
+
+    def headings_taken_back(self) -> np.ndarray:
+        """The heading drift taken back at each sample kept [rad] (``drift``): the sensor's
+        heading is ``Rz(h) · R(q)`` (a contiguous view)."""
+        return self._h[self._start:self._end]
 
     def times(self) -> np.ndarray:
         """``t`` of the samples kept (a contiguous view)."""
