@@ -153,7 +153,8 @@ def upload_recording(db: Db, who: Annotated[models.Therapist | models.Device,
         # a kit's upload is one of its new sessions (ARMTRACK_MAX_NEW_SESSIONS_PER_KIT_HOUR):
         # counted, then stored, one upload of the kit at a time; one coming meanwhile is
         # refused at once rather than holding a worker thread while it waits
-        one_at_a_time = new_sessions.one_upload_at_a_time(device_id)
+        one_at_a_time = new_sessions.one_upload_at_a_time(
+            device_id, new_sessions.upload_lock_file(svc.engine))
     else:
         if patient_id is None:
             raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
@@ -165,32 +166,12 @@ def upload_recording(db: Db, who: Annotated[models.Therapist | models.Device,
     with one_at_a_time as taken:
         if not taken:
             raise HTTPException(status.HTTP_429_TOO_MANY_REQUESTS, new_sessions.BUSY)
-        if device_id is not None:
-            db.commit()  # nothing written yet: the count sees the kit's last upload
-            why = new_sessions.refusal(db, device_id, svc.settings.max_new_sessions_per_kit_hour)
-            if why is not None:
-                raise HTTPException(status.HTTP_429_TOO_MANY_REQUESTS, why)
-        if file is not None:
-            try:
-                recording = parse_recording(file.file.read())
-            except EstimatorError as exc:
-                raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                                    f"{file.filename or 'file'}: {exc}") from None
-        else:
-            if not sensors:
-                raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                                    "files need a sensors map (JSON: sensor → file name)")
-            recording = imports.import_upload(files, sensors, patient, format, calibration,
-                                              side, height_m, options,
-                                              svc.settings.max_upload_bytes)
         try:
-            session = add_recording(db, patient, recording, device_id)
-        except InvalidArgument as exc:
-            db.rollback()
-            name = file.filename if file is not None else "files"
-            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
-                                f"{name or 'file'}: {exc}") from None
-        db.commit()
+            session = _count_and_store(db, svc, patient, device_id, file, files, sensors,
+                                       format, calibration, side, height_m, options)
+        except BaseException:
+            db.rollback()  # the kit's database turns go at once, whatever went wrong
+            raise
     audit.note(patient_id=patient.id, session_id=session.id)
     # estimated where closed sessions are (store.background)
     job = imports.start_processing(svc, session.id)
@@ -201,6 +182,54 @@ def upload_recording(db: Db, who: Annotated[models.Therapist | models.Device,
     job.result()  # this thread waits for it
     db.refresh(session)
     return session_out(session)
+
+
+def _count_and_store(db, svc: Services, patient: models.Patient, device_id: int | None,
+                     file: UploadFile | None, files: list[UploadFile] | None,
+                     sensors: str | None, format: str | None, calibration: str | None,
+                     side: str | None, height_m: float | None, options: str | None
+                     ) -> models.Session:
+    """The upload read and stored as a new closed session (committed). A kit's
+    (``device_id``) is one of its new sessions: its upload turn across instances is taken
+    for the whole transaction (429 ``BUSY`` at once when another instance has it), the
+    count made before the file is read and again, in the kit's count turn, just before the
+    session is stored, so a hello of the kit racing this upload cannot both pass."""
+    from . import imports  # vendor importers load only when used
+
+    limit = svc.settings.max_new_sessions_per_kit_hour
+    if device_id is not None:
+        db.commit()  # nothing written yet: what follows is one transaction
+        if not new_sessions.upload_turn(db, device_id):
+            raise HTTPException(status.HTTP_429_TOO_MANY_REQUESTS, new_sessions.BUSY)
+        why = new_sessions.refusal(db, device_id, limit)  # over the limit: nothing is read
+        if why is not None:
+            raise HTTPException(status.HTTP_429_TOO_MANY_REQUESTS, why)
+    if file is not None:
+        try:
+            recording = parse_recording(file.file.read())
+        except EstimatorError as exc:
+            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                                f"{file.filename or 'file'}: {exc}") from None
+    else:
+        if not sensors:
+            raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                                "files need a sensors map (JSON: sensor → file name)")
+        recording = imports.import_upload(files, sensors, patient, format, calibration,
+                                          side, height_m, options,
+                                          svc.settings.max_upload_bytes)
+    if device_id is not None:
+        new_sessions.count_turn(db, device_id)  # a hello of the kit counts before or after
+        why = new_sessions.refusal(db, device_id, limit)
+        if why is not None:
+            raise HTTPException(status.HTTP_429_TOO_MANY_REQUESTS, why)
+    try:
+        session = add_recording(db, patient, recording, device_id)
+    except InvalidArgument as exc:
+        name = file.filename if file is not None else "files"
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,
+                            f"{name or 'file'}: {exc}") from None
+    db.commit()
+    return session
 
 
 @router.get("/sessions/{session_id}/recording.csv", response_class=Response,

@@ -378,7 +378,10 @@ class IngestConnection:
         patient = db.get(models.Patient, self.patient_id)
         assert patient is not None
         # one token, no flood of sessions (each one costs every later progress report):
-        # refused before anything is stored; the kit keeps its data and tries again later
+        # refused before anything is stored; the kit keeps its data and tries again later.
+        # Counted in the kit's turn, held until the commit below: an upload of the kit
+        # racing this hello counts before or after it, never beside it
+        new_sessions.count_turn(db, self.device_id)
         why = new_sessions.refusal(db, self.device_id,
                                    self.settings.max_new_sessions_per_kit_hour)
         if why is not None:
