@@ -582,3 +582,78 @@ def test_a_new_session_refused_at_the_kits_limit_is_kept_and_sent_later(limited_
         _all_stored_once_in_two(server, phone, events, first, second)
     finally:
         proxy.close()
+
+
+@pytest.fixture(scope="module")
+def refusing_server(tmp_path_factory):
+    """A server that closes a stream (4429) after more than 2 refused messages in 10 s."""
+    from server_support import ServerProcess
+
+    process = ServerProcess(tmp_path_factory.mktemp("kit-refusing"),
+                            env={"ARMTRACK_REFUSED_LIMIT": "2"})
+    process.create_user("alice")
+    process.start(timeout=180)
+    yield process
+    process.stop()
+
+
+#: Counts the WebSockets the page opens (window.__sockets), before any of its scripts runs.
+COUNT_SOCKETS = """
+window.__sockets = 0;
+const RealWebSocket = window.WebSocket;
+window.WebSocket = class extends RealWebSocket {
+  constructor(...args) { super(...args); window.__sockets += 1; }
+};
+"""
+
+
+def test_the_phone_kit_stops_when_the_server_refuses_its_own_messages(refusing_server,
+                                                                      phone, shots):
+    """After ``ready``, the server closes the stream 4429 when too many of the kit's own
+    messages were refused (``ARMTRACK_REFUSED_LIMIT``): sending them again would be refused
+    again, so the page stops (no reconnect, no more readings) and tells the patient in
+    plain words to contact the therapist. (A 4429 in answer to hello, a busy server, is
+    still waited on: ``test_a_new_session_refused_at_the_kits_limit_is_kept_and_sent_later``.)
+    The refused messages are the page's own marks with a label over the server's 100
+    characters."""
+    server = refusing_server
+    api = server.client("alice")
+    patient = api.patient("Refused Patient")
+    device = api.device(patient["id"], "phone")
+    events = motion_events(phone_simulation(seed=12))
+    phone.add_init_script(COUNT_SOCKETS)
+    _start_kit(phone, server.url, device["token"], shots, "r")
+    phone.click("#ready")
+    phone.evaluate(FEEDER, events)
+    _wait(lambda: phone.evaluate("kit.stream && kit.stream.connected && kit.stream.samples > 60"),
+          30, "the kit streaming")
+    opened = phone.evaluate("window.__sockets")
+    for _ in range(3):  # refused: a label of 101 characters
+        phone.evaluate("kit.stream.mark('x'.repeat(101))")
+    _wait(lambda: phone.evaluate("kit.stream.closes >= 1"), 20, "the server's close")
+    phone.wait_for_timeout(8000)  # the old page tried again after 0.5 s, 1 s, 2 s, 4 s …
+    sockets = phone.evaluate("window.__sockets") - opened
+    stopped = phone.evaluate("kit.stream.stopped")
+    taken = phone.evaluate("kit.stream.samples")
+    phone.wait_for_timeout(1000)
+    taken_later = phone.evaluate("kit.stream.samples")
+    heading = phone.locator("h1").inner_text()
+    said = phone.locator("#screen").inner_text()
+    wide = phone.evaluate("document.documentElement.scrollWidth")
+    phone.screenshot(path=str(shots / "r3-stopped-refused.png"))
+    print(f"\nafter close 4429 past ready: {sockets} new connections in 8 s; stopped "
+          f"{stopped!r}; readings {taken} → {taken_later} a second later; page {wide} px "
+          f"wide; heading {heading!r}; says {said!r}")
+    assert sockets == 0, f"the page connected {sockets} times more after the 4429"
+    assert stopped is not None and "refused messages" in stopped["reason"], stopped
+    assert "label" in (stopped["lastRefused"] or ""), stopped
+    assert phone.evaluate("kit.stream.connected") is False
+    assert taken_later == taken  # no readings taken once stopped
+    assert heading == "Sending stopped"
+    assert "contact your therapist" in said and "saved" in said, said
+    assert "contact your therapist" in phone.locator("#status").inner_text()
+    assert "refused messages" in phone.locator("#stopped-reason").inner_text()
+    assert wide <= 390  # nothing wider than the phone
+    # nothing acked was lost: the session holds what the server took before the close
+    session = api.session(phone.evaluate("kit.stream.state.session"))
+    assert session["samples"] > 0

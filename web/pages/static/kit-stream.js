@@ -117,7 +117,7 @@ const KitStore = {
  */
 class KitStream {
   constructor({ token, sensor, side, device, program, onChange, onFeedback, onClose, onReady,
-                onEndedByTherapist }) {
+                onEndedByTherapist, onStopped }) {
     this.token = token;
     this.sensor = sensor;
     this.side = side;
@@ -128,6 +128,8 @@ class KitStream {
     this.onClose = onClose || (() => {});
     this.onReady = onReady || (() => {});
     this.onEndedByTherapist = onEndedByTherapist || (() => {});
+    this.onStopped = onStopped || (() => {});
+    this.stopped = null;   // {reason, lastRefused}: the server stopped this kit (_stopRefused)
     // {stream, session, nextSeq, startEpoch, lastT, sensor, side, acked, program, ratings}
     // ratings: effort_pain messages not yet stored by the server (effort-pain/1)
     this.state = null;
@@ -362,11 +364,29 @@ class KitStream {
       if (event.code === 4400 && this._closedNext != null) { this._carryOver(this._closedNext); return; }
       if (event.code === 4400 && this._gone) { this._abandon(); return; }
       if (event.code === 4400) { this.error = "the server refused the stream: " + event.reason; return; }
+      // 4429 after ready: too many of this phone's own messages refused; sending them again
+      // would be refused again (4429 in answer to hello is a busy server: tried again below)
+      if (event.code === 4429 && ws.wasReady) { this._stopRefused(event.reason); return; }
       if (!this.state.finished) {
         setTimeout(() => this.connect(), this._retry);
         this._retry = Math.min(this._retry * 2, 5000);
       }
     };
+  }
+
+  /** The server closed the stream after `ready` for too many refused messages (close
+   * 4429, ARMTRACK_REFUSED_LIMIT): this phone's own data, not a busy server, so no retry
+   * would help. The kit stops: no reconnect, no more readings taken; what is not sent stays
+   * in the outbox (a reload of the page tries again) and the page tells the patient to
+   * contact the therapist (onStopped). */
+  _stopRefused(reason) {
+    this.flush();  // the readings taken go to the outbox, kept
+    this.ended = true;
+    clearInterval(this._flushTimer);
+    this.stopped = { reason: reason || "", lastRefused: this._lastRefused || null };
+    this.error = "Sending stopped: please contact your therapist";
+    this.onChange(this);
+    this.onStopped(this.stopped);
   }
 
   /** The server closed this session (its stream stored `nextSeq` messages, on the wire's
@@ -432,6 +452,7 @@ class KitStream {
 
   async _message(ws, message) {
     if (message.type === "ready") {
+      ws.wasReady = true;  // a 4429 from now on is about this phone's messages
       this.state.stream = message.stream;
       this.state.session = message.session;
       this.extensions = message.extensions || [];
@@ -464,6 +485,7 @@ class KitStream {
       this.onChange(this);
       if (this.ended) this._byeWhenDone();
     } else if (message.type === "error") {
+      if (message.seq != null) this._lastRefused = message.reason;
       if (message.seq == null && /resume|session/.test(message.reason || "")) {
         this.error = message.reason;
         this._helloRefused = true;  // a later ready clears it

@@ -72,7 +72,8 @@ function say(text) {
 function buzz(pattern) { try { if (navigator.vibrate) navigator.vibrate(pattern); } catch (_) { /* none */ } }
 /** A session runs: from "I'm ready" (or its resume) until it has ended and all is sent. */
 function sessionRuns() {
-  return Boolean(kit.stream && kit.stream.state && !kit.stream.state.finished);
+  return Boolean(kit.stream && kit.stream.state && !kit.stream.state.finished
+                 && !kit.stream.stopped);
 }
 /** The screen kept on (Wake Lock) while a session runs only; taken again on a return to
  * the page (the browser lets it go when the page is hidden), released at the end. */
@@ -276,7 +277,7 @@ function onReady(message) {
 function newStream(program) {
   return new KitStream({
     token: kit.token, sensor: kit.sensor, side: kit.side, device: PHONE_KIT,
-    program, onChange: status, onReady, onEndedByTherapist: () => finished(), onFeedback: (f) => { kit.feedback = f; kit.feedbackAt = Date.now(); },
+    program, onChange: status, onReady, onEndedByTherapist: () => finished(), onStopped: stopped, onFeedback: (f) => { kit.feedback = f; kit.feedbackAt = Date.now(); },
   });
 }
 
@@ -536,6 +537,21 @@ async function finished() {
       letSleep();
     }
   });
+}
+
+/** The server stopped taking this phone's readings (too many of them refused, close 4429
+ * after ready): trying again would not help, so the kit stops and says, in plain words,
+ * what happened and what to do. The server's own words follow, for the therapist. */
+function stopped({ reason, lastRefused }) {
+  screen(el("h1", {}, "Sending stopped"),
+    el("p", { class: "lead", id: "stopped" },
+      "The server stopped taking readings from this phone, because too many of them could not be used."),
+    el("p", { class: "lead" }, "Please stop the exercises for now and contact your therapist. Show them this screen."),
+    el("p", {}, "Your readings so far are saved (those not sent yet, on this phone). Your therapist will tell you when to open this page again."),
+    el("p", { class: "note", id: "stopped-reason" },
+      "For your therapist: " + (reason || "close 4429") + (lastRefused ? ` (last refused: ${lastRefused})` : "")));
+  say("Sending stopped. Please contact your therapist.");
+  letSleep();
 }
 
 // -- start, resume -----------------------------------------------------------------------
