@@ -156,3 +156,51 @@ def test_one_upload_of_a_kit_at_a_time_across_two_instances(tmp_path, database_e
     finally:
         b.stop()
         a.stop()
+
+
+def test_a_hello_waits_for_the_kits_count_turn_a_bounded_time(tmp_path, postgres_url):
+    """On PostgreSQL a hello takes the kit's count turn (``new_sessions.count_turn``) while
+    an upload of the kit may hold it until its inserts commit (seconds for a large one): a
+    hello waits at most ``HELLO_WAIT_S`` in its database thread (the server has 4), then is
+    refused as busy (4429 before ready: the kit tries again). The turn is free again once
+    the holder commits. Real PostgreSQL, the server's migrations."""
+    from armtrack.server.db import models
+    from armtrack.server.db.engine import make_engine, make_sessionmaker
+    from armtrack.server.db.migrate import upgrade
+    from armtrack.server.kit import new_sessions
+    from server_support import add_patient
+
+    engine = make_engine(fresh_postgres_database(postgres_url))
+    upgrade(engine)
+    factory = make_sessionmaker(engine)
+    with factory() as db:
+        device = models.Device(patient_id=add_patient(db, "p", None).id, name="kit",
+                               token_hash="h")
+        db.add(device)
+        db.commit()
+        device_id = device.id
+    results: list[tuple[bool, float]] = []
+    with factory() as upload, factory() as hello:
+        assert new_sessions.count_turn(upload, device_id) is True  # held: not committed
+
+        def take() -> None:
+            began = time.monotonic()
+            results.append((new_sessions.count_turn(hello, device_id,
+                                                    wait_s=new_sessions.HELLO_WAIT_S),
+                            time.monotonic() - began))
+
+        import threading
+        waiter = threading.Thread(target=take, daemon=True)
+        waiter.start()
+        waiter.join(new_sessions.HELLO_WAIT_S + 10)
+        print(f"\nthe hello's turn while an upload holds it: {results}")
+        assert results, "the hello still waits"
+        taken, took = results[0]
+        assert taken is False and new_sessions.HELLO_WAIT_S - 0.1 <= took \
+            <= new_sessions.HELLO_WAIT_S + 2
+        upload.commit()
+        began = time.monotonic()
+        assert new_sessions.count_turn(hello, device_id, wait_s=new_sessions.HELLO_WAIT_S)
+        assert time.monotonic() - began < 1.0
+        hello.commit()
+    engine.dispose()

@@ -381,7 +381,9 @@ class IngestConnection:
         # refused before anything is stored; the kit keeps its data and tries again later.
         # Counted in the kit's turn, held until the commit below: an upload of the kit
         # racing this hello counts before or after it, never beside it
-        new_sessions.count_turn(db, self.device_id)
+        if not new_sessions.count_turn(db, self.device_id, wait_s=new_sessions.HELLO_WAIT_S):
+            raise Refused(f"hello: {new_sessions.BUSY_HELLO}",
+                          close_code=protocol.CLOSE_TOO_MANY_ERRORS)  # before ready: waited on
         why = new_sessions.refusal(db, self.device_id,
                                    self.settings.max_new_sessions_per_kit_hour)
         if why is not None:

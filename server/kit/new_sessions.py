@@ -24,6 +24,7 @@ from contextlib import contextmanager
 from datetime import timedelta
 
 from sqlalchemy import Engine, func, select, text
+from sqlalchemy.exc import OperationalError
 from sqlalchemy.orm import Session as DbSession
 
 from .. import clock
@@ -35,6 +36,10 @@ BUSY = "another upload from this kit is being stored; send this one when it is d
 
 # PostgreSQL advisory locks (two int4 keys): this class, the kit's id
 COUNT_LOCK = 0x6B31  # the count and the new session's insert
+#: How long a hello waits for the kit's count turn [s] (an upload's inserts may hold it)
+HELLO_WAIT_S = 3.0
+BUSY_HELLO = ("another new session of this kit is being stored (an upload); "
+              "try again in a moment")
 UPLOAD_LOCK = 0x6B32  # one upload of the kit being counted and stored
 
 _storing: set[int] = set()  # kits with an upload being counted and stored
@@ -44,16 +49,30 @@ _storing_lock = threading.Lock()
 _lock_files: dict[str, int] = {}
 
 
-def count_turn(db: DbSession, device_id: int) -> None:
+def count_turn(db: DbSession, device_id: int, wait_s: float | None = None) -> bool:
     """The kit's turn for the count (``refusal``) and the new session's insert, held until
     ``db``'s transaction ends: a hello and an upload of one kit, in any thread, process or
-    instance, count one after the other, each seeing the other's session. Short: taken
-    just before the count, released by the commit that stores the session."""
-    if db.get_bind().dialect.name == "postgresql":
-        db.execute(text("SELECT pg_advisory_xact_lock(CAST(:k AS integer), CAST(:d AS integer))"),
-                   {"k": COUNT_LOCK, "d": device_id})
-    else:  # SQLite: a write first takes the one write lock, so the count sees every commit
+    instance, count one after the other, each seeing the other's session. Taken just
+    before the count, released by the commit that stores the session. With ``wait_s``
+    (PostgreSQL; SQLite waits its busy timeout as every writer does) False after that
+    long, the transaction rolled back: an upload holds the turn through its inserts."""
+    if db.get_bind().dialect.name != "postgresql":
+        # SQLite: a write first takes the one write lock, so the count sees every commit
         db.execute(text("UPDATE devices SET name = name WHERE id = :d"), {"d": device_id})
+        return True
+    if wait_s is not None:
+        db.execute(text(f"SET LOCAL lock_timeout = {max(1, round(wait_s * 1000))}"))
+    try:
+        db.execute(text("SELECT pg_advisory_xact_lock(CAST(:k AS integer), "
+                        "CAST(:d AS integer))"), {"k": COUNT_LOCK, "d": device_id})
+    except OperationalError as exc:
+        if getattr(exc.orig, "sqlstate", None) != "55P03":  # lock_not_available
+            raise
+        db.rollback()
+        return False
+    if wait_s is not None:
+        db.execute(text("SET LOCAL lock_timeout = DEFAULT"))
+    return True
 
 
 def upload_lock_file(engine: Engine) -> str | None:
