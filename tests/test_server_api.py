@@ -185,7 +185,10 @@ def test_the_migrations_make_the_models_schema(tmp_path):
         assert connection.exec_driver_sql("PRAGMA journal_mode").scalar() == "wal"
 
 
-def test_closing_a_live_session_ends_its_stream_and_estimates_it(module_server, alice):
+def stream_then_close(module_server, alice, repetitions: int, query: str = ""):
+    """A kit streams a simulated session (its acks awaited), then the therapist closes it
+    with ``POST /api/sessions/{id}/close{query}``: (recording, session id, the close's
+    answer, the stream's close code)."""
     import asyncio
     import json
 
@@ -194,11 +197,12 @@ def test_closing_a_live_session_ends_its_stream_and_estimates_it(module_server, 
     from websockets.asyncio.client import connect
     from websockets.exceptions import ConnectionClosed
 
-    recording = simulate(SimulationConfig(exercise="elbow_flexion", repetitions=2)).recording
+    recording = simulate(SimulationConfig(exercise="elbow_flexion",
+                                          repetitions=repetitions)).recording
     patient = alice.patient("Closed live")
     token = alice.device(patient["id"])["token"]
 
-    async def stream_then_close():
+    async def run():
         async with connect(module_server.ws_url,
                            additional_headers={"Authorization": f"Bearer {token}"}) as ws:
             await ws.send(json.dumps({"type": "hello", "protocol": 1, "device": "kit",
@@ -215,13 +219,17 @@ def test_closing_a_live_session_ends_its_stream_and_estimates_it(module_server, 
             while json.loads(await ws.recv()) != {"type": "ack", "seq": seq - 1}:
                 pass
             answer = await asyncio.to_thread(
-                alice.http.post, f"/api/sessions/{ready['session']}/close")
+                alice.http.post, f"/api/sessions/{ready['session']}/close{query}")
             with pytest.raises(ConnectionClosed) as closed:
                 while True:
                     await ws.recv()
             return ready["session"], answer, closed.value.rcvd.code
 
-    session_id, answer, code = asyncio.run(stream_then_close())
+    return recording, *asyncio.run(run())
+
+
+def test_closing_a_live_session_ends_its_stream_and_estimates_it(module_server, alice):
+    recording, session_id, answer, code = stream_then_close(module_server, alice, 2)
     assert code == 1000
     assert answer.status_code == 200, answer.text
     closed = answer.json()
@@ -229,3 +237,26 @@ def test_closing_a_live_session_ends_its_stream_and_estimates_it(module_server, 
     assert closed["samples"] == sum(len(s) for s in recording.sensors.values())
     again = alice.http.post(f"/api/sessions/{session_id}/close")
     assert again.status_code == 409
+
+
+def test_closing_without_waiting_answers_before_the_estimation(module_server, alice):
+    """``?wait=false`` (docs/extensions/close-without-wait.md): 202 once the session is
+    closed and its stream ended, the estimation following in the background (a therapist's
+    page need not hold a request open for it); the session is then estimated as usual."""
+    import time
+
+    began = time.monotonic()
+    recording, session_id, answer, code = stream_then_close(module_server, alice, 12,
+                                                            "?wait=false")
+    assert code == 1000
+    assert answer.status_code == 202, answer.text
+    assert answer.headers["location"] == f"/api/sessions/{session_id}"
+    closed = answer.json()
+    print(f"closed without waiting: {closed['samples']} samples, processed "
+          f"{closed['processed']} at the answer")
+    assert closed["status"] == "closed" and not closed["processed"]
+    assert closed["samples"] == sum(len(s) for s in recording.sensors.values())
+    estimated = alice.wait_processed(session_id, timeout=300)
+    print(f"estimated {time.monotonic() - began:.1f} s after the stream began")
+    assert estimated["processed"], estimated["processing_error"]
+    assert alice.http.post(f"/api/sessions/{session_id}/close?wait=false").status_code == 409

@@ -72,10 +72,16 @@ def get_session(session_id: Id, db: Db, therapist: Therapist) -> SessionOut:
     return session_out(own_session(db, therapist, session_id))
 
 
-@router.post("/sessions/{session_id}/close", response_model=SessionOut)
+@router.post("/sessions/{session_id}/close", response_model=SessionOut,
+             responses={202: {"model": SessionOut,
+                              "description": "closed; its estimation follows (wait=false)"}})
 async def close_session(session_id: Id, therapist: Therapist,
-                        svc: Annotated[Services, Depends(get_services)]) -> SessionOut:
-    """Close a live or interrupted session (a live stream is ended) and estimate it."""
+                        svc: Annotated[Services, Depends(get_services)],
+                        response: Response, wait: bool = True) -> SessionOut:
+    """Close a live or interrupted session (a live stream is ended) and estimate it: the
+    answer waits for the estimation, or with ``wait=false`` (docs/extensions/
+    close-without-wait.md) comes once the session is closed, 202, the estimation following
+    (``processed`` turns true on ``GET /api/sessions/{id}``)."""
     session = await svc.run_db(lambda db: own_session(db, therapist, session_id))
     if session.status == "closed":
         raise HTTPException(status.HTTP_409_CONFLICT, f"session {session_id} is already closed")
@@ -85,8 +91,13 @@ async def close_session(session_id: Id, therapist: Therapist,
         await svc.run_db(mark_closed, session_id)
     finally:
         svc.closing.discard(session_id)
-    with contextlib.suppress(ProcessingFailed):  # logged; the session shows no estimates
-        await svc.process_later(session_id, DEFAULT_FILTER)
+    estimation = svc.process_later(session_id, DEFAULT_FILTER)
+    if not wait:
+        response.status_code = status.HTTP_202_ACCEPTED
+        response.headers["Location"] = f"/api/sessions/{session_id}"
+    else:
+        with contextlib.suppress(ProcessingFailed):  # logged; the session shows no estimates
+            await estimation
     return await svc.run_db(lambda db: session_out(db.get(models.Session, session_id)))
 
 

@@ -191,7 +191,7 @@ const PatientTools = (() => {
         el("button", { class: "secondary close-session", onclick: async (event) => {
           event.currentTarget.disabled = true;
           try {
-            await api(`/api/sessions/${s.id}/close`, { method: "POST" });
+            await api(`/api/sessions/${s.id}/close?wait=false`, { method: "POST" });  // estimated in the background: polled below
             interrupted();
             whenEstimated(s.id).then(() => progress()).catch(() => {});
           }
