@@ -5,6 +5,7 @@ fallback gives the compiled numbers; the joint angles worked in blocks of the ke
 work space (``arm/compiled._chunk_python``) equal those of small chunks."""
 
 import numpy as np
+import pytest
 from armtrack.estimator.pipeline import constraints
 from armtrack.estimator.pipeline.constraints import HeadingConstraint
 from armtrack.estimator.rotations import elemental, quat_to_matrix
@@ -79,10 +80,10 @@ def test_mean_turn_is_elemental_z_by_the_weighted_mean_compiled_or_not():
     turned)``, the other segments untouched."""
     rng = np.random.default_rng(8)
     _, Rw = stack(rng, 300)
-    offsets = rng.uniform(-0.2, 0.2, (2, len(Rw)))
+    offsets = rng.uniform(-0.2, 0.2, (3, len(Rw)))  # each sensor's own, drift taken back
     turned = rng.uniform(0.0, 50.0, (3, len(Rw)))
     w = 1.0 / (1.0 + turned)
-    angle = -(w[1] * offsets[0] + w[2] * offsets[1]) / w.sum(axis=0)
+    angle = -(w * offsets).sum(axis=0) / w.sum(axis=0)
     expected = Rw.copy()
     for s in (1, 2, 3):
         expected[:, s] = elemental("z", angle) @ Rw[:, s]
@@ -91,6 +92,8 @@ def test_mean_turn_is_elemental_z_by_the_weighted_mean_compiled_or_not():
         kernel(got, np.array([1, 2, 3], dtype=np.int64), offsets, turned, 1.0)
         np.testing.assert_allclose(got, expected, atol=1e-12)
         np.testing.assert_array_equal(got[:, (0, 4)], Rw[:, (0, 4)])
+        with pytest.raises(ValueError):  # one offset row per segment, or no turn at all
+            kernel(Rw.copy(), np.array([1, 2, 3], dtype=np.int64), offsets[:2], turned, 1.0)
 
 
 def test_angle_turned_in_chunks_equals_whole_compiled_or_not():

@@ -89,6 +89,8 @@ def _mean_turn_python(Rw, chain, offsets, turned, floor):
     ``chain[j]`` has its own heading at the chain's minus ``offsets[j, n]`` [rad] ((k, N));
     weights ``1 / (floor + turned[j, n])`` with ``turned`` (k, N) the angle each sensor
     has turned [rad]."""
+    if offsets.shape[0] != chain.shape[0] or turned.shape[0] != chain.shape[0]:
+        raise ValueError("mean_turn: one row of offsets and of turned per chain segment")
     for n in range(Rw.shape[0]):
         total = 0.0
         shift = 0.0
