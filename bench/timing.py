@@ -16,6 +16,15 @@ and what that does to BROAD's inclination score. Run by hand (~2 min; not a test
    lag. An estimator that integrates a lagging gyroscope lags by as much; reading it
    later scores the tilt physics apart from the timing.
 
+3. **VQF at qcf's convention** (with VQF): VQF integrates each interval with the
+   interval's own (later) sample, qcf with the mean of its two ends (a sample is the rate
+   at its stamp). VQF fed that mean, ``(ω[i−1] + ω[i]) / 2``, integrates as qcf does;
+   fed it with qcf's ``tau_acc`` as well, only the two filters' tilt physics (the
+   accelerometer correction, rest and bias handling) differ. The gap qcf − VQF (6D
+   inclination, s = 0) splits per trial into convention (VQF at qcf's convention − VQF),
+   time constant (… with qcf's ``tau_acc`` − … without) and the rest (qcf − both), summed
+   by BROAD group.
+
 Prints per-trial lags and the means. Writes nothing.
 """
 
@@ -65,12 +74,15 @@ def gyro_lag(t_gyr: np.ndarray, gyr: np.ndarray, t_opt: np.ndarray, q_opt: np.nd
 
 def broad_part(path: Path, with_vqf: bool) -> None:
     from armtrack.estimator.orientation import make_filter
+    from armtrack.estimator.orientation.qcf import QcfParams
+    tau_qcf = QcfParams().tau_acc
     files = sorted(path.glob("*.mat"))
     if not files:
         print(f"no BROAD trials at {path}", file=sys.stderr)
         return
     names = ["qcf"] + (["vqf"] if with_vqf else [])
     scores = {n: [] for n in names}
+    same = []  # per trial: VQF at qcf's convention, the same with qcf's tau_acc [°]
     lags = []
     print(f"{'BROAD trial':<46}{'lag':>7}   6D inclination [°] at s = 0, ½, 1, lag")
     for file in files:
@@ -91,6 +103,9 @@ def broad_part(path: Path, with_vqf: bool) -> None:
                 row.append(broad.broad_errors(shifted, trial.opt_quat, trial.movement)[2])
             scores[name].append(row)
             line += f"   {name} " + " ".join(f"{x:.2f}" for x in row)
+        if with_vqf:
+            same.append([vqf_at_qcf_convention(trial, tau_acc) for tau_acc in (None, tau_qcf)])
+            line += "   same convention " + " ".join(f"{x:.2f}" for x in same[-1])
         print(line, flush=True)
     print(f"\nBROAD: the gyroscope lags the optical reference by {np.mean(lags):.2f} samples "
           f"({np.mean(lags) / trials_rate(files) * 1000:.1f} ms) on average "
@@ -100,6 +115,47 @@ def broad_part(path: Path, with_vqf: bool) -> None:
         print(f"  {name} 6D inclination, estimate read s samples later: "
               + ", ".join(f"s={s:g}: {m:.3f}°" for s, m in zip(SHIFTS, mean[:3], strict=True))
               + f", s=lag: {mean[3]:.3f}°")
+    if with_vqf:
+        print_decomposition([f.stem for f in files], np.array(scores["qcf"])[:, 0],
+                            np.array(scores["vqf"])[:, 0], np.array(same))
+
+
+def vqf_at_qcf_convention(trial, tau_acc: float | None) -> float:
+    """BROAD 6D inclination [°] of VQF fed the mean of each interval's two gyroscope
+    samples (qcf's trapezoid), with VQF's own ``tauAcc`` or ``tau_acc`` [s]."""
+    from vqf import VQF
+    gyr = np.array(trial.gyr, dtype=float)
+    gyr[1:] = 0.5 * (trial.gyr[1:] + trial.gyr[:-1])
+    kwargs = {} if tau_acc is None else {"tauAcc": float(tau_acc)}
+    q = VQF(1.0 / trial.rate, **kwargs).updateBatch(
+        np.ascontiguousarray(gyr), np.ascontiguousarray(trial.acc, dtype=float))["quat6D"]
+    return broad.broad_errors(q, trial.opt_quat, trial.movement)[2]
+
+
+def print_decomposition(names: list[str], qcf: np.ndarray, vqf: np.ndarray,
+                        same: np.ndarray) -> None:
+    """The gap qcf − VQF (6D inclination [°], per trial) split into the integration
+    convention, the accelerometer time constant and the rest, by BROAD group."""
+    convention, tau, rest = same[:, 0] - vqf, same[:, 1] - same[:, 0], qcf - same[:, 1]
+    gap = qcf - vqf
+    print(f"\nBROAD 6D inclination, mean of {len(names)}: qcf {qcf.mean():.3f}°, VQF "
+          f"{vqf.mean():.3f}°, VQF at qcf's convention {same[:, 0].mean():.3f}°, the same "
+          f"with qcf's tau_acc {same[:, 1].mean():.3f}°")
+    print(f"gap qcf − VQF {gap.mean():+.3f}° = convention {convention.mean():+.3f} + tau_acc "
+          f"{tau.mean():+.3f} + the rest {rest.mean():+.3f}")
+    groups: dict[str, list[int]] = {}
+    for i, name in enumerate(names):
+        parts = name.split("_")[1:]
+        if parts[-1] in "ABCD" or parts[-1].endswith("cm"):
+            parts = parts[:-1]
+        groups.setdefault("_".join(parts), []).append(i)
+    print(f"{'group':<42}{'n':>3}{'qcf':>7}{'VQF':>7}{'share':>7}"
+          f"{'conv.':>8}{'tau':>8}{'rest':>8}   (means of the group's trials [°])")
+    for group, index in groups.items():
+        ix = np.array(index)
+        print(f"{group:<42}{len(ix):>3}{qcf[ix].mean():7.2f}{vqf[ix].mean():7.2f}"
+              f"{gap[ix].sum() / gap.sum() * 100:6.0f}%{convention[ix].mean():+8.3f}"
+              f"{tau[ix].mean():+8.3f}{rest[ix].mean():+8.3f}")
 
 
 def trials_rate(files: list[Path]) -> float:
