@@ -11,7 +11,6 @@ import numpy as np
 
 from ..errors import InvalidArgument
 from ..orientation import OrientationFilter, make_filter
-from ..rotations import quat_to_matrix
 from . import drift as drift_module
 
 
@@ -217,20 +216,26 @@ class SensorTrack:
         return fresh.reference_field()
 
     def pose_field(self, start: float, end: float) -> tuple[float, float] | None:
-        """The mean field's norm [µT] and dip [rad] over ``start…end`` [s], turned into
-        the world by the filter's orientations (only their tilt matters); None without
+        """The field's mean norm [µT] and dip [rad] over ``start…end`` [s], the dip as the
+        angle between the accelerometer's and the magnetometer's readings, sample by
+        sample (in a held pose the accelerometer reads the upright; a sway's accelerations
+        average out): no filter's tilt enters, which while a never-resting sensor's bias
+        is unknown is off by bias × the tilt time constant (degrees). None without
         magnetometer samples there."""
         if not self.nine_axis or self._mag is None or not self._mag or self.discarded:
             return None
-        t, _, _, q = self.arrays()
+        t, acc, _, _ = self.arrays()
         a, b = np.searchsorted(t, start, "left"), np.searchsorted(t, end, "right")
         if b <= a:
             return None
-        mag = np.concatenate(self._mag)[a:b]
-        world = np.einsum("nij,nj->ni", quat_to_matrix(q[a:b]), mag)
-        norm = np.linalg.norm(world, axis=1)
-        dip = np.arctan2(-world[:, 2], np.hypot(world[:, 0], world[:, 1]))
-        return float(norm.mean()), float(dip.mean())
+        mag, acc = np.concatenate(self._mag)[a:b], acc[a:b]
+        norm = np.linalg.norm(mag, axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            sine = -np.einsum("ni,ni->n", acc, mag) / (np.linalg.norm(acc, axis=1) * norm)
+        sine = sine[np.isfinite(sine)]
+        if not sine.size:
+            return None
+        return float(norm.mean()), float(np.arcsin(np.clip(sine, -1.0, 1.0)).mean())
 
     def forget_magnetometer(self) -> None:
         """Stop keeping the magnetometer's samples (they serve calibration only)."""
