@@ -240,6 +240,71 @@ def score_chain(trial: ChainTrial, filters: dict, memory: dict | None = None,
     return rows
 
 
+def _circular_mean(angle: np.ndarray) -> float:
+    return float(np.arctan2(np.mean(np.sin(angle)), np.mean(np.cos(angle))))
+
+
+def _wrap(angle: np.ndarray) -> np.ndarray:
+    return (angle + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def sensor_headings(trial: ChainTrial) -> list[dict]:
+    """Per sensor, 9D, t ≥ 5 s: where its field points and how each filter's heading errs.
+
+    The field read with the optical truth orientation (sensor → optical world, µT): its
+    heading relative to the chain's north (the circular mean of the five sensors' field
+    headings), its dip and norm; each filter's heading error (the turn about the vertical
+    of ``q_est ⊗ q_true⁻¹``) about that filter's own north (the circular mean of its five
+    sensors' errors, so the optical world's arbitrary north drops out): mean and RMS [°];
+    the fraction of samples each filter took the field as disturbed, and the time [s]
+    VQF first accepted a reference field (NaN: never)."""
+    from armtrack.estimator.orientation import make_filter
+    from scipy.spatial.transform import Rotation
+    from vqf import VQF
+    truth = {s: truth_sensor(trial, s) for s in range(1, 6)}
+    field, errors, flags, accepted = {}, {"armtrack": {}, "vqf": {}}, {}, {}
+    for s in range(1, 6):
+        imu = trial.imus[s]
+        q_true = np.column_stack([np.interp(imu.t, trial.t_omc, truth[s][:, k])
+                                  for k in range(4)])
+        ok = np.isfinite(q_true).all(axis=1) & (imu.t >= SCORED_FROM_S)
+        q_true = q_true[ok] / np.linalg.norm(q_true[ok], axis=1)[:, None]
+        mag = imu.mag * 49.0
+        m_world = Rotation.from_quat(q_true, scalar_first=True).apply(mag[ok])
+        field[s] = m_world
+        out = make_filter("qcf").update_batch(imu.t, imu.acc, imu.gyr, mag)
+        v = VQF(float(imu.t[1] - imu.t[0])).updateBatch(imu.gyr, imu.acc,
+                                                         np.ascontiguousarray(mag))
+        dist = np.asarray(v["magDistDetected"], dtype=bool)
+        flags[s] = (float(np.mean(out.mag_disturbed[ok])), float(np.mean(dist[ok])))
+        clean = np.flatnonzero(~dist)
+        accepted[s] = float(imu.t[clean[0]]) if clean.size else float("nan")
+        for name, q in (("armtrack", out.q), ("vqf", v["quat9D"])):
+            E = qmul(q[ok], qinv(q_true))
+            errors[name][s] = 2.0 * np.arctan2(E[:, 3], E[:, 0])
+    north = _circular_mean(np.concatenate(
+        [np.arctan2(m[:, 0], m[:, 1]) for m in field.values()]))
+    offsets = {name: _circular_mean(np.concatenate(list(e.values())))
+               for name, e in errors.items()}
+    rows = []
+    for s in range(1, 6):
+        m = field[s]
+        heading = _wrap(np.arctan2(m[:, 0], m[:, 1]) - north)
+        dip = np.arctan2(-m[:, 2], np.hypot(m[:, 0], m[:, 1]))
+        row = dict(part="sensor", item=f"{trial.name} seg{s}", mode="9D",
+                   field_heading=np.rad2deg(_circular_mean(heading)),
+                   field_dip=np.rad2deg(np.mean(dip)),
+                   field_norm=float(np.mean(np.linalg.norm(m, axis=1))),
+                   armtrack_disturbed=flags[s][0], vqf_disturbed=flags[s][1],
+                   vqf_accepted_s=accepted[s])
+        for name, e in errors.items():
+            about = np.rad2deg(_wrap(e[s] - offsets[name]))
+            row[f"{name}_mean"] = float(np.mean(about))
+            row[f"{name}_rms"] = float(np.sqrt(np.mean(about ** 2)))
+        rows.append(row)
+    return rows
+
+
 # --- the arm recordings -------------------------------------------------------------------
 
 def arm_recordings(data: Path, trials=(1, 2)) -> list[tuple[str, Path, Path]]:
@@ -310,7 +375,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
     parser.add_argument("--trials", default="1,2")
     parser.add_argument("--no-vqf", action="store_true")
-    parser.add_argument("--skip", choices=("arm", "pairs"), default=None)
+    parser.add_argument("--skip", choices=("arm", "pairs", "sensors"), action="append",
+                        default=[])
     args = parser.parse_args(argv)
     if not (args.data / "arm").is_dir():
         print(f"no RING data at {args.data}", file=sys.stderr)
@@ -318,7 +384,7 @@ def main(argv: list[str] | None = None) -> int:
     trials = tuple(int(x) for x in args.trials.split(","))
     rows = []
     start = time.perf_counter()
-    if args.skip != "arm":
+    if "arm" not in args.skip:
         print("arm recording, RMSE ° cold / with kit memory (trial 2 from trial 1's learnt "
               "biases; trial 1 has no earlier session)")
         print(f"{'':<30}" + "".join(f"{a:>20}" for a in ANGLES))
@@ -331,7 +397,7 @@ def main(argv: list[str] | None = None) -> int:
                                  rmse=cold[a], drift="", inclination="", angle=a))
                 rows.append(dict(part="arm", item=name, hinge="", filter="armtrack+memory",
                                  mode="", rmse=memory[a], drift="", inclination="", angle=a))
-    if args.skip != "pairs":
+    if "pairs" not in args.skip:
         filters = dict(FILTERS)
         if args.no_vqf:
             del filters["vqf"]
@@ -387,9 +453,26 @@ def main(argv: list[str] | None = None) -> int:
                         print(f"  {f:<16}{mode}  RMSE {np.mean([r['rmse'] for r in chosen]):6.2f}"
                               f"  drift {drift:5.1f}  incl "
                               f"{np.mean([r['inclination'] for r in chosen]):5.2f}")
+    if "sensors" not in args.skip and not args.no_vqf:
+        print("\nper sensor, 9D, rigid, t ≥ 5 s: the field in the optical world (heading about "
+              "the chain's north, dip, norm) and each filter's heading error about its own "
+              "north, mean / RMS [°]; the share of samples taken as disturbed; VQF's first "
+              "accepted field [s]")
+        print(f"{'sensor':<22}{'field head':>11}{'dip':>6}{'µT':>6}{'armtrack':>16}"
+              f"{'vqf':>16}{'disturbed a/v':>15}{'vqf ref':>9}")
+        for trial in trials:
+            for r in sensor_headings(load_chain(args.data, trial, "rigid")):
+                rows.append(r)
+                print(f"{r['item']:<22}{r['field_heading']:11.1f}{r['field_dip']:6.1f}"
+                      f"{r['field_norm']:6.1f}{r['armtrack_mean']:8.1f} /{r['armtrack_rms']:5.1f}"
+                      f"{r['vqf_mean']:8.1f} /{r['vqf_rms']:5.1f}"
+                      f"{r['armtrack_disturbed']:8.2f} /{r['vqf_disturbed']:5.2f}"
+                      f"{r['vqf_accepted_s']:9.1f}", flush=True)
     print(f"\n{time.perf_counter() - start:.0f} s")
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    keys = ["part", "item", "hinge", "filter", "mode", "angle", "rmse", "drift", "inclination"]
+    keys = ["part", "item", "hinge", "filter", "mode", "angle", "rmse", "drift", "inclination",
+            "field_heading", "field_dip", "field_norm", "armtrack_mean", "armtrack_rms",
+            "vqf_mean", "vqf_rms", "armtrack_disturbed", "vqf_disturbed", "vqf_accepted_s"]
     with open(args.out, "w", newline="") as file:
         writer = csv.DictWriter(file, keys)
         writer.writeheader()

@@ -115,3 +115,73 @@ def test_broad_meets_the_bars(shared_dir):
           f"6D inclination {np.mean(inclination):.2f}°")
     assert np.mean(total) <= 2.3
     assert np.mean(inclination) <= 0.72
+
+
+#: Why RING's 9D seg4–seg5 pair is above VQF's (strict: remove when met). Measured with
+#: ``ring.sensor_headings`` (bench/README.md, ring.py): the field bends along the chain.
+RING_9D_SEG45 = (
+    "measured 9D seg4–seg5 26.51° (VQF 16.69°) on trial 1 and 23.82° (VQF 19.47°) on trial 2 "
+    "(held out); the other four rigid hinge pairs are below VQF. The field read with the "
+    "optical truth points +34/+37° off the chain's north at seg5 and +8/+11° at seg4, in both "
+    "trials (−32…+37° from seg1 to seg5; a hard-iron fit turns seg5's field by under 2°, a "
+    "soft- and hard-iron fit leaves 3.4–5.7 µT: a bent field, not a calibration a filter could "
+    "learn). qcf follows each sensor's field (seg4 −3.2/−0.7°, seg5 +21.2/+21.1° about its "
+    "north); VQF scores lower because it starts seg4 at the mean of its first 9 s (the "
+    "disturbed start included: k ≥ 1/N for tauMag), then integrates its gyroscope alone until "
+    "it first accepts seg4's field at 40.6/22.2 s (+13.8/+16.9°), erring the way seg5's field "
+    "bends. Per sensor qcf's heading is the closer on all ten: "
+    "test_ring_nine_axis_heading_per_sensor_is_closer_than_vqfs")
+
+
+@pytest.fixture(scope="module")
+def ring_joints(ring_dir):
+    """Per joint (ring.py): armtrack's filter and VQF, one sensor at a time, rigid IMUs."""
+    pytest.importorskip("vqf")
+    import ring
+    return {trial: ring.score_chain(ring.load_chain(ring_dir, trial, "rigid"), ring.FILTERS)
+            for trial in (1, 2)}
+
+
+def _hinge_rows(rows, mode):
+    return {(r["item"], r["filter"]): r for r in rows if r["hinge"] and r["mode"] == mode}
+
+
+@pytest.mark.parametrize("trial", [1, 2])
+def test_ring_joints_six_axis_below_vqf_with_less_drift(ring_joints, trial):
+    """RING per joint, 6D (issue 18): below VQF on every rigid hinge pair, in RMSE and in
+    heading drift (trial 1 tuned on, trial 2 held out)."""
+    rows = _hinge_rows(ring_joints[trial], "6D")
+    for item in sorted({item for item, _ in rows}):
+        ours, vqf = rows[(item, "armtrack")], rows[(item, "vqf")]
+        print(f"{item} 6D: armtrack {ours['rmse']:.2f}° ({ours['drift']:.1f} °/min), "
+              f"VQF {vqf['rmse']:.2f}° ({vqf['drift']:.1f} °/min)")
+        assert ours["rmse"] < vqf["rmse"]
+        assert abs(ours["drift"]) < abs(vqf["drift"])
+
+
+@pytest.mark.parametrize("trial", [
+    pytest.param(1, marks=pytest.mark.xfail(strict=True, reason=RING_9D_SEG45)),
+    pytest.param(2, marks=pytest.mark.xfail(strict=True, reason=RING_9D_SEG45))])
+def test_ring_joints_nine_axis_below_vqf(ring_joints, trial):
+    """RING per joint, 9D (issue 18): below VQF on every rigid hinge pair."""
+    rows = _hinge_rows(ring_joints[trial], "9D")
+    items = sorted({item for item, _ in rows})
+    for item in items:
+        print(f"{item} 9D: armtrack {rows[(item, 'armtrack')]['rmse']:.2f}°, "
+              f"VQF {rows[(item, 'vqf')]['rmse']:.2f}°")
+    above = [item for item in items if rows[(item, "armtrack")]["rmse"]
+             >= rows[(item, "vqf")]["rmse"]]
+    assert not above, above
+
+
+@pytest.mark.parametrize("trial", [1, 2])
+def test_ring_nine_axis_heading_per_sensor_is_closer_than_vqfs(ring_dir, trial):
+    """Each rigid sensor's 9D heading against the optical truth, about each filter's own
+    north (the world's north is arbitrary): armtrack's RMS below VQF's on every sensor,
+    t ≥ 5 s. The per-joint score rewards two sensors erring alike; this one does not."""
+    pytest.importorskip("vqf")
+    import ring
+    for r in ring.sensor_headings(ring.load_chain(ring_dir, trial, "rigid")):
+        print(f"{r['item']}: field {r['field_heading']:+.1f}° off the chain's north; heading "
+              f"error RMS armtrack {r['armtrack_rms']:.1f}°, VQF {r['vqf_rms']:.1f}°")
+        assert r["armtrack_rms"] < r["vqf_rms"], r
