@@ -28,9 +28,10 @@ from ..live.motion import MotionWatch, current_exercise, watch, watching
 from ..live.streams import STALE_S
 from ..services import Services
 from ..store.blocks import SAMPLE_COLUMNS, unpack_many
+from ..store.stopped import stopped_by_server
 from .deps import Therapist, own_patient
 from .deps import services as get_services
-from .schemas import Id
+from .schemas import Id, StoppedByServer
 
 router = APIRouter(prefix="/api", tags=["live"])
 
@@ -238,7 +239,9 @@ def live_status(svc: Services, db: DbSession, patient_id: int,
         "patient_id": patient_id,
         "session": {"id": session.id, "status": session.status,
                     "started_at": session.started_at.isoformat(),
-                    "device": (session.meta or {}).get("device"), "rate_hz": session.rate_hz},
+                    "device": (session.meta or {}).get("device"), "rate_hz": session.rate_hz,
+                    "stopped_by_server": None if (stop := stopped_by_server(session)) is None
+                    else StoppedByServer(**stop).model_dump(mode="json")},
         "connected": open_stream is not None,
         "sensors": sensors,
         "calibration": calibration,

@@ -83,6 +83,19 @@ class DeviceCreated(DeviceOut):
                                  "sensors at kit_url (not https): set ARMTRACK_PUBLIC_URL")
 
 
+class StoppedByServer(BaseModel):
+    """The server stopped the session's stream (docs/extensions/stream-stopped.md)."""
+    at: datetime = Field(description="when the server closed the stream (UTC)")
+    close_code: int = Field(description="the close code the kit got: 4429")
+    reason: str = Field(description="the close's reason, as the kit got it")
+    refused: int = Field(description="the kit's messages refused in the window")
+    refused_limit: int = Field(description="most refused messages a window allows "
+                               "(ARMTRACK_REFUSED_LIMIT)")
+    window_s: float = Field(description="the window [s] (ARMTRACK_REFUSED_WINDOW_S)")
+    last_refused: str = Field(description="the last refused message's error reason")
+    message: str = Field(description="what happened and what to do, for the therapist")
+
+
 class SessionOut(BaseModel):
     id: int
     patient_id: int
@@ -113,3 +126,6 @@ class SessionOut(BaseModel):
         "streamed", description="what started_at is: when the file was recorded (its "
         "start_time header, docs/extensions/start-time.md), when it was uploaded (no such "
         "header), or when the kit's stream started")
+    stopped_by_server: StoppedByServer | None = Field(
+        None, description="the server stopped the session's stream: why, when and what "
+        "to do (docs/extensions/stream-stopped.md); null when it never did")

@@ -28,6 +28,7 @@ from ..store.processing import (
     stored_estimates,
 )
 from ..store.recordings import add_recording, dated_by, session_recording
+from ..store.stopped import stopped_by_server
 from .deps import Db, Page, Therapist, current_therapist, oauth2, own_patient, own_session
 from .deps import services as get_services
 from .erase import erase_session
@@ -53,7 +54,7 @@ def session_out(session: models.Session) -> SessionOut:
         **session_coverage(session), processed=bool(session.estimate_columns),
         calibration=session.calibration,
         estimator=session.estimator, processing_error=session.processing_error,
-        dated=dated_by(session))
+        dated=dated_by(session), stopped_by_server=stopped_by_server(session))
 
 
 @router.get("/patients/{patient_id}/sessions", response_model=list[SessionOut])

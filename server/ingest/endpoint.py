@@ -47,6 +47,7 @@ from ..programs.today import exercise_bands
 from ..services import Services
 from ..store.gyro_bias import session_prior, session_priors_by_id
 from ..store.processing import mark_closed
+from ..store.stopped import record_stop
 from . import protocol
 from .feedback import FEEDBACK_EXTENSION, Band, FeedbackRunner, FeedbackTracker
 from .protocol import Hello, Refused
@@ -150,6 +151,8 @@ class IngestConnection:
         self.program_ref: int | str | None = None
         self.program: dict[str, Any] | None = None
         self.program_error: str | None = None
+        #: the server stopped this stream after ready (store/stopped.py's record)
+        self.stopped: dict[str, Any] | None = None
 
     # -- sending ------------------------------------------------------------------------
     async def send(self, message: dict[str, Any]) -> None:
@@ -209,9 +212,17 @@ class IngestConnection:
         while self._refused and self._refused[0] < now - self.settings.refused_window_s:
             self._refused.popleft()
         if len(self._refused) > self.settings.refused_limit:
-            await self.close(protocol.CLOSE_TOO_MANY_ERRORS,
-                             f"more than {self.settings.refused_limit} refused messages in "
-                             f"{self.settings.refused_window_s:g} s")
+            reason = (f"more than {self.settings.refused_limit} refused messages in "
+                      f"{self.settings.refused_window_s:g} s")
+            # kept on the session for the therapist (docs/extensions/stream-stopped.md):
+            # the phone kit stops for good after it and asks its patient to call them
+            self.stopped = {"at": clock.now().isoformat(),
+                            "close_code": protocol.CLOSE_TOO_MANY_ERRORS, "reason": reason,
+                            "refused": len(self._refused),
+                            "refused_limit": self.settings.refused_limit,
+                            "window_s": float(self.settings.refused_window_s),
+                            "last_refused": error.reason}
+            await self.close(protocol.CLOSE_TOO_MANY_ERRORS, reason)
 
     # -- the connection -----------------------------------------------------------------
     async def receive(self) -> str | None:
@@ -467,6 +478,13 @@ class IngestConnection:
         self.program = program_stream.followed_program(db, session.id)
         return session.id, session.height_m, stream.next_seq, dict(stream.last_t)
 
+    async def _keep_stop(self, session_id: int) -> None:
+        """The server stopped this stream: the session keeps why and when."""
+        try:
+            await self.services.run_db(record_stop, session_id, self.stopped)
+        except Exception as exc:  # the database locked or full: the kit was told anyway
+            log.warning("session %s: its stream's stop not kept: %s", session_id, exc)
+
     def _fenced(self) -> None:
         """Another instance stores this stream now (``writer``'s "Fencing"): this
         connection ends without marking the session interrupted; the kit resumes."""
@@ -584,6 +602,8 @@ class IngestConnection:
                 await self.worker.close()
         if state is None:
             return
+        if self.stopped is not None:
+            await self._keep_stop(state.session_id)
         if self.services.connections.get(state.stream_id) is self:
             # still registered until all is done, so that a resume waits for it (ended)
             await state.idle.wait()

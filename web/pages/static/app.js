@@ -223,6 +223,13 @@ function qualityBadge(quality) {
   return el("span", { class: "badge q-" + quality.grade, title: why.join("; ") }, text);
 }
 
+// The server stopped a kit's stream (a session's stopped_by_server, docs/extensions/
+// stream-stopped.md): when, and the server's words for the therapist. Text only.
+function stoppedNote(stop, heading = "h2") {
+  return [el(heading, {}, `The server stopped the kit's stream · ${fmtDate(stop.at)}`),
+    el("p", {}, stop.message)];
+}
+
 function statusBadge(status) {
   const labels = { live: "● Live", interrupted: "Interrupted", closed: "Finished" };
   return el("span", { class: "badge s-" + status }, labels[status] || status);

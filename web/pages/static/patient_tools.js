@@ -188,6 +188,8 @@ const PatientTools = (() => {
       el("p", { class: "muted small" }, "The kit lost its connection and has not resumed. Close a session to estimate what was recorded."),
       open.map((s) => el("div", { class: "row", style: "align-items:center", dataset: { session: s.id } },
         el("a", { href: "/sessions/" + s.id }, `Session ${s.id} · ${fmtDate(s.started_at)}`),
+        s.stopped_by_server ? el("span", { class: "badge s-interrupted", title: s.stopped_by_server.message },
+          `stopped by the server ${fmtDate(s.stopped_by_server.at)}`) : null,
         el("button", { class: "secondary close-session", onclick: async (event) => {
           event.currentTarget.disabled = true;
           try {

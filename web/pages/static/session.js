@@ -220,6 +220,7 @@ async function pollLive() {
   normals = liveStatus.normal_ranges || normals;
   if (liveStatus.session && liveStatus.session.id === session.id) {
     if (liveStatus.session.status !== session.status) { session.status = liveStatus.session.status; setStatus(); }
+    showStopped(liveStatus.session.stopped_by_server);
     document.getElementById("sensors-card").hidden = false;
     clear(document.getElementById("sensors"), sensorTable(liveStatus));
     renderCalibration(liveStatus);
@@ -252,6 +253,10 @@ function calibrationState(live) {
       title: `Hold the ${name}`, how: cal.instructions[p.name], still,
       stillText: still === null ? "Checking…" : still ? `Still ✓ — keep holding (${p.held_s.toFixed(0)} s)`
         : "Moving — please hold still", poses: cal.poses, warnings };
+  }
+  if (session.status !== "live" && session.stopped_by_server) {
+    return { phase: "stopped", kind: "warn", icon: "■", title: "The server stopped the kit's stream",
+      how: "The kit will not reconnect by itself: see why above; the data so far are stored.", poses: cal.poses, warnings };
   }
   if (session.status !== "live") {
     return { phase: "interrupted", kind: "warn", icon: "‖", title: "The stream is interrupted",
@@ -454,6 +459,15 @@ async function showReplay() {
   }
 }
 
+// ---------------------------------------------------------------- stopped by the server
+function showStopped(stop) {
+  const box = document.getElementById("stopped-by-server");
+  if (!stop) return;
+  session.stopped_by_server = stop;
+  clear(box, ...stoppedNote(stop));
+  box.hidden = false;
+}
+
 // ---------------------------------------------------------------- start
 function setStatus() {
   const actions = document.getElementById("actions");
@@ -468,6 +482,7 @@ async function start() {
   document.getElementById("title").textContent = `${patient.name} — ${session.status === "closed" ? "session" : "live session"} ${session.id}`;
   document.title = `${patient.name} · session ${session.id} · armtrack`;
   setStatus();
+  showStopped(session.stopped_by_server);
   LiveFollow.start(session);
   if (session.status === "closed") {
     openViewer("replay");
