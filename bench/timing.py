@@ -9,13 +9,15 @@ and what that does to BROAD's inclination score. Run by hand (~2 min; not a test
    the ``L`` (a grid of 0.05 samples over ±3 samples) with the least squared difference is
    the time by which a gyroscope sample lags the rate it measured. BROAD: over the movement
    phase; RING (``../shared/data/ring/chain``, sensor truth as ``bench/ring.py``): where
-   |ω| > 0.3 rad/s.
+   |ω| > 0.3 rad/s. The accelerometer's lag likewise: |acc| against |p̈ + g| from the
+   optical positions (BROAD's ``opt_pos``; RING: the segment's marker centre, every
+   sample whose smoothing window was seen), so the gyroscope's delay behind its own
+   accelerometer — a property of the sensor — is told apart from the data set's clocks.
 2. **BROAD's 6D inclination with the estimate read later**: qcf's and VQF's 6D estimates
    slerped to ``t + s·dt`` and scored against the optical reference at ``t`` (BROAD's
    metric, ``bench/broad.py``), for s = 0 (the benchmark), ½, 1 and the trial's measured
    lag. An estimator that integrates a lagging gyroscope lags by as much; reading it
    later scores the tilt physics apart from the timing.
-
 3. **VQF at qcf's convention** (with VQF): VQF integrates each interval with the
    interval's own (later) sample, qcf with the mean of its two ends (a sample is the rate
    at its stamp). VQF fed that mean, ``(ω[i−1] + ω[i]) / 2``, integrates as qcf does;
@@ -35,6 +37,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from scipy.io import loadmat
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
@@ -72,6 +75,30 @@ def gyro_lag(t_gyr: np.ndarray, gyr: np.ndarray, t_opt: np.ndarray, q_opt: np.nd
     return best_lag
 
 
+def acc_lag(t_acc: np.ndarray, acc: np.ndarray, t_opt: np.ndarray, pos: np.ndarray,
+            use: np.ndarray, window: int) -> float:
+    """Lag [s] of the accelerometer behind the optical positions: |acc| interpolated at
+    ``t + L`` against |p̈ + g| (p̈ a cubic Savitzky–Golay second derivative over ``window``
+    optical samples, symmetric: no delay of its own; the norm needs no frame), over the
+    optical samples ``use`` whose window holds no lost sample. The grid as ``gyro_lag``'s."""
+    from scipy.signal import savgol_filter
+    dt_opt = float(t_opt[1] - t_opt[0])
+    dt_acc = float(t_acc[1] - t_acc[0])
+    ok = np.isfinite(pos).all(axis=1)
+    p_dd = savgol_filter(np.where(ok[:, None], pos, 0.0), window, 3, deriv=2, delta=dt_opt,
+                         axis=0)
+    whole = np.convolve(ok, np.ones(window), "same") > window - 0.5
+    use = use & ok & whole
+    f = np.linalg.norm(p_dd[use] + [0.0, 0.0, 9.81], axis=1)
+    a = np.linalg.norm(acc, axis=1)
+    best, best_lag = np.inf, 0.0
+    for lag in np.arange(-3.0, 3.0001, 0.05) * dt_acc:
+        err = float(np.mean((np.interp(t_opt[use] + lag, t_acc, a) - f) ** 2))
+        if err < best:
+            best, best_lag = err, float(lag)
+    return best_lag
+
+
 def broad_part(path: Path, with_vqf: bool) -> None:
     from armtrack.estimator.orientation import make_filter
     from armtrack.estimator.orientation.qcf import QcfParams
@@ -83,14 +110,17 @@ def broad_part(path: Path, with_vqf: bool) -> None:
     names = ["qcf"] + (["vqf"] if with_vqf else [])
     scores = {n: [] for n in names}
     same = []  # per trial: VQF at qcf's convention, the same with qcf's tau_acc [°]
-    lags = []
-    print(f"{'BROAD trial':<46}{'lag':>7}   6D inclination [°] at s = 0, ½, 1, lag")
+    lags, acc_lags = [], []
+    print(f"{'BROAD trial':<46}{'lag':>7}{'acc':>7}   6D inclination [°] at s = 0, ½, 1, lag")
     for file in files:
         trial = broad.load_trial(file, ())
         movement = trial.movement[:-1] & trial.movement[1:]
         lag = gyro_lag(trial.t, trial.gyr, trial.t, trial.opt_quat, movement) * trial.rate
         lags.append(lag)
-        line = f"{trial.name:<46}{lag:+7.2f}"
+        pos = np.asarray(loadmat(file)["opt_pos"], dtype=float)
+        acc_lags.append(acc_lag(trial.t, trial.acc, trial.t, pos, trial.movement, 31)
+                        * trial.rate)
+        line = f"{trial.name:<46}{lag:+7.2f}{acc_lags[-1]:+7.2f}"
         for name in names:
             if name == "qcf":
                 q = make_filter("qcf").update_batch(trial.t, trial.acc, trial.gyr, None).q
@@ -109,7 +139,11 @@ def broad_part(path: Path, with_vqf: bool) -> None:
         print(line, flush=True)
     print(f"\nBROAD: the gyroscope lags the optical reference by {np.mean(lags):.2f} samples "
           f"({np.mean(lags) / trials_rate(files) * 1000:.1f} ms) on average "
-          f"(trials {min(lags):.2f}…{max(lags):.2f})")
+          f"(trials {min(lags):.2f}…{max(lags):.2f}); its accelerometer by "
+          f"{np.median(acc_lags):.2f} (median; trials {min(acc_lags):.2f}…"
+          f"{max(acc_lags):.2f}, the tapping ones' impacts the outliers): the gyroscope lags "
+          f"its own accelerometer by {np.median(np.subtract(lags, acc_lags)):.2f} samples "
+          f"(median of the trials)")
     for name in names:
         mean = np.mean(scores[name], axis=0)
         print(f"  {name} 6D inclination, estimate read s samples later: "
@@ -166,11 +200,13 @@ def ring_part(path: Path) -> None:
     if not (path / "chain").is_dir():
         print(f"no RING data at {path}", file=sys.stderr)
         return
-    print("\nRING: lag of each sensor's gyroscope behind the optical truth [40 Hz samples]")
+    print("\nRING: lag of each sensor's gyroscope (and accelerometer, against its segment's "
+          "marker centre) behind the optical truth [40 Hz samples]")
     for trial in (1, 2):
+        _, omc = ring._read(path / "chain" / f"trial{trial}" / "omc.csv")
         for mounting in ("rigid", "nonrigid"):
             chain = ring.load_chain(path, trial, mounting)
-            lags = []
+            lags, accs = [], []
             for s in range(1, 6):
                 truth = ring.truth_sensor(chain, s)
                 imu = chain.imus[s]
@@ -178,8 +214,15 @@ def ring_part(path: Path) -> None:
                 fast = np.linalg.norm(np.nan_to_num(optical_rate(truth, dt_opt)), axis=1) > 0.3
                 lags.append(gyro_lag(imu.t, imu.gyr, chain.t_omc, truth, fast)
                             / float(imu.t[1] - imu.t[0]))
+                pos = np.mean([np.column_stack([omc[f"seg{s}_marker{k}_{a}"] for a in "xyz"])
+                               for k in range(1, 5)], axis=0)
+                accs.append(acc_lag(imu.t, imu.acc, chain.t_omc, pos,
+                                    np.ones(len(pos), dtype=bool), 9)
+                            / float(imu.t[1] - imu.t[0]))
             print(f"  trial {trial} {mounting:<9}" + " ".join(f"{x:+.2f}" for x in lags)
-                  + f"   (median {np.median(lags):+.2f} = {np.median(lags) * 25:+.1f} ms)")
+                  + f"   (median {np.median(lags):+.2f} = {np.median(lags) * 25:+.1f} ms)"
+                  + "   accelerometer " + " ".join(f"{x:+.2f}" for x in accs)
+                  + f"   (median {np.median(accs):+.2f})")
 
 
 def main(argv: list[str] | None = None) -> int:
