@@ -236,3 +236,25 @@ def test_estimate_refuses_a_bias_memory_for_a_filter_that_cannot_take_one(tmp_pa
         assert result.returncode == 2, (sensors, result.stderr)
         assert "--gyro-bias-in" in result.stderr and "qcf" in result.stderr, result.stderr
         assert "Traceback" not in result.stderr and not out.exists()
+
+
+def test_estimate_refuses_a_hostile_bias_memory_naming_the_file(tmp_path):
+    """A memory file nested past the parser's depth, or holding a number too large for a
+    float, is refused naming the file (exit 2), not a traceback: the reader's
+    RecursionError, ValueError (more than 4300 digits) and OverflowError (math.isfinite of
+    a huge int) escaped it before."""
+    rec, memory, out = tmp_path / "r.csv", tmp_path / "kit.json", tmp_path / "angles.csv"
+    run("simulate", "--exercise", "elbow_flexion", "-o", rec)
+    entry = ('{{"forearm": {{"bias_rad_s": [{}, 0, 0], "learnt": "rest", "still_s": 2, '
+             '"age_s": 5}}}}')
+    for what, text in (("nested", "[" * 200_000 + "]" * 200_000),
+                       ("5000 digits", '{"format": "armtrack-gyro-bias/1", "sensors": '
+                        + entry.format("9" * 5000) + "}"),
+                       ("400 digits", '{"format": "armtrack-gyro-bias/1", "sensors": '
+                        + entry.format("9" * 400) + "}")):
+        memory.write_text(text)
+        result = run("estimate", rec, "-o", out, "--gyro-bias-in", memory, check=False)
+        print(what, result.returncode, result.stderr.strip()[-160:])
+        assert result.returncode == 2, (what, result.stderr[-500:])
+        assert str(memory) in result.stderr and "Traceback" not in result.stderr, what
+        assert not out.exists()

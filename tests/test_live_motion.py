@@ -160,6 +160,8 @@ def test_a_starved_live_estimation_lags_but_counts_every_repetition(server):
     pose_times: list[float] = []  # the stream time of each pose on the live feed
     listening = threading.Event()
 
+    listener_failed: list[BaseException] = []  # raised in the listener: the test's failure
+
     async def listen() -> None:
         url = (server.url.replace("http", "ws", 1)
                + f"/ws/live?patient={patient['id']}&token={api.token}")
@@ -171,21 +173,30 @@ def test_a_starved_live_estimation_lags_but_counts_every_repetition(server):
                     continue
                 if update.get("kind") == "pose":
                     pose_times.append(update["t"])
+        # the feed is closed (1000) here, by the test, before the server stops
 
-    listener = threading.Thread(target=lambda: asyncio.run(listen()), daemon=True)
+    def listen_here() -> None:
+        try:
+            asyncio.run(listen())
+        except BaseException as exc:  # seen by the test, not left to the thread's hook
+            listener_failed.append(exc)
+
+    listener = threading.Thread(target=listen_here, daemon=True)
     listener.start()
     kit = KitEmulator(short_exercise("elbow_flexion", repetitions=6), server.ws_url,
                       device["token"], device="busy-server kit", speed=1.0)
     kit_thread = threading.Thread(target=lambda: asyncio.run(kit.run()), daemon=True)
     kit_thread.start()
-    deadline = time.monotonic() + 60  # the process starts with the first stream
-    while not (pids := _live_processes(server.process.pid)) and time.monotonic() < deadline:
-        time.sleep(0.1)
-    assert pids, "the server started no live estimation process"
-    starver = Starver(pids, share=0.85)
     counts: list[int] = []
     session_id = None
-    try:
+    starver = None
+    try:  # from here on the listener is told to end, and waited for, whatever happens
+        deadline = time.monotonic() + 60  # the process starts with the first stream
+        while (not (pids := _live_processes(server.process.pid))
+               and time.monotonic() < deadline):
+            time.sleep(0.1)
+        assert pids, "the server started no live estimation process"
+        starver = Starver(pids, share=0.85)
         deadline = time.monotonic() + 180
         while kit_thread.is_alive() and time.monotonic() < deadline:
             answer = api.http.get(f"/api/patients/{patient['id']}/live")
@@ -197,9 +208,16 @@ def test_a_starved_live_estimation_lags_but_counts_every_repetition(server):
                 counts.append(status["exercise"]["repetitions"])
             time.sleep(0.5)
     finally:
-        starver.stop()
+        if starver is not None:
+            starver.stop()
         listening.set()
         kit_thread.join(60)
+        ended_at = time.monotonic()
+        listener.join(30)  # its feed closed before the server stops, not by its shutdown
+    print(f"listener ended {time.monotonic() - ended_at:.2f} s after it was told; "
+          f"alive {listener.is_alive()}, raised {listener_failed!r}")
+    assert not listener.is_alive(), "the live feed's listener did not end"
+    assert not listener_failed, listener_failed
     gaps = np.diff(pose_times)
     print(f"poses: {len(pose_times)}, stream-time gaps median {np.median(gaps):.2f} s, "
           f"{np.mean(gaps > 0.25):.0%} over 0.25 s; counts as polled: {counts}")

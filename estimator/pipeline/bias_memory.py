@@ -123,8 +123,19 @@ def read_bias_memory(path: Path) -> dict[str, RememberedBias]:
         document = json.loads(text)
     except json.JSONDecodeError as exc:
         raise InvalidArgument(f"{path}: not JSON ({exc})") from None
+    except (RecursionError, ValueError) as exc:  # nested too deep, an int of > 4300 digits
+        raise InvalidArgument(f"{path}: not a bias memory ({type(exc).__name__}: "
+                              f"{str(exc)[:80]})") from None
     return memory_from_json(document, str(path))
 
 
 def _is_number(value: object) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
+    """A JSON number a float holds (an int too large for one is not: math.isfinite of it
+    raises OverflowError)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    try:
+        float(value)
+    except OverflowError:
+        return False
+    return True

@@ -86,12 +86,19 @@ async def close_session(session_id: Id, therapist: Therapist,
     session = await svc.run_db(lambda db: own_session(db, therapist, session_id))
     if session.status == "closed":
         raise HTTPException(status.HTTP_409_CONFLICT, f"session {session_id} is already closed")
+    if session_id in svc.closing:  # closes at once (a double click): one closes, one estimates
+        raise HTTPException(status.HTTP_409_CONFLICT,
+                            f"session {session_id} is being closed already")
     svc.closing.add(session_id)
     try:
         await svc.end_session_streams(session_id, "session closed by the therapist")
-        await svc.run_db(mark_closed, session_id)
+        closed = await svc.run_db(mark_closed, session_id)
     finally:
         svc.closing.discard(session_id)
+    if closed is None:  # erased meanwhile
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"no session {session_id}")
+    if not closed:  # another instance's close (or the kit's bye) came first: it estimates
+        raise HTTPException(status.HTTP_409_CONFLICT, f"session {session_id} is already closed")
     estimation = svc.process_later(session_id, DEFAULT_FILTER)
     if not wait:
         response.status_code = status.HTTP_202_ACCEPTED
@@ -99,7 +106,14 @@ async def close_session(session_id: Id, therapist: Therapist,
     else:
         with contextlib.suppress(ProcessingFailed):  # logged; the session shows no estimates
             await estimation
-    return await svc.run_db(lambda db: session_out(db.get(models.Session, session_id)))
+    return await svc.run_db(_session_out_or_404, session_id)
+
+
+def _session_out_or_404(db, session_id: int) -> SessionOut:
+    session = db.get(models.Session, session_id)
+    if session is None:  # erased while it was closed or estimated
+        raise HTTPException(status.HTTP_404_NOT_FOUND, f"no session {session_id}")
+    return session_out(session)
 
 
 @router.delete("/sessions/{session_id}", status_code=status.HTTP_204_NO_CONTENT)

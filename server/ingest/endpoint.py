@@ -579,8 +579,9 @@ class IngestConnection:
         self._said_bye = True
         await self.state.idle.wait()
         await self.send({"type": "ack", "seq": self.state.durable_seq})
-        await self.services.run_db(mark_closed, self.state.session_id)
-        self.services.process_later(self.state.session_id, DEFAULT_FILTER)
+        if await self.services.run_db(mark_closed, self.state.session_id):
+            # (closed already: whoever closed it estimates it)
+            self.services.process_later(self.state.session_id, DEFAULT_FILTER)
         self.services.hub.publish(self.patient_id, {"kind": "session",
                                                     "session_id": self.state.session_id,
                                                     "status": "closed"})

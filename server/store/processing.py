@@ -19,7 +19,7 @@ from armtrack.estimator.pipeline.quality import residual_warnings
 from armtrack.estimator.recording import Recording
 from armtrack.estimator.recording.mismatch import recording_mismatch
 from armtrack.estimator.rotations import matrix_to_quat
-from sqlalchemy import delete, select
+from sqlalchemy import delete, select, update
 from sqlalchemy.orm import Session as DbSession
 from sqlalchemy.orm import sessionmaker
 
@@ -168,13 +168,18 @@ def stored_estimates(db: DbSession, session: models.Session) -> tuple[list[str],
     return columns, unpack_many(list(blobs), len(columns)) if columns else np.empty((0, 0))
 
 
-def mark_closed(db: DbSession, session_id: int) -> None:
-    """A live or interrupted session becomes closed, ended now (committed)."""
-    session = db.get(models.Session, session_id)
-    if session is not None and session.status != "closed":
-        session.status = "closed"
-        session.ended_at = clock.now()
-        db.commit()
+def mark_closed(db: DbSession, session_id: int) -> bool | None:
+    """A live or interrupted session becomes closed, ended now (committed): True; False
+    when it was closed already (by another instance, a kit's ``bye``), None when it is
+    gone. One statement, so of closes at once (any instances) exactly one gets True."""
+    changed = db.execute(update(models.Session)
+                         .where(models.Session.id == session_id,
+                                models.Session.status != "closed")
+                         .values(status="closed", ended_at=clock.now())).rowcount
+    db.commit()
+    if changed:
+        return True
+    return False if db.get(models.Session, session_id) is not None else None
 
 
 def process_in_background(factory: sessionmaker, session_id: int, filter_name: str,
