@@ -165,8 +165,8 @@ def test_a_swaying_kit_in_a_clean_field_keeps_its_magnetometers(seed, monkeypatc
     seen in the calibration poses (``pipeline/magnetic.py``) must read that dip, not the
     filters' tilt error of the first seconds — before, seeds 6 and 10 were flagged
     'magnetic-field-disturbed' (pose dips off by 4.8° and 4.7°; the filters' tilt in the
-    T-pose off by 3.3–5.7° while their biases were unknown) and lost every magnetometer
-    (worst angle 10.9° and 189°)."""
+    T-pose off by 3.3–5.7°: each had taken the sway's rate for a still start's bias) and
+    lost every magnetometer (worst angle 10.9° and 189°; now 0.69° and 0.75°)."""
     from armtrack.estimator.pipeline import session as session_module
 
     config = sway_config(seed)

@@ -45,7 +45,13 @@ windows so far · ``[90:99]`` R (sensor → I, rows) low-passed as the specific 
 ``[111:114]`` its rate · the tilt's bias window: ``[114:123]`` ∫ LP(R) dt [s],
 ``[123:126]`` ∫ LP(R b_subtracted) dt minus the tilt corrections (in I) [rad],
 ``[126]`` its time [s] · ``[127]`` the scatter its equations show [rad²] · ``[128]`` its
-equations so far · ``[129]`` the window's turn [rad].
+equations so far · ``[129]`` the window's turn [rad] · ``[130:133]`` the bias the filter
+started from (zero or the prior) [rad/s] · a still start's accelerometer: ``[133:136]``
+the sum over the block waiting for the guard time, ``[136:139]`` its first block's mean and
+``[139]`` that block's mid time [s], ``[140:143]`` its latest block's mean, ``[143]`` its
+mid time [s], ``[144:147]`` and ``[147:150]`` the gyroscope's sums over the first and the
+latest block [rad/s], ``[150]`` the accelerometer's Σ|a|² over the waiting block
+[m²/s⁴], ``[151]``, ``[152]`` the variance of the first and the latest block's mean [m²/s⁴].
 """
 
 from __future__ import annotations
@@ -56,7 +62,7 @@ import numpy as np
 
 from ..scalar_rotations import quat_to_rows
 
-STATE_SIZE = 130
+STATE_SIZE = 153
 
 # Indices into the parameter vector, see QcfParams.as_array.
 (P_TAU_ACC, P_TAU_MAG, P_TAU_LP, P_REST_GYR, P_REST_ACC, P_REST_TIME,
@@ -265,6 +271,13 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     p00, p11, p22, p01, p02, p12 = state[54], state[55], state[56], state[57], state[58], state[59]
     hb, yh, last_error = state[60], state[61], state[62]
     learnt_how, learnt_at, learnt_still = state[82], state[83], state[84]
+    b0x, b0y, b0z = state[130], state[131], state[132]
+    qax, qay, qaz = state[133], state[134], state[135]
+    a0x, a0y, a0z, a0t = state[136], state[137], state[138], state[139]
+    a1x, a1y, a1z, a1t = state[140], state[141], state[142], state[143]
+    w0x, w0y, w0z, w1x, w1y, w1z = (state[144], state[145], state[146], state[147], state[148],
+                                    state[149])
+    qa2, va0, va1 = state[150], state[151], state[152]
     last_step, s2 = state[85], state[86]
     scatter_f, scatter_h, n_win = state[87], state[88], state[89]
     lmx, lmy, lmz, m_started = state[63], state[64], state[65], state[66]
@@ -317,6 +330,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
             t_start = t[i]
             initialised = 1.0
             p00, p11, p22, p01, p02, p12 = bias_var, bias_var, bias_var, 0.0, 0.0, 0.0
+            b0x, b0y, b0z = bx, by, bz
             # the tilt's bias equation: R (sensor → I) and R b low-passed as the force is,
             # from the same start (the identity, still before)
             l00, l01, l02, l10, l11, l12 = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0
@@ -384,6 +398,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
             else:
                 still_time = 0.0
                 px, py, pz, pending, pending_time = 0.0, 0.0, 0.0, 0.0, 0.0
+                qax, qay, qaz, qa2 = 0.0, 0.0, 0.0, 0.0
             # A kit that starts still (on a table, held for a second) gives a provisional
             # bias before its stillness is a rest: half a second gives it to a few mrad/s,
             # where integrating an unknown one drifts by degrees a minute. Its samples
@@ -393,19 +408,64 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
                 px += wx
                 py += wy
                 pz += wz
+                qax += ax
+                qay += ay
+                qaz += az
+                qa2 += ax * ax + ay * ay + az * az
                 pending += 1.0
                 pending_time += dt
                 if pending_time >= rest_guard_first:
+                    mid = t[i] - 0.5 * pending_time
+                    mean_x, mean_y, mean_z = qax / pending, qay / pending, qaz / pending
+                    # the variance of the block's mean (all axes), from its own scatter
+                    spread = max(qa2 / pending - mean_x * mean_x - mean_y * mean_y
+                                 - mean_z * mean_z, 0.0) / pending
+                    if count == 0.0:
+                        a0x, a0y, a0z, a0t, va0 = mean_x, mean_y, mean_z, mid, spread
+                        w0x, w0y, w0z = px, py, pz
+                    a1x, a1y, a1z, a1t, va1 = mean_x, mean_y, mean_z, mid, spread
+                    w1x, w1y, w1z = px, py, pz
                     sx += px
                     sy += py
                     sz += pz
                     count += pending
                     evidence += pending_time
                     px, py, pz, pending, pending_time = 0.0, 0.0, 0.0, 0.0, 0.0
+                    qax, qay, qaz, qa2 = 0.0, 0.0, 0.0, 0.0
                 if still_time >= rest_time_first and count >= rest_min_samples_first:
-                    bx, by, bz = sx / count, sy / count, sz / count
-                    learnt_how, learnt_at, learnt_still = 1.0, t[i], evidence
-                    p00, p11, p22, p01, p02, p12 = rest_var, rest_var, rest_var, 0.0, 0.0, 0.0
+                    # Still, or a slow turn (a sway from the first sample) the loose
+                    # rest_rate lets through? Had the sensor turned by what the gyroscope
+                    # read between the first and the latest block's middles (Ω), gravity
+                    # would have turned with it: a turn if the accelerometer is nearer to
+                    # that, and moved beyond three times its noise (the blocks' scatter).
+                    n0 = math.sqrt(a0x * a0x + a0y * a0y + a0z * a0z)
+                    n1 = math.sqrt(a1x * a1x + a1y * a1y + a1z * a1z)
+                    turned = False
+                    if n0 > 0.0 and n1 > 0.0 and a1t > a0t:
+                        step = evidence / count  # the blocks' mean sample interval [s]
+                        ox = (sx - 0.5 * (w0x + w1x)) * step
+                        oy = (sy - 0.5 * (w0y + w1y)) * step
+                        oz = (sz - 0.5 * (w0z + w1z)) * step
+                        g0x, g0y, g0z = a0x / n0, a0y / n0, a0z / n0
+                        ex, ey, ez = a1x / n1 - g0x, a1y / n1 - g0y, a1z / n1 - g0z
+                        # g0 − Ω × g0: a vector fixed in the world, seen from a sensor
+                        # that turned by Ω
+                        tx = ex + (oy * g0z - oz * g0y)
+                        ty = ey + (oz * g0x - ox * g0z)
+                        tz = ez + (ox * g0y - oy * g0x)
+                        moved = ex * ex + ey * ey + ez * ez
+                        turned = (tx * tx + ty * ty + tz * tz < moved
+                                  and moved > 9.0 * (va0 / (n0 * n0) + va1 / (n1 * n1)))
+                    if not turned:
+                        bx, by, bz = sx / count, sy / count, sz / count
+                        learnt_how, learnt_at, learnt_still = 1.0, t[i], evidence
+                        p00, p11, p22, p01, p02, p12 = (rest_var, rest_var, rest_var,
+                                                        0.0, 0.0, 0.0)
+                    elif learnt_how == 1.0:  # a later block shows the turn: take it back
+                        bx, by, bz = b0x, b0y, b0z
+                        p00, p11, p22, p01, p02, p12 = (bias_var, bias_var, bias_var,
+                                                        0.0, 0.0, 0.0)
+                        learnt_how, learnt_at, learnt_still = 0.0, 0.0, 0.0
             elif still_time >= rest_time_needed:
                 at_rest = True
                 last_rest = t[i]
@@ -862,6 +922,13 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     state[123], state[124], state[125], state[126], state[127], state[128] = (zx, zy, zz, tw_time,
                                                                               scatter_t, n_tw)
     state[129] = tw_turn
+    state[130], state[131], state[132] = b0x, b0y, b0z
+    state[133], state[134], state[135] = qax, qay, qaz
+    state[136], state[137], state[138], state[139] = a0x, a0y, a0z, a0t
+    state[140], state[141], state[142], state[143] = a1x, a1y, a1z, a1t
+    (state[144], state[145], state[146], state[147], state[148],
+     state[149]) = w0x, w0y, w0z, w1x, w1y, w1z
+    state[150], state[151], state[152] = qa2, va0, va1
     return -1
 
 
