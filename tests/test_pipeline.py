@@ -192,6 +192,27 @@ def test_warnings_for_a_bad_t_pose_and_a_pose_not_held_still():
     _, calibration = estimate_recording(wobbly.recording)
     codes = {(w.code, w.sensor) for w in calibration.warnings}
     assert ("pose-not-still", "forearm") in codes and ("pose-not-still", "upper_arm") not in codes
+    still = [w.message for w in calibration.warnings if w.code == "pose-not-still"]
+    print(still)
+    assert all(m.startswith(("the forearm sensor was not still during the",  # and the hand
+                             "the hand sensor was not still during the")) for m in still)
+
+
+def test_a_whole_body_moving_through_the_poses_is_said_once_per_pose_in_plain_words():
+    """A trunk swaying through both poses moves every sensor of the kit: one warning per
+    pose saying so (not one per sensor and pose — eight lines that said the same), in
+    words without code names ("upper arm", not "upper_arm")."""
+    from test_estimation_hard_cases import sway_config
+
+    _, calibration = estimate_recording(simulate(sway_config(1)).recording)
+    still = [w for w in calibration.warnings if w.code == "pose-not-still"]
+    for w in calibration.warnings:
+        print(w.code, w.sensor, w.message)
+    assert [w.sensor for w in still] == [None, None]
+    assert [w.message.split(" (")[0] for w in still] == [
+        "every sensor moved during the N-pose", "every sensor moved during the T-pose"]
+    assert all("back supported" in w.message and "_" not in w.message
+               for w in calibration.warnings)
 
 
 def test_warning_for_swapped_sensors():

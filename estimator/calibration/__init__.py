@@ -8,7 +8,7 @@ from .mounting import (
     two_pose_R_sensor_segment,
 )
 from .plan import CalibrationPlan, poses_from_marks
-from .quality import CalibrationWarning, stillness_warning, turn_warning
+from .quality import CalibrationWarning, pose_stillness_warnings, stillness_warning, turn_warning
 
 __all__ = [
     "CalibrationPlan",
@@ -17,6 +17,7 @@ __all__ = [
     "default_R_segment_sensor",
     "heading_from_arm",
     "minmax_offset",
+    "pose_stillness_warnings",
     "poses_from_marks",
     "sphere_fit_offset",
     "stillness_warning",

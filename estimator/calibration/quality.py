@@ -8,6 +8,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,6 +27,16 @@ ARM_TURN_MIN_DEG = 45.0
 BODY_TURN_MAX_DEG = 30.0
 
 
+#: Where each sensor is worn, in the words a therapist or patient uses.
+PLACES = {"upper_arm": "upper arm", "forearm": "forearm", "hand": "hand", "trunk": "trunk",
+          "clavicle": "collarbone"}
+
+
+def place(sensor: str) -> str:
+    """``sensor``'s place in plain words ("upper arm" for ``upper_arm``)."""
+    return PLACES.get(sensor, sensor.replace("_", " "))
+
+
 @dataclass(frozen=True)
 class CalibrationWarning:
     """``code``: ``pose-not-still``, ``not-a-tpose``, ``sensor-swapped`` or
@@ -36,20 +47,46 @@ class CalibrationWarning:
     message: str
 
 
+def _motion(gyr: np.ndarray, acc: np.ndarray) -> tuple[float, float]:
+    """The gyroscope's rms about its mean [rad/s] and the accelerometer's spread [m/s²]."""
+    gyr_rms = float(np.sqrt(np.mean(np.sum((gyr - gyr.mean(axis=0)) ** 2, axis=1))))
+    acc_std = float(np.sqrt(np.mean(np.sum((acc - acc.mean(axis=0)) ** 2, axis=1))))
+    return gyr_rms, acc_std
+
+
 def stillness_warning(name: str, sensor: str, gyr: np.ndarray, acc: np.ndarray
                       ) -> CalibrationWarning | None:
     """A warning when ``sensor`` moved during the pose ``name``."""
     if len(gyr) < 2:
         return CalibrationWarning("pose-not-still", sensor,
-                                  f"the {name} window holds too few {sensor} samples")
-    gyr_rms = float(np.sqrt(np.mean(np.sum((gyr - gyr.mean(axis=0)) ** 2, axis=1))))
-    acc_std = float(np.sqrt(np.mean(np.sum((acc - acc.mean(axis=0)) ** 2, axis=1))))
+                                  f"the {name} window holds too few {place(sensor)} samples")
+    gyr_rms, acc_std = _motion(gyr, acc)
     if gyr_rms > STILL_GYR_RMS or acc_std > STILL_ACC_STD:
         return CalibrationWarning(
             "pose-not-still", sensor,
-            f"{sensor} was not still during the {name} (rotation {gyr_rms:.2f} rad/s rms, "
-            f"acceleration spread {acc_std:.2f} m/s²); hold the pose still and repeat it")
+            f"the {place(sensor)} sensor was not still during the {name} (rotation "
+            f"{gyr_rms:.2f} rad/s rms, acceleration spread {acc_std:.2f} m/s²); hold the pose "
+            f"still and repeat it")
     return None
+
+
+def pose_stillness_warnings(name: str, windows: Mapping[str, tuple[np.ndarray, np.ndarray]]
+                            ) -> list[CalibrationWarning]:
+    """The stillness warnings of the pose ``name`` over the kit's sensors (``windows``:
+    sensor → (gyr (n, 3) [rad/s], acc (n, 3) [m/s²]) in the pose): one per sensor that
+    moved, or one for the pose when every sensor (two or more) moved — the whole body was
+    moving, not one sensor loose."""
+    warnings = [w for sensor, (gyr, acc) in windows.items()
+                if (w := stillness_warning(name, sensor, gyr, acc))]
+    moved = [_motion(gyr, acc) for gyr, acc in windows.values() if len(gyr) >= 2]
+    if len(windows) < 2 or len(warnings) < len(windows) or len(moved) < len(windows):
+        return warnings
+    rates = [rate for rate, _ in moved]
+    return [CalibrationWarning(
+        "pose-not-still", None,
+        f"every sensor moved during the {name} (rotation {min(rates):.2f}–{max(rates):.2f} "
+        f"rad/s rms): the whole body was moving, e.g. the trunk swaying. Sit with the back "
+        f"supported, hold the pose still and repeat it")]
 
 
 def turn_warning(sensor: str, up_npose: np.ndarray, up_tpose: np.ndarray
@@ -60,8 +97,8 @@ def turn_warning(sensor: str, up_npose: np.ndarray, up_tpose: np.ndarray
         if turn < ARM_TURN_MIN_DEG:
             return CalibrationWarning(
                 "sensor-swapped", sensor,
-                f"the {sensor} sensor turned only {turn:.0f}° between N-pose and T-pose; is it "
-                f"on the {sensor.replace('_', ' ')}, or is it swapped with a trunk sensor?")
+                f"the {place(sensor)} sensor turned only {turn:.0f}° between N-pose and T-pose; "
+                f"is it on the {place(sensor)}, or is it swapped with a trunk sensor?")
         lo, hi = TPOSE_TURN_DEG
         if sensor == "upper_arm" and not lo <= turn <= hi:
             return CalibrationWarning(
@@ -71,6 +108,6 @@ def turn_warning(sensor: str, up_npose: np.ndarray, up_tpose: np.ndarray
     elif turn > BODY_TURN_MAX_DEG:
         return CalibrationWarning(
             "sensor-swapped", sensor,
-            f"the {sensor} sensor turned {turn:.0f}° between N-pose and T-pose as if it were "
-            f"on the arm; is it swapped with an arm sensor?")
+            f"the {place(sensor)} sensor turned {turn:.0f}° between N-pose and T-pose as if it "
+            f"were on the arm; is it swapped with an arm sensor?")
     return None

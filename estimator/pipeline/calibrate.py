@@ -32,7 +32,7 @@ from ..calibration import (
     CalibrationWarning,
     default_R_segment_sensor,
     heading_from_arm,
-    stillness_warning,
+    pose_stillness_warnings,
     tilt_only_R_sensor_segment,
     turn_warning,
     two_pose_R_sensor_segment,
@@ -151,15 +151,13 @@ def calibrate(tracks: Mapping[str, SensorTrack], plan: CalibrationPlan, side: Si
     method = plan.method
     windows = {}
     labels = {"npose": "N-pose", "tpose": "T-pose"}
-    for sensor, track in tracks.items():
-        for pose in (plan.npose, plan.tpose):
-            if pose is None:
-                continue
-            acc, gyr, q = track.window(pose.start, pose.end)
-            windows[sensor, pose.name] = (acc, gyr, q)
-            warning = stillness_warning(labels[pose.name], sensor, gyr, acc)
-            if warning:
-                warnings.append(warning)
+    for pose in (plan.npose, plan.tpose):
+        if pose is None:
+            continue
+        for sensor, track in tracks.items():
+            windows[sensor, pose.name] = track.window(pose.start, pose.end)
+        warnings += pose_stillness_warnings(labels[pose.name], {
+            sensor: windows[sensor, pose.name][1::-1] for sensor in tracks})
     empty = sorted({pose for (_, pose), (acc, _, _) in windows.items() if len(acc) < 2})
     if method != "default" and empty:
         method = "default"

@@ -18,6 +18,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from ..calibration import CalibrationWarning
+from ..calibration.quality import place
 from .tracks import SensorTrack
 
 #: A sensor's reference norm further than this from the kit's median disagrees (relative;
@@ -27,8 +28,6 @@ NORM_SPREAD = 0.05
 #: (``QcfParams.mag_dip_tolerance``).
 DIP_SPREAD_DEG = 3.0
 
-_PLACES = {"upper_arm": "upper arm", "forearm": "forearm", "hand": "hand", "trunk": "trunk",
-           "clavicle": "collarbone"}
 
 
 def disagreeing_sensors(tracks: Mapping[str, SensorTrack], until: float,
@@ -63,7 +62,7 @@ def disagreeing_sensors(tracks: Mapping[str, SensorTrack], until: float,
 def disagreement_warning(sensors: list[str], all_sensors: list[str]) -> CalibrationWarning:
     """The warning a therapist can act on when the kit's magnetometers were left out."""
     if len(sensors) == 1:
-        where = f"near the {_PLACES.get(sensors[0], sensors[0])} differs from the other sensors'"
+        where = f"near the {place(sensors[0])} differs from the other sensors'"
     else:
         where = "differs from sensor to sensor"
     return CalibrationWarning(

@@ -17,7 +17,7 @@ from weakref import WeakKeyDictionary
 
 import numpy as np
 from armtrack.estimator.arm.joints import NORMAL_RANGE_DEG
-from armtrack.estimator.calibration import stillness_warning
+from armtrack.estimator.calibration import pose_stillness_warnings
 from armtrack.estimator.calibration.quality import STILL_ACC_STD, STILL_GYR_RMS
 from fastapi import APIRouter, Depends
 from sqlalchemy import func, select
@@ -124,8 +124,8 @@ def _verdict(db: DbSession, session_id: int, name: str, start: float, end: float
     key = (session_id, start)
     if key not in _verdicts:
         rows = _samples(db, session_id, start, end)
-        warnings = [w.message for sensor, r in rows.items()
-                    if (w := stillness_warning(name, sensor, r[:, 4:7], r[:, 1:4]))]
+        warnings = [w.message for w in pose_stillness_warnings(
+            name, {sensor: (r[:, 4:7], r[:, 1:4]) for sensor, r in rows.items()})]
         if not rows:
             warnings.append(f"no samples arrived during the {name}")
         _verdicts[key] = {"still": not warnings, "warnings": warnings}
