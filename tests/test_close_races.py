@@ -43,12 +43,13 @@ def stream_then(server, api, action):
             ready = json.loads(await ws.recv())
             t = np.arange(1000) / 50
             rows = np.column_stack([t, np.zeros(1000), np.zeros(1000), np.full(1000, 9.81),
-                                    np.zeros((1000, 3))])
+                                    np.zeros((1000, 3))]).tolist()
             for seq, start in enumerate(range(0, 1000, 100)):
                 await ws.send(json.dumps({"type": "samples", "seq": seq, "sensor": "forearm",
-                                          "rows": rows[start:start + 100].tolist()}))
-            while json.loads(await ws.recv()) != {"type": "ack", "seq": 9}:
-                pass
+                                          "rows": [[*r, None, None, None]
+                                                   for r in rows[start:start + 100]]}))
+            while (message := json.loads(await ws.recv())) != {"type": "ack", "seq": 9}:
+                assert message["type"] != "error", message
             result = await asyncio.to_thread(action, ready["session"])
             with pytest.raises(ConnectionClosed):
                 while True:

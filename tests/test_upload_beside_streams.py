@@ -2,7 +2,8 @@
 stored in one transaction (nothing stored in part), and SQLite has one write lock; every
 live stream's group commit waits while the upload's transaction holds it. The acks a
 streaming kit waits for must not stall for more than about a second while another
-patient's 60-minute, four-sensor recording (1.44 million rows) is stored.
+patient's 30-minute, four-sensor recording at 100 Hz (720,000 rows,
+~140 MB) is stored.
 
 Real server, real SQLite file, a real WebSocket kit streaming at real pace, the upload
 by a therapist through the REST API."""
@@ -24,7 +25,7 @@ pytestmark = pytest.mark.slow
 #: Longest an ack may lag its message while the upload is stored [s].
 ACK_STALL_MAX_S = 1.0
 RATE_HZ = 100.0
-MINUTES = 60
+MINUTES = 30
 
 
 @pytest.fixture(scope="module")
@@ -67,6 +68,7 @@ async def stream(url: str, stop: threading.Event, lags: list[tuple[float, float]
             acked = -1
             async for raw in ws:
                 message = json.loads(raw)
+                assert message["type"] != "error", message
                 if message["type"] == "ack":
                     now = time.monotonic()
                     waiting = [s for s in sent if acked < s <= message["seq"]]
@@ -77,10 +79,10 @@ async def stream(url: str, stop: threading.Event, lags: list[tuple[float, float]
         k = 0
         start = time.monotonic()
         while not stop.is_set():
-            rows = [[(k * 5 + i) / 50, 0.0, 0.0, 9.81, 0.0, 0.0, 0.0] for i in range(5)]
+            rows = [[(k * 5 + i) / 50, 0.0, 0.0, 9.81, 0.0, 0.0, 0.0, None, None, None]
+                    for i in range(5)]
             sent[seq] = time.monotonic()
             await ws.send(json.dumps({"type": "samples", "seq": seq, "sensor": "forearm",
-                                      "columns": ["t", "ax", "ay", "az", "gx", "gy", "gz"],
                                       "rows": rows}))
             seq += 1
             k += 1
@@ -121,6 +123,8 @@ def test_a_big_upload_does_not_stall_another_patients_acks(server):
     assert answer.status_code == 202, answer.text[:300]
     before = [lag for at, lag in lags if at < began]
     during = [lag for at, lag in lags if began <= at <= stored + 1.0]
+    slow = [(round(at - began, 1), round(lag, 2)) for at, lag in lags if lag > 0.5]
+    print(f"acks over 0.5 s (s after the upload began, lag): {slow}")
     print(f"upload answered in {stored - began:.1f} s; acks before: {len(before)}, worst "
           f"{max(before):.2f} s; during: {len(during)}, worst {max(during):.2f} s, median "
           f"{np.median(during):.2f} s")

@@ -27,7 +27,7 @@ from ..store.processing import (
     mark_closed,
     stored_estimates,
 )
-from ..store.recordings import add_recording, dated_by, session_recording
+from ..store.recordings import add_recording, dated_by, session_recording, upload_blocks
 from ..store.stopped import stopped_by_server
 from .deps import Db, Page, Therapist, current_therapist, oauth2, own_patient, own_session
 from .deps import services as get_services
@@ -243,13 +243,14 @@ def _count_and_store(db, svc: Services, patient: models.Patient, device_id: int 
         recording = imports.import_upload(files, sensors, patient, format, calibration,
                                           side, height_m, options,
                                           svc.settings.max_upload_bytes)
+    blocks = upload_blocks(recording)  # packed before the database's write lock is taken
     if device_id is not None:
         new_sessions.count_turn(db, device_id)  # a hello of the kit counts before or after
         why = new_sessions.refusal(db, device_id, limit)
         if why is not None:
             raise HTTPException(status.HTTP_429_TOO_MANY_REQUESTS, why)
     try:
-        session = add_recording(db, patient, recording, device_id)
+        session = add_recording(db, patient, recording, device_id, blocks)
     except InvalidArgument as exc:
         name = file.filename if file is not None else "files"
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT,

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from datetime import UTC, datetime, timedelta
+from typing import Any
 
 import numpy as np
 from armtrack.estimator.arm.coverage import coverage
@@ -80,12 +81,33 @@ def pose_marks(poses: Iterable[Pose]) -> list[Mark]:
     return [m for p in poses for m in (Mark(p.start, p.name), Mark(p.end, f"end:{p.name}"))]
 
 
+def upload_blocks(recording: Recording) -> list[dict[str, Any]]:
+    """The recording's sample blocks, packed, as ``add_recording`` inserts them (without
+    their session): made before the transaction writes anything, so the database's write
+    lock (SQLite has one for every stream) is not held while they are compressed."""
+    tables = [(name, sensor_rows(stream)) for name, stream in recording.sensors.items()]
+    tables += [(POINT_PREFIX + name, point_rows(points))
+               for name, points in recording.points.items()]
+    blocks = []
+    for name, rows in tables:
+        for ordinal, start in enumerate(range(0, len(rows), UPLOAD_BLOCK_ROWS)):
+            part = rows[start:start + UPLOAD_BLOCK_ROWS]
+            blocks.append({"sensor": name, "ordinal": ordinal,
+                           "n_rows": len(part), "t_first": float(part[0, 0]),
+                           "t_last": float(part[-1, 0]), "data": pack(part)})
+    return blocks
+
+
 def add_recording(db: DbSession, patient: models.Patient, recording: Recording,
-                  device_id: int | None = None) -> models.Session:
+                  device_id: int | None = None,
+                  blocks: list[dict[str, Any]] | None = None) -> models.Session:
     """Store an uploaded recording as a new closed session (not committed), dated when it
-    was recorded (``start_time`` header), else when it arrived. Raises InvalidArgument
-    for a ``start_time`` that is not an ISO 8601 moment with a zone."""
+    was recorded (``start_time`` header), else when it arrived; ``blocks``: its
+    ``upload_blocks`` made already. Raises InvalidArgument for a ``start_time`` that is
+    not an ISO 8601 moment with a zone."""
     start = recorded_start(recording)
+    if blocks is None:
+        blocks = upload_blocks(recording)  # before the session's insert takes the lock
     session = models.Session(
         patient_id=patient.id, device_id=device_id, source="upload", status="closed",
         side=recording.side, height_m=recording.height_m,
@@ -103,23 +125,15 @@ def add_recording(db: DbSession, patient: models.Patient, recording: Recording,
         session.meta = {**session.meta, **frame_to_meta(recording.points_frame)}
     db.add(session)
     db.flush()
-    blocks = []
-    tables = [(name, sensor_rows(stream)) for name, stream in recording.sensors.items()]
-    tables += [(POINT_PREFIX + name, point_rows(points))
-               for name, points in recording.points.items()]
-    for name, rows in tables:
-        for ordinal, start in enumerate(range(0, len(rows), UPLOAD_BLOCK_ROWS)):
-            part = rows[start:start + UPLOAD_BLOCK_ROWS]
-            blocks.append({"session_id": session.id, "sensor": name, "ordinal": ordinal,
-                           "n_rows": len(part), "t_first": float(part[0, 0]),
-                           "t_last": float(part[-1, 0]), "data": pack(part)})
     if blocks:
-        db.execute(models.SampleBlock.__table__.insert(), blocks)
+        db.execute(models.SampleBlock.__table__.insert(),
+                   [{"session_id": session.id, **block} for block in blocks])
     for mark in (*pose_marks(recording.calibration), *recording.marks):
         db.add(models.Mark(session_id=session.id, t=mark.t, label=mark.label))
     ends = [float(s.t[-1] - s.t[0]) for s in recording.sensors.values() if len(s)]
+    # (a sample means a block: the block loop's ``start`` made ``start is not None`` here)
     session.ended_at = (session.started_at + timedelta(seconds=max(ends))
-                        if start is not None and ends else session.started_at)
+                        if ends else session.started_at)
     return session
 
 
