@@ -30,20 +30,24 @@ sensors need:
   covariance, so that the part of the bias a window barely sees (along the field, on a
   sensor that hardly turns: a swaying trunk's) is not taken from its noise;
   optionally starting from a remembered bias (``gyr_bias_prior``: the kit's last learnt
-  one), which the first stillness replaces and the corrections in motion refine.
+  one), which the first stillness replaces and the corrections in motion refine;
+* a gyroscope that lags its accelerometer (``gyro_delay_s``, a property of the kit that it
+  declares: the gyroscope's samples describe their time stamp minus it) integrated over the
+  accelerometer's own interval by linear extrapolation (``qcf_kernel``); 0 by default.
 
 Parameters are one set for every sensor and session; see ``QcfParams``.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..errors import InvalidArgument
 from .base import OrientationOutput, check_inputs, check_time
-from .qcf_kernel import EMPTY_MAG, PARAM_SIZE, STATE_SIZE, kernel, kernel_python
+from .qcf_kernel import EMPTY_MAG, KERNEL_PARAM_SIZE, PARAM_SIZE, STATE_SIZE, kernel, kernel_python
 from .qcf_kernel import append_rows as append_rows_kernel
 
 
@@ -214,6 +218,24 @@ def check_bias_prior(prior, bias_max: float) -> tuple[float, float, float]:
     return float(values[0]), float(values[1]), float(values[2])
 
 
+#: The largest gyroscope delay a kit may declare [s] (``gyro_delay_s``): a few samples at
+#: 100 Hz; a larger one is a clock fault, not a sensor's timing.
+GYRO_DELAY_MAX_S = 0.05
+
+
+def check_gyro_delay(value, what: str = "gyro_delay_s") -> float:
+    """A kit's gyroscope delay behind its accelerometer as a float [s], or InvalidArgument
+    naming ``what`` and the allowed range."""
+    try:
+        delay = float(value)
+    except (TypeError, ValueError, OverflowError):
+        delay = math.nan
+    if isinstance(value, bool) or not 0.0 <= delay <= GYRO_DELAY_MAX_S:
+        raise InvalidArgument(f"{what} must be a number of seconds from 0 to "
+                              f"{GYRO_DELAY_MAX_S}, got {value!r}")
+    return delay
+
+
 @dataclass
 class QcfState:
     """Everything carried between chunks (see ``qcf_kernel`` for the layout)."""
@@ -237,10 +259,15 @@ class QuaternionComplementaryFilter:
     #: this sensor (``learnt_bias``); None: zero. A fresh state (``update_batch``) starts
     #: from it too.
     gyr_bias_prior: tuple[float, float, float] | None = None
+    #: How far the kit's gyroscope lags its accelerometer [s]: its samples describe their
+    #: time stamp minus this (0 to ``GYRO_DELAY_MAX_S``; 0: in step, today's numbers).
+    gyro_delay_s: float = 0.0
     name: str = field(default="qcf", init=False)
 
     def __post_init__(self) -> None:
-        self._params = self.params.as_array()
+        self.gyro_delay_s = check_gyro_delay(self.gyro_delay_s)
+        self._params = np.append(self.params.as_array(), self.gyro_delay_s)
+        assert self._params.shape == (KERNEL_PARAM_SIZE,)
         if self.gyr_bias_prior is not None:
             self.gyr_bias_prior = check_bias_prior(self.gyr_bias_prior, self.params.bias_max)
             if not self.state.vector[13]:

@@ -51,7 +51,19 @@ the sum over the block waiting for the guard time, ``[136:139]`` its first block
 ``[139]`` that block's mid time [s], ``[140:143]`` its latest block's mean, ``[143]`` its
 mid time [s], ``[144:147]`` and ``[147:150]`` the gyroscope's sums over the first and the
 latest block [rad/s], ``[150]`` the accelerometer's Σ|a|² over the waiting block
-[m²/s⁴], ``[151]``, ``[152]`` the variance of the first and the latest block's mean [m²/s⁴].
+[m²/s⁴], ``[151]``, ``[152]`` the variance of the first and the latest block's mean [m²/s⁴]
+· ``[153:156]`` the previous gyroscope sample at its own time (the kit's gyroscope delay
+taken out, see below) [rad/s].
+
+A kit whose gyroscope lags its accelerometer (``params[P_GYRO_DELAY]`` = d [s]: sample i's
+rates are those of ``t[i] − d``; 0 for most kits) is integrated over the accelerometer's
+own interval by the linear extrapolation ``∫ ≈ dt (ω[i−1] + ω[i]) / 2 + d (ω[i] − ω[i−1])``
+(exact for a rate linear in time; d = dt / 2 gives VQF's ``ω[i] dt``); its difference
+terms telescope, so the gyroscope's noise is not amplified over a session. The field's
+turning (``ω × m`` at one instant) takes the rate extrapolated to the field's time,
+``ω[i] + d (ω[i] − ω[i−1]) / dt``. The rest detector (0.5-s low-pass, per-sample
+deviations) and the bias means (of a constant bias, over ≥ 0.2 s) do not see a delay of a
+few milliseconds and take the samples as they are. d = 0 gives today's numbers exactly.
 """
 
 from __future__ import annotations
@@ -62,7 +74,7 @@ import numpy as np
 
 from ..scalar_rotations import quat_to_rows
 
-STATE_SIZE = 153
+STATE_SIZE = 156
 
 # Indices into the parameter vector, see QcfParams.as_array.
 (P_TAU_ACC, P_TAU_MAG, P_TAU_LP, P_REST_GYR, P_REST_ACC, P_REST_TIME,
@@ -74,6 +86,10 @@ STATE_SIZE = 153
  P_TAU_REST_ACC, P_MAG_BIAS_HALF_TIME, P_BIAS_SIGMA, P_MAG_SCATTER_WINDOWS,
  P_TILT_NOISE, P_TILT_WINDOW, P_GYRO_SCALE) = range(38)
 PARAM_SIZE = 38
+#: The kernel's parameter vector is ``QcfParams.as_array()`` followed by the gyroscope's
+#: delay behind the accelerometer [s] (a property of the kit, not a tuning).
+P_GYRO_DELAY = PARAM_SIZE
+KERNEL_PARAM_SIZE = PARAM_SIZE + 1
 
 
 def _field_turn_update(bx, by, bz, p00, p11, p22, p01, p02, p12, vx, vy, vz, yx, yy, yz,
@@ -244,6 +260,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     tilt_white = params[P_TILT_NOISE] * params[P_TILT_NOISE]
     tilt_window = params[P_TILT_WINDOW]
     gyro_scale = params[P_GYRO_SCALE]
+    gyro_delay = params[P_GYRO_DELAY]
     # the bias's variance after a rest taught it: the rest's mean over tau_bias_rest
     # of a random walk
     rest_var = bias_walk * bias_walk * tau_bias_rest
@@ -264,6 +281,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     sx, sy, sz, count = state[30], state[31], state[32], state[33]
     px, py, pz, pending, pending_time = state[34], state[35], state[36], state[37], state[38]
     lwx, lwy, lwz = state[39], state[40], state[41]
+    lcx, lcy, lcz = state[153], state[154], state[155]
     t_start = state[42]
     bias_known = state[43]
     mVx, mVy, mVz, mYx, mYy, mYz = state[44], state[45], state[46], state[47], state[48], state[49]
@@ -305,6 +323,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     for i in range(t.shape[0]):
         ax, ay, az = acc[i, 0], acc[i, 1], acc[i, 2]
         wx, wy, wz = gyr[i, 0], gyr[i, 1], gyr[i, 2]
+        cwx, cwy, cwz = wx, wy, wz  # the rate at the sample's own time (gyro_delay)
         a_norm = math.sqrt(ax * ax + ay * ay + az * az)
         at_rest = False
         disturbed = False
@@ -358,6 +377,11 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
                 dt = 0.0
             if dt > max_dt:
                 dt = max_dt
+            if gyro_delay > 0.0 and dt > 0.0:
+                k_d = gyro_delay / dt
+                cwx = wx + k_d * (wx - lwx)
+                cwy = wy + k_d * (wy - lwy)
+                cwz = wz + k_d * (wz - lwz)
 
             # Rest: gyroscope and accelerometer steady for rest_time seconds.
             k_lp = dt / (tau_lp + dt)
@@ -518,6 +542,12 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
             ox = (0.5 * (wx + lwx) - sbx) * dt
             oy = (0.5 * (wy + lwy) - sby) * dt
             oz = (0.5 * (wz + lwz) - sbz) * dt
+            if gyro_delay > 0.0 and dt > 0.0:
+                # a gyroscope lagging by d: its rates extrapolated linearly over the
+                # accelerometer's interval, ∫ = dt (ω[i−1] + ω[i]) / 2 + d (ω[i] − ω[i−1])
+                ox += gyro_delay * (wx - lwx)
+                oy += gyro_delay * (wy - lwy)
+                oz += gyro_delay * (wz - lwz)
             # the bias may drift (a random walk) up to its prior spread
             grow = bias_walk * bias_walk * dt
             if p00 < bias_var:
@@ -783,11 +813,11 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
                             mVx += h0 * lmx + h1 * mx
                             mVy += h0 * lmy + h1 * my
                             mVz += h0 * lmz + h1 * mz
-                            mYx += (h0 * (lwy * lmz - lwz * lmy) + h1 * (wy * mz - wz * my)
+                            mYx += (h0 * (lcy * lmz - lcz * lmy) + h1 * (cwy * mz - cwz * my)
                                     + hm * (mx - lmx))
-                            mYy += (h0 * (lwz * lmx - lwx * lmz) + h1 * (wz * mx - wx * mz)
+                            mYy += (h0 * (lcz * lmx - lcx * lmz) + h1 * (cwz * mx - cwx * mz)
                                     + hm * (my - lmy))
-                            mYz += (h0 * (lwx * lmy - lwy * lmx) + h1 * (wx * my - wy * mx)
+                            mYz += (h0 * (lcx * lmy - lcy * lmx) + h1 * (cwx * my - cwy * mx)
                                     + hm * (mz - lmz))
                             # the heading: what the corrections took out plus the change
                             # of the remaining error is the drift about the vertical,
@@ -877,6 +907,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
         out_bias[i, 0], out_bias[i, 1], out_bias[i, 2] = bx, by, bz
         out_rest[i] = at_rest
         lwx, lwy, lwz = wx, wy, wz
+        lcx, lcy, lcz = cwx, cwy, cwz
         out_disturbed[i] = disturbed
 
     state[0], state[1], state[2], state[3] = gw, gx, gy, gz
@@ -929,6 +960,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     (state[144], state[145], state[146], state[147], state[148],
      state[149]) = w0x, w0y, w0z, w1x, w1y, w1z
     state[150], state[151], state[152] = qa2, va0, va1
+    state[153], state[154], state[155] = lcx, lcy, lcz
     return -1
 
 

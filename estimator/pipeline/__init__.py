@@ -23,9 +23,11 @@ def run_recording(recording: Recording, filter_name: str = "qcf",
                   gyr_bias_priors: Mapping[str, Sequence[float]] | None = None) -> Pipeline:
     """A pipeline fed a whole recording (samples, marks, wrist points), not yet finished:
     ``finish()`` gives its estimates; ``elbow_source`` and ``gamma`` say what the points
-    did; ``learnt_biases()`` the gyroscope biases (``gyr_bias_priors``: see ``Pipeline``)."""
+    did; ``learnt_biases()`` the gyroscope biases (``gyr_bias_priors``: see ``Pipeline``).
+    The filters take the kit's gyroscope delay from the recording (``gyro_delay_s``)."""
     config = PipelineConfig(side=recording.side, lengths=recording.segment_lengths(),
-                            sensors=tuple(recording.sensors), filter=filter_name)
+                            sensors=tuple(recording.sensors), filter=filter_name,
+                            gyro_delay_s=recording.gyro_delay_s)
     pipeline = Pipeline(config, poses=recording.calibration,
                         points_frame=recording.points_frame if recording.points else None,
                         gyr_bias_priors=gyr_bias_priors)

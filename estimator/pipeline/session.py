@@ -24,7 +24,7 @@ from ..arm.joints import REPORTED_ANGLES, SEGMENT_OF_SENSOR, SEGMENTS
 from ..body import SENSOR_NAMES, SegmentLengths, Side
 from ..calibration import CalibrationPlan, poses_from_marks
 from ..errors import InvalidArgument
-from ..orientation import DEFAULT_FILTER, LearntGyroBias
+from ..orientation import DEFAULT_FILTER, GYRO_DELAY_FILTERS, LearntGyroBias, check_gyro_delay
 from ..recording import Mark, Pose
 from ..recording.points import PointsFrame
 from .calibrate import Calibration, calibrate
@@ -39,15 +39,23 @@ from .wrist_points import MAX_POINTS_LAG_S, GammaElbow, WristTrack
 @dataclass(frozen=True)
 class PipelineConfig:
     """A session's fixed facts: ``side``, segment ``lengths`` [m], the ``sensors`` worn,
-    the orientation ``filter`` by name, and the joint-angle parameters."""
+    the orientation ``filter`` by name, the joint-angle parameters, and ``gyro_delay_s``,
+    how far the kit's gyroscopes lag its accelerometers [s] (the kit's declaration,
+    ``docs/extensions/gyro-delay.md``; 0: in step)."""
 
     side: Side
     lengths: SegmentLengths
     sensors: tuple[str, ...]
     filter: str = DEFAULT_FILTER
     joint_params: JointAngleParams = field(default_factory=JointAngleParams)
+    gyro_delay_s: float = 0.0
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "gyro_delay_s", check_gyro_delay(self.gyro_delay_s))
+        if self.gyro_delay_s and self.filter not in GYRO_DELAY_FILTERS:
+            raise InvalidArgument(f"filter {self.filter!r} cannot take a gyroscope delay "
+                                  f"(gyro_delay_s {self.gyro_delay_s} s); "
+                                  f"{', '.join(sorted(GYRO_DELAY_FILTERS))} can")
         unknown = [s for s in self.sensors if s not in SENSOR_NAMES]
         if unknown or not self.sensors:
             raise InvalidArgument(f"sensors must be some of {SENSOR_NAMES}, got {self.sensors}")
@@ -80,7 +88,8 @@ class Pipeline:
         session does not wear are ignored."""
         self.config = config
         priors = gyr_bias_priors or {}
-        self._tracks = {s: SensorTrack(s, config.filter, _prior(priors.get(s)))
+        self._tracks = {s: SensorTrack(s, config.filter, _prior(priors.get(s)),
+                                       config.gyro_delay_s)
                         for s in config.sensors}
         self._reference = config.reference
         self._others = [t for n, t in self._tracks.items() if n != self._reference]

@@ -46,6 +46,8 @@ class SensorTrack:
     #: The gyroscope bias the filter starts from [rad/s] (sensor frame; None: zero), the
     #: kit's last learnt one for this sensor (``make_filter``).
     gyr_bias_prior: tuple[float, float, float] | None = None
+    #: How far the kit's gyroscope lags its accelerometer [s] (``make_filter``).
+    gyro_delay_s: float = 0.0
     filter: OrientationFilter = field(init=False)
     nine_axis: bool | None = field(default=None, init=False)
     #: The session left this 9-axis sensor's magnetometer out (``drop_magnetometer``).
@@ -76,7 +78,8 @@ class SensorTrack:
         self.filter = self._new_filter()
 
     def _new_filter(self) -> OrientationFilter:
-        return make_filter(self.filter_name, gyr_bias_prior=self.gyr_bias_prior)
+        return make_filter(self.filter_name, gyr_bias_prior=self.gyr_bias_prior,
+                           gyro_delay_s=self.gyro_delay_s)
 
     def append(self, t, acc, gyr, mag) -> None:
         """Run the filter over a chunk and keep it."""

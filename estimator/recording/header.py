@@ -12,7 +12,9 @@ before anything else, since other versions have other rules):
   at least one of the two is present (with both, the lengths win);
 - ``calibration`` is ``;``-separated ``NAME START END`` with NAME ``npose``/``tpose`` and
   START < END; ``marks`` is ``;``-separated ``T LABEL``; no empty entries;
-- ``rate_hz`` is positive; every number is a finite plain decimal (``rules.NUMBER``).
+- ``rate_hz`` is positive; every number is a finite plain decimal (``rules.NUMBER``);
+- ``gyro_delay_s`` (extension ``docs/extensions/gyro-delay.md``) is 0 to 0.05 s; it stays
+  in the metadata, as written.
 Other keys are kept, in order, as metadata.
 """
 
@@ -24,12 +26,14 @@ from dataclasses import dataclass, field
 from ..body import HEIGHT_FRACTIONS, SIDES, SegmentLengths
 from ..errors import InvalidArgument, InvalidRecording
 from .model import (
+    GYRO_DELAY_KEY,
     HEADER_KEYS,
     KEY_PATTERN,
     SUPPORTED_VERSIONS,
     Mark,
     Pose,
     Recording,
+    check_metadata,
 )
 from .rules import COLUMN_LINE, decode_line, parse_number
 
@@ -160,6 +164,11 @@ def _split(text: str, line: int) -> tuple[str, str]:
 def _apply(header: Header, key: str, value: str, line: int) -> None:
     """Check one header value and store it in ``header``."""
     if key not in HEADER_KEYS:
+        if key == GYRO_DELAY_KEY:  # an extension's header, kept as metadata once checked
+            try:
+                check_metadata(key, value)
+            except InvalidArgument as exc:
+                raise InvalidRecording(str(exc), line) from None
         header.metadata[key] = value
         return
     try:

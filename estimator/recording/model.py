@@ -40,6 +40,22 @@ HEADER_KEYS: tuple[str, ...] = (
     "armtrack-recording", "side", "height_m", "lengths_m", "calibration", "marks", "rate_hz",
 )
 
+#: The header of the gyro-delay extension (``docs/extensions/gyro-delay.md``): how far the
+#: kit's gyroscopes lag its accelerometers [s]. Kept in ``Recording.metadata`` as written
+#: (so every writer carries it back), checked wherever metadata is.
+GYRO_DELAY_KEY = "gyro_delay_s"
+
+
+def _gyro_delay(value: str) -> float:
+    """The value of a ``gyro_delay_s`` header as seconds, or InvalidArgument."""
+    from ..orientation.qcf import check_gyro_delay
+    from .rules import NUMBER
+    if not NUMBER.fullmatch(value):
+        raise InvalidArgument(f"gyro_delay_s must be a plain decimal number of seconds, "
+                              f"got {value!r}")
+    return check_gyro_delay(float(value))
+
+
 #: A header key: what may stand before the ``:`` of ``# key: value``.
 KEY_PATTERN = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.\-]*")
 
@@ -245,6 +261,14 @@ class Recording:
         return SegmentLengths.from_height(self.height_m)
 
     @property
+    def gyro_delay_s(self) -> float:
+        """How far the kit's gyroscopes lag its accelerometers [s], from the header
+        ``gyro_delay_s`` (``docs/extensions/gyro-delay.md``; kept as metadata so that every
+        writer carries it back); 0 when the file does not declare one."""
+        value = self.metadata.get(GYRO_DELAY_KEY)
+        return 0.0 if value is None else _gyro_delay(value)
+
+    @property
     def duration(self) -> float:
         """Time from the first to the last sample over all sensors [s]; 0 without samples."""
         starts = [s.t[0] for s in self.sensors.values() if len(s)]
@@ -264,6 +288,8 @@ def check_metadata(key: object, value: object) -> None:
         raise InvalidArgument(
             f"metadata {key} must be one line of text without surrounding spaces, got {value!r}"
         )
+    if key == GYRO_DELAY_KEY:
+        _gyro_delay(value)
     try:
         value.encode("utf-8")
     except UnicodeEncodeError:

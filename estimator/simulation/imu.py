@@ -139,8 +139,12 @@ class MagneticEnvironment:
 
 def synthesize_imu(body: BodyMotion, sensor: str, mount: Mount, *, nine_axis: bool = True,
                    errors: ImuErrors = ImuErrors(), environment: MagneticEnvironment | None = None,
-                   rng: np.random.Generator | None = None) -> ImuSignals:
-    """What ``sensor`` (a name of ``SENSOR_NAMES``) measures over ``body.t``."""
+                   rng: np.random.Generator | None = None,
+                   gyro_body: BodyMotion | None = None) -> ImuSignals:
+    """What ``sensor`` (a name of ``SENSOR_NAMES``) measures over ``body.t``.
+
+    ``gyro_body``: the same motion at the times the gyroscope's samples really describe,
+    for a kit whose gyroscope lags its accelerometer by d: ``body.t − d`` (None: in step)."""
     if sensor not in SEGMENT_OF_SENSOR:
         raise InvalidArgument(f"unknown sensor {sensor!r}")
     segment = SEGMENT_OF_SENSOR[sensor]
@@ -149,6 +153,10 @@ def synthesize_imu(body: BodyMotion, sensor: str, mount: Mount, *, nine_axis: bo
     R_ws = frame.R @ mount.R_segment_sensor
     R_sw = np.swapaxes(R_ws, -1, -2)
     gyr = frame.omega @ mount.R_segment_sensor
+    if gyro_body is not None:
+        if gyro_body.t.shape != body.t.shape:
+            raise InvalidArgument("gyro_body must give the motion at one time per sample")
+        gyr = gyro_body.frames[segment].omega @ mount.R_segment_sensor
     acc = np.einsum("nij,nj->ni", R_sw, point.a - GRAVITY)
     n = body.t.size
     rng = rng or np.random.default_rng(0)

@@ -11,7 +11,9 @@ from ..arm.forward import POINTS, forward_kinematics
 from ..arm.joints import ANGLE_NAMES, ELEVATION, SEGMENT_OF_SENSOR
 from ..body import SENSOR_NAMES, SegmentLengths, Side
 from ..errors import InvalidArgument
+from ..orientation.qcf import check_gyro_delay
 from ..recording import Pose, Recording, SensorStream
+from ..recording.model import GYRO_DELAY_KEY
 from ..rotations import angle_between, elemental
 from .body_motion import Stance, body_motion
 from .imu import (
@@ -36,7 +38,10 @@ class SimulationConfig:
     stamped up to this far from its nominal time (uniform). lost_fraction: share of samples
     dropped at random, per sensor. mount_axial_deg / mount_tilt_deg: the largest random
     turn of a sensor about its segment's long axis and tilt away from it. gyro_bias_max:
-    the largest constant gyroscope bias per axis [rad/s].
+    the largest constant gyroscope bias per axis [rad/s]. gyro_delay_s: the kit's
+    gyroscopes lag its accelerometers by this [s] (a sample stamped t reads the rate of
+    t − gyro_delay_s; the hardware's timing, ``docs/extensions/gyro-delay.md``);
+    declare_gyro_delay: the recording declares it (header ``gyro_delay_s``).
     """
 
     exercise: str = "elbow_flexion"
@@ -64,8 +69,11 @@ class SimulationConfig:
     start_disturbance_ut: tuple[float, float] = (20.0, 50.0)
     trunk_sway: tuple[float, float] | None = None
     pack_size: int = 1
+    gyro_delay_s: float = 0.0
+    declare_gyro_delay: bool = False
 
     def __post_init__(self) -> None:
+        check_gyro_delay(self.gyro_delay_s, "SimulationConfig.gyro_delay_s")
         unknown = set(self.sensors) - set(SENSOR_NAMES)
         if unknown or not self.sensors:
             raise InvalidArgument(f"sensors must be some of {SENSOR_NAMES}, got {self.sensors}")
@@ -215,8 +223,11 @@ def simulate(config: SimulationConfig = SimulationConfig(), motion: Motion | Non
         errors = replace(config.errors, gyro_bias=tuple(
             rng.uniform(-config.gyro_bias_max, config.gyro_bias_max, 3)))
         body = body_motion(motion, config.side, lengths, t, stance)
+        late = (body_motion(motion, config.side, lengths, t - config.gyro_delay_s, stance)
+                if config.gyro_delay_s else None)
         signals = synthesize_imu(body, sensor, mount, nine_axis=config.nine_axis,
-                                 errors=errors, environment=environment, rng=rng)
+                                 errors=errors, environment=environment, rng=rng,
+                                 gyro_body=late)
         stamps = signals.t
         if config.pack_size > 1:  # each pack stamped with its first sample's time
             stamps = np.repeat(signals.t[::config.pack_size], config.pack_size)[:len(t)]
@@ -247,7 +258,9 @@ def simulate(config: SimulationConfig = SimulationConfig(), motion: Motion | Non
         side=config.side, sensors=streams, height_m=config.height_m,
         lengths=None if lengths == SegmentLengths.from_height(config.height_m) else lengths,
         calibration=calibration, rate_hz=config.rate_hz,
-        metadata={"scenario": config.exercise, "simulator": "armtrack", "seed": str(config.seed)},
+        metadata={"scenario": config.exercise, "simulator": "armtrack", "seed": str(config.seed),
+                  **({GYRO_DELAY_KEY: repr(float(config.gyro_delay_s))}
+                     if config.declare_gyro_delay else {})},
         points=points, points_frame=points_frame,
     )
     return Simulation(recording=recording, truth=truth)
