@@ -3,7 +3,8 @@ two pages, two therapists' tabs, or a script. Each close that passes the "alread
 closed" check ends the session's streams, closes it and queues its estimation: several at
 once queued several estimations of one session (each a full run of the estimator, and the
 second rewrites the first's estimates). And a session erased while its close is under way
-answered 500. Real server, real SQLite file, a real WebSocket kit."""
+answered 500. Real server (SQLite file; PostgreSQL where the tests have one), a real
+WebSocket kit."""
 
 from __future__ import annotations
 
@@ -13,20 +14,13 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
-from server_support import ServerProcess
 from websockets.asyncio.client import connect
 from websockets.exceptions import ConnectionClosed
 
 CLOSES = 6
 
 
-@pytest.fixture(scope="module")
-def server(tmp_path_factory):
-    process = ServerProcess(tmp_path_factory.mktemp("close-races"))
-    process.create_user("alice")
-    process.start()
-    yield process
-    process.stop()
+pytestmark = pytest.mark.both_databases  # mark_closed's one UPDATE on either
 
 
 def stream_then(server, api, action):
@@ -58,7 +52,8 @@ def stream_then(server, api, action):
     return asyncio.run(run())
 
 
-def test_closes_at_once_close_and_estimate_the_session_once(server):
+def test_closes_at_once_close_and_estimate_the_session_once(module_server):
+    server = module_server
     api = server.client("alice")
 
     def close_at_once(session_id):
@@ -75,7 +70,8 @@ def test_closes_at_once_close_and_estimate_the_session_once(server):
     assert estimated["status"] == "closed"
 
 
-def test_a_session_erased_while_it_is_closed_is_not_a_server_error(server):
+def test_a_session_erased_while_it_is_closed_is_not_a_server_error(module_server):
+    server = module_server
     api = server.client("alice")
 
     def close_and_erase(session_id):
