@@ -1,19 +1,22 @@
 """Calibration of a session from its sensors' tracks: sensor-to-segment rotations, the
 thorax's heading, and (6-axis kits) the headings that put every sensor in one world.
 
-Order: arm sensors first (two-pose, N-pose-only or default mounting; with a trunk sensor
-on a 9-axis kit, each pose's up direction is the thorax's, not gravity's, so a trunk that
-sways through the poses does not tilt the arm's axes by the sway's mean, and the thorax's
-upright, the trunk's mean over the poses, is made square to the axis the arm turned about
-between them relative to the trunk, so a slow sway's lean left in that mean does not turn
-the arm's axes about the vertical); then the world
-thorax in the N-pose from the arm (every segment's axes are the thorax's there); then the
-trunk and clavicle sensors' headings from it. On a 6-axis kit each sensor's filter has a
-heading of its own: in the N-pose all segments point the same way, which gives each
-sensor the turn about the vertical that brings it into the reference sensor's world; there
-a trunk or clavicle sensor's own turn about the vertical is the default mounting's (no
-shared heading makes it observable), so the thorax is right in the N-pose and a trunk
-sensor mounted turned on the sternum mixes forward and sideways bending by that turn.
+Order: arm sensors first (two-pose, N-pose-only or default mounting; with a trunk sensor,
+each pose's up direction is the thorax's, not gravity's, so a trunk that sways through the
+poses does not tilt the arm's axes by the sway's mean, and the thorax's upright, the
+trunk's mean over the poses, is made square to the axis the arm turned about between them
+relative to the trunk, so a slow sway's lean left in that mean does not turn the arm's
+axes about the vertical); then the world thorax in the N-pose from the arm (every
+segment's axes are the thorax's there); then the trunk and clavicle sensors' headings from
+it. On a 6-axis kit each sensor's filter has a heading of its own: in the N-pose all
+segments point the same way, which gives each sensor the turn about the vertical that
+brings it into the reference sensor's world; there a clavicle sensor's own turn about the
+vertical is the default mounting's (no shared heading makes it observable), so the thorax
+is right in the N-pose and a sensor mounted turned mixes forward and sideways bending by
+that turn. A 6-axis trunk sensor with two poses is calibrated twice: the first pass's
+headings put the filters in one world for the sway's corrections above, and the trunk's
+turn between its world and the arm's comes from the held poses' sway (arm and trunk turn
+as one, ``_gyro_heading``), weighed against the default mounting's.
 With no pose at all (default mounting) the first second of the recording stands in for
 the N-pose: the patient is taken to start with the arm hanging.
 """
@@ -46,6 +49,10 @@ ARM = ("upper_arm", "forearm", "hand")
 #: How well the arm's turn between the poses, relative to the trunk sensor, gives the
 #: thorax's X (9-axis filters' relative heading over the poses; a still trunk: 0.3–0.4°).
 AXIS_SIGMA_RAD = np.deg2rad(0.5)
+#: How far a 6-axis trunk sensor may sit turned about the thorax's long axis from the
+#: kit's guide (its default mounting), as one σ [rad]: the prior the sway's gyroscopes
+#: are weighed against (``_gyro_heading``).
+TRUNK_TURN_SIGMA_RAD = np.deg2rad(15.0)
 
 
 @dataclass(frozen=True)
@@ -78,49 +85,55 @@ def _unit_rows(v: np.ndarray) -> np.ndarray:
 
 
 def _thorax_up(arm: SensorTrack, trunk: SensorTrack, start: float, end: float,
-               trunk_up: np.ndarray) -> np.ndarray:
+               trunk_up: np.ndarray, turn: float = 0.0) -> np.ndarray:
     """The thorax's up direction in an arm sensor's frame over ``start…end``, averaged:
     the arm's gravity plus the trunk's momentary tilt away from its upright ``trunk_up``
     (trunk sensor frame), carried into the arm sensor's frame through the two sensors'
-    orientations at the arm's sample times. Both directions are the accelerometers';
-    the orientations only turn the small tilt, so their errors count to second order."""
+    orientations at the arm's sample times (the trunk's world turned by ``turn`` [rad]
+    about the vertical into the arm's: 6-axis filters each have a heading of their own).
+    Both directions are the accelerometers'; the orientations only turn the small tilt, so
+    their errors count to second order."""
     t, acc, _, q = arm.arrays()
     a, b = np.searchsorted(t, start, "left"), np.searchsorted(t, end, "right")
     t, acc, q = t[a:b], acc[a:b], q[a:b]
     t_trunk, acc_trunk, _, q_trunk = trunk.arrays()
     gravity_trunk = _unit_rows(np.stack([np.interp(t, t_trunk, acc_trunk[:, k])
                                          for k in range(3)], axis=1))
-    R_trunk = segment_orientations(t_trunk, q_trunk, t, np.eye(3), 0.0)
+    R_trunk = segment_orientations(t_trunk, q_trunk, t, np.eye(3), turn)
     tilt_world = np.einsum("nij,nj->ni", R_trunk, trunk_up - gravity_trunk)
     tilt_arm = np.einsum("nji,nj->ni", quat_to_matrix(q), tilt_world)
     return _up(_unit_rows(acc) + tilt_arm)
 
 
-def _relative(arm: SensorTrack, trunk: SensorTrack, start: float, end: float
-              ) -> np.ndarray | None:
+def _relative(arm: SensorTrack, trunk: SensorTrack, start: float, end: float,
+              turn: float = 0.0) -> np.ndarray | None:
     """The arm sensor's axes in the trunk sensor's frame, ``R_trunk_arm``, averaged over
-    ``start…end`` at the arm's sample times (None without samples): a sway that turns
-    both sensors alike drops out."""
+    ``start…end`` at the arm's sample times (None without samples), the trunk's world
+    turned by ``turn`` [rad] into the arm's: a sway that turns both sensors alike drops
+    out."""
     t, _, _, q = arm.arrays()
     a, b = np.searchsorted(t, start, "left"), np.searchsorted(t, end, "right")
     t_trunk, _, _, q_trunk = trunk.arrays()
     if b <= a or not len(t_trunk):
         return None
-    R_trunk = segment_orientations(t_trunk, q_trunk, t[a:b], np.eye(3), 0.0)
+    R_trunk = segment_orientations(t_trunk, q_trunk, t[a:b], np.eye(3), turn)
     return Rotation.from_matrix(np.einsum("nji,njk->nik", R_trunk, quat_to_matrix(q[a:b]))
                                 ).mean().as_matrix()
 
 
-def _abduction_axis(tracks: Mapping[str, SensorTrack], plan: CalibrationPlan
-                    ) -> np.ndarray | None:
+def _abduction_axis(tracks: Mapping[str, SensorTrack], plan: CalibrationPlan,
+                    turns: Mapping[str, float]) -> np.ndarray | None:
     """The axis (unit, trunk sensor frame) about which the arm turned from the N-pose to
     the T-pose relative to the trunk sensor, mean over the arm's sensors: the thorax's X.
-    None when a window is empty or an arm sensor did not turn like a T-pose."""
+    None when a window is empty or an arm sensor did not turn like a T-pose. ``turns``:
+    per arm sensor, the turn [rad] of the trunk's world into its own (see ``_thorax_up``)."""
     assert plan.npose is not None and plan.tpose is not None
     axes = []
     for sensor in (s for s in ARM if s in tracks):
-        n = _relative(tracks[sensor], tracks["trunk"], plan.npose.start, plan.npose.end)
-        t = _relative(tracks[sensor], tracks["trunk"], plan.tpose.start, plan.tpose.end)
+        n = _relative(tracks[sensor], tracks["trunk"], plan.npose.start, plan.npose.end,
+                      turns[sensor])
+        t = _relative(tracks[sensor], tracks["trunk"], plan.tpose.start, plan.tpose.end,
+                      turns[sensor])
         if n is None or t is None:
             return None
         turn = Rotation.from_matrix(t @ n.T).as_rotvec()
@@ -136,6 +149,106 @@ def _abduction_axis(tracks: Mapping[str, SensorTrack], plan: CalibrationPlan
     return mean / np.linalg.norm(mean)
 
 
+def _gyro_heading(arm: SensorTrack, trunk: SensorTrack, start: float, end: float
+                  ) -> tuple[float, float] | None:
+    """The turn about the vertical [rad] that takes the trunk's 6-axis filter world into
+    the arm sensor's, and its σ [rad], from a held pose ``start…end``: the arm held still
+    on the body turns with the trunk as one (a sway), so the two gyroscopes read one
+    rotation, ``ω_trunk = R_trunk_arm ω_arm``; ``R_trunk_arm`` is the least-squares fit of
+    the rates less their means (which hold each sensor's bias) and the residual's scatter
+    gives its σ about the vertical. None without a pose's worth of samples."""
+    t, _, gyr, q = arm.arrays()
+    a, b = np.searchsorted(t, start, "left"), np.searchsorted(t, end, "right")
+    t_trunk, _, gyr_trunk, q_trunk = trunk.arrays()
+    if b - a < 10 or len(t_trunk) < 2:
+        return None
+    t, gyr, q = t[a:b], gyr[a:b], q[a:b]
+    w_trunk = np.stack([np.interp(t, t_trunk, gyr_trunk[:, k]) for k in range(3)], axis=1)
+    w_arm = gyr - gyr.mean(axis=0)
+    w_trunk -= w_trunk.mean(axis=0)
+    u, _, vt = np.linalg.svd(w_arm.T @ w_trunk)
+    C = vt.T @ np.diag([1.0, 1.0, np.linalg.det(vt.T @ u.T)]) @ u.T  # R_trunk_arm
+    residual = w_trunk - w_arm @ C.T
+    R_trunk = segment_orientations(t_trunk, q_trunk, t, np.eye(3), 0.0)
+    vertical = R_trunk[:, 2, :]  # the world's vertical in the trunk's frame
+    seen = np.sum(np.cross(vertical, w_trunk) ** 2)  # how well the turn about it shows
+    if seen <= 0.0:
+        return None
+    sigma = float(np.sqrt(np.sum(residual ** 2) / 3.0 / seen))
+    turn = quat_to_matrix(q) @ C.T @ np.transpose(R_trunk, (0, 2, 1))  # Rz per sample
+    return float(yaw_of(Rotation.from_matrix(turn).mean().as_matrix())), sigma
+
+
+#: A gyroscope's bias as one σ [rad/s] before anything is learnt (a MEMS zero-rate offset;
+#: ``QcfParams.bias_sigma``): the prior of ``trunk_bias_from_poses``.
+BIAS_SIGMA = 0.01
+
+
+def _rigid_fit(arm: SensorTrack, trunk: SensorTrack, start: float, end: float):
+    """The held pose ``start…end`` as one rigid turn of arm and trunk (see
+    ``_gyro_heading``): ``(C, d, σ_d, σ_C)``, ``C = R_trunk_arm`` fitted to the rates less
+    their means, ``d`` the mean of ``ω_trunk − C ω_arm`` (= ``b_trunk − C b_arm`` [rad/s]),
+    its σ per axis and ``C``'s angular σ [rad]; None without a pose's worth of samples."""
+    t, _, gyr, _ = arm.arrays()
+    a, b = np.searchsorted(t, start, "left"), np.searchsorted(t, end, "right")
+    t_trunk, _, gyr_trunk, _ = trunk.arrays()
+    if b - a < 10 or len(t_trunk) < 2:
+        return None
+    w_arm = gyr[a:b]
+    w_trunk = np.stack([np.interp(t[a:b], t_trunk, gyr_trunk[:, k]) for k in range(3)],
+                       axis=1)
+    c_arm, c_trunk = w_arm - w_arm.mean(axis=0), w_trunk - w_trunk.mean(axis=0)
+    u, _, vt = np.linalg.svd(c_arm.T @ c_trunk)
+    C = vt.T @ np.diag([1.0, 1.0, np.linalg.det(vt.T @ u.T)]) @ u.T
+    residual = w_trunk - w_arm @ C.T
+    d = residual.mean(axis=0)
+    scatter = float(np.sqrt(np.mean(np.sum((residual - d) ** 2, axis=1)) / 3.0))
+    seen = float(np.sqrt(np.sum(c_trunk ** 2) / 2.0))  # rms turn rate × √n, per axis
+    sigma_C = scatter / seen if seen > 0.0 else np.inf
+    return C, d, scatter / np.sqrt(b - a), sigma_C
+
+
+def trunk_bias_from_poses(tracks: Mapping[str, SensorTrack], plan: CalibrationPlan
+                          ) -> tuple[float, np.ndarray] | None:
+    """A 6-axis trunk sensor's gyroscope bias about the vertical [rad/s] and that vertical
+    (unit, sensor frame: its accelerometer's mean over the poses), from the held N- and T-poses: in
+    each the arm turns with the trunk as one (a sway), so every sample gives
+    ``ω_trunk − C ω_arm = b_trunk − C b_arm`` with ``C = R_trunk_arm`` fitted to the rates
+    (``_rigid_fit``); two poses that differ by the arm's turn about the thorax's X tell
+    ``b_trunk`` apart from the arm's biases but along that (horizontal) axis. The vertical
+    part is what the tilt never sees on a trunk that only sways; least squares over the
+    arm's sensors and both poses with the prior ``BIAS_SIGMA`` on every bias, each pose
+    weighed by its noise and by ``C``'s σ times ``BIAS_SIGMA``. None without two poses."""
+    if plan.npose is None or plan.tpose is None or "trunk" not in tracks:
+        return None
+    arms = [s for s in ARM if s in tracks]
+    rows, rhs, weights = [], [], []
+    for k, sensor in enumerate(arms):
+        for pose in (plan.npose, plan.tpose):
+            fit = _rigid_fit(tracks[sensor], tracks["trunk"], pose.start, pose.end)
+            if fit is None:
+                return None
+            C, d, sigma_d, sigma_C = fit
+            row = np.zeros((3, 3 + 3 * len(arms)))
+            row[:, :3] = np.eye(3)
+            row[:, 3 + 3 * k: 6 + 3 * k] = -C
+            rows.append(row)
+            rhs.append(d)
+            weights.append(1.0 / (sigma_d**2 + (sigma_C * BIAS_SIGMA) ** 2))
+    if not rows:
+        return None
+    A, y = np.vstack(rows), np.concatenate(rhs)
+    w = np.repeat(weights, 3)
+    information = (A.T * w) @ A + np.eye(A.shape[1]) / BIAS_SIGMA**2
+    x = np.linalg.solve(information, (A.T * w) @ y)
+    span = [p for p in (plan.npose, plan.tpose) if p is not None]
+    acc, _, _ = tracks["trunk"].window(min(p.start for p in span), max(p.end for p in span))
+    if not len(acc):
+        return None
+    up = _up(_unit_rows(acc))
+    return float(x[:3] @ up), up
+
+
 def _sway_range(trunk: SensorTrack, start: float, end: float, axis: np.ndarray) -> float:
     """How far the trunk's up direction (its filter's tilt, trunk sensor frame) moved
     along ``axis`` over ``start…end``: max − min [rad, small angles]."""
@@ -145,8 +258,12 @@ def _sway_range(trunk: SensorTrack, start: float, end: float, axis: np.ndarray) 
 
 
 def calibrate(tracks: Mapping[str, SensorTrack], plan: CalibrationPlan, side: Side,
-              final_time_s: float) -> Calibration:
-    """Calibrate from the tracks (each holding at least the data up to ``final_time_s``)."""
+              final_time_s: float, headings: Mapping[str, float] | None = None
+              ) -> Calibration:
+    """Calibrate from the tracks (each holding at least the data up to ``final_time_s``).
+    ``headings``: a first pass's per-sensor headings [rad] that put a 6-axis kit's filters
+    in one world (``Calibration.heading``); given, the trunk's sway is taken out as on a
+    9-axis kit (a 6-axis kit with a trunk sensor and two poses calibrates twice)."""
     warnings: list[CalibrationWarning] = []
     method = plan.method
     windows = {}
@@ -184,7 +301,10 @@ def calibrate(tracks: Mapping[str, SensorTrack], plan: CalibrationPlan, side: Si
     # sensors share a heading (9-axis): the carried direction would otherwise turn by the
     # sensors' heading difference; and not when the trunk sensor turned like an arm
     # between the poses (then it is not on the trunk: see the turn warnings).
-    sway_corrected = nine_axis and "trunk" in tracks and method != "default"
+    sway_corrected = ((nine_axis or headings is not None) and "trunk" in tracks
+                      and method != "default")
+    # the turn about the vertical of the trunk's filter world into each sensor's
+    turns = {s: 0.0 if headings is None else headings["trunk"] - headings[s] for s in tracks}
     if sway_corrected and method == "two-pose":
         sway_corrected = turn_warning("trunk", _up(windows["trunk", "npose"][0]),
                                       _up(windows["trunk", "tpose"][0])) is None
@@ -202,7 +322,7 @@ def calibrate(tracks: Mapping[str, SensorTrack], plan: CalibrationPlan, side: Si
         # upright is square to it. Weighed against the mean (Bayes): the mean's error is
         # within half the trunk's tilt range along X (a sway seen over half a cycle or
         # more), taken as 2σ; the axis's σ is AXIS_SIGMA_RAD; a still trunk keeps its mean.
-        axis = _abduction_axis(tracks, plan) if method == "two-pose" else None
+        axis = _abduction_axis(tracks, plan, turns) if method == "two-pose" else None
         if axis is not None:
             along = trunk_up @ axis
             sway = 0.25 * _sway_range(tracks["trunk"], min(p.start for p in span),
@@ -212,10 +332,12 @@ def calibrate(tracks: Mapping[str, SensorTrack], plan: CalibrationPlan, side: Si
             trunk_up /= np.linalg.norm(trunk_up)
 
     def pose_up(sensor: str, pose: str) -> np.ndarray:
+        if sway_corrected and sensor == "trunk" and not nine_axis:
+            return trunk_up  # (a 9-axis trunk takes its axes whole from the arm, below)
         if sway_corrected and sensor in ARM:
             window = plan.npose if pose == "npose" else plan.tpose
             return _thorax_up(tracks[sensor], tracks["trunk"], window.start, window.end,
-                              trunk_up)
+                              trunk_up, turns[sensor])
         return _up(windows[sensor, pose][0])
 
     R_sensor_segment: dict[str, np.ndarray] = {}
@@ -260,6 +382,30 @@ def calibrate(tracks: Mapping[str, SensorTrack], plan: CalibrationPlan, side: Si
                 R_sensor_segment[sensor] = heading_from_arm(R_ws, R_world_thorax)
     if "trunk" in tracks and reference not in ARM:
         R_world_thorax = npose_segment("trunk")
+    if (not nine_axis and headings is None and "trunk" in tracks and reference in ARM
+            and method == "two-pose"):
+        # The first pass put the filters in one world, the trunk's with its default
+        # mounting's turn about its long axis (the N-pose alone cannot tell the two
+        # apart). The held poses' sway turns arm and trunk as one: their gyroscopes give
+        # the turn between their worlds, weighed against that default (Bayes).
+        first = heading["trunk"]
+        weight, total = 1.0 / TRUNK_TURN_SIGMA_RAD**2, 0.0
+        for pose in (plan.npose, plan.tpose):
+            found = _gyro_heading(tracks[reference], tracks["trunk"], pose.start, pose.end)
+            if found is not None:
+                offset = (found[0] - first + np.pi) % (2 * np.pi) - np.pi
+                weight += 1.0 / found[1] ** 2
+                total += offset / found[1] ** 2
+        # then take the trunk's sway out
+        return calibrate(tracks, plan, side, final_time_s,
+                         headings={**heading, "trunk": first + total / weight})
+    if headings is not None and "trunk" in tracks and reference in ARM:
+        # the trunk's world as the gyroscopes put it; its segment as the N-pose does: the
+        # sensor's turn about the thorax's long axis (its Y) takes up the difference
+        turn = heading["trunk"] - headings["trunk"]
+        R_sensor_segment["trunk"] = R_sensor_segment["trunk"] @ Rotation.from_rotvec(
+            [0.0, turn, 0.0]).as_matrix()
+        heading["trunk"] = headings["trunk"]
     return Calibration(method=method, final_time_s=final_time_s,
                        R_sensor_segment=R_sensor_segment, heading=heading,
                        R_world_thorax=R_world_thorax, warnings=tuple(warnings))

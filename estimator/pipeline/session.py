@@ -27,7 +27,7 @@ from ..errors import InvalidArgument
 from ..orientation import DEFAULT_FILTER, GYRO_DELAY_FILTERS, LearntGyroBias, check_gyro_delay
 from ..recording import Mark, Pose
 from ..recording.points import PointsFrame
-from .calibrate import Calibration, calibrate
+from .calibrate import Calibration, calibrate, trunk_bias_from_poses
 from .constraints import HeadingConstraint, mean_turn, turned_angle
 from .estimates import REFERENCE_ORDER, EstimateArrays, Estimates
 from .magnetic import disagreeing_sensors, disagreement_warning
@@ -236,6 +236,18 @@ class Pipeline:
                 for track in present.values():
                     track.drop_magnetometer()
                 field_warning = disagreement_warning(disagreeing, list(present))
+        trunk = present.get("trunk")
+        if trunk is not None and not any(t.nine_axis and not t.magnetometer_dropped
+                                         for t in present.values()):
+            # a trunk that only sways never shows its vertical bias to the tilt: the
+            # held poses' gyroscopes give it (``trunk_bias_from_poses``)
+            found = trunk_bias_from_poses(present, plan)
+            if found is not None:
+                vertical, up = found
+                old = np.zeros(3) if trunk.gyr_bias_prior is None else \
+                    np.asarray(trunk.gyr_bias_prior)
+                prior = old + (vertical - old @ up) * up
+                trunk.restart_filter((float(prior[0]), float(prior[1]), float(prior[2])))
         self.calibration = calibrate(present, plan, self.config.side, final_time)
         for track in self._tracks.values():
             track.forget_magnetometer()

@@ -255,6 +255,22 @@ class SensorTrack:
             self._q[kept] = self.filter.update(self._t[kept], self._acc[kept],
                                                self._gyr[kept], None).q
 
+    def restart_filter(self, gyr_bias_prior: tuple[float, float, float]) -> None:
+        """From now on, and for every sample kept, orient this sensor with a fresh filter
+        that starts from ``gyr_bias_prior`` [rad/s] (sensor frame): it re-runs over the
+        kept samples (the caller does it before anything was discarded, at calibration),
+        the drift taken back with it."""
+        self.gyr_bias_prior = gyr_bias_prior
+        self.filter = self._new_filter()
+        self._drift = None
+        kept = slice(self._start, self._end)
+        if self._end > self._start:
+            self._q[kept] = self.filter.update(
+                self._t[kept], self._acc[kept], self._gyr[kept],
+                None if not self.nine_axis or self.magnetometer_dropped else
+                np.concatenate(self._mag)[self._start:self._end]).q
+            self._take_back_drift(self._start, self._end)
+
     def _grow(self, n: int) -> None:
         kept = slice(self._start, self._end)
         size = self._end - self._start
