@@ -372,3 +372,32 @@ def test_six_axis_swaying_kit_streamed_in_chunks_equals_batch():
         np.testing.assert_array_equal(stream.t, batch.t)
         for k in REPORTED_ANGLES:
             np.testing.assert_allclose(stream.angles[k], batch.angles[k], atol=1e-9, rtol=0)
+
+
+@pytest.mark.parametrize("seed", [
+    1,
+    pytest.param(2, marks=pytest.mark.xfail(strict=True, reason=(
+        "measured wrist deviation 1.86°, wrist 1.19 cm (1.90° before): "
+        + SIX_AXIS_ARM_FILTERS.format("1.91°, 1.21 cm")))),
+    pytest.param(6, marks=pytest.mark.xfail(strict=True, reason=(
+        "measured forearm pronation 3.09°, wrist 0.94 cm (6.14° before): "
+        + SIX_AXIS_ARM_FILTERS.format("2.74°, 1.18 cm") + "; qcf alone, the trunk "
+        "started from the poses' bias: heading RMS trunk 1.5°, upper arm 4.3°, "
+        "forearm against upper arm 6.9°"))),
+    pytest.param(10, marks=pytest.mark.xfail(strict=True, reason=(
+        "measured shoulder rotation 3.46°, wrist 2.15 cm (6.07° before): "
+        + SIX_AXIS_ARM_FILTERS.format("3.30°, 1.98 cm") + "; qcf alone, the trunk "
+        "started from the poses' bias: heading RMS trunk 1.2°, upper arm 5.9°, "
+        "forearm against upper arm 9.4°")))])
+def test_six_axis_random_sway(seed):
+    """The 6-axis kit under the low-pass random sway, with the case's biases: seed 1
+    15.98° → 1.95° (wrist 0.98 cm)."""
+    config = six_axis_sway(seed, sway_config(seed).gyro_bias_max)
+    motion = replace(exercise_motion(config.exercise, calibration=True),
+                     trunk=random_sway(seed, config.trunk_sway[0]))
+    sim = simulate(replace(config, trunk_sway=None), motion=motion)
+    estimates, _ = estimate_recording(sim.recording)
+    worst, worst_deg, wrist_cm = score(estimates, sim.truth.t, sim_truth_deg(sim),
+                                       sim.truth.positions)
+    print(f"6-axis random sway, seed {seed}: {worst} {worst_deg:.2f}°, wrist {wrist_cm:.2f} cm")
+    assert worst_deg <= ANGLE_BAR_DEG[False] and wrist_cm <= WRIST_BAR_CM
