@@ -241,37 +241,13 @@ def test_a_swaying_kit_in_a_clean_field_keeps_its_magnetometers(seed, monkeypatc
     assert "magnetic-field-disturbed" not in {w.code for w in calibration.warnings}
 
 
-#: The physics of the long 6-axis case (no trunk sensor, no magnetometer): the arm's
-#: heading is the shoulder's rotation and nothing sees it; the rests hold it and show the
-#: bias, and since each 6-axis sensor's drift between two rests is taken back at the second
-#: (``pipeline/drift.py``: the bias on the line between the two rests' means, the random
-#: walk's expected path) what is left per sensor is the walk's departure from that line
-#: (σ = q·T^1.5/√12, 1.5° for the 59-s rotation set at q = 2.4·10⁻⁴ rad/s/√s) and the
-#: rests' means' own error (0.1–1.6 mrad/s projected on the vertical, × T/2): per-sensor
-#: heading RMS 3.0° over seeds 1–8 (6.4° before). The arm's heading is the mean of its
-#: three sensors' so turned (the joints tie them; the take-back enters only the mean, the
-#: ties stay the joints'). Where the joints are blind for long (the elbow straight through
-#: the flexion and abduction sets) the forearm–hand tie drifts: wrist flexion.
-SIX_AXIS_LONG_PHYSICS = ("what is left of the bias's random walk in the sets once the drift "
-                         "between two rests is taken back at the second: the walk's "
-                         "departure from the line between the rests' biases (1.5° for a "
-                         "59-s set) and those biases' own error (~0.2–1.6 mrad/s)")
-
-
-@pytest.mark.parametrize("seed", [
-    pytest.param(1, marks=pytest.mark.xfail(strict=True, reason=(
-        "measured shoulder rotation 2.98° (50 Hz; 6.75° before the drift between rests was "
-        "taken back, 8.93° on the upper arm's heading alone): " + SIX_AXIS_LONG_PHYSICS))),
-    pytest.param(2, marks=pytest.mark.xfail(strict=True, reason=(
-        "measured wrist flexion 2.67° (100 Hz; shoulder rotation 3.57° before the drift "
-        "between rests was taken back): the forearm–hand tie, blind while the elbow is "
-        "straight; and " + SIX_AXIS_LONG_PHYSICS))),
-    3, 4])
+@pytest.mark.parametrize("seed", [1, 2, 3, 4])
 def test_long_six_axis_session_with_drifting_bias_and_rests(seed):
     """11 minutes, three rounds of shoulder sets with 20 s rests, upper arm, forearm and
-    hand, no trunk sensor: each sensor's heading drift between two rests is taken back at
-    the second, and the arm's heading is the mean of its sensors' own, each weighed by how
-    little it has turned (at rest a heading holds)."""
+    hand, no trunk sensor: each sensor's heading drift between two rests (as short as the
+    pauses between repetitions) is taken back at the second, and the arm's heading is the
+    mean of its sensors' own, each weighed by how little it has turned (at rest a heading
+    holds)."""
     config = SimulationConfig(exercise="shoulder_sets", seed=seed, height_m=body(seed),
                               nine_axis=False, rate_hz=(100.0, 50.0)[seed % 2],
                               gyro_bias_max=0.02, errors=drifting(seed))
@@ -289,11 +265,21 @@ def no_rests(seed: int, nine_axis: bool):
                                 nine_axis=nine_axis))
 
 
+@functools.cache
+def nonstop(seed: int, nine_axis: bool):
+    """As ``no_rests`` with no pause between repetitions either: nothing ever rests (the
+    pauses between repetitions show a 6-axis sensor its bias, ``pipeline/drift.py``)."""
+    return run(SimulationConfig(exercise="shoulder_sets_nonstop", seed=seed,
+                                height_m=body(seed), rate_hz=(100.0, 50.0)[seed % 2],
+                                gyro_bias_max=0.02, errors=drifting(seed),
+                                nine_axis=nine_axis))
+
+
 @pytest.mark.parametrize("seed", [1, 2])
 def test_nine_axis_beats_six_axis_in_a_clean_field_without_rests(seed):
     """The magnetometer holds the headings the gyroscopes lose (not won by ignoring it)."""
-    nine, six = no_rests(seed, True), no_rests(seed, False)
-    print(f"no rests, seed {seed}: 9-axis {nine[0]} {nine[1]:.2f}°, {nine[2]:.2f} cm; "
+    nine, six = nonstop(seed, True), nonstop(seed, False)
+    print(f"nothing rests, seed {seed}: 9-axis {nine[0]} {nine[1]:.2f}°, {nine[2]:.2f} cm; "
           f"6-axis {six[0]} {six[1]:.2f}°, {six[2]:.2f} cm")
     assert not nine[3].warnings
     assert nine[1] < six[1] / 4 and nine[2] < six[2] / 4

@@ -46,11 +46,12 @@ def test_apply_turns_the_segments_as_update_and_elemental_do():
 def test_pure_python_fallback_gives_the_compiled_numbers():
     rng = np.random.default_rng(6)
     t, Rw = stack(rng, 400)
+    shift = np.cumsum(rng.normal(0.0, 0.001, len(t)))  # steps taken back at rests [rad]
     for gate in (np.inf, 0.1):  # between two sensors; against a virtual upper arm
         outs = []
         for kernel in (constraints._constrain, constraints._constrain_python):
-            R, state, delta = Rw.copy(), np.zeros(4), np.empty(len(t))
-            kernel(t, R, 2, 3, 0, 2, np.array([3]), 20.0, 0.05, gate, state, delta)
+            R, state, delta = Rw.copy(), np.zeros(5), np.empty(len(t))
+            kernel(t, R, 2, 3, 0, 2, np.array([3]), 20.0, 0.05, gate, state, delta, shift)
             outs.append((R, state, delta))
         for compiled, python in zip(*outs, strict=True):
             np.testing.assert_allclose(compiled, python, atol=1e-12)

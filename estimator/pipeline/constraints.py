@@ -13,9 +13,9 @@ says how well the sample observes ``δ`` (zero with the elbow straight: then a h
 is a pronation error no joint reveals). The correction is the ``D²``-weighted mean of these
 per-sample values with exponential forgetting (time constant ``tau``) and a prior toward
 no correction, causal, so chunks give what the whole recording gives. Where the headings
-are the gyroscopes' alone, the pipeline then turns the whole arm to its sensors' mean
-heading, each sensor's own turned by the drift taken back at its rests (``drift``,
-``Pipeline._apply_constraints``).
+are the gyroscopes' alone, each segment has first been turned by the drift taken back at
+its sensor's rests (``drift``), and the pipeline then turns the whole arm to its sensors'
+mean heading (``Pipeline._apply_constraints``).
 
 The running sums and the turn of the segments run in one compiled pass per chunk
 (``_constrain``): on a live stream's 10-sample chunks a dozen numpy calls cost far more
@@ -31,7 +31,7 @@ import numpy as np
 
 
 def _constrain_python(t, Rw, parent, child, u_axis, v_axis, turned, tau, prior, gate,
-                      state, delta):
+                      state, delta, shift):
     """For each sample ``n`` of times ``t`` [s] (N,): ``u = Rw[n, parent, :, u_axis]``,
     ``v = Rw[n, child, :, v_axis]`` (world axes of ``Rw`` (N, S, 3, 3)); the running sums
     ``state[0:2]`` (numerator, denominator) decayed by ``exp(−Δt/τ)`` and grown by this
@@ -39,10 +39,18 @@ def _constrain_python(t, Rw, parent, child, u_axis, v_axis, turned, tau, prior, 
     ``Rw[n, s]``, ``s`` in ``turned`` (int array), turned about the world's vertical by it.
     A sample whose residual after the correction so far, ``|u·v + D δ|``, exceeds ``gate``
     breaks the joint by more than a heading drift does and counts for nothing.
-    ``state[2]`` is the last time [s], ``state[3]`` 1.0 once there is one."""
+    ``shift[n]`` [rad] is how far the child's heading has been turned against the parent's
+    before the joint (the drift taken back at each sensor's rests): a change of it turns the
+    remembered samples' estimates with it (``numerator −= change · denominator``), so the
+    joint keeps what it has seen, and a step where it has seen nothing passes (the prior
+    holds it). ``state[2]`` is the last time [s], ``state[3]`` 1.0 once there is one,
+    ``state[4]`` the last shift."""
     numerator, denominator = state[0], state[1]
     t_prev = state[2] if state[3] != 0.0 else (t[0] if t.shape[0] else 0.0)
+    last_shift = state[4] if state[3] != 0.0 else (shift[0] if t.shape[0] else 0.0)
     for n in range(t.shape[0]):
+        numerator -= (shift[n] - last_shift) * denominator
+        last_shift = shift[n]
         ux, uy, uz = Rw[n, parent, 0, u_axis], Rw[n, parent, 1, u_axis], Rw[n, parent, 2, u_axis]
         vx, vy, vz = Rw[n, child, 0, v_axis], Rw[n, child, 1, v_axis], Rw[n, child, 2, v_axis]
         d = uy * vx - ux * vy
@@ -65,6 +73,7 @@ def _constrain_python(t, Rw, parent, child, u_axis, v_axis, turned, tau, prior, 
                 Rw[n, segment, 1, k] = s * r0 + c * r1
     if t.shape[0]:
         state[0], state[1], state[2], state[3] = numerator, denominator, t_prev, 1.0
+        state[4] = last_shift
 
 
 def _turned_python(t, gyr, times, state, out):
@@ -107,6 +116,18 @@ def _mean_turn_python(Rw, chain, offsets, turned, floor):
                 Rw[n, segment, 1, k] = s * r0 + c * r1
 
 
+def _turn_python(R, h):
+    """``Rz(h[n]) · R[n]`` in place for ``R`` (N, 3, 3) ``R_world_segment`` and ``h`` [rad]
+    (N,): a turn about the world's vertical."""
+    for n in range(R.shape[0]):
+        if h[n] != 0.0:
+            c, s = math.cos(h[n]), math.sin(h[n])
+            for k in range(3):
+                r0, r1 = R[n, 0, k], R[n, 1, k]
+                R[n, 0, k] = c * r0 - s * r1
+                R[n, 1, k] = s * r0 + c * r1
+
+
 def _compile(function):
     try:
         import numba
@@ -118,6 +139,7 @@ def _compile(function):
 _constrain = _compile(_constrain_python)
 mean_turn = _compile(_mean_turn_python)
 turned_angle = _compile(_turned_python)
+turn_about_vertical = _compile(_turn_python)
 
 
 @dataclass
@@ -133,19 +155,24 @@ class HeadingConstraint:
     #: calibration's T-pose and any raise of the arm, which break the assumption, not
     #: the hinge, are left out.
     gate: float = math.inf
-    #: numerator, denominator, last time [s], has a last time (see ``_constrain``).
-    _state: np.ndarray = field(default_factory=lambda: np.zeros(4), init=False)
+    #: numerator, denominator, last time [s], has a last time, last shift [rad] (see
+    #: ``_constrain``).
+    _state: np.ndarray = field(default_factory=lambda: np.zeros(5), init=False)
 
     def apply(self, t: np.ndarray, Rw: np.ndarray, parent: int, child: int, u_axis: int,
-              v_axis: int, turned: tuple[int, ...]) -> np.ndarray:
+              v_axis: int, turned: tuple[int, ...], shift: np.ndarray | None = None
+              ) -> np.ndarray:
         """Turn the segments ``turned`` of ``Rw`` (N, S, 3, 3) ``R_world_segment`` about the
         vertical, in place, by the heading correction of joint ``parent``–``child`` at times
         ``t`` [s] (N,): ``u`` is the parent's column ``u_axis``, ``v`` the child's column
-        ``v_axis``. Returns the turn [rad] (N,)."""
+        ``v_axis``; ``shift`` [rad] (N,) the child's heading already turned against the
+        parent's (``_constrain``; None: none). Returns the turn [rad] (N,)."""
         delta = np.empty(len(t))
+        shift = np.zeros(len(t)) if shift is None else np.ascontiguousarray(shift,
+                                                                           dtype=np.float64)
         _constrain(np.ascontiguousarray(t, dtype=np.float64), Rw, parent, child, u_axis,
                    v_axis, np.array(turned, dtype=np.int64), self.tau, self.prior,
-                   self.gate, self._state, delta)
+                   self.gate, self._state, delta, shift)
         return delta
 
     def update(self, t: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -157,5 +184,5 @@ class HeadingConstraint:
         delta = np.empty(n)
         _constrain(np.ascontiguousarray(t, dtype=np.float64), axes, 0, 1, 0, 0,
                    np.zeros(0, dtype=np.int64), self.tau, self.prior, self.gate,
-                   self._state, delta)
+                   self._state, delta, np.zeros(n))
         return delta

@@ -28,7 +28,7 @@ from ..orientation import DEFAULT_FILTER, GYRO_DELAY_FILTERS, LearntGyroBias, ch
 from ..recording import Mark, Pose
 from ..recording.points import PointsFrame
 from .calibrate import Calibration, calibrate, trunk_bias_from_poses
-from .constraints import HeadingConstraint, mean_turn, turned_angle
+from .constraints import HeadingConstraint, mean_turn, turn_about_vertical, turned_angle
 from .estimates import REFERENCE_ORDER, EstimateArrays, Estimates
 from .magnetic import disagreeing_sensors, disagreement_warning
 from .segment_kernel import segment_orientations
@@ -68,12 +68,7 @@ class PipelineConfig:
 def _turn_about_vertical(R: np.ndarray, h: np.ndarray) -> None:
     """Turn ``R`` (N, 3, 3) ``R_world_segment`` about the world's vertical by ``h`` [rad]
     (N,), in place (``Rz(h) · R``)."""
-    if not h.any():
-        return
-    c, s = np.cos(h)[:, None], np.sin(h)[:, None]
-    r0, r1 = R[:, 0, :].copy(), R[:, 1, :].copy()
-    R[:, 0, :] = c * r0 - s * r1
-    R[:, 1, :] = s * r0 + c * r1
+    turn_about_vertical(R, np.ascontiguousarray(h, dtype=np.float64))
 
 
 class Pipeline:
@@ -309,11 +304,10 @@ class Pipeline:
             points_flexion, flagged = self.gamma.apply(
                 Rw, present, self._wrist.at(times), self._wrist.shoulder_thorax,
                 _SEGMENT_INDEX["upper_arm"], _SEGMENT_INDEX["forearm"])
+        for index, h in taken.items():  # each sensor's own, before the joints tie them
+            _turn_about_vertical(Rw[:, index], h)
         if self._constraints:
             self._apply_constraints(times, Rw, present, taken)
-        else:
-            for index, h in taken.items():
-                _turn_about_vertical(Rw[:, index], h)
         angles, residuals, positions, R_world_all = self._joints.update(Rw, present)
         if points_flexion is not None and self.gamma is not None and self.gamma.forearm_imu:
             self.gamma.compare(points_flexion, angles[:, _ELBOW_FLEXION], flagged)
@@ -343,18 +337,16 @@ class Pipeline:
         heading holds (an elbow exercise's still upper arm keeps the arm's heading).
 
         ``taken`` (segment → [rad] at ``times``) is each 6-axis sensor's heading drift taken
-        back at its rests (``drift``): with the mean it enters only the mean (each sensor's
-        own heading turned by it), so its steps never break the joints' ties; without the
-        mean each segment is turned by its own before the constraints."""
+        back at its rests (``drift``), which has already turned its segment: each joint
+        takes the relative step with it (``_constrain``'s shift), so where the joint has
+        been seen bent its tie holds, and where it has been straight (blind) the sensors'
+        own headings, taken back, hold."""
         forearm, hand = _SEGMENT_INDEX["forearm"], _SEGMENT_INDEX["hand"]
         upper_arm = next(s for s in (_SEGMENT_INDEX["upper_arm"], _SEGMENT_INDEX["clavicle"],
                                      _SEGMENT_INDEX["thorax"]) if present[s])
         pairs = {"forearm": (upper_arm, forearm, 2, 1),
                  "hand": (forearm, hand, 0, 2)}
         mean = self._mean_heading and upper_arm == _SEGMENT_INDEX["upper_arm"]
-        if not mean:
-            for index, h in taken.items():
-                _turn_about_vertical(Rw[:, index], h)
         chain, offsets = [upper_arm], []
         for segment, constraint in self._constraints.items():
             parent, child, u_axis, v_axis = pairs[segment]
@@ -363,14 +355,13 @@ class Pipeline:
             turned = (child,)
             if segment == "forearm" and present[hand] and "hand" not in self._constraints:
                 turned = (forearm, hand)
-            delta = constraint.apply(times, Rw, parent, child, u_axis, v_axis, turned)
+            shift = None  # the child's heading taken back against the parent's [rad]
+            if child in taken or parent in taken:
+                shift = taken.get(child, 0.0) - taken.get(parent, np.zeros(len(times)))
+            delta = constraint.apply(times, Rw, parent, child, u_axis, v_axis, turned, shift)
             if mean and parent in chain:
                 chain.append(child)
                 offsets.append(delta)  # the child's own heading is the chain's − delta
-        if mean:
-            for index, h in taken.items():
-                if index not in chain or len(chain) == 1:
-                    _turn_about_vertical(Rw[:, index], h)
         if len(chain) > 1:
             turned = np.empty((len(chain), len(times)))
             own = np.empty((len(chain), len(times)))  # chain's − own heading [rad]
@@ -379,8 +370,6 @@ class Pipeline:
                 turned_angle(t, gyr, times, self._turned.setdefault(segment, np.zeros(1)),
                              turned[j])
                 own[j] = offsets[j - 1] if j else 0.0
-                if segment in taken:
-                    own[j] -= taken[segment]
             mean_turn(Rw, np.array(chain, dtype=np.int64), own, turned,
                       MEAN_HEADING_FLOOR_RAD)
 

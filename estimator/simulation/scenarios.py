@@ -143,28 +143,32 @@ def _concurrent_sets(default_sets: int):
     return build
 
 
-def _shoulder_sets(default_rounds: int, rest_s: float = 20.0):
+def _shoulder_sets(default_rounds: int, rest_s: float = 20.0, pause_s: float = 1.0):
     """A long session of the shoulder: rounds of flexion to 120° ×8, abduction to 75° ×8,
     rotation ±45° ×6 with the elbow at 90°, and elbow flexion to 110° ×8, with 20 s rests
-    in the N-pose after each set (3 rounds: 11 minutes); ``rest_s`` 0: set after set."""
+    in the N-pose after each set (3 rounds: 11 minutes); ``rest_s`` 0: set after set;
+    ``pause_s`` [s] the stillness between two repetitions (0: none, nothing ever rests)."""
     def build(reps: int | None, amplitude_deg: float | None, start: float):
         rounds = default_rounds if reps is None else reps
         scale = 1.0 if amplitude_deg is None else amplitude_deg / 120.0
-        period = 4.5  # repetitions()' default: 2 × 1.5 s rise, 0.5 s hold, 1 s rest
+        period = 3.5 + pause_s  # repetitions(): 2 × 1.5 s rise, 0.5 s hold, the pause
         joints: dict[str, Profile] = {}
         t = start
+
+        def sets(begin: float, count: int, amplitude: float) -> Profile:
+            return repetitions(begin, count, amplitude, rest=pause_s)
         for _ in range(rounds):
-            joints = _merge(joints, {"shoulder_flexion": repetitions(t, 8, 120 * scale * DEG)})
+            joints = _merge(joints, {"shoulder_flexion": sets(t, 8, 120 * scale * DEG)})
             t += 8 * period + rest_s
-            joints = _merge(joints, {"shoulder_abduction": repetitions(t, 8, 75 * scale * DEG)})
+            joints = _merge(joints, {"shoulder_abduction": sets(t, 8, 75 * scale * DEG)})
             t += 8 * period + rest_s
             joints = _merge(joints, {
                 "elbow_flexion": hold_and_return(t, 90 * DEG, 1.5, 12 * period + 1.0,
                                                  held=True),
-                "shoulder_rotation": repetitions(t + 2.0, 6, 45 * scale * DEG)
-                + repetitions(t + 2.0 + 6 * period, 6, -45 * scale * DEG)})
-            t += 2.0 + 12 * period + 3.0 + rest_s
-            joints = _merge(joints, {"elbow_flexion": repetitions(t, 8, 110 * scale * DEG)})
+                "shoulder_rotation": sets(t + 2.0, 6, 45 * scale * DEG)
+                + sets(t + 2.0 + 6 * period, 6, -45 * scale * DEG)})
+            t += 2.0 + 12 * period + 2.0 + pause_s + rest_s
+            joints = _merge(joints, {"elbow_flexion": sets(t, 8, 110 * scale * DEG)})
             t += 8 * period + rest_s
         return joints, {}
     return build
@@ -192,6 +196,7 @@ EXERCISES: dict[str, ExerciseBuilder] = {
     "long_concurrent": _concurrent_sets(4),
     "shoulder_sets": _shoulder_sets(3),
     "shoulder_sets_no_rest": _shoulder_sets(4, rest_s=0.0),
+    "shoulder_sets_nonstop": _shoulder_sets(4, rest_s=0.0, pause_s=0.0),
     "still": lambda reps, amplitude, start: ({}, {}),
 }
 

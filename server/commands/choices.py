@@ -10,4 +10,5 @@ DEFAULT_FILTER = "qcf"
 EXERCISE_NAMES = ("elbow_flexion", "shoulder_abduction", "shoulder_flexion", "abduction_120",
                   "shoulder_rotation", "wrist_flexion", "pronation", "wrist_deviation", "reach",
                   "trunk_reach", "elbow_wrist", "drinking", "shrug", "long_session",
-                  "long_concurrent", "shoulder_sets", "shoulder_sets_no_rest", "still")
+                  "long_concurrent", "shoulder_sets", "shoulder_sets_no_rest",
+                  "shoulder_sets_nonstop", "still")
