@@ -154,28 +154,20 @@ def _gyro_heading(arm: SensorTrack, trunk: SensorTrack, start: float, end: float
     """The turn about the vertical [rad] that takes the trunk's 6-axis filter world into
     the arm sensor's, and its σ [rad], from a held pose ``start…end``: the arm held still
     on the body turns with the trunk as one (a sway), so the two gyroscopes read one
-    rotation, ``ω_trunk = R_trunk_arm ω_arm``; ``R_trunk_arm`` is the least-squares fit of
-    the rates less their means (which hold each sensor's bias) and the residual's scatter
-    gives its σ about the vertical. None without a pose's worth of samples."""
-    t, _, gyr, q = arm.arrays()
+    rotation (``_rigid_fit``); the σ is the fit's about the trunk's vertical. None without
+    a pose's worth of samples."""
+    fit = _rigid_fit(arm, trunk, start, end)
+    if fit is None:
+        return None
+    C, _, _, covariance, _ = fit
+    t, _, _, q = arm.arrays()
     a, b = np.searchsorted(t, start, "left"), np.searchsorted(t, end, "right")
-    t_trunk, _, gyr_trunk, q_trunk = trunk.arrays()
-    if b - a < 10 or len(t_trunk) < 2:
-        return None
-    t, gyr, q = t[a:b], gyr[a:b], q[a:b]
-    w_trunk = np.stack([np.interp(t, t_trunk, gyr_trunk[:, k]) for k in range(3)], axis=1)
-    w_arm = gyr - gyr.mean(axis=0)
-    w_trunk -= w_trunk.mean(axis=0)
-    u, _, vt = np.linalg.svd(w_arm.T @ w_trunk)
-    C = vt.T @ np.diag([1.0, 1.0, np.linalg.det(vt.T @ u.T)]) @ u.T  # R_trunk_arm
-    residual = w_trunk - w_arm @ C.T
-    R_trunk = segment_orientations(t_trunk, q_trunk, t, np.eye(3), 0.0)
-    vertical = R_trunk[:, 2, :]  # the world's vertical in the trunk's frame
-    seen = np.sum(np.cross(vertical, w_trunk) ** 2)  # how well the turn about it shows
-    if seen <= 0.0:
-        return None
-    sigma = float(np.sqrt(np.sum(residual ** 2) / 3.0 / seen))
-    turn = quat_to_matrix(q) @ C.T @ np.transpose(R_trunk, (0, 2, 1))  # Rz per sample
+    t_trunk, _, _, q_trunk = trunk.arrays()
+    R_trunk = segment_orientations(t_trunk, q_trunk, t[a:b], np.eye(3), 0.0)
+    vertical = R_trunk[:, 2, :].mean(axis=0)  # the world's vertical in the trunk's frame
+    vertical /= np.linalg.norm(vertical)
+    sigma = float(np.sqrt(vertical @ covariance @ vertical))
+    turn = quat_to_matrix(q[a:b]) @ C.T @ np.transpose(R_trunk, (0, 2, 1))  # Rz per sample
     return float(yaw_of(Rotation.from_matrix(turn).mean().as_matrix())), sigma
 
 
@@ -185,10 +177,14 @@ BIAS_SIGMA = 0.01
 
 
 def _rigid_fit(arm: SensorTrack, trunk: SensorTrack, start: float, end: float):
-    """The held pose ``start…end`` as one rigid turn of arm and trunk (see
-    ``_gyro_heading``): ``(C, d, σ_d, σ_C)``, ``C = R_trunk_arm`` fitted to the rates less
-    their means, ``d`` the mean of ``ω_trunk − C ω_arm`` (= ``b_trunk − C b_arm`` [rad/s]),
-    its σ per axis and ``C``'s angular σ [rad]; None without a pose's worth of samples."""
+    """The held pose ``start…end`` as one rigid turn of arm and trunk: the two gyroscopes
+    read one rotation, ``ω_trunk = C ω_arm`` with ``C = R_trunk_arm``, fitted to the rates
+    less their means (which hold each sensor's bias). Returns ``(C, d, σ_d, Σ_C, v)``:
+    ``d`` the mean of ``ω_trunk − C ω_arm`` (= ``b_trunk − C b_arm`` [rad/s]), its σ per
+    axis, ``Σ_C`` the covariance of ``C``'s turn error (trunk frame, [rad²]) — the
+    residual's scatter over how the rates spread about each axis (a sway that turns about
+    one axis only leaves ``C`` blind about it) — and ``v = C ω̄_arm``, through which that
+    error enters ``d``; None without a pose's worth of samples."""
     t, _, gyr, _ = arm.arrays()
     a, b = np.searchsorted(t, start, "left"), np.searchsorted(t, end, "right")
     t_trunk, _, gyr_trunk, _ = trunk.arrays()
@@ -202,10 +198,12 @@ def _rigid_fit(arm: SensorTrack, trunk: SensorTrack, start: float, end: float):
     C = vt.T @ np.diag([1.0, 1.0, np.linalg.det(vt.T @ u.T)]) @ u.T
     residual = w_trunk - w_arm @ C.T
     d = residual.mean(axis=0)
-    scatter = float(np.sqrt(np.mean(np.sum((residual - d) ** 2, axis=1)) / 3.0))
-    seen = float(np.sqrt(np.sum(c_trunk ** 2) / 2.0))  # rms turn rate × √n, per axis
-    sigma_C = scatter / seen if seen > 0.0 else np.inf
-    return C, d, scatter / np.sqrt(b - a), sigma_C
+    variance = float(np.mean(np.sum((residual - d) ** 2, axis=1)) / 3.0)
+    spread = c_trunk.T @ c_trunk
+    information = (np.trace(spread) * np.eye(3) - spread) / max(variance, 1e-30)
+    covariance = np.linalg.pinv(information) if np.linalg.det(information) > 0 else \
+        np.eye(3) * np.inf
+    return C, d, np.sqrt(variance / (b - a)), covariance, C @ w_arm.mean(axis=0)
 
 
 def trunk_bias_from_poses(tracks: Mapping[str, SensorTrack], plan: CalibrationPlan
@@ -218,7 +216,7 @@ def trunk_bias_from_poses(tracks: Mapping[str, SensorTrack], plan: CalibrationPl
     ``b_trunk`` apart from the arm's biases but along that (horizontal) axis. The vertical
     part is what the tilt never sees on a trunk that only sways; least squares over the
     arm's sensors and both poses with the prior ``BIAS_SIGMA`` on every bias, each pose
-    weighed by its noise and by ``C``'s σ times ``BIAS_SIGMA``. None without two poses."""
+    weighed by its noise and by ``C``'s error (``_rigid_fit``). None without two poses."""
     if plan.npose is None or plan.tpose is None or "trunk" not in tracks:
         return None
     arms = [s for s in ARM if s in tracks]
@@ -228,19 +226,25 @@ def trunk_bias_from_poses(tracks: Mapping[str, SensorTrack], plan: CalibrationPl
             fit = _rigid_fit(tracks[sensor], tracks["trunk"], pose.start, pose.end)
             if fit is None:
                 return None
-            C, d, sigma_d, sigma_C = fit
+            C, d, sigma_d, covariance, v = fit
             row = np.zeros((3, 3 + 3 * len(arms)))
             row[:, :3] = np.eye(3)
             row[:, 3 + 3 * k: 6 + 3 * k] = -C
             rows.append(row)
             rhs.append(d)
-            weights.append(1.0 / (sigma_d**2 + (sigma_C * BIAS_SIGMA) ** 2))
+            # C's turn error ε moves d by ε × v
+            cross = np.array([[0.0, v[2], -v[1]], [-v[2], 0.0, v[0]], [v[1], -v[0], 0.0]])
+            noise = sigma_d**2 * np.eye(3) + cross @ np.nan_to_num(
+                covariance, posinf=1e6) @ cross.T
+            weights.append(np.linalg.inv(noise))
     if not rows:
         return None
-    A, y = np.vstack(rows), np.concatenate(rhs)
-    w = np.repeat(weights, 3)
-    information = (A.T * w) @ A + np.eye(A.shape[1]) / BIAS_SIGMA**2
-    x = np.linalg.solve(information, (A.T * w) @ y)
+    information = np.eye(rows[0].shape[1]) / BIAS_SIGMA**2
+    evidence = np.zeros(rows[0].shape[1])
+    for row, d, weight in zip(rows, rhs, weights, strict=True):
+        information += row.T @ weight @ row
+        evidence += row.T @ weight @ d
+    x = np.linalg.solve(information, evidence)
     span = [p for p in (plan.npose, plan.tpose) if p is not None]
     acc, _, _ = tracks["trunk"].window(min(p.start for p in span), max(p.end for p in span))
     if not len(acc):
