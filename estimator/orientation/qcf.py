@@ -15,8 +15,12 @@ sensors need:
   disturbed from the first sample is replaced within seconds of moving;
 * the gyroscope bias estimated online: quickly whenever the sensor rests (rest detected
   from the low-passed gyroscope and accelerometer; half a second of stillness from the
-  first sample already gives a provisional one), slowly from the corrections in motion
-  (from the heading's, after a rest, with a weight that grows back as the bias may drift);
+  first sample already gives a provisional one, a sensor on foam or skin that vibrates
+  about its fixed orientation included: there a movement is a departure from the
+  stillness's own vibration, ``rest_vibration`` times its RMS, or a turn away from the
+  low-passed rate's path beyond ``rest_tilt``), slowly from the
+  corrections in motion (from the heading's, after a rest, with a weight that grows back
+  as the bias may drift);
   in motion also by a Kalman step every ``tilt_window`` from the tilt corrections, which
   answer the drift R (b − b̂) through the specific force's low-pass: R (sensor → I) and
   R b̂ low-passed alike make the equation exact in its lag (as VQF does), so every axis of
@@ -154,6 +158,11 @@ class QcfParams:
     #: turned θ [rad] drifted by up to this times θ that is no bias (real sensors: without
     #: it, RING's rigid chain lost 0.1° on its arm angles).
     gyro_scale: float = 0.005
+    #: A stillness from the first sample takes, until it is a rest, a gyroscope sample
+    #: within this many times its own RMS deviation so far (when above ``rest_gyr``), while
+    #: the sensor's turn away from the low-passed rate's path stays within ``rest_tilt``: a
+    #: sensor on foam or skin vibrates about a fixed orientation while the kit lies still.
+    rest_vibration: float = 3.0
 
     def __post_init__(self) -> None:
         for name, value in self.__dict__.items():
@@ -172,7 +181,7 @@ class QcfParams:
                   self.rest_min_samples_first, self.mag_hold_weight, self.mag_restart,
                   self.tau_rest_acc, self.mag_bias_half_time, self.bias_sigma,
                   self.mag_scatter_windows, self.tilt_noise,
-                  self.tilt_window, self.gyro_scale]
+                  self.tilt_window, self.gyro_scale, self.rest_vibration]
         assert len(values) == PARAM_SIZE
         return np.array(values, dtype=np.float64)
 

@@ -53,7 +53,9 @@ mid time [s], ``[144:147]`` and ``[147:150]`` the gyroscope's sums over the firs
 latest block [rad/s], ``[150]`` the accelerometer's Σ|a|² over the waiting block
 [m²/s⁴], ``[151]``, ``[152]`` the variance of the first and the latest block's mean [m²/s⁴]
 · ``[153:156]`` the previous gyroscope sample at its own time (the kit's gyroscope delay
-taken out, see below) [rad/s].
+taken out, see below) [rad/s] · ``[156]`` the current stillness's Σ (gyroscope deviation
+from its low-pass)² dt [rad²/s] · ``[157:160]`` the turn away from the low-passed rate's
+path (its high-pass over ``tau_lp``) [rad].
 
 A kit whose gyroscope lags its accelerometer (``params[P_GYRO_DELAY]`` = d [s]: sample i's
 rates are those of ``t[i] − d``; 0 for most kits) is integrated over the accelerometer's
@@ -74,7 +76,7 @@ import numpy as np
 
 from ..scalar_rotations import quat_to_rows
 
-STATE_SIZE = 156
+STATE_SIZE = 160
 
 # Indices into the parameter vector, see QcfParams.as_array.
 (P_TAU_ACC, P_TAU_MAG, P_TAU_LP, P_REST_GYR, P_REST_ACC, P_REST_TIME,
@@ -84,8 +86,8 @@ STATE_SIZE = 156
  P_BIAS_WALK, P_MAG_NOISE, P_REST_TILT, P_REST_TIME_FIRST, P_REST_GUARD_FIRST,
  P_MAG_CONFIRM_TURN, P_REST_MIN_SAMPLES_FIRST, P_MAG_HOLD_WEIGHT, P_MAG_RESTART,
  P_TAU_REST_ACC, P_MAG_BIAS_HALF_TIME, P_BIAS_SIGMA, P_MAG_SCATTER_WINDOWS,
- P_TILT_NOISE, P_TILT_WINDOW, P_GYRO_SCALE) = range(38)
-PARAM_SIZE = 38
+ P_TILT_NOISE, P_TILT_WINDOW, P_GYRO_SCALE, P_REST_VIBRATION) = range(39)
+PARAM_SIZE = 39
 #: The kernel's parameter vector is ``QcfParams.as_array()`` followed by the gyroscope's
 #: delay behind the accelerometer [s] (a property of the kit, not a tuning).
 P_GYRO_DELAY = PARAM_SIZE
@@ -247,6 +249,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     rest_guard = params[P_REST_GUARD]
     tau_acc_rest = params[P_TAU_ACC_REST]
     cos_rest_tilt = math.cos(params[P_REST_TILT])
+    rest_tilt_angle = params[P_REST_TILT]
     rest_time_first = params[P_REST_TIME_FIRST]
     rest_guard_first = params[P_REST_GUARD_FIRST]
     mag_confirm_turn = params[P_MAG_CONFIRM_TURN]
@@ -261,6 +264,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     tilt_window = params[P_TILT_WINDOW]
     gyro_scale = params[P_GYRO_SCALE]
     gyro_delay = params[P_GYRO_DELAY]
+    rest_vibration = params[P_REST_VIBRATION]
     # the bias's variance after a rest taught it: the rest's mean over tau_bias_rest
     # of a random walk
     rest_var = bias_walk * bias_walk * tau_bias_rest
@@ -319,6 +323,8 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     zx, zy, zz, tw_time, scatter_t, n_tw = (state[123], state[124], state[125], state[126],
                                             state[127], state[128])
     tw_turn = state[129]
+    still_dev2 = state[156]
+    hpx, hpy, hpz = state[157], state[158], state[159]
 
     for i in range(t.shape[0]):
         ax, ay, az = acc[i, 0], acc[i, 1], acc[i, 2]
@@ -394,6 +400,11 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
             # the deviation of each sample from the low-pass reacts at once to a movement's
             # onset (a smoothed measure would let its first samples into the bias)
             dev_g = math.sqrt((wx - glx) ** 2 + (wy - gly) ** 2 + (wz - glz) ** 2)
+            # the turn away from the low-passed rate's path, high-passed over tau_lp
+            k_hp = 1.0 - k_lp
+            hpx = k_hp * (hpx + (wx - glx) * dt)
+            hpy = k_hp * (hpy + (wy - gly) * dt)
+            hpz = k_hp * (hpz + (wz - glz) * dt)
             rate = math.sqrt((glx - bx) ** 2 + (gly - by) ** 2 + (glz - bz) ** 2)
             k_f = dt / (tau_rest_acc + dt)
             afx += k_f * (ax - afx)
@@ -401,8 +412,27 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
             afz += k_f * (az - afz)
             dev_a = math.sqrt((afx - alx) ** 2 + (afy - aly) ** 2 + (afz - alz) ** 2)
             rate_limit = rest_rate if bias_known == 0.0 else rest_rate_known
-            still = dev_g < rest_gyr and rate < rate_limit and dev_a < rest_acc
             from_start = t[i] - still_time <= t_start + 2.0 * dt
+            # A sensor on foam or skin vibrates while it lies still (0.03-0.08 rad/s from
+            # sample to sample on RING's foam) about its fixed orientation: its mean rate
+            # is still its bias. So a stillness from the first sample, until it is a rest
+            # (only its provisional bias comes from it), takes a sample whose deviation is
+            # within rest_vibration times the stillness's own RMS deviation so far (over
+            # its first rest_guard_first, this sample's included: the level is still being
+            # learnt), as long as the sensor's turn away from the low-passed rate's path
+            # stays within rest_tilt: a vibration turns it to and fro by little, a movement
+            # (a limb's, a trunk's sway) away. (The low-pass starts at the first sample:
+            # a vibration caught near its peak rate there is not taken.)
+            gyr_limit = rest_gyr
+            if (bias_known == 0.0 and from_start and still_time + dt < rest_time_needed
+                    and still_time + dt > 0.0
+                    and math.sqrt(hpx * hpx + hpy * hpy + hpz * hpz) <= rest_tilt_angle):
+                if still_time < rest_guard_first:
+                    level2 = (still_dev2 + dev_g * dev_g * dt) / (still_time + dt)
+                else:
+                    level2 = still_dev2 / still_time
+                gyr_limit = max(rest_gyr, rest_vibration * math.sqrt(level2))
+            still = dev_g < gyr_limit and rate < rate_limit and dev_a < rest_acc
             if still and bias_known == 0.0 and (
                     not from_start or still_time + dt >= rest_time_needed):
                 # Until a rest has taught the bias, the gyroscope cannot tell a slow turn
@@ -419,8 +449,10 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
                     still = dot >= cos_rest_tilt * norms
             if still:
                 still_time += dt
+                still_dev2 += dev_g * dev_g * dt
             else:
                 still_time = 0.0
+                still_dev2 = 0.0
                 px, py, pz, pending, pending_time = 0.0, 0.0, 0.0, 0.0, 0.0
                 qax, qay, qaz, qa2 = 0.0, 0.0, 0.0, 0.0
             # A kit that starts still (on a table, held for a second) gives a provisional
@@ -961,6 +993,8 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
      state[149]) = w0x, w0y, w0z, w1x, w1y, w1z
     state[150], state[151], state[152] = qa2, va0, va1
     state[153], state[154], state[155] = lcx, lcy, lcz
+    state[156] = still_dev2
+    state[157], state[158], state[159] = hpx, hpy, hpz
     return -1
 
 
