@@ -2,7 +2,7 @@
 by side with VQF and imufusion. Run by hand (not a test; ~10 min on 2 cores, EKF most of it):
 
     python bench/broad.py [--trials N] [--filters qcf,ekf,euler-cf,vqf,imufusion]
-                          [--ekf-every K] [--data DIR] [--out CSV]
+                          [--ekf-every K] [--data DIR] [--out CSV] [--declare-gyro-delay]
 
 Data: the BROAD subset in ``../shared/data/broad`` (30 of the 39 trials of Laidig et al.,
 "BROAD — A Benchmark for Robust Inertial Orientation Estimation", Data 6(7), 2021,
@@ -53,6 +53,13 @@ Filters, all fresh per trial and per mode (9D with the magnetometer, 6D without)
   rejection timeout gives ~5.2-5.5°); imufusion 1.2.11 with the same settings gives the
   same 9.29°.
 
+``--declare-gyro-delay`` adds ``qcf-delay``: ``qcf`` told BROAD's kit's gyroscope delay
+behind its accelerometer (``gyro_delay_s``, ``docs/extensions/gyro-delay.md``), measured
+as a kit maker would, against the optical reference (``bench/timing.py``'s
+``gyro_behind_acc``), and *held out*: each trial is run with the median of the other 29
+trials' measurements (leave one out), never its own and never anything fitted to a score.
+On the 30 trials every held-out median is 0.65 samples (2.275 ms).
+
 Times: wall time of each filter's run (the numba kernel of ``qcf`` is compiled before the
 first trial and its compile time printed apart). CSV: one row per trial, filter and mode.
 Optional dependencies: ``vqf``, ``imufusion`` (their rows are skipped when missing);
@@ -80,7 +87,7 @@ DEFAULT_DATA = HERE.parent.parent / "shared" / "data" / "broad"
 DEFAULT_OUT = HERE / "results" / "broad.csv"
 OURS = ("qcf", "ekf", "euler-cf")
 DEFAULT_FILTERS = (*OURS, "vqf", "imufusion")
-KNOWN_FILTERS = (*DEFAULT_FILTERS, "vqf-offline")
+KNOWN_FILTERS = (*DEFAULT_FILTERS, "vqf-offline", "qcf-delay")
 #: The shared README's figures on these 30 trials (total, heading, inclination) [°].
 REFERENCE = {"vqf": (2.43, 2.27, 0.72), "vqf-offline": (2.15, 2.05, 0.53)}
 REFERENCE_TOLERANCE = 0.03  # [°], the README rounds to hundredths
@@ -163,6 +170,14 @@ def ours(name: str) -> Runner:
     return run
 
 
+def declared_delay_runner(delays: dict[str, float]) -> Runner:
+    """``qcf`` told the kit's gyroscope delay [s] held out for each trial (``delays``)."""
+    def run(trial: Trial, use_mag: bool) -> np.ndarray:
+        flt = make_filter("qcf", gyro_delay_s=delays[trial.name])
+        return flt.update_batch(trial.t, trial.acc, trial.gyr, trial.mag if use_mag else None).q
+    return run
+
+
 def vqf_runner() -> Runner:
     from vqf import VQF
 
@@ -212,12 +227,15 @@ def imufusion_runner() -> Runner:
     return run
 
 
-def make_runners(names: list[str]) -> dict[str, Runner]:
+def make_runners(names: list[str], delays: dict[str, float] | None = None
+                 ) -> dict[str, Runner]:
     runners: dict[str, Runner] = {}
     for name in names:
         try:
             if name in OURS:
                 runners[name] = ours(name)
+            elif name == "qcf-delay" and delays is not None:
+                runners[name] = declared_delay_runner(delays)
             elif name == "vqf":
                 runners[name] = vqf_runner()
             elif name == "vqf-offline":
@@ -324,28 +342,28 @@ def print_groups(results: list[Result], names: list[str], trials: list[Trial],
         print(f"  {group:<20} {len(members):>6} " + " ".join(cells))
 
 
-def print_gap(results: list[Result], reference: str = "vqf") -> None:
+def print_gap(results: list[Result], reference: str = "vqf", subject: str = "qcf") -> None:
     names = {r.filter for r in results}
-    if "qcf" not in names or reference not in names:
+    if subject not in names or reference not in names:
         return
-    common = ({r.trial for r in results if r.filter == "qcf"}
+    common = ({r.trial for r in results if r.filter == subject}
               & {r.trial for r in results if r.filter == reference})
-    q9, n = mean_of(results, "qcf", "9D", "total", common)
+    q9, n = mean_of(results, subject, "9D", "total", common)
     v9, _ = mean_of(results, reference, "9D", "total", common)
-    q6, _ = mean_of(results, "qcf", "6D", "inclination", common)
+    q6, _ = mean_of(results, subject, "6D", "inclination", common)
     v6, _ = mean_of(results, reference, "6D", "inclination", common)
-    qh, _ = mean_of(results, "qcf", "9D", "heading", common)
+    qh, _ = mean_of(results, subject, "9D", "heading", common)
     vh, _ = mean_of(results, reference, "9D", "heading", common)
-    qi, _ = mean_of(results, "qcf", "9D", "inclination", common)
+    qi, _ = mean_of(results, subject, "9D", "inclination", common)
     vi, _ = mean_of(results, reference, "9D", "inclination", common)
     wins = sum(
         1 for t in common
-        if mean_of(results, "qcf", "9D", "total", {t})[0]
+        if mean_of(results, subject, "9D", "total", {t})[0]
         < mean_of(results, reference, "9D", "total", {t})[0])
-    print(f"\nqcf vs {reference} on {n} trials: 9D total {q9:.2f}° vs {v9:.2f}° "
+    print(f"\n{subject} vs {reference} on {n} trials: 9D total {q9:.2f}° vs {v9:.2f}° "
           f"({q9 - v9:+.2f}°, x{q9 / v9:.2f}); 9D heading {qh - vh:+.2f}°, "
           f"9D inclination {qi - vi:+.2f}°; 6D inclination {q6:.2f}° vs {v6:.2f}° "
-          f"({q6 - v6:+.2f}°); qcf better on {wins} of {n} trials")
+          f"({q6 - v6:+.2f}°); {subject} better on {wins} of {n} trials")
 
 
 def check_reference(results: list[Result], n_available: int) -> None:
@@ -394,6 +412,9 @@ def main(argv: list[str] | None = None) -> int:
                         help=f"BROAD folder (default: {DEFAULT_DATA})")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT,
                         help=f"CSV of results (default: {DEFAULT_OUT})")
+    parser.add_argument("--declare-gyro-delay", action="store_true",
+                        help="also run qcf-delay: qcf told the kit's gyroscope delay, measured "
+                             "on the other trials (leave one out, bench/timing.py)")
     args = parser.parse_args(argv)
 
     names = [n.strip() for n in args.filters.split(",") if n.strip()]
@@ -411,7 +432,16 @@ def main(argv: list[str] | None = None) -> int:
     n_available = len(paths)
     if args.trials is not None:
         paths = paths[: args.trials]
-    runners = make_runners(names)
+    delays = None
+    if args.declare_gyro_delay or "qcf-delay" in names:
+        import timing  # (bench/timing.py; it imports this module)
+        delays = timing.held_out_delays(paths)
+        if "qcf-delay" not in names:
+            names.insert(names.index("qcf") + 1 if "qcf" in names else 0, "qcf-delay")
+        print("gyroscope delay declared to qcf-delay, held out (median of the other trials' "
+              "lag behind the accelerometer): "
+              f"{min(delays.values()) * 1e3:.3f}–{max(delays.values()) * 1e3:.3f} ms")
+    runners = make_runners(names, delays)
     names = [n for n in names if n in runners]
 
     started = time.perf_counter()
@@ -458,6 +488,8 @@ def main(argv: list[str] | None = None) -> int:
                        f"The same on ekf's {len(ekf_trials)} trials only")
     print_groups(results, names, trials, [g["name"] for g in info["groups"]])
     print_gap(results)
+    if "qcf-delay" in runners:
+        print_gap(results, subject="qcf-delay")
     print()
     check_reference(results, n_available)
     print(f"\nwrote {len(results)} rows to {args.out}; "

@@ -99,6 +99,29 @@ def acc_lag(t_acc: np.ndarray, acc: np.ndarray, t_opt: np.ndarray, pos: np.ndarr
     return best_lag
 
 
+def gyro_behind_acc(file: Path) -> float:
+    """How far a BROAD trial's gyroscope lags its own accelerometer [samples]: each one's
+    lag behind the optical reference (``gyro_lag``, ``acc_lag``; movement phase), the
+    difference. A bench measurement of the kit's timing, as ``docs/kit-builder.md`` tells
+    a kit maker to make it; no filter runs."""
+    trial = broad.load_trial(file, ())
+    movement = trial.movement[:-1] & trial.movement[1:]
+    gyro = gyro_lag(trial.t, trial.gyr, trial.t, trial.opt_quat, movement)
+    pos = np.asarray(loadmat(file)["opt_pos"], dtype=float)
+    acc = acc_lag(trial.t, trial.acc, trial.t, pos, trial.movement, 31)
+    return (gyro - acc) * trial.rate
+
+
+def held_out_delays(files: list[Path]) -> dict[str, float]:
+    """Trial name → the gyroscope delay [s] BROAD's kit would declare, measured on the
+    *other* trials (leave one out: the median of their ``gyro_behind_acc``), so no trial
+    is scored with a figure measured on itself and nothing is fitted to a score."""
+    lags = {f.stem: gyro_behind_acc(f) for f in files}
+    rate = trials_rate(files)
+    return {name: float(np.median([v for k, v in lags.items() if k != name])) / rate
+            for name in lags}
+
+
 def broad_part(path: Path, with_vqf: bool) -> None:
     from armtrack.estimator.orientation import make_filter
     from armtrack.estimator.orientation.qcf import QcfParams

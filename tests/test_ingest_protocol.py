@@ -304,8 +304,14 @@ def test_a_wrong_protocol_version_closes_4400(srv, api, protocol):
     (text({**HELLO, "sensors": []}), ["sensors"]),
     (text({**HELLO, "side": "up"}), ["side", "up"]),
     (text({k: v for k, v in HELLO.items() if k != "nine_axis"}), ["nine_axis"]),
+    # docs/extensions/gyro-delay.md: 0 to 0.05 s, a JSON number
+    (text({**HELLO, "gyro_delay_s": -0.001}), ["gyro_delay_s", "-0.001"]),
+    (text({**HELLO, "gyro_delay_s": 0.06}), ["gyro_delay_s", "0.06"]),
+    (text({**HELLO, "gyro_delay_s": "0.0065"}), ["gyro_delay_s", "0.0065"]),
+    (text({**HELLO, "gyro_delay_s": True}), ["gyro_delay_s", "True"]),
 ], ids=["samples", "bye", "malformed", "not-an-object", "unknown-sensor", "no-sensors",
-        "bad-side", "no-nine-axis"])
+        "bad-side", "no-nine-axis", "delay-negative", "delay-too-long", "delay-text",
+        "delay-bool"])
 def test_a_first_message_that_is_not_a_good_hello_is_refused(srv, api, first, words):
     patient, device = new_token(api, "Hello")
 

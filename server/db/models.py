@@ -158,6 +158,9 @@ class Session(Base):
     #: the kit's remembered gyroscope biases the session's filters start from, as they
     #: were when it began (docs/gyro-bias-memory.md's JSON); None: none remembered
     gyro_bias_prior: Mapped[dict[str, Any] | None] = mapped_column(JSON)
+    #: how far the kit's gyroscopes lag its accelerometers [s], as its hello or the
+    #: uploaded file's header declared it (docs/extensions/gyro-delay.md); None: not declared
+    gyro_delay_s: Mapped[float | None] = mapped_column(Float)
 
     streams: Mapped[list[Stream]] = relationship(back_populates="session",
                                                  cascade="all, delete-orphan")

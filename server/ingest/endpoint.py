@@ -331,10 +331,11 @@ class IngestConnection:
         else:
             # the kit's remembered gyroscope biases, as the session keeps them
             priors = await services.run_db(session_priors_by_id, session_id)
+            delay = await services.run_db(_session_delay, session_id)
             try:
                 config = PipelineConfig(side=hello.side,
                                         lengths=SegmentLengths.from_height(height),
-                                        sensors=hello.sensors)
+                                        sensors=hello.sensors, gyro_delay_s=delay)
                 self.worker = LiveWorker(
                     config, patient_id=self.patient_id, session_id=session_id,
                     hub=services.hub, batcher=services.live,
@@ -406,7 +407,8 @@ class IngestConnection:
             meta={"device": hello.device, **coverage(hello.sensors),
                   **(hello.points.as_meta() if hello.points else {})},
             started_at=(now := clock.now()), created_at=now,
-            gyro_bias_prior=session_prior(db, self.device_id))
+            gyro_bias_prior=session_prior(db, self.device_id),
+            gyro_delay_s=hello.gyro_delay_s)
         db.add(session)
         db.flush()
         db.add(models.Stream(id=stream_id, session_id=session.id, device_id=self.device_id,
@@ -431,6 +433,7 @@ class IngestConnection:
         if set(hello.sensors) != set(session.sensors) or hello.side != session.side:
             raise Refused("hello: a stream continuing a session must name the same side and "
                           f"sensors ({session.side}; {', '.join(session.sensors)})")
+        _same_delay(hello, session)
         blocks = models.SampleBlock
         ends = dict(db.execute(
             select(blocks.sensor, func.max(blocks.t_last))
@@ -472,6 +475,7 @@ class IngestConnection:
         if set(hello.sensors) != set(session.sensors) or hello.side != session.side:
             raise Refused("hello: a resumed stream must name the same side and sensors "
                           f"({session.side}; {', '.join(session.sensors)})")
+        _same_delay(hello, session)
         session.status = "live"
         session.ended_at = None
         db.commit()
@@ -624,6 +628,22 @@ class IngestConnection:
         if self.websocket.application_state != WebSocketState.DISCONNECTED:
             with contextlib.suppress(Exception):
                 await self.websocket.close(1000)
+
+
+def _session_delay(db: DbSession, session_id: int) -> float:
+    """The gyroscope delay [s] the session's kit declared (docs/extensions/gyro-delay.md);
+    0 when it declared none."""
+    session = db.get(models.Session, session_id)
+    return 0.0 if session is None or session.gyro_delay_s is None else session.gyro_delay_s
+
+
+def _same_delay(hello: Hello, session: models.Session) -> None:
+    """Refuse a resumed or continued stream that declares another gyroscope delay than
+    the session's: its filters run with one."""
+    if hello.gyro_delay_s is not None and hello.gyro_delay_s != (session.gyro_delay_s or 0.0):
+        raise Refused(f"hello: gyro_delay_s {hello.gyro_delay_s} differs from the session's "
+                      f"({session.gyro_delay_s or 0.0} s, declared when it began); start a "
+                      "new session for a kit that declares another")
 
 
 def _marks_in_session(db: DbSession, session_id: int) -> int:

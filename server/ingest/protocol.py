@@ -23,6 +23,7 @@ import msgspec
 import numpy as np
 import orjson
 from armtrack.estimator.body import SENSOR_NAMES
+from armtrack.estimator.orientation.qcf import GYRO_DELAY_MAX_S
 from armtrack.estimator.recording.model import LABEL_PATTERN
 from armtrack.estimator.recording.rules import (
     LIMITS,
@@ -84,6 +85,9 @@ class Hello:
     #: extension (``docs/extensions/README.md``): the versioned extensions the kit speaks,
     #: as ``name/version`` (``feedback/1``); the server answers those it speaks in ``ready``
     extensions: tuple[str, ...] = ()
+    #: extension (docs/extensions/gyro-delay.md): how far the kit's gyroscopes lag its
+    #: accelerometers [s]; None: not declared (in step)
+    gyro_delay_s: float | None = None
 
 
 # the messages' records are plain slotted classes, not frozen ones: a frozen dataclass's
@@ -257,8 +261,16 @@ def check_hello(message: dict[str, Any]) -> Hello:
                        for e in extensions)):
         raise bad(f"extensions must be a list of at most {MAX_EXTENSIONS} names "
                   "'name/version' (like 'feedback/1')")
+    delay = message.get("gyro_delay_s")
+    if delay is not None:
+        if not (_is_number(delay) and 0 <= delay <= GYRO_DELAY_MAX_S):
+            raise bad(f"gyro_delay_s must be null or a number of seconds from 0 to "
+                      f"{GYRO_DELAY_MAX_S} (how far the gyroscopes lag the "
+                      f"accelerometers), got {delay!r}")
+        delay = float(delay)
     return Hello(device, side, tuple(sensors), None if rate is None else float(rate),
-                 nine_axis, resume, session, points=points, extensions=tuple(extensions))
+                 nine_axis, resume, session, points=points, extensions=tuple(extensions),
+                 gyro_delay_s=delay)
 
 
 def check_seq(message: dict[str, Any]) -> int:

@@ -7,6 +7,7 @@ from __future__ import annotations
 from typing import Any
 
 from armtrack.estimator.arm.coverage import coverage
+from armtrack.estimator.recording.model import GYRO_DELAY_KEY
 
 from ..db import models
 
@@ -25,5 +26,8 @@ def session_coverage(session: models.Session) -> dict[str, Any]:
 
 def plain_metadata(session: models.Session) -> dict[str, str]:
     """The session's metadata as text (a recording header's), without the coverage keys."""
-    return {k: v for k, v in (session.meta or {}).items()
-            if k not in COVERAGE_KEYS and isinstance(v, str)}
+    out = {k: v for k, v in (session.meta or {}).items()
+           if k not in COVERAGE_KEYS and isinstance(v, str) and k != GYRO_DELAY_KEY}
+    if session.gyro_delay_s is not None:  # docs/extensions/gyro-delay.md: its own column
+        out[GYRO_DELAY_KEY] = repr(float(session.gyro_delay_s))
+    return out

@@ -14,7 +14,7 @@ from armtrack.estimator.body import SegmentLengths
 from armtrack.estimator.calibration.plan import poses_from_marks
 from armtrack.estimator.errors import InvalidArgument
 from armtrack.estimator.recording import Mark, Pose, Recording, SensorStream
-from armtrack.estimator.recording.model import check_metadata
+from armtrack.estimator.recording.model import GYRO_DELAY_KEY, check_metadata
 from armtrack.estimator.recording.points import POINT_NAMES, POINTS_HEADER_KEYS, PointStream
 from sqlalchemy import select
 from sqlalchemy.orm import Session as DbSession
@@ -114,11 +114,14 @@ def add_recording(db: DbSession, patient: models.Patient, recording: Recording,
         lengths=recording.lengths.as_dict() if recording.lengths else None,
         rate_hz=recording.rate_hz,
         sensors={n: {"nine_axis": s.nine_axis} for n, s in recording.sensors.items()},
-        meta={**recording.metadata, **coverage(recording.sensors)},
+        meta={**{k: v for k, v in recording.metadata.items() if k != GYRO_DELAY_KEY},
+              **coverage(recording.sensors)},
         samples=sum(len(s) for s in recording.sensors.values()),
         created_at=clock.now(),
         # a kit's own upload (recorded offline) starts from the kit's memory too
-        gyro_bias_prior=session_prior(db, device_id))
+        gyro_bias_prior=session_prior(db, device_id),
+        gyro_delay_s=(recording.gyro_delay_s if GYRO_DELAY_KEY in recording.metadata
+                      else None))
     if start is not None:
         session.started_at = start
     if recording.points_frame is not None:  # docs/extensions/points.md
@@ -162,8 +165,17 @@ def session_recording(db: DbSession, session: models.Session) -> Recording:
         lengths=SegmentLengths(**session.lengths) if session.lengths else None,
         calibration=tuple(poses_from_marks(m for m in marks if m.label in POSE_LABELS)),
         marks=tuple(m for m in marks if m.label not in POSE_LABELS),
-        rate_hz=session.rate_hz, metadata=header_metadata(session.meta or {}),
+        rate_hz=session.rate_hz,
+        metadata={**header_metadata(session.meta or {}), **delay_metadata(session)},
         points=points, points_frame=frame if points else None)
+
+
+def delay_metadata(session: models.Session) -> dict[str, str]:
+    """The ``gyro_delay_s`` header of the session's declared gyroscope delay
+    (docs/extensions/gyro-delay.md), as the session keeps it; empty when none was."""
+    if session.gyro_delay_s is None:
+        return {}
+    return {GYRO_DELAY_KEY: repr(float(session.gyro_delay_s))}
 
 
 def _stored_rows(db: DbSession, session_id: int, sensor: str) -> np.ndarray:
@@ -184,6 +196,8 @@ def header_metadata(meta: dict) -> dict[str, str]:
     for key, value in meta.items():
         if key in POINTS_HEADER_KEYS:
             continue  # the points extension's own header (docs/extensions/points.md)
+        if key == GYRO_DELAY_KEY:
+            continue  # the session's own column (delay_metadata)
         if isinstance(value, dict | list):  # the server's own notes (measured angles)
             continue
         value = " ".join(str(value).split())

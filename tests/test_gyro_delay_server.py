@@ -1,0 +1,153 @@
+"""A kit that declares its gyroscope's delay (``docs/extensions/gyro-delay.md``) to a real
+server (uvicorn, a real WebSocket kit, a real database): the hello's ``gyro_delay_s`` is
+kept with the session, and its live estimates, its estimates after close, ``armtrack
+reprocess`` and ``armtrack estimate`` of its exported recording all use it; an uploaded
+file's header likewise."""
+
+import asyncio
+import json
+
+import httpx
+import numpy as np
+import pytest
+from armtrack.estimator.arm import REPORTED_ANGLES
+from armtrack.estimator.pipeline import run_recording
+from armtrack.estimator.recording import parse_recording
+from armtrack.estimator.simulation import SimulationConfig, simulate
+from test_kit_gyro_bias_memory import LiveFeed, exported, stored_angles
+
+pytestmark = pytest.mark.both_databases
+
+DELAY_S = 0.0065  # BROAD's gyroscope: 0.65 samples behind its accelerometer at 100 Hz
+#: A 6-axis kit whose gyroscopes lag by DELAY_S; its file does not say so, its hello does.
+KIT = SimulationConfig(exercise="elbow_flexion", seed=2, nine_axis=False, gyro_delay_s=DELAY_S)
+
+
+@pytest.fixture(scope="module")
+def alice(module_server):
+    return module_server.client("alice")
+
+
+def stream(server, token: str, recording, hello: dict, live=None) -> int:
+    """Stream the 6-axis ``recording`` as a kit does with ``hello``'s extra fields, then
+    bye (once the ``live`` feed has shown the estimates near the end); the session id."""
+    from websockets.asyncio.client import connect
+
+    messages = []
+    for name, s in recording.sensors.items():
+        rows = [[*row, None, None, None]
+                for row in np.column_stack([s.t, s.acc, s.gyr]).tolist()]
+        for start in range(0, len(rows), 50):
+            messages.append((rows[start][0], {"type": "samples", "sensor": name,
+                                              "rows": rows[start:start + 50]}))
+    for pose in recording.calibration:
+        messages.append((pose.start, {"type": "mark", "t": pose.start, "label": pose.name}))
+        messages.append((pose.end, {"type": "mark", "t": pose.end,
+                                    "label": f"end:{pose.name}"}))
+    messages.sort(key=lambda m: m[0])
+
+    async def run() -> int:
+        async with connect(server.ws_url,
+                           additional_headers={"Authorization": f"Bearer {token}"}) as ws:
+            await ws.send(json.dumps({"type": "hello", "protocol": 1, "device": "kit",
+                                      "side": "right", "sensors": list(recording.sensors),
+                                      "rate_hz": 100, "nine_axis": False, "resume": None,
+                                      **hello}))
+            ready = json.loads(await ws.recv())
+            assert ready["type"] == "ready", ready
+            for seq, (_, message) in enumerate(messages):
+                await ws.send(json.dumps({**message, "seq": seq}))
+            while json.loads(await ws.recv()) != {"type": "ack", "seq": len(messages) - 1}:
+                pass
+            if live is not None:
+                end = min(float(s.t[-1]) for s in recording.sensors.values())
+                await asyncio.to_thread(live.wait_until, end - 2.0)
+            await ws.send(json.dumps({"type": "bye"}))
+            return ready["session"]
+
+    return asyncio.run(run())
+
+
+def elbow(estimates) -> np.ndarray:
+    return np.rad2deg(estimates.angles["elbow_flexion"])
+
+
+def test_a_kit_declaring_its_delay_is_estimated_with_it_live_after_close_and_reprocessed(
+        module_server, alice):
+    server = module_server
+    sim = simulate(KIT)
+    patient = alice.patient("Late gyroscope")
+    kit = alice.device(patient["id"])
+    with LiveFeed(server, alice, patient["id"]) as live:
+        session = alice.wait_processed(stream(server, kit["token"], sim.recording,
+                                              {"gyro_delay_s": DELAY_S}, live))
+    assert session["processed"] and session["metadata"]["gyro_delay_s"] == "0.0065"
+    assert server.sql("SELECT gyro_delay_s FROM sessions WHERE id = :s",
+                      s=session["id"]) == [(DELAY_S,)]
+    # the exported recording carries the declaration back (armtrack estimate uses it)
+    csv = alice.http.get(f"/api/sessions/{session['id']}/recording.csv").content
+    assert b"\n# gyro_delay_s: 0.0065\n" in csv
+    recording = exported(alice, session["id"])
+    assert recording.gyro_delay_s == DELAY_S
+    declared = run_recording(recording).finish()
+    plain = run_recording(parse_recording(csv.replace(b"# gyro_delay_s: 0.0065\n", b""))
+                          ).finish()
+    table = stored_angles(alice, session["id"])
+    np.testing.assert_allclose(table["t"], declared.t, atol=1e-6)
+    np.testing.assert_allclose(table["elbow_flexion"], elbow(declared), atol=1e-3)
+    truth = np.interp(declared.t, sim.truth.t, np.rad2deg(sim.truth.angles["elbow_flexion"]))
+    scored = declared.t > 10.5
+
+    def rmse(values):
+        return float(np.sqrt(np.mean((values - truth)[scored] ** 2)))
+    print(f"elbow flexion RMSE, 0.65-sample late gyroscope: stored {rmse(elbow(declared)):.3f}° "
+          f"(declared), {rmse(elbow(plain)):.3f}° had it not been declared")
+    assert rmse(elbow(declared)) < 0.5 * rmse(elbow(plain))
+    # the live estimates took it too
+    index = REPORTED_ANGLES.index("elbow_flexion")
+    live_t = np.array(live.trail_t)
+    live_deg = np.array([row[index] for row in live.trail_deg])
+    later = live_t > 12.0
+    off_declared = np.abs(live_deg - np.interp(live_t, declared.t, elbow(declared)))
+    off_plain = np.abs(live_deg - np.interp(live_t, plain.t, elbow(plain)))
+    print(f"live feed: {later.sum()} estimates after 12 s within {off_declared[later].max():.4f}° "
+          f"of the stored ones, up to {off_plain[later].max():.3f}° from undeclared ones")
+    assert later.sum() >= 20  # (the feed's poses are rate-limited: 24–568 seen)
+    assert off_declared[later].max() <= 0.011 and off_plain[later].max() > 0.1
+    # armtrack reprocess agrees
+    done = server.armtrack("reprocess", str(session["id"]))
+    assert done.returncode == 0, done.stderr
+    np.testing.assert_allclose(stored_angles(alice, session["id"])["elbow_flexion"],
+                               elbow(declared), atol=1e-3)
+
+
+def test_an_uploaded_file_declaring_its_delay_keeps_it(module_server, alice):
+    sim = simulate(SimulationConfig(**{**KIT.__dict__, "declare_gyro_delay": True}))
+    from armtrack.estimator.recording import format_recording
+    data = format_recording(sim.recording)
+    assert b"# gyro_delay_s: 0.0065\n" in data
+    patient = alice.patient("Uploaded late gyroscope")
+    kit = alice.device(patient["id"])
+    answer = httpx.post(f"{module_server.url}/api/recordings", timeout=120,
+                        headers={"Authorization": f"Bearer {kit['token']}"},
+                        files={"file": ("kit.csv", data)})
+    assert answer.status_code in (200, 201), answer.text
+    session = alice.wait_processed(answer.json()["id"])
+    assert session["metadata"]["gyro_delay_s"] == "0.0065"
+    again = exported(alice, session["id"])
+    assert again.gyro_delay_s == DELAY_S
+    expected = run_recording(parse_recording(data)).finish()
+    np.testing.assert_allclose(stored_angles(alice, session["id"])["elbow_flexion"],
+                               elbow(expected), atol=1e-3)
+
+
+def test_a_kit_without_the_field_is_as_before(module_server, alice):
+    sim = simulate(SimulationConfig(exercise="elbow_flexion", seed=2, nine_axis=False))
+    patient = alice.patient("In step")
+    kit = alice.device(patient["id"])
+    session = alice.wait_processed(stream(module_server, kit["token"], sim.recording, {}))
+    assert "gyro_delay_s" not in session["metadata"]
+    csv = alice.http.get(f"/api/sessions/{session['id']}/recording.csv").content
+    assert b"gyro_delay_s" not in csv
+    assert module_server.sql("SELECT gyro_delay_s FROM sessions WHERE id = :s",
+                             s=session["id"]) == [(None,)]
