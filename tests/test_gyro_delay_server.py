@@ -6,6 +6,7 @@ file's header likewise."""
 
 import asyncio
 import json
+import time
 
 import httpx
 import numpy as np
@@ -68,6 +69,20 @@ def stream(server, token: str, recording, hello: dict, live=None) -> int:
     return asyncio.run(run())
 
 
+class Reached:
+    """The ``live`` feed waited on until it has shown an estimate at ``t`` [s] (a loaded
+    machine's live estimation lags the stream by many seconds)."""
+
+    def __init__(self, live: LiveFeed, t: float, timeout: float = 180.0):
+        self.live, self.t, self.timeout = live, t, timeout
+
+    def wait_until(self, _end: float) -> None:
+        deadline = time.monotonic() + self.timeout
+        while not (self.live.trail_t and self.live.trail_t[-1] >= self.t):
+            assert time.monotonic() < deadline, f"the live feed did not reach {self.t} s"
+            time.sleep(0.1)
+
+
 def elbow(estimates) -> np.ndarray:
     return np.rad2deg(estimates.angles["elbow_flexion"])
 
@@ -80,7 +95,7 @@ def test_a_kit_declaring_its_delay_is_estimated_with_it_live_after_close_and_rep
     kit = alice.device(patient["id"])
     with LiveFeed(server, alice, patient["id"]) as live:
         session = alice.wait_processed(stream(server, kit["token"], sim.recording,
-                                              {"gyro_delay_s": DELAY_S}, live))
+                                              {"gyro_delay_s": DELAY_S}, Reached(live, 25.0)))
     assert session["processed"] and session["metadata"]["gyro_delay_s"] == "0.0065"
     assert server.sql("SELECT gyro_delay_s FROM sessions WHERE id = :s",
                       s=session["id"]) == [(DELAY_S,)]
@@ -112,7 +127,7 @@ def test_a_kit_declaring_its_delay_is_estimated_with_it_live_after_close_and_rep
     off_plain = np.abs(live_deg - np.interp(live_t, plain.t, elbow(plain)))
     print(f"live feed: {later.sum()} estimates after 12 s within {off_declared[later].max():.4f}° "
           f"of the stored ones, up to {off_plain[later].max():.3f}° from undeclared ones")
-    assert later.sum() >= 20  # (the feed's poses are rate-limited: 24–568 seen)
+    assert later.sum() >= 20  # (its poses are rate-limited)
     assert off_declared[later].max() <= 0.011 and off_plain[later].max() > 0.1
     # armtrack reprocess agrees
     done = server.armtrack("reprocess", str(session["id"]))
