@@ -156,3 +156,28 @@ def test_a_recording_object_refuses_a_bad_declared_delay():
     recording = kit(1, 0.0, False).recording
     with pytest.raises(InvalidArgument, match="gyro_delay_s"):
         dataclasses.replace(recording, metadata={"gyro_delay_s": "0.06"})
+
+
+def test_armtrack_estimate_uses_the_files_declared_delay(tmp_path):
+    """``armtrack estimate`` (the command, in its own process) of a file with the header
+    gives the pipeline's numbers with the delay; without the header, those without."""
+    from server_support import armtrack
+    simulation = kit(2, DELAY_S, True)
+    data = format_recording(simulation.recording)
+    paths = {"declared": tmp_path / "declared.csv", "plain": tmp_path / "plain.csv"}
+    paths["declared"].write_bytes(data)
+    paths["plain"].write_bytes(data.replace(b"# gyro_delay_s: 0.0065\n", b""))
+    for name, path in paths.items():
+        out = tmp_path / f"{name}.angles.csv"
+        done = armtrack("estimate", str(path), "-o", str(out))
+        assert done.returncode == 0, done.stderr
+        table = np.genfromtxt(out, delimiter=",", names=True)
+        expected, _ = estimate_recording(parse_recording(path.read_bytes()))
+        np.testing.assert_allclose(table["elbow_flexion"],
+                                   np.rad2deg(expected.angles["elbow_flexion"]), atol=6e-5)
+        if name == "declared":
+            declared = table["elbow_flexion"]
+    assert np.max(np.abs(declared - table["elbow_flexion"])) > 0.1
+    done = armtrack("estimate", str(paths["declared"]), "--filter", "ekf",
+                    "-o", str(tmp_path / "ekf.csv"))
+    assert done.returncode == 2 and "gyro_delay_s" in done.stderr, done.stderr

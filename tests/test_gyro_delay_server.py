@@ -166,3 +166,34 @@ def test_a_kit_without_the_field_is_as_before(module_server, alice):
     assert b"gyro_delay_s" not in csv
     assert module_server.sql("SELECT gyro_delay_s FROM sessions WHERE id = :s",
                              s=session["id"]) == [(None,)]
+
+
+def test_a_resumed_or_continued_stream_cannot_change_the_sessions_delay(module_server, alice):
+    from websockets.asyncio.client import connect
+    patient = alice.patient("Resumed late gyroscope")
+    kit = alice.device(patient["id"])
+    headers = {"Authorization": f"Bearer {kit['token']}"}
+    hello = {"type": "hello", "protocol": 1, "device": "kit", "side": "right",
+             "sensors": ["forearm"], "rate_hz": 100, "nine_axis": False, "resume": None}
+
+    async def first_answer(message: dict) -> dict:
+        async with connect(module_server.ws_url, additional_headers=headers) as ws:
+            await ws.send(json.dumps(message))
+            return json.loads(await ws.recv())
+
+    async def go() -> None:
+        ready = await first_answer({**hello, "gyro_delay_s": DELAY_S})
+        assert ready["type"] == "ready", ready
+        for change in ({"resume": ready["stream"]},
+                       {"session": ready["session"]}):
+            refused = await first_answer({**hello, **change, "gyro_delay_s": 0.001})
+            assert refused["type"] == "error" and "gyro_delay_s" in refused["reason"], refused
+        again = await first_answer({**hello, "resume": ready["stream"], "gyro_delay_s": DELAY_S})
+        assert again["type"] == "ready" and again["session"] == ready["session"], again
+        silent = await first_answer({**hello, "resume": ready["stream"]})  # not repeated
+        assert silent["type"] == "ready" and silent["session"] == ready["session"], silent
+        return ready["session"]
+
+    session = asyncio.run(go())
+    assert module_server.sql("SELECT gyro_delay_s FROM sessions WHERE id = :s",
+                             s=session) == [(DELAY_S,)]
