@@ -15,7 +15,7 @@ from armtrack.estimator.arm import REPORTED_ANGLES
 from armtrack.estimator.pipeline import run_recording
 from armtrack.estimator.recording import parse_recording
 from armtrack.estimator.simulation import SimulationConfig, simulate
-from test_kit_gyro_bias_memory import LiveFeed, exported, stored_angles
+from test_kit_gyro_bias_memory import LiveFeed, exported, stored_angles, stream
 
 pytestmark = pytest.mark.both_databases
 
@@ -27,46 +27,6 @@ KIT = SimulationConfig(exercise="elbow_flexion", seed=2, nine_axis=False, gyro_d
 @pytest.fixture(scope="module")
 def alice(module_server):
     return module_server.client("alice")
-
-
-def stream(server, token: str, recording, hello: dict, live=None) -> int:
-    """Stream the 6-axis ``recording`` as a kit does with ``hello``'s extra fields, then
-    bye (once the ``live`` feed has shown the estimates near the end); the session id."""
-    from websockets.asyncio.client import connect
-
-    messages = []
-    for name, s in recording.sensors.items():
-        rows = [[*row, None, None, None]
-                for row in np.column_stack([s.t, s.acc, s.gyr]).tolist()]
-        for start in range(0, len(rows), 50):
-            messages.append((rows[start][0], {"type": "samples", "sensor": name,
-                                              "rows": rows[start:start + 50]}))
-    for pose in recording.calibration:
-        messages.append((pose.start, {"type": "mark", "t": pose.start, "label": pose.name}))
-        messages.append((pose.end, {"type": "mark", "t": pose.end,
-                                    "label": f"end:{pose.name}"}))
-    messages.sort(key=lambda m: m[0])
-
-    async def run() -> int:
-        async with connect(server.ws_url,
-                           additional_headers={"Authorization": f"Bearer {token}"}) as ws:
-            await ws.send(json.dumps({"type": "hello", "protocol": 1, "device": "kit",
-                                      "side": "right", "sensors": list(recording.sensors),
-                                      "rate_hz": 100, "nine_axis": False, "resume": None,
-                                      **hello}))
-            ready = json.loads(await ws.recv())
-            assert ready["type"] == "ready", ready
-            for seq, (_, message) in enumerate(messages):
-                await ws.send(json.dumps({**message, "seq": seq}))
-            while json.loads(await ws.recv()) != {"type": "ack", "seq": len(messages) - 1}:
-                pass
-            if live is not None:
-                end = min(float(s.t[-1]) for s in recording.sensors.values())
-                await asyncio.to_thread(live.wait_until, end - 2.0)
-            await ws.send(json.dumps({"type": "bye"}))
-            return ready["session"]
-
-    return asyncio.run(run())
 
 
 class Reached:
@@ -95,7 +55,7 @@ def test_a_kit_declaring_its_delay_is_estimated_with_it_live_after_close_and_rep
     kit = alice.device(patient["id"])
     with LiveFeed(server, alice, patient["id"]) as live:
         session = alice.wait_processed(stream(server, kit["token"], sim.recording,
-                                              {"gyro_delay_s": DELAY_S}, Reached(live, 25.0)))
+                                              Reached(live, 25.0), {"gyro_delay_s": DELAY_S}))
     assert session["processed"] and session["metadata"]["gyro_delay_s"] == "0.0065"
     assert server.sql("SELECT gyro_delay_s FROM sessions WHERE id = :s",
                       s=session["id"]) == [(DELAY_S,)]
@@ -160,7 +120,7 @@ def test_a_kit_without_the_field_is_as_before(module_server, alice):
     sim = simulate(SimulationConfig(exercise="elbow_flexion", seed=2, nine_axis=False))
     patient = alice.patient("In step")
     kit = alice.device(patient["id"])
-    session = alice.wait_processed(stream(module_server, kit["token"], sim.recording, {}))
+    session = alice.wait_processed(stream(module_server, kit["token"], sim.recording))
     assert "gyro_delay_s" not in session["metadata"]
     csv = alice.http.get(f"/api/sessions/{session['id']}/recording.csv").content
     assert b"gyro_delay_s" not in csv

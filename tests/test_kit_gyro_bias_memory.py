@@ -34,10 +34,11 @@ def alice(module_server):
     return module_server.client("alice")
 
 
-def stream(server, token: str, recording, live=None) -> int:
+def stream(server, token: str, recording, live=None, hello: dict | None = None) -> int:
     """Stream ``recording`` as a kit does (samples in time order across sensors, the
-    calibration marks), say bye (once the ``live`` feed, if given, has shown the estimates
-    up to the end: a loaded machine's live estimation lags); the session's id."""
+    calibration marks; ``hello``'s extra fields in its hello), say bye (once the ``live``
+    feed, if given, has shown the estimates up to the end: a loaded machine's live
+    estimation lags); the session's id."""
     from websockets.asyncio.client import connect
 
     messages = []
@@ -58,7 +59,8 @@ def stream(server, token: str, recording, live=None) -> int:
                            additional_headers={"Authorization": f"Bearer {token}"}) as ws:
             await ws.send(json.dumps({"type": "hello", "protocol": 1, "device": "kit",
                                       "side": "right", "sensors": list(recording.sensors),
-                                      "rate_hz": 100, "nine_axis": False, "resume": None}))
+                                      "rate_hz": 100, "nine_axis": False, "resume": None,
+                                      **(hello or {})}))
             ready = json.loads(await ws.recv())
             assert ready["type"] == "ready", ready
             for seq, (_, message) in enumerate(messages):
