@@ -22,7 +22,7 @@ import pytest
 from armtrack.estimator.errors import InvalidRecording
 from armtrack.estimator.recording import parse_recording, write_recording
 from armtrack.estimator.recording.model import LABEL_PATTERN
-from armtrack.estimator.recording.rules import LIMITS
+from armtrack.estimator.recording.rules import LIMITS, STEP_LIMIT_S, T_LIMIT_S
 from armtrack.estimator.simulation import SimulationConfig, simulate
 from armtrack.server.ingest import protocol
 from armtrack.server.ingest.protocol import Hello, Refused
@@ -79,13 +79,18 @@ def reference_samples(m: dict, hello: Hello, last_t: dict[str, float]) -> bool:
                 return False
         if previous is not None and values[0] < previous:
             return False
+        # docs/extensions/time-bounds.md
+        if abs(values[0]) > T_LIMIT_S or (previous is not None
+                                          and values[0] - previous > STEP_LIMIT_S):
+            return False
         previous = values[0]
     return True
 
 
 def reference_mark(m: dict) -> bool:
     t, label = m.get("t"), m.get("label")
-    return _finite(t) and isinstance(label, str) and bool(LABEL_PATTERN.fullmatch(label))
+    return (_finite(t) and abs(t) <= T_LIMIT_S  # docs/extensions/time-bounds.md
+            and isinstance(label, str) and bool(LABEL_PATTERN.fullmatch(label)))
 
 
 def reference(text: str, hello: Hello, last_t: dict[str, float], next_seq: int
