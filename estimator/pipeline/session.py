@@ -294,7 +294,7 @@ class Pipeline:
             segment_orientations(t, q, times, self.calibration.R_sensor_segment[name],
                                  self.calibration.heading[name], out=Rw[:, index])
             present[index] = 1.0
-            if track.nine_axis is False:
+            if track.nine_axis is False and self.gamma is None:  # points hold the heading
                 taken[index] = np.interp(times, t, track.headings_taken_back())
         if not present[0]:  # no trunk sensor: the thorax stays where calibration put it
             Rw[:, 0] = self.calibration.R_world_thorax
