@@ -15,6 +15,7 @@ import random
 import sqlite3
 import subprocess
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -110,6 +111,18 @@ def sessions_of(api, patient_id: int) -> list[dict]:
     return answer.json()
 
 
+def settled_sessions(api, patient_id: int, timeout_s: float = 15.0) -> list[dict]:
+    """The patient's sessions once none is live: the server acks a kit's ``bye`` and then
+    closes its session, so a kit that has finished may look a moment early (seen once on
+    a loaded machine); after ``timeout_s`` the sessions as they are."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        sessions = sessions_of(api, patient_id)
+        if all(s["status"] != "live" for s in sessions) or time.monotonic() > deadline:
+            return sessions
+        time.sleep(0.1)
+
+
 # -- SIGKILL at random moments ---------------------------------------------------------------
 
 def test_sigkill_at_random_moments_in_50_streaming_runs_loses_nothing(srv, api):
@@ -149,7 +162,7 @@ def test_sigkill_at_random_moments_in_50_streaming_runs_loses_nothing(srv, api):
         assert stats.acked == stats.total and stats.refused == 0, (i, stats.errors)
         resumed += stats.reconnects > 0
         assert_stored_exactly(api, stats.session, base)
-        for session in sessions_of(api, patient_id):
+        for session in settled_sessions(api, patient_id):
             assert session["status"] in ("closed", "interrupted"), (i, session)
             if session["id"] != stats.session:
                 assert session["samples"] == 0, (i, session)
