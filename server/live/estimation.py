@@ -98,8 +98,9 @@ def from_wire(items: Sequence[WireItem]) -> list[Samples | MarkMessage]:
     return out
 
 
-#: What an estimator returns for a job: a pose, nothing new, or why it stopped.
-Outcome = EncodedPose | LiveFailure | None
+#: What an estimator returns for a job: a pose, nothing new, ``HELD`` (a pose waits for
+#: the pose rate: ask again after it), or why it stopped.
+Outcome = EncodedPose | LiveFailure | str | None
 
 
 def run_jobs(estimators: dict[int, LiveEstimator], jobs: Sequence[Job],

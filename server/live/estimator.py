@@ -10,7 +10,7 @@ from collections.abc import Mapping
 import numpy as np
 from armtrack.estimator.arm.forward import POINTS
 from armtrack.estimator.arm.joints import REPORTED_ANGLES, SEGMENTS
-from armtrack.estimator.pipeline import Pipeline, PipelineConfig
+from armtrack.estimator.pipeline import EstimateArrays, Pipeline, PipelineConfig
 from armtrack.estimator.recording import Mark
 from armtrack.estimator.recording.points import PointsFrame
 from armtrack.estimator.scalar_rotations import quat_from_rows
@@ -142,6 +142,10 @@ class AngleTrail:
         return t.tolist(), np.round(np.rad2deg(angles), TRAIL_DECIMALS).tolist()
 
 
+#: ``LiveEstimator.process``'s answer when the newest estimates wait for the pose rate.
+HELD = "held"
+
+
 class LiveEstimator:
     """One streaming session's estimation, where the estimates are computed: its
     ``Pipeline``, running range of motion, and the sensors left out for silence."""
@@ -160,6 +164,7 @@ class LiveEstimator:
         self.estimates = 0
         self._first_t = np.inf
         self._last_pose = -np.inf  # monotonic time the last pose was returned
+        self._unshown: EstimateArrays | None = None  # the newest estimates not yet a pose
         self._trail = AngleTrail(TRAIL_HZ)
 
     def _drop_silent(self, t: float) -> None:
@@ -171,9 +176,11 @@ class LiveEstimator:
             self.warnings.append(f"sensor {sensor} sent nothing in {SILENT_SENSOR_S:g} s: "
                                  "the live view goes on without it")
 
-    def process(self, items: list[Samples | MarkMessage]) -> EncodedPose | None:
-        """Feed, poll, and the newest pose, encoded (None when nothing new or one was
-        returned less than 1/``max_rate_hz`` ago)."""
+    def process(self, items: list[Samples | MarkMessage]) -> EncodedPose | str | None:
+        """Feed, poll, and the newest pose, encoded; None when nothing is new, ``HELD``
+        when one was returned less than 1/``max_rate_hz`` ago (the newest estimates are
+        kept: a call after that interval, with no new messages, returns them as a pose, so
+        a stream that pauses still shows its last estimates)."""
         pipeline = self.pipeline
         for item in items:
             if isinstance(item, Samples):
@@ -197,15 +204,19 @@ class LiveEstimator:
                     self.rom.start_s = self._pose_end + CALIBRATION_TAIL_S
         # the kernels' arrays, not named views: a pose needs only their last rows
         estimates = pipeline.poll_arrays()
+        if estimates is not None:
+            self.estimates += len(estimates.t)
+            self.rom.update(estimates.t, estimates.angles)
+            self._trail.add(estimates.t, estimates.angles)
+            self._unshown = estimates
+        estimates = self._unshown
         if estimates is None:
             return None
-        self.estimates += len(estimates.t)
-        self.rom.update(estimates.t, estimates.angles)
-        self._trail.add(estimates.t, estimates.angles)
         now = time.monotonic()
         if now - self._last_pose < self._min_interval:
-            return None  # published recently enough: the range of motion is kept all the same
+            return HELD  # published recently enough: the range of motion is kept all the same
         self._last_pose = now
+        self._unshown = None
         trail_t, trail_deg = self._trail.take()
         segments = estimates.R_world_segment[-1].reshape(len(SEGMENTS), 9).tolist()
         return EncodedPose.encode({

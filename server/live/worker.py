@@ -132,6 +132,7 @@ class LiveWorker:
         self._opening: Opening | None = Opening(config, session_id, max_rate_hz, points_frame,
                                                 gyr_bias_priors)
         self._pending: list[Samples | MarkMessage] = []
+        self._pose_interval = 1.0 / max_rate_hz  # [s]
         self._fed_seq = -1  # the highest seq fed: a resumed stream sends some again
         self._received = 0.0  # monotonic time the newest pending message arrived
         self._warned = 0
@@ -158,6 +159,10 @@ class LiveWorker:
         items, self._pending = self._pending, []
         return opening, items, self._received
 
+    def _ask_again(self) -> None:
+        if self.error is None:
+            self._batcher.ready(self)
+
     async def close(self) -> None:
         self.error = self.error or "closed"
         self._batcher.forget(self)
@@ -168,6 +173,10 @@ class LiveWorker:
         if batch < self._batch:
             return
         self._batch = batch
+        if isinstance(outcome, str):  # HELD: the newest estimates wait for the pose
+            # rate: ask again then, messages or not (a paused stream shows where it got to)
+            asyncio.get_running_loop().call_later(self._pose_interval, self._ask_again)
+            return
         if isinstance(outcome, LiveFailure):
             log.error("live estimation of session %s failed: %s", self.session_id,
                       outcome.details)
