@@ -4,6 +4,8 @@ gives, applied with ``elemental('z', δ) @ R``, in any chunking, and its pure-Py
 fallback gives the compiled numbers; the joint angles worked in blocks of the kernel's
 work space (``arm/compiled._chunk_python``) equal those of small chunks."""
 
+import itertools
+
 import numpy as np
 import pytest
 from armtrack.estimator.pipeline import constraints
@@ -43,15 +45,44 @@ def test_apply_turns_the_segments_as_update_and_elemental_do():
     np.testing.assert_array_equal(got[:, (0, 1, 4)], Rw[:, (0, 1, 4)])
 
 
+def steps_taken_back(rng, t):
+    """Child's and parent's drift taken back [rad] (N, 2), stepping at rests, and the knots
+    [s] (N, 2) their gaps count from (NaN before the first rest)."""
+    taken, knots = np.zeros((len(t), 2)), np.full((len(t), 2), np.nan)
+    for j in range(2):
+        rests = np.sort(rng.choice(len(t), 6, replace=False))
+        for a, b in itertools.pairwise(rests):
+            taken[b:, j] += rng.normal(0.0, 0.02)
+            knots[a:, j] = t[a]
+    return taken, knots
+
+
+def test_apply_with_steps_taken_back_in_chunks_gives_the_whole():
+    rng = np.random.default_rng(8)
+    t, Rw = stack(rng)
+    taken, knots = steps_taken_back(rng, t)
+    whole = Rw.copy()
+    delta = HeadingConstraint().apply(t, whole, 1, 2, 2, 1, (2, 3), taken, knots)
+    chunked, got = HeadingConstraint(), Rw.copy()
+    for a in range(0, len(t), 97):
+        chunked.apply(t[a:a + 97], got[a:a + 97], 1, 2, 2, 1, (2, 3), taken[a:a + 97],
+                      knots[a:a + 97])
+    plain = HeadingConstraint().apply(t, Rw.copy(), 1, 2, 2, 1, (2, 3))
+    print(f"steps turn the correction by up to {np.rad2deg(np.abs(delta - plain).max()):.2f}°")
+    assert np.abs(delta - plain).max() > np.deg2rad(0.1)  # the steps do reach the joint
+    np.testing.assert_allclose(got, whole, atol=1e-12)
+
+
 def test_pure_python_fallback_gives_the_compiled_numbers():
     rng = np.random.default_rng(6)
     t, Rw = stack(rng, 400)
-    shift = np.cumsum(rng.normal(0.0, 0.001, len(t)))  # steps taken back at rests [rad]
+    taken, knots = steps_taken_back(rng, t)
     for gate in (np.inf, 0.1):  # between two sensors; against a virtual upper arm
         outs = []
         for kernel in (constraints._constrain, constraints._constrain_python):
-            R, state, delta = Rw.copy(), np.zeros(5), np.empty(len(t))
-            kernel(t, R, 2, 3, 0, 2, np.array([3]), 20.0, 0.05, gate, state, delta, shift)
+            R, state, delta = Rw.copy(), np.zeros(10), np.empty(len(t))
+            kernel(t, R, 2, 3, 0, 2, np.array([3]), 20.0, 0.05, gate, state, delta, taken,
+                   knots)
             outs.append((R, state, delta))
         for compiled, python in zip(*outs, strict=True):
             np.testing.assert_allclose(compiled, python, atol=1e-12)

@@ -31,7 +31,7 @@ import numpy as np
 
 
 def _constrain_python(t, Rw, parent, child, u_axis, v_axis, turned, tau, prior, gate,
-                      state, delta, shift):
+                      state, delta, taken, knots):
     """For each sample ``n`` of times ``t`` [s] (N,): ``u = Rw[n, parent, :, u_axis]``,
     ``v = Rw[n, child, :, v_axis]`` (world axes of ``Rw`` (N, S, 3, 3)); the running sums
     ``state[0:2]`` (numerator, denominator) decayed by ``exp(−Δt/τ)`` and grown by this
@@ -39,29 +39,53 @@ def _constrain_python(t, Rw, parent, child, u_axis, v_axis, turned, tau, prior, 
     ``Rw[n, s]``, ``s`` in ``turned`` (int array), turned about the world's vertical by it.
     A sample whose residual after the correction so far, ``|u·v + D δ|``, exceeds ``gate``
     breaks the joint by more than a heading drift does and counts for nothing.
-    ``shift[n]`` [rad] is how far the child's heading has been turned against the parent's
-    before the joint (the drift taken back at each sensor's rests): a change of it turns the
-    remembered samples' estimates with it (``numerator −= change · denominator``), so the
-    joint keeps what it has seen, and a step where it has seen nothing passes (the prior
-    holds it). ``state[2]`` is the last time [s], ``state[3]`` 1.0 once there is one,
-    ``state[4]`` the last shift."""
+
+    ``taken[n]`` [rad] (N, 2) is how far the child's (column 0) and the parent's (1)
+    headings have been turned before the joint (the drift taken back at each sensor's
+    rests), ``knots[n]`` [s] (N, 2) the time of the rest from which each one's drift not
+    yet taken back counts (NaN: none). A step of ``taken`` takes back drift that came
+    between that knot and now: a remembered sample seen a fraction ``f`` of the way
+    through that gap had seen about ``f`` of it (the drift grows with the time moved), so
+    its estimate turns by ``f`` of the step (``numerator −= step · Σ w f``, the sum kept
+    per side as ``Σ w (t − knot)`` over the samples since the knot); one seen before the
+    knot had seen none of it and holds, and the step passes to the output as far as the
+    joint has not seen it. ``state`` (10,): 0–1 the sums, 2 the last time [s], 3 1.0 once
+    there is one, 4–5 the last ``taken``, 6–7 ``Σ w (t − knot)`` per side, 8–9 their
+    knots."""
     numerator, denominator = state[0], state[1]
-    t_prev = state[2] if state[3] != 0.0 else (t[0] if t.shape[0] else 0.0)
-    last_shift = state[4] if state[3] != 0.0 else (shift[0] if t.shape[0] else 0.0)
+    if state[3] == 0.0 and t.shape[0]:
+        state[2] = t[0]
+        for j in range(2):
+            state[4 + j] = taken[0, j]
+            state[6 + j] = 0.0
+            state[8 + j] = knots[0, j]
+    t_prev = state[2]
     for n in range(t.shape[0]):
-        numerator -= (shift[n] - last_shift) * denominator
-        last_shift = shift[n]
-        ux, uy, uz = Rw[n, parent, 0, u_axis], Rw[n, parent, 1, u_axis], Rw[n, parent, 2, u_axis]
-        vx, vy, vz = Rw[n, child, 0, v_axis], Rw[n, child, 1, v_axis], Rw[n, child, 2, v_axis]
-        d = uy * vx - ux * vy
         dt = t[n] - t_prev
         t_prev = t[n]
         decay = math.exp(-dt / tau)  # weights are per second: independent of the rate
+        for j in range(2):
+            knot = knots[n, j]
+            if knot != state[8 + j] and not (math.isnan(knot) and math.isnan(state[8 + j])):
+                state[8 + j] = knot  # a new gap: no sample has seen its drift yet
+                state[6 + j] = 0.0
+            step = taken[n, j] - state[4 + j]
+            state[4 + j] = taken[n, j]
+            if step != 0.0 and t[n] > knot:  # (NaN: False)
+                seen = state[6 + j] / (t[n] - knot)
+                numerator -= (step if j == 0 else -step) * seen
+        ux, uy, uz = Rw[n, parent, 0, u_axis], Rw[n, parent, 1, u_axis], Rw[n, parent, 2, u_axis]
+        vx, vy, vz = Rw[n, child, 0, v_axis], Rw[n, child, 1, v_axis], Rw[n, child, 2, v_axis]
+        d = uy * vx - ux * vy
         uv = ux * vx + uy * vy + uz * vz
         if abs(uv + d * numerator / (denominator + prior)) > gate:
             dt = 0.0
         numerator = decay * numerator - uv * d * dt
         denominator = decay * denominator + d * d * dt
+        for j in range(2):
+            state[6 + j] *= decay
+            if t[n] > state[8 + j]:  # (NaN: False)
+                state[6 + j] += d * d * dt * (t[n] - state[8 + j])
         # the prior pulls toward no correction until the joint has been seen bent a while
         correction = numerator / (denominator + prior)
         delta[n] = correction
@@ -73,7 +97,6 @@ def _constrain_python(t, Rw, parent, child, u_axis, v_axis, turned, tau, prior, 
                 Rw[n, segment, 1, k] = s * r0 + c * r1
     if t.shape[0]:
         state[0], state[1], state[2], state[3] = numerator, denominator, t_prev, 1.0
-        state[4] = last_shift
 
 
 def _turned_python(t, gyr, times, state, out):
@@ -155,24 +178,27 @@ class HeadingConstraint:
     #: calibration's T-pose and any raise of the arm, which break the assumption, not
     #: the hinge, are left out.
     gate: float = math.inf
-    #: numerator, denominator, last time [s], has a last time, last shift [rad] (see
-    #: ``_constrain``).
-    _state: np.ndarray = field(default_factory=lambda: np.zeros(5), init=False)
+    #: The running sums, the last time, what was taken back (see ``_constrain``).
+    _state: np.ndarray = field(default_factory=lambda: np.zeros(10), init=False)
 
     def apply(self, t: np.ndarray, Rw: np.ndarray, parent: int, child: int, u_axis: int,
-              v_axis: int, turned: tuple[int, ...], shift: np.ndarray | None = None
-              ) -> np.ndarray:
+              v_axis: int, turned: tuple[int, ...], taken: np.ndarray | None = None,
+              knots: np.ndarray | None = None) -> np.ndarray:
         """Turn the segments ``turned`` of ``Rw`` (N, S, 3, 3) ``R_world_segment`` about the
         vertical, in place, by the heading correction of joint ``parent``–``child`` at times
         ``t`` [s] (N,): ``u`` is the parent's column ``u_axis``, ``v`` the child's column
-        ``v_axis``; ``shift`` [rad] (N,) the child's heading already turned against the
-        parent's (``_constrain``; None: none). Returns the turn [rad] (N,)."""
-        delta = np.empty(len(t))
-        shift = np.zeros(len(t)) if shift is None else np.ascontiguousarray(shift,
-                                                                           dtype=np.float64)
+        ``v_axis``; ``taken`` [rad] (N, 2) the child's and the parent's headings already
+        turned by the drift taken back, ``knots`` [s] (N, 2) the times its gaps count from
+        (``_constrain``; None: none). Returns the turn [rad] (N,)."""
+        n = len(t)
+        delta = np.empty(n)
+        if taken is None or knots is None:
+            taken, knots = np.zeros((n, 2)), np.full((n, 2), np.nan)
         _constrain(np.ascontiguousarray(t, dtype=np.float64), Rw, parent, child, u_axis,
                    v_axis, np.array(turned, dtype=np.int64), self.tau, self.prior,
-                   self.gate, self._state, delta, shift)
+                   self.gate, self._state, delta,
+                   np.ascontiguousarray(taken, dtype=np.float64),
+                   np.ascontiguousarray(knots, dtype=np.float64))
         return delta
 
     def update(self, t: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -184,5 +210,5 @@ class HeadingConstraint:
         delta = np.empty(n)
         _constrain(np.ascontiguousarray(t, dtype=np.float64), axes, 0, 1, 0, 0,
                    np.zeros(0, dtype=np.int64), self.tau, self.prior, self.gate,
-                   self._state, delta, np.zeros(n))
+                   self._state, delta, np.zeros((n, 2)), np.full((n, 2), np.nan))
         return delta

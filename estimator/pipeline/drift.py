@@ -89,7 +89,9 @@ def _is_rest_python(state, length, n):
 
 
 def _drift_python(t, acc, gyr, q, state, prev, out):
-    """The drift taken back so far ``H`` [rad] into ``out`` (N,) for the filter's ``q``
+    """The drift taken back so far ``H`` [rad] into ``out[:, 0]`` and the time [s] of the
+    knot the drift not yet taken back counts from into ``out[:, 1]`` (NaN: no knot yet)
+    (``out`` (N, 2)) for the filter's ``q``
     (N, 4) wxyz ``R_world_sensor`` of samples ``t`` [s], ``acc``, ``gyr`` [rad/s]:
     the sensor's heading is ``Rz(H) · R(q)``. ``state`` (STATE_SIZE,) and ``prev`` (4,)
     the last q carry over between chunks."""
@@ -240,7 +242,8 @@ def _drift_python(t, acc, gyr, q, state, prev, out):
                     state[_A + 15] = taken
         state[30] = t[k]
         prev[0], prev[1], prev[2], prev[3] = w, x, y, z
-        out[k] = state[1]
+        out[k, 0] = state[1]
+        out[k, 1] = state[3] if state[2] != 0.0 else math.nan
 
 
 def _compile(function):
@@ -264,6 +267,6 @@ class DriftTakeBack:
 
     def apply(self, t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, q: np.ndarray,
               out: np.ndarray) -> None:
-        """``H`` [rad] of each sample into ``out`` (N,) (see the module); contiguous
-        arrays."""
+        """``H`` [rad] of each sample and its knot's time [s] into ``out`` (N, 2) (see
+        ``_drift_python``); row-contiguous arrays."""
         drift_kernel(t, acc, gyr, q, self.state, self.prev, out)

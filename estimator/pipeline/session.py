@@ -286,6 +286,7 @@ class Pipeline:
         Rw = np.empty((n, 5, 3, 3))  # R_world_segment in SEGMENTS order
         present = np.zeros(5)
         taken: dict[int, np.ndarray] = {}  # segment → heading drift taken back [rad]
+        knots: dict[int, np.ndarray] = {}  # segment → its gap's start [s] (``drift``)
         for name, track in self._tracks.items():
             if track.first_t == np.inf:
                 continue
@@ -296,6 +297,8 @@ class Pipeline:
             present[index] = 1.0
             if track.nine_axis is False and self.gamma is None:  # points hold the heading
                 taken[index] = np.interp(times, t, track.headings_taken_back())
+                at = np.maximum(t.searchsorted(times, "right") - 1, 0)
+                knots[index] = track.knot_times()[at]
         if not present[0]:  # no trunk sensor: the thorax stays where calibration put it
             Rw[:, 0] = self.calibration.R_world_thorax
             present[0] = 1.0
@@ -307,7 +310,7 @@ class Pipeline:
         for index, h in taken.items():  # each sensor's own, before the joints tie them
             _turn_about_vertical(Rw[:, index], h)
         if self._constraints:
-            self._apply_constraints(times, Rw, present, taken)
+            self._apply_constraints(times, Rw, present, taken, knots)
         angles, residuals, positions, R_world_all = self._joints.update(Rw, present)
         if points_flexion is not None and self.gamma is not None and self.gamma.forearm_imu:
             self.gamma.compare(points_flexion, angles[:, _ELBOW_FLEXION], flagged)
@@ -320,7 +323,8 @@ class Pipeline:
         return EstimateArrays(times, angles, residuals, positions, R_world_all)
 
     def _apply_constraints(self, times: np.ndarray, Rw: np.ndarray, present: np.ndarray,
-                           taken: dict[int, np.ndarray]) -> None:
+                           taken: dict[int, np.ndarray], knots: dict[int, np.ndarray]
+                           ) -> None:
         """Turn the forearm and hand about the vertical by their joints' heading error.
         (A left arm's medial Z flips ``u·v`` and ``D`` alike: the estimate is the same.)
         Without an upper-arm sensor the upper arm hangs still from its parent (the stated
@@ -337,10 +341,11 @@ class Pipeline:
         heading holds (an elbow exercise's still upper arm keeps the arm's heading).
 
         ``taken`` (segment → [rad] at ``times``) is each 6-axis sensor's heading drift taken
-        back at its rests (``drift``), which has already turned its segment: each joint
-        takes the relative step with it (``_constrain``'s shift), so where the joint has
-        been seen bent its tie holds, and where it has been straight (blind) the sensors'
-        own headings, taken back, hold."""
+        back at its rests (``drift``), which has already turned its segment, and ``knots``
+        the time [s] its gap counts from: each joint turns what it remembers by the part of
+        a step that came before each remembered sample (``_constrain``), so where the joint
+        was seen bent through the gap its tie holds, and where it was straight (blind)
+        since before the gap the sensors' own headings, taken back, hold."""
         forearm, hand = _SEGMENT_INDEX["forearm"], _SEGMENT_INDEX["hand"]
         upper_arm = next(s for s in (_SEGMENT_INDEX["upper_arm"], _SEGMENT_INDEX["clavicle"],
                                      _SEGMENT_INDEX["thorax"]) if present[s])
@@ -355,10 +360,14 @@ class Pipeline:
             turned = (child,)
             if segment == "forearm" and present[hand] and "hand" not in self._constraints:
                 turned = (forearm, hand)
-            shift = None  # the child's heading taken back against the parent's [rad]
+            steps = gaps = None  # the drift taken back from child and parent [rad]
             if child in taken or parent in taken:
-                shift = taken.get(child, 0.0) - taken.get(parent, np.zeros(len(times)))
-            delta = constraint.apply(times, Rw, parent, child, u_axis, v_axis, turned, shift)
+                steps, gaps = np.zeros((len(times), 2)), np.full((len(times), 2), np.nan)
+                for j, segment in enumerate((child, parent)):
+                    if segment in taken:
+                        steps[:, j], gaps[:, j] = taken[segment], knots[segment]
+            delta = constraint.apply(times, Rw, parent, child, u_axis, v_axis, turned,
+                                     steps, gaps)
             if mean and parent in chain:
                 chain.append(child)
                 offsets.append(delta)  # the child's own heading is the chain's − delta

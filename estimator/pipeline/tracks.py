@@ -60,8 +60,9 @@ class SensorTrack:
     _acc: np.ndarray = field(default_factory=lambda: np.empty((1024, 3)), init=False)
     _gyr: np.ndarray = field(default_factory=lambda: np.empty((1024, 3)), init=False)
     _q: np.ndarray = field(default_factory=lambda: np.empty((1024, 4)), init=False)
-    #: The heading drift taken back so far at each sample [rad] (``drift``; 0: none).
-    _h: np.ndarray = field(default_factory=lambda: np.zeros(1024), init=False)
+    #: Per sample the heading drift taken back so far [rad] (``drift``; 0: none) and the
+    #: time [s] of the knot its drift is counted from (NaN: none).
+    _h: np.ndarray = field(default_factory=lambda: np.zeros((1024, 2)), init=False)
     #: The magnetometer's chunks until calibration (``forget_magnetometer``), [µT].
     _mag: list | None = field(default_factory=list, init=False)
     # Packed samples (equal stamps): the first stamp, samples seen, and the current run
@@ -114,7 +115,8 @@ class SensorTrack:
         """A 6-axis sensor's heading drift between rests (``drift``) for the buffers' rows
         ``start:end``, into ``_h`` (zero on a 9-axis sensor)."""
         if self.nine_axis or not drift_module.ENABLED:
-            self._h[start:end] = 0.0
+            self._h[start:end, 0] = 0.0
+            self._h[start:end, 1] = np.nan
             return
         if self._drift is None:
             self._drift = drift_module.DriftTakeBack()
@@ -296,8 +298,13 @@ class SensorTrack:
 
     def headings_taken_back(self) -> np.ndarray:
         """The heading drift taken back at each sample kept [rad] (``drift``): the sensor's
-        heading is ``Rz(h) · R(q)`` (a contiguous view)."""
-        return self._h[self._start:self._end]
+        heading is ``Rz(h) · R(q)`` (a view)."""
+        return self._h[self._start:self._end, 0]
+
+    def knot_times(self) -> np.ndarray:
+        """At each sample kept, the time [s] of the rest (knot) from which the drift not yet
+        taken back is counted (``drift``; NaN: none yet, or a 9-axis sensor) (a view)."""
+        return self._h[self._start:self._end, 1]
 
     def times(self) -> np.ndarray:
         """``t`` of the samples kept (a contiguous view)."""
