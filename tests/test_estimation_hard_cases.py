@@ -177,7 +177,9 @@ def irregular_sway(seed: int, amplitude_deg: float, frequency_hz: float) -> dict
         "the poses): the filters' — measured at 2.30°: with the true "
         "sensor-to-segment rotations 1.72°, 1.16 cm; qcf alone, from 10.5 s, heading RMS "
         "trunk 1.77°, hand 1.24° (tilt 0.74°), the others 0.25–0.46° (seeds 1–3, 5: "
-        "0.18–0.65°): the never-resting trunk's bias, learnt in motion only")),
+        "0.18–0.65°): the never-resting trunk's bias, learnt in motion only (its part about "
+        "the vertical 7.1 mrad/s off at 10.5 s, 4.2 at 20 s; no trunk sample called "
+        "disturbed; see SWAY_TRUNK_HEADING)")),
     5])
 def test_trunk_sway_irregular(seed):
     """The same kit and sway sizes, but a sway that is a sum of incommensurate sines."""
@@ -239,6 +241,50 @@ def test_a_swaying_kit_in_a_clean_field_keeps_its_magnetometers(seed, monkeypatc
           f"{sorted({w.code for w in calibration.warnings})}")
     assert len(dips) == 4 and off < 1.0
     assert "magnetic-field-disturbed" not in {w.code for w in calibration.warnings}
+
+
+#: Why the 9-axis random sway misses the bar on some seeds (measured, qcf alone per sensor
+#: against the truth, from 10.5 s): the field is the earth's alone and no trunk sample is
+#: called disturbed; the trunk's bias about the vertical stays unlearnt for ~10 s (4.9–6.3
+#: mrad/s off at 10.5 s, about the whole true part) and the heading loop lags it by bias ×
+#: tau_mag (4 s, ~1.1–1.4°). The first 2-s heading windows take the tilt's warm-up for
+#: drift: a tilt error ε about magnetic north turns the field's heading by ε·tan(dip),
+#: 2.1 ε at 65°, and the trunk's tilt error grows 0.9° in its first 7 s.
+SWAY_TRUNK_HEADING = ("the filters: with the true sensor-to-segment rotations {}; qcf alone, "
+                      "from 10.5 s, heading RMS trunk {}, the others {}: the trunk's bias "
+                      "about the vertical {} mrad/s off at 10.5 s (none called disturbed)")
+
+
+@pytest.mark.parametrize("seed", [
+    1, 2, 3,
+    pytest.param(4, marks=pytest.mark.xfail(strict=True, reason=(
+        "measured shoulder rotation 1.48°, wrist 0.93 cm: " + SWAY_TRUNK_HEADING.format(
+            "1.37°, 0.91 cm", "1.15° (mean −1.04°)", "0.19–0.48° (hand 1.10°)", "4.9")))),
+    5, 6,
+    pytest.param(7, marks=pytest.mark.xfail(strict=True, reason=(
+        "measured shoulder rotation 1.06°, wrist 0.90 cm: " + SWAY_TRUNK_HEADING.format(
+            "1.05°, 0.87 cm", "1.62° (mean +1.35°)", "0.33–0.53°", "6.3")))),
+    pytest.param(8, marks=pytest.mark.xfail(strict=True, reason=(
+        "measured shoulder rotation 1.24°, wrist 0.83 cm: " + SWAY_TRUNK_HEADING.format(
+            "1.02°, 0.71 cm", "0.96° (mean +0.61°)", "0.21–0.45°", "4.9")))),
+    pytest.param(9, marks=pytest.mark.xfail(strict=True, reason=(
+        "measured shoulder rotation 1.79°, wrist 1.32 cm: the calibration — with the true "
+        "sensor-to-segment rotations 0.45°, 0.30 cm; every segment's off by ~2° alike "
+        "(rotation vector (−2.1, −0.3, 0.1)°, segment frame); qcf alone heading RMS "
+        "trunk 0.10°, the others 0.22–0.45°"))),
+    10])
+def test_a_swaying_kit_in_a_clean_field_meets_the_bar(seed):
+    """The 9-axis kit under the low-pass random sway (the earth's field alone, the case's
+    biases, no sensor ever rests): every angle within 1°, the wrist within 1 cm."""
+    config = sway_config(seed)
+    motion = replace(exercise_motion(config.exercise, calibration=True),
+                     trunk=random_sway(seed, config.trunk_sway[0]))
+    sim = simulate(replace(config, trunk_sway=None), motion=motion)
+    estimates, _ = estimate_recording(sim.recording)
+    worst, worst_deg, wrist_cm = score(estimates, sim.truth.t, sim_truth_deg(sim),
+                                       sim.truth.positions)
+    print(f"random sway 9-axis, seed {seed}: {worst} {worst_deg:.2f}°, wrist {wrist_cm:.2f} cm")
+    assert worst_deg <= ANGLE_BAR_DEG[True] and wrist_cm <= WRIST_BAR_CM
 
 
 @pytest.mark.parametrize("seed", range(1, 9))
