@@ -157,3 +157,49 @@ def test_a_resumed_or_continued_stream_cannot_change_the_sessions_delay(module_s
     session = asyncio.run(go())
     assert module_server.sql("SELECT gyro_delay_s FROM sessions WHERE id = :s",
                              s=session) == [(DELAY_S,)]
+
+
+def test_a_refused_resume_or_continuation_leaves_the_running_stream_alone(module_server, alice):
+    """A hello that resumes or continues a session but declares another delay (or other
+    sensors) is refused: the connection streaming that session goes on, acked, and the
+    session stays live (before, the refused hello first closed it, 1001 "replaced")."""
+    from websockets.asyncio.client import connect
+    patient = alice.patient("Streaming while refused")
+    kit = alice.device(patient["id"])
+    headers = {"Authorization": f"Bearer {kit['token']}"}
+    hello = {"type": "hello", "protocol": 1, "device": "kit", "side": "right",
+             "sensors": ["forearm"], "rate_hz": 50, "nine_axis": False, "resume": None}
+    rows = [[i / 50, 0.0, 0.0, 9.81, 0.0, 0.0, 0.0, None, None, None] for i in range(50)]
+
+    async def acked(ws, seq: int) -> None:
+        await ws.send(json.dumps({"type": "samples", "seq": seq, "sensor": "forearm",
+                                  "rows": [[r[0] + seq, *r[1:]] for r in rows]}))
+        while (answer := json.loads(await asyncio.wait_for(ws.recv(), 30))) != {
+                "type": "ack", "seq": seq}:
+            assert answer["type"] != "error", answer
+
+    async def go() -> tuple[int, list]:
+        refusals = []
+        async with connect(module_server.ws_url, additional_headers=headers) as ws:
+            await ws.send(json.dumps({**hello, "gyro_delay_s": DELAY_S}))
+            ready = json.loads(await ws.recv())
+            await acked(ws, 0)
+            for n, change in enumerate(({"resume": ready["stream"], "gyro_delay_s": 0.001},
+                                        {"session": ready["session"], "gyro_delay_s": 0.001},
+                                        {"resume": ready["stream"], "sensors": ["hand"]},
+                                        {"session": ready["session"], "side": "left"})):
+                async with connect(module_server.ws_url, additional_headers=headers) as other:
+                    await other.send(json.dumps({**hello, **change}))
+                    refused = json.loads(await other.recv())
+                    refusals.append(refused["reason"])
+                    assert refused["type"] == "error", refused
+                await acked(ws, n + 1)  # the running stream goes on
+            return ready["session"], refusals
+
+    session, refusals = asyncio.run(go())
+    print("refused:", *refusals, sep="\n  ")
+    assert "gyro_delay_s" in refusals[0] and "gyro_delay_s" in refusals[1]
+    assert "sensors" in refusals[2] and "side" in refusals[3]
+    assert module_server.sql("SELECT COUNT(*) FROM streams WHERE session_id = :s",
+                             s=session) == [(1,)]  # no stream made for a refused hello
+

@@ -373,18 +373,22 @@ class IngestConnection:
 
     def _check_own(self, db: DbSession, hello: Hello) -> None:
         """Refuse a ``hello`` naming a session or stream that is not this device's
-        patient's, with the same words as one that does not exist."""
+        patient's, with the same words as one that does not exist, or one whose kit differs
+        from the session's (side, sensors, gyroscope delay): before any connection of the
+        session is closed for it, so a refused hello leaves the running stream alone."""
         if hello.resume is not None:
             stream = db.get(models.Stream, hello.resume)
             session = None if stream is None else db.get(models.Session, stream.session_id)
             if session is None or session.patient_id != self.patient_id:
                 raise Refused(f"hello: no stream {hello.resume!r} to resume for this "
                               "device's patient")
+            _same_kit(hello, session, "a resumed stream")
         elif hello.session is not None:
             session = db.get(models.Session, hello.session)
             if session is None or session.patient_id != self.patient_id:
                 raise Refused(f"hello: no session {hello.session} to continue for this "
                               "device's patient")
+            _same_kit(hello, session, "a stream continuing a session")
 
     def _create_session(self, db: DbSession, hello: Hello, stream_id: str) -> tuple[int, float]:
         patient = db.get(models.Patient, self.patient_id)
@@ -430,10 +434,7 @@ class IngestConnection:
         if session.status == "closed" or session.id in self.services.closing:
             raise Refused(f"hello: session {session.id} is closed; start a new session "
                           "(resume null, no session)")
-        if set(hello.sensors) != set(session.sensors) or hello.side != session.side:
-            raise Refused("hello: a stream continuing a session must name the same side and "
-                          f"sensors ({session.side}; {', '.join(session.sensors)})")
-        _same_delay(hello, session)
+        _same_kit(hello, session, "a stream continuing a session")  # (checked again: a race)
         blocks = models.SampleBlock
         ends = dict(db.execute(
             select(blocks.sensor, func.max(blocks.t_last))
@@ -472,10 +473,7 @@ class IngestConnection:
         if "~continued_by" in (stream.last_t or {}):
             raise Refused(f"hello: session {session.id} goes on in a newer stream; "
                           f"continue it with resume null and session {session.id}")
-        if set(hello.sensors) != set(session.sensors) or hello.side != session.side:
-            raise Refused("hello: a resumed stream must name the same side and sensors "
-                          f"({session.side}; {', '.join(session.sensors)})")
-        _same_delay(hello, session)
+        _same_kit(hello, session, "a resumed stream")
         session.status = "live"
         session.ended_at = None
         db.commit()
@@ -637,9 +635,12 @@ def _session_delay(db: DbSession, session_id: int) -> float:
     return 0.0 if session is None or session.gyro_delay_s is None else session.gyro_delay_s
 
 
-def _same_delay(hello: Hello, session: models.Session) -> None:
-    """Refuse a resumed or continued stream that declares another gyroscope delay than
-    the session's: its filters run with one."""
+def _same_kit(hello: Hello, session: models.Session, what: str) -> None:
+    """Refuse ``what`` (a resumed or continued stream) whose side or sensors differ from
+    the session's, or that declares another gyroscope delay: its filters run with one."""
+    if set(hello.sensors) != set(session.sensors) or hello.side != session.side:
+        raise Refused(f"hello: {what} must name the same side and sensors "
+                      f"({session.side}; {', '.join(session.sensors)})")
     if hello.gyro_delay_s is not None and hello.gyro_delay_s != (session.gyro_delay_s or 0.0):
         raise Refused(f"hello: gyro_delay_s {hello.gyro_delay_s} differs from the session's "
                       f"({session.gyro_delay_s or 0.0} s, declared when it began); start a "
