@@ -203,3 +203,28 @@ def test_a_refused_resume_or_continuation_leaves_the_running_stream_alone(module
     assert module_server.sql("SELECT COUNT(*) FROM streams WHERE session_id = :s",
                              s=session) == [(1,)]  # no stream made for a refused hello
 
+
+def test_reprocess_with_a_filter_that_cannot_take_the_delay_keeps_the_estimates(
+        module_server, alice):
+    """``armtrack reprocess --filter ekf`` of a session whose kit declared a delay (ekf
+    cannot take one), or with a filter that does not exist, is refused naming what is
+    wrong, exit 2, and the session keeps its estimates (before: they were deleted and the
+    session showed a processing error)."""
+    sim = simulate(SimulationConfig(**{**KIT.__dict__, "declare_gyro_delay": True}))
+    from armtrack.estimator.recording import format_recording
+    patient = alice.patient("Reprocessed late gyroscope")
+    answer = alice.http.post("/api/recordings", timeout=120,
+                             data={"patient_id": str(patient["id"])},
+                             files={"file": ("kit.csv", format_recording(sim.recording))})
+    assert answer.status_code in (200, 201), answer.text
+    session = alice.wait_processed(answer.json()["id"])
+    assert session["processed"], session
+    before = stored_angles(alice, session["id"])
+    for filter_name, named in (("ekf", "gyro_delay_s"), ("qfc", "qfc")):
+        done = module_server.armtrack("reprocess", str(session["id"]), "--filter", filter_name)
+        print(f"--filter {filter_name}: exit {done.returncode}: {done.stderr.strip()}")
+        assert done.returncode == 2 and named in done.stderr, (done.returncode, done.stderr)
+        after = alice.session(session["id"])
+        assert after["processed"] and after["processing_error"] is None, after
+        np.testing.assert_array_equal(stored_angles(alice, session["id"])["elbow_flexion"],
+                                      before["elbow_flexion"])

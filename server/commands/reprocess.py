@@ -21,10 +21,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from armtrack.estimator.orientation import FILTERS, GYRO_DELAY_FILTERS
     from armtrack.server.db import models
     from armtrack.server.services import Services
     from armtrack.server.store.processing import process_session
 
+    if args.filter not in FILTERS:  # before any session is touched: its estimates stay
+        print(f"armtrack reprocess: unknown --filter {args.filter!r}; one of "
+              f"{', '.join(sorted(FILTERS))}", file=sys.stderr)
+        return 2
     services = Services(settings_from(args))
     failed = 0
     try:
@@ -34,6 +39,14 @@ def run(args: argparse.Namespace) -> int:
                 session = db.get(models.Session, session_id)
                 if session is None:
                     print(f"armtrack reprocess: no session {session_id}", file=sys.stderr)
+                    failed += 1
+                    continue
+                if session.gyro_delay_s and args.filter not in GYRO_DELAY_FILTERS:
+                    # the kit's declaration, not the data: the session keeps its estimates
+                    print(f"session {session_id}: its kit declared a gyroscope delay "
+                          f"(gyro_delay_s {session.gyro_delay_s} s) that --filter "
+                          f"{args.filter} cannot take ({', '.join(sorted(GYRO_DELAY_FILTERS))}"
+                          " can); its estimates are kept", file=sys.stderr)
                     failed += 1
                     continue
                 before = (session.estimator or {}).get("version", "none")
