@@ -60,3 +60,22 @@ def test_a_hello_naming_another_patients_session_or_stream_touches_nothing(modul
     for (error, code), words in zip(answers, ("no session", "no stream"), strict=True):
         assert error["type"] == "error" and words in error["reason"], error
         assert code == 4400, code
+
+
+def test_a_refusal_echoing_wide_characters_still_closes_with_its_code(module_server):
+    """A refusal's close reason is cut to fit a close frame (123 bytes of UTF-8): a hello
+    whose bad value is echoed in wide characters (``side``, an unknown sensor's name) was
+    cut to 120 characters, up to 360 bytes, the close failed and the kit saw 1006 (a
+    dropped network, to be retried) instead of 4400 (a hello the server cannot use)."""
+    alice = module_server.client("alice")
+    token = alice.device(alice.patient("Wide refusals")["id"])["token"]
+
+    async def scenario():
+        return [await refused_hello(module_server, token, side="€" * 100),
+                await refused_hello(module_server, token, sensors=["épaule_" + "é" * 80])]
+
+    for (error, code), field in zip(asyncio.run(scenario()), ("side", "unknown sensor"),
+                                    strict=True):
+        print(code, error["reason"][:60])
+        assert error["type"] == "error" and field in error["reason"], error
+        assert code == 4400, (code, error["reason"][:60])
