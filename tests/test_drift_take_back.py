@@ -76,3 +76,47 @@ def test_taking_back_is_the_same_in_any_chunks():
     track = track_of(t, acc, gyr, list(cuts))
     chunked = np.column_stack([track.orientations(), track.headings_taken_back()])
     assert np.max(np.abs(chunked - whole)) < 1e-12
+
+
+def joint_samples(t, delta, bent):
+    """World axes for ``HeadingConstraint.apply`` (parent 0's X, child 1's X, Rw (N, 2,
+    3, 3)): bent, a residual that a heading error ``delta`` [rad] of the child explains
+    (``D`` = 1); straight, none (``D`` = 0: the joint sees nothing)."""
+    Rw = np.zeros((len(t), 2, 3, 3))
+    Rw[:, 0, 1, 0] = 1.0  # u = world Y
+    Rw[:, 1, 0, 0] = np.where(bent, 1.0, 0.0)  # v: D = v_x, u·v = v_y
+    Rw[:, 1, 1, 0] = np.where(bent, -delta, 0.0)
+    Rw[:, 1, 2, 0] = np.where(bent, 0.0, 1.0)
+    return Rw
+
+
+@pytest.mark.parametrize("blind_from", [20.0, None])
+def test_a_step_taken_back_turns_only_what_the_joint_saw_of_its_gap(blind_from):
+    """The child's drift between its knot (last rest, 20 s) and a rest at 50 s taken back
+    by 0.03 rad. A joint that saw the child only before the knot (straight since: blind)
+    keeps its correction and the step passes whole; one that saw it all through the gap
+    turns its memory by the part of the step each sample had seen (a fraction of the gap
+    in time) — before, always by the whole step, so a blind joint undid the take-back."""
+    from armtrack.estimator.pipeline.constraints import HeadingConstraint
+
+    t = np.arange(0.0, 60.0, 0.01)
+    bent = t < blind_from if blind_from is not None else np.ones(len(t), bool)
+    knot = 0.0 if blind_from is None else blind_from
+    taken = np.zeros((len(t), 2))
+    taken[t >= 50.0, 0] = 0.03
+    knots = np.full((len(t), 2), np.nan)
+    knots[:, 0] = np.where(t >= knot, knot, -10.0)
+    constraint = HeadingConstraint()
+    delta = constraint.apply(t, joint_samples(t, 0.05, bent), 0, 1, 0, 0, (1,), taken, knots)
+    before, after = delta[t < 50.0][-1], delta[t >= 50.0][0]
+    tau, prior = constraint.tau, constraint.prior
+    if blind_from is not None:
+        expected = 0.0  # nothing it remembers was seen after the knot
+    else:  # Σ w (t − knot) / (T − knot) over Σ w + prior, w = e^{−(T − t)/τ} dt, T = 50
+        seen = t[t < 50.0]
+        w = np.exp(-(50.0 - seen) / tau) * 0.01
+        expected = 0.03 * np.sum(w * seen / 50.0) / (np.sum(w) + prior)
+    print(f"blind from {blind_from}: correction {before:.4f} → {after:.4f} rad "
+          f"(turned {before - after:.4f}, expected {expected:.4f}; whole step 0.03)")
+    assert before == pytest.approx(0.05, abs=2e-3)
+    assert before - after == pytest.approx(expected, abs=2e-4)
