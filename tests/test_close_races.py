@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import time
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -84,3 +85,48 @@ def test_a_session_erased_while_it_is_closed_is_not_a_server_error(module_server
     assert erase.status_code == 204
     assert close.status_code in (200, 404, 409), close.text
     assert api.http.get(f"/api/sessions/{session_id}").status_code == 404
+
+
+def test_a_close_that_waited_through_a_reassignment_answers_404(module_server):
+    """A close waits for the session's estimation (seconds, minutes behind others); an
+    admin who gives the patient to another therapist meanwhile takes the session from the
+    closing therapist: the close's answer (the estimated session: calibration, warnings,
+    metadata) is then 404, as every other route of the session is to them; before, it
+    was the session, read after the reassignment."""
+    from server_support import PASSWORD
+    from test_upload_beside_streams import big_recording
+
+    server = module_server
+    api, bob = server.client("alice"), server.client("bob")
+    done = server.armtrack("create-user", "root7", "--admin", "--password", PASSWORD)
+    assert done.returncode == 0, done.stderr
+    root = server.client("root7")
+    bob_id = next(t["id"] for t in root.http.get("/api/admin/therapists").json()
+                  if t["username"] == "bob")
+    # another patient's long recording keeps the estimation busy while the close waits
+    other = api.patient("Long upload")
+    busy = api.http.post("/api/recordings", timeout=300,
+                         data={"patient_id": str(other["id"]), "wait": "false"},
+                         files={"file": ("long.csv", big_recording(minutes=5))})
+    assert busy.status_code == 202, busy.text
+
+    def close_while_reassigned(session_id):
+        patient_id = api.session(session_id)["patient_id"]
+        with ThreadPoolExecutor(1) as pool:
+            close = pool.submit(api.http.post, f"/api/sessions/{session_id}/close",
+                                timeout=600)
+            deadline = time.monotonic() + 60
+            while api.session(session_id)["status"] != "closed":
+                assert time.monotonic() < deadline and not close.done(), "not closed"
+                time.sleep(0.02)
+            moved = root.http.post(f"/api/admin/patients/{patient_id}/reassign",
+                                   json={"therapist_id": bob_id})
+            assert moved.status_code == 200, moved.text
+            estimating = not close.done()
+            return close.result(), estimating
+    session_id, (close, estimating) = stream_then(server, api, close_while_reassigned)
+    print(f"\nclose after the reassignment: {close.status_code} {close.text[:100]!r}")
+    assert estimating, "the close answered before the reassignment: no race tested"
+    assert close.status_code == 404, close.text
+    assert close.json() == {"detail": f"no session {session_id}"}
+    assert bob.wait_processed(session_id, timeout=600)["status"] == "closed"

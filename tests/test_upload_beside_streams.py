@@ -37,11 +37,11 @@ def server(tmp_path_factory):
     process.stop()
 
 
-def big_recording() -> bytes:
+def big_recording(minutes: float = MINUTES) -> bytes:
     from armtrack.estimator.recording import Recording, SensorStream, format_recording
 
     rng = np.random.default_rng(3)
-    n = int(MINUTES * 60 * RATE_HZ)
+    n = int(minutes * 60 * RATE_HZ)
     t = np.arange(n) / RATE_HZ
     sensors = {}
     for name in ("trunk", "upper_arm", "forearm", "hand"):

@@ -106,14 +106,17 @@ async def close_session(session_id: Id, therapist: Therapist,
     else:
         with contextlib.suppress(ProcessingFailed):  # logged; the session shows no estimates
             await estimation
-    return await svc.run_db(_session_out_or_404, session_id)
+    return await svc.run_db(_session_out_or_404, therapist, session_id)
 
 
-def _session_out_or_404(db, session_id: int) -> SessionOut:
-    session = db.get(models.Session, session_id)
-    if session is None:  # erased while it was closed or estimated
+def _session_out_or_404(db, therapist: models.Therapist, session_id: int) -> SessionOut:
+    """The closed session, read again after the close's wait: 404 when it was erased
+    meanwhile or is no longer the therapist's (the patient given to another, the account
+    disabled), as every other route of the session answers them then."""
+    fresh = db.get(models.Therapist, therapist.id)
+    if fresh is None or fresh.disabled_at is not None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, f"no session {session_id}")
-    return session_out(session)
+    return session_out(own_session(db, fresh, session_id))
 
 
 @router.delete("/sessions/{session_id}", status_code=status.HTTP_204_NO_CONTENT)
