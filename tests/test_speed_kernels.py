@@ -9,7 +9,7 @@ import itertools
 import numpy as np
 import pytest
 from armtrack.estimator.pipeline import constraints
-from armtrack.estimator.pipeline.constraints import HeadingConstraint
+from armtrack.estimator.pipeline.constraints import DRIFT_RATE_PRIOR, HeadingConstraint
 from armtrack.estimator.rotations import elemental, quat_to_matrix
 
 
@@ -71,18 +71,29 @@ def test_apply_with_steps_taken_back_in_chunks_gives_the_whole():
     print(f"steps turn the correction by up to {np.rad2deg(np.abs(delta - plain).max()):.2f}°")
     assert np.abs(delta - plain).max() > np.deg2rad(0.1)  # the steps do reach the joint
     np.testing.assert_allclose(got, whole, atol=1e-12)
+    # the same with the drift's rate fitted
+    whole = Rw.copy()
+    HeadingConstraint(rate_prior=DRIFT_RATE_PRIOR).apply(t, whole, 1, 2, 2, 1, (2, 3), taken,
+                                                         knots)
+    chunked, got = HeadingConstraint(rate_prior=DRIFT_RATE_PRIOR), Rw.copy()
+    for a in range(0, len(t), 97):
+        chunked.apply(t[a:a + 97], got[a:a + 97], 1, 2, 2, 1, (2, 3), taken[a:a + 97],
+                      knots[a:a + 97])
+    np.testing.assert_allclose(got, whole, atol=1e-12)
 
 
 def test_pure_python_fallback_gives_the_compiled_numbers():
     rng = np.random.default_rng(6)
     t, Rw = stack(rng, 400)
     taken, knots = steps_taken_back(rng, t)
-    for gate in (np.inf, 0.1):  # between two sensors; against a virtual upper arm
+    # between two sensors; against a virtual upper arm; with the drift's rate and without
+    for gate, rate_prior in ((np.inf, np.inf), (0.1, np.inf), (np.inf, 20.0), (0.1, 20.0)):
         outs = []
         for kernel in (constraints._constrain, constraints._constrain_python):
-            R, state, delta = Rw.copy(), np.zeros(10), np.empty(len(t))
-            kernel(t, R, 2, 3, 0, 2, np.array([3]), 20.0, 0.05, gate, state, delta, taken,
-                   knots)
+            R, delta = Rw.copy(), np.empty(len(t))
+            state = np.zeros(constraints.CONSTRAIN_STATE_SIZE)
+            kernel(t, R, 2, 3, 0, 2, np.array([3]), 20.0, 0.05, rate_prior, gate, state, delta,
+                   taken, knots)
             outs.append((R, state, delta))
         for compiled, python in zip(*outs, strict=True):
             np.testing.assert_allclose(compiled, python, atol=1e-12)

@@ -12,7 +12,10 @@ for the wrist ``u`` is the forearm's X axis and ``v`` the hand's Z axis. Lineari
 says how well the sample observes ``δ`` (zero with the elbow straight: then a heading error
 is a pronation error no joint reveals). The correction is the ``D²``-weighted mean of these
 per-sample values with exponential forgetting (time constant ``tau``) and a prior toward
-no correction, causal, so chunks give what the whole recording gives. Where the headings
+no correction, causal, so chunks give what the whole recording gives; where two sensors'
+headings drift apart steadily (6-axis sensors whose vertical biases no stillness taught:
+a mean lags a drift of rate ``r`` by ``r·tau``) it is the weighted least-squares line
+through them, ``δ`` now and its rate (``rate_prior``). Where the headings
 are the gyroscopes' alone, each segment has first been turned by the drift taken back at
 its sensor's rests (``drift``), and the pipeline then turns the whole arm to its sensors'
 mean heading (``Pipeline._apply_constraints``).
@@ -30,15 +33,32 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
-def _constrain_python(t, Rw, parent, child, u_axis, v_axis, turned, tau, prior, gate,
-                      state, delta, taken, knots):
+def _line_python(numerator, denominator, moment, second, numerator1, prior, rate_prior):
+    """``δ`` now of the weighted least-squares line (``_constrain``); the weighted mean
+    alone where ``rate_prior`` is infinite."""
+    a11 = denominator + prior
+    if math.isinf(rate_prior):
+        return numerator / a11
+    a22 = second + rate_prior
+    return (a22 * numerator - moment * numerator1) / (a11 * a22 - moment * moment)
+
+
+def _constrain_python(t, Rw, parent, child, u_axis, v_axis, turned, tau, prior, rate_prior,
+                      gate, state, delta, taken, knots):
     """For each sample ``n`` of times ``t`` [s] (N,): ``u = Rw[n, parent, :, u_axis]``,
-    ``v = Rw[n, child, :, v_axis]`` (world axes of ``Rw`` (N, S, 3, 3)); the running sums
-    ``state[0:2]`` (numerator, denominator) decayed by ``exp(−Δt/τ)`` and grown by this
-    sample's ``−(u·v) D Δt`` and ``D² Δt``; ``delta[n]`` the correction [rad]; then each
-    ``Rw[n, s]``, ``s`` in ``turned`` (int array), turned about the world's vertical by it.
-    A sample whose residual after the correction so far, ``|u·v + D δ|``, exceeds ``gate``
-    breaks the joint by more than a heading drift does and counts for nothing.
+    ``v = Rw[n, child, :, v_axis]`` (world axes of ``Rw`` (N, S, 3, 3)); the heading error
+    taken as a line ``δ + r τ_i`` in the samples' ages ``τ_i = t_i − t`` [s] (``r``
+    [rad/s]: how fast the two sensors' headings drift apart, the difference of their
+    gyroscopes' vertical biases the filters have not learnt), fitted by least squares to
+    every sample's ``u·v + D (δ + r τ_i) = 0`` weighed by ``w = D² Δt`` decayed by
+    ``exp(−Δt/τ)``: the running sums ``Σ w δ_i`` and ``Σ w`` (numerator, denominator,
+    ``δ_i = −u·v / D``), ``Σ w τ``, ``Σ w τ²`` and ``Σ w δ_i τ``, with priors toward no
+    correction (``prior`` on δ [s·rad²], ``rate_prior`` on ``r`` [s³·rad²]; infinite: no
+    rate, the weighted mean alone, ``_line``); ``delta[n]`` the correction [rad], ``δ``
+    now; then each ``Rw[n, s]``, ``s`` in ``turned`` (int array), turned about the
+    world's vertical by it. A sample whose residual after the correction so far,
+    ``|u·v + D δ|``, exceeds ``gate`` breaks the joint by more than a heading drift does
+    and counts for nothing.
 
     ``taken[n]`` [rad] (N, 2) is how far the child's (column 0) and the parent's (1)
     headings have been turned before the joint (the drift taken back at each sensor's
@@ -47,47 +67,67 @@ def _constrain_python(t, Rw, parent, child, u_axis, v_axis, turned, tau, prior, 
     between that knot and now: a remembered sample seen a fraction ``f`` of the way
     through that gap had seen about ``f`` of it (the drift grows with the time moved), so
     its estimate turns by ``f`` of the step (``numerator −= step · Σ w f``, the sum kept
-    per side as ``Σ w (t − knot)`` over the samples since the knot); one seen before the
+    per side as ``Σ w (t − knot)`` over the samples since the knot, and likewise
+    ``Σ w δ τ −= step · Σ w f τ`` from ``Σ w (t − knot)²``); one seen before the
     knot had seen none of it and holds, and the step passes to the output as far as the
-    joint has not seen it. ``state`` (10,): 0–1 the sums, 2 the last time [s], 3 1.0 once
+    joint has not seen it. ``state`` (15,): 0–1 the sums, 2 the last time [s], 3 1.0 once
     there is one, 4–5 the last ``taken``, 6–7 ``Σ w (t − knot)`` per side, 8–9 their
-    knots."""
+    knots, 10 ``Σ w τ``, 11 ``Σ w τ²``, 12 ``Σ w δ τ`` (ages from the last time), 13–14
+    ``Σ w (t − knot)²`` per side."""
     numerator, denominator = state[0], state[1]
+    moment, second, numerator1 = state[10], state[11], state[12]
     if state[3] == 0.0 and t.shape[0]:
         state[2] = t[0]
         for j in range(2):
             state[4 + j] = taken[0, j]
             state[6 + j] = 0.0
             state[8 + j] = knots[0, j]
+            state[13 + j] = 0.0
     t_prev = state[2]
     for n in range(t.shape[0]):
-        dt = t[n] - t_prev
-        t_prev = t[n]
+        moved = t[n] - t_prev
+        dt = moved
         decay = math.exp(-dt / tau)  # weights are per second: independent of the rate
         for j in range(2):
             knot = knots[n, j]
             if knot != state[8 + j] and not (math.isnan(knot) and math.isnan(state[8 + j])):
                 state[8 + j] = knot  # a new gap: no sample has seen its drift yet
                 state[6 + j] = 0.0
+                state[13 + j] = 0.0
             step = taken[n, j] - state[4 + j]
             state[4 + j] = taken[n, j]
             if step != 0.0 and t[n] > knot:  # (NaN: False)
-                seen = state[6 + j] / (t[n] - knot)
-                numerator -= (step if j == 0 else -step) * seen
+                signed = step if j == 0 else -step
+                numerator -= signed * state[6 + j] / (t[n] - knot)
+                # Σ w f τ, the ages still from the last time
+                numerator1 -= signed * (state[13 + j] - (t_prev - knot) * state[6 + j]) \
+                    / (t[n] - knot)
+        t_prev = t[n]
         ux, uy, uz = Rw[n, parent, 0, u_axis], Rw[n, parent, 1, u_axis], Rw[n, parent, 2, u_axis]
         vx, vy, vz = Rw[n, child, 0, v_axis], Rw[n, child, 1, v_axis], Rw[n, child, 2, v_axis]
         d = uy * vx - ux * vy
         uv = ux * vx + uy * vy + uz * vz
-        if abs(uv + d * numerator / (denominator + prior)) > gate:
+        estimate = _line(numerator, denominator, moment, second, numerator1, prior,
+                         rate_prior)
+        if abs(uv + d * estimate) > gate:
             dt = 0.0
+        # every remembered sample is ``moved`` older (τ_i → τ_i − moved), then decayed;
+        # this sample's age is 0
+        second = decay * (second - 2.0 * moved * moment + moved * moved * denominator)
+        moment = decay * (moment - moved * denominator)
+        numerator1 = decay * (numerator1 - moved * numerator)
         numerator = decay * numerator - uv * d * dt
         denominator = decay * denominator + d * d * dt
         for j in range(2):
             state[6 + j] *= decay
+            state[13 + j] *= decay
             if t[n] > state[8 + j]:  # (NaN: False)
-                state[6 + j] += d * d * dt * (t[n] - state[8 + j])
-        # the prior pulls toward no correction until the joint has been seen bent a while
-        correction = numerator / (denominator + prior)
+                since = t[n] - state[8 + j]
+                state[6 + j] += d * d * dt * since
+                state[13 + j] += d * d * dt * since * since
+        # the priors pull toward no correction until the joint has been seen bent a while
+        correction = _line(numerator, denominator, moment, second, numerator1, prior,
+                           rate_prior)
         delta[n] = correction
         c, s = math.cos(correction), math.sin(correction)
         for segment in turned:
@@ -97,6 +137,7 @@ def _constrain_python(t, Rw, parent, child, u_axis, v_axis, turned, tau, prior, 
                 Rw[n, segment, 1, k] = s * r0 + c * r1
     if t.shape[0]:
         state[0], state[1], state[2], state[3] = numerator, denominator, t_prev, 1.0
+        state[10], state[11], state[12] = moment, second, numerator1
 
 
 def _turned_python(t, gyr, times, state, out):
@@ -159,6 +200,13 @@ def _compile(function):
     return numba.njit(cache=True, nogil=True)(function)
 
 
+#: Length of ``_constrain``'s state.
+CONSTRAIN_STATE_SIZE = 15
+#: ``HeadingConstraint.rate_prior`` where two sensors' headings drift apart [s³·rad²]:
+#: ``prior · tau²`` (0.05 · 20²), the same weight on the turn the rate makes over the
+#: forgetting time as on the turn itself.
+DRIFT_RATE_PRIOR = 20.0
+_line = _compile(_line_python)
 _constrain = _compile(_constrain_python)
 mean_turn = _compile(_mean_turn_python)
 turned_angle = _compile(_turned_python)
@@ -173,13 +221,17 @@ class HeadingConstraint:
     tau: float = 20.0
     #: Weight of "no correction" [s·rad²]: as much as 0.2 s with the joint bent 30°.
     prior: float = 0.05
+    #: Weight of "no drift" of the heading error [s³·rad²] (``_constrain``'s ``r``);
+    #: infinite: none is fitted, the weighted mean alone (``DRIFT_RATE_PRIOR``: fitted).
+    rate_prior: float = math.inf
     #: Largest residual a sample may show and count (``_constrain``): infinite between
     #: two sensors; against a virtual upper arm (a forearm-only kit) a few degrees, so the
     #: calibration's T-pose and any raise of the arm, which break the assumption, not
     #: the hinge, are left out.
     gate: float = math.inf
     #: The running sums, the last time, what was taken back (see ``_constrain``).
-    _state: np.ndarray = field(default_factory=lambda: np.zeros(10), init=False)
+    _state: np.ndarray = field(default_factory=lambda: np.zeros(CONSTRAIN_STATE_SIZE),
+                               init=False)
 
     def apply(self, t: np.ndarray, Rw: np.ndarray, parent: int, child: int, u_axis: int,
               v_axis: int, turned: tuple[int, ...], taken: np.ndarray | None = None,
@@ -196,7 +248,7 @@ class HeadingConstraint:
             taken, knots = np.zeros((n, 2)), np.full((n, 2), np.nan)
         _constrain(np.ascontiguousarray(t, dtype=np.float64), Rw, parent, child, u_axis,
                    v_axis, np.array(turned, dtype=np.int64), self.tau, self.prior,
-                   self.gate, self._state, delta,
+                   self.rate_prior, self.gate, self._state, delta,
                    np.ascontiguousarray(taken, dtype=np.float64),
                    np.ascontiguousarray(knots, dtype=np.float64))
         return delta
@@ -209,6 +261,6 @@ class HeadingConstraint:
         axes[:, 0, :, 0], axes[:, 1, :, 0] = u, v
         delta = np.empty(n)
         _constrain(np.ascontiguousarray(t, dtype=np.float64), axes, 0, 1, 0, 0,
-                   np.zeros(0, dtype=np.int64), self.tau, self.prior, self.gate,
-                   self._state, delta, np.zeros((n, 2)), np.full((n, 2), np.nan))
+                   np.zeros(0, dtype=np.int64), self.tau, self.prior, self.rate_prior,
+                   self.gate, self._state, delta, np.zeros((n, 2)), np.full((n, 2), np.nan))
         return delta

@@ -28,7 +28,13 @@ from ..orientation import DEFAULT_FILTER, GYRO_DELAY_FILTERS, LearntGyroBias, ch
 from ..recording import Mark, Pose
 from ..recording.points import PointsFrame
 from .calibrate import Calibration, calibrate, trunk_bias_from_poses
-from .constraints import HeadingConstraint, mean_turn, turn_about_vertical, turned_angle
+from .constraints import (
+    DRIFT_RATE_PRIOR,
+    HeadingConstraint,
+    mean_turn,
+    turn_about_vertical,
+    turned_angle,
+)
 from .estimates import REFERENCE_ORDER, EstimateArrays, Estimates
 from .magnetic import disagreeing_sensors, disagreement_warning
 from .segment_kernel import segment_orientations
@@ -252,14 +258,31 @@ class Pipeline:
         # Every kit: the forearm's and hand's headings are tied by the joints (6-axis
         # sensors drift apart; 9-axis ones see fields that differ from sensor to sensor
         # near metal): the magnetometer is evidence, the joints decide.
-        self._constraints = {s: HeadingConstraint() for s in ("forearm", "hand")
-                             if s in present}
+        # The elbow also follows how fast its sensors' headings drift apart (the difference
+        # of their unlearnt vertical biases) where one of them has its heading from the
+        # gyroscope alone and no stillness up to the poses' end taught it its bias (a
+        # swaying kit: nothing ever rests); a magnetometer's heading does not drift, and a
+        # bias a rest or a still start taught drifts only by its walk (RING's chain: the
+        # rate cost its foam-mounted trial 2 up to 0.8° at the wrist). The wrist keeps the
+        # mean: fitted there too, the rate made 11 of 12 swaying kits worse.
+        def drifts(sensor: str) -> bool:
+            track = present.get(sensor)
+            return track is not None and not (
+                track.nine_axis and not track.magnetometer_dropped) and not \
+                track.still_taught(final_time)
+        elbow_rate = DRIFT_RATE_PRIOR if drifts("forearm") or \
+            drifts("upper_arm") else math.inf
+        self._constraints = {s: HeadingConstraint(rate_prior=elbow_rate if s == "forearm"
+                                                  else math.inf)
+                             for s in ("forearm", "hand") if s in present}
         # headings from the gyroscopes alone, and no wrist points to hold the upper arm's
         self._mean_heading = self.gamma is None and not all(
             track.nine_axis and not track.magnetometer_dropped for track in present.values())
         if "forearm" in present and "upper_arm" not in present:
             # against the virtual upper arm hanging still (see ``_apply_constraints``)
-            self._constraints["forearm"] = HeadingConstraint(gate=VIRTUAL_HINGE_GATE)
+            self._constraints["forearm"] = HeadingConstraint(
+                gate=VIRTUAL_HINGE_GATE,
+                rate_prior=elbow_rate)
         return True
 
     def _estimate(self, final: bool) -> EstimateArrays | None:

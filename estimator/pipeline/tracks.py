@@ -11,6 +11,7 @@ import numpy as np
 
 from ..errors import InvalidArgument
 from ..orientation import OrientationFilter, make_filter
+from ..orientation.qcf import LEARNT_NONE
 from . import drift as drift_module
 
 
@@ -272,6 +273,21 @@ class SensorTrack:
                 None if not self.nine_axis or self.magnetometer_dropped else
                 np.concatenate(self._mag)[self._start:self._end]).q
             self._take_back_drift(self._start, self._end)
+
+    def still_taught(self, until: float) -> bool:
+        """Whether stillness (a rest, or a still start) had taught this sensor's filter its
+        gyroscope bias by ``until`` [s]: a fresh filter run over the samples kept up to
+        then (at calibration all are kept), so a batch and a stream answer alike. False
+        for a filter that learns no bias from stillness."""
+        t, acc, gyr, _ = self.arrays()
+        n = int(t.searchsorted(until, "right"))
+        fresh = self._new_filter()
+        learnt_bias = getattr(fresh, "learnt_bias", None)
+        if n == 0 or learnt_bias is None:
+            return False
+        fresh.update(t[:n], acc[:n], gyr[:n], None)
+        learnt = learnt_bias()
+        return learnt is not None and learnt.learnt != LEARNT_NONE
 
     def _grow(self, n: int) -> None:
         kept = slice(self._start, self._end)
