@@ -228,3 +228,27 @@ def test_reprocess_with_a_filter_that_cannot_take_the_delay_keeps_the_estimates(
         assert after["processed"] and after["processing_error"] is None, after
         np.testing.assert_array_equal(stored_angles(alice, session["id"])["elbow_flexion"],
                                       before["elbow_flexion"])
+
+
+def test_armtrack_stream_of_a_file_declaring_its_delay_declares_it(module_server, alice,
+                                                                   tmp_path):
+    """``armtrack stream REC.csv`` (the kit emulator, docs/kit-builder.md) of a file whose
+    header declares ``gyro_delay_s`` says so in its hello: the streamed session keeps the
+    delay and is estimated as the file's upload is (before, the hello left it out and the
+    session was estimated as in step)."""
+    from armtrack.estimator.recording import format_recording
+    sim = simulate(SimulationConfig(**{**KIT.__dict__, "declare_gyro_delay": True}))
+    path = tmp_path / "late.csv"
+    path.write_bytes(format_recording(sim.recording))
+    patient = alice.patient("Streamed file, late gyroscope")
+    kit = alice.device(patient["id"])
+    from server_support import armtrack
+    done = armtrack("stream", str(path), "--url", module_server.ws_url,
+                    "--token", kit["token"], "--speed", "0", "--quiet", timeout=300)
+    assert done.returncode == 0, done.stderr
+    sessions = alice.http.get(f"/api/patients/{patient['id']}/sessions").json()
+    assert len(sessions) == 1, sessions
+    assert module_server.sql("SELECT gyro_delay_s FROM sessions WHERE id = :s",
+                             s=sessions[0]["id"]) == [(DELAY_S,)]
+    session = alice.wait_processed(sessions[0]["id"], timeout=300)
+    assert session["metadata"]["gyro_delay_s"] == "0.0065", session["metadata"]

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 from armtrack.estimator.errors import InvalidArgument
 from armtrack.estimator.recording import Mark, Recording
+from armtrack.estimator.recording.model import GYRO_DELAY_KEY
 
 PROTOCOL_VERSION = 1
 #: Rows a ``samples`` message may carry (``docs/spec/ingest.md``).
@@ -55,13 +56,16 @@ def hello_message(recording: Recording, device: str, resume: str | None = None,
                   rate_hz: float | None = None) -> dict[str, Any]:
     """The ``hello`` for ``recording``: protocol 1, its side and sensors (in the
     recording's order), ``rate_hz`` [Hz] (default :func:`nominal_rate`), ``nine_axis``
-    and ``resume`` (the stream id of an earlier connection, or None)."""
+    and ``resume`` (the stream id of an earlier connection, or None); the file's
+    declared ``gyro_delay_s`` [s] and wrist points, when it has them."""
     hello = {
         "type": "hello", "protocol": PROTOCOL_VERSION, "device": device,
         "side": recording.side, "sensors": list(recording.sensors),
         "rate_hz": nominal_rate(recording) if rate_hz is None else float(rate_hz),
         "nine_axis": _nine_axis(recording), "resume": resume,
     }
+    if GYRO_DELAY_KEY in recording.metadata:  # docs/extensions/gyro-delay.md
+        hello["gyro_delay_s"] = recording.gyro_delay_s
     if recording.points:  # docs/extensions/points.md
         frame = recording.points_frame
         assert frame is not None
