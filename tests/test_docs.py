@@ -198,3 +198,14 @@ def test_the_docs_link_only_to_files_that_exist():
 def test_the_readme_cites_no_spec_folder_a_clone_lacks():
     readme = (ROOT / "README.md").read_text("utf-8")
     assert not re.search(r"(?<!docs/)spec/\w+\.md", readme)
+
+
+def test_every_setting_is_in_the_operators_guide():
+    """Every ``ARMTRACK_`` setting (``server/settings.py``) has its row in docs/operator.md's
+    settings tables (its default and meaning), where an operator looks for it."""
+    from armtrack.server.settings import Settings
+
+    guide = (DOCS / "operator.md").read_text("utf-8")
+    missing = [f"ARMTRACK_{name.upper()}" for name in Settings.model_fields
+               if not re.search(rf"^\|[^\n]*`ARMTRACK_{name.upper()}`", guide, re.M)]
+    assert not missing, f"not in docs/operator.md's tables: {', '.join(missing)}"
