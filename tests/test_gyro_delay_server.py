@@ -252,3 +252,29 @@ def test_armtrack_stream_of_a_file_declaring_its_delay_declares_it(module_server
                              s=sessions[0]["id"]) == [(DELAY_S,)]
     session = alice.wait_processed(sessions[0]["id"], timeout=300)
     assert session["metadata"]["gyro_delay_s"] == "0.0065", session["metadata"]
+
+
+def test_a_resume_declaring_a_delay_the_session_never_had_says_so(module_server, alice):
+    """The refusal of a resume declaring a delay in a session whose kit declared none says
+    that none was declared (before: "differs from the session's (0.0 s, declared when it
+    began)", a declaration the kit never made)."""
+    from websockets.asyncio.client import connect
+    patient = alice.patient("Delay declared late")
+    kit = alice.device(patient["id"])
+    headers = {"Authorization": f"Bearer {kit['token']}"}
+    hello = {"type": "hello", "protocol": 1, "device": "kit", "side": "right",
+             "sensors": ["forearm"], "rate_hz": 50, "nine_axis": False, "resume": None}
+
+    async def go() -> str:
+        async with connect(module_server.ws_url, additional_headers=headers) as ws:
+            await ws.send(json.dumps(hello))
+            ready = json.loads(await ws.recv())
+        async with connect(module_server.ws_url, additional_headers=headers) as ws:
+            await ws.send(json.dumps({**hello, "resume": ready["stream"],
+                                      "gyro_delay_s": 0.002}))
+            return json.loads(await ws.recv())["reason"]
+
+    reason = asyncio.run(go())
+    print(reason)
+    assert "gyro_delay_s 0.002" in reason and "declared none" in reason, reason
+    assert "declared when it began" not in reason, reason

@@ -652,9 +652,12 @@ def _same_kit(hello: Hello, session: models.Session, what: str) -> None:
         raise Refused(f"hello: {what} must name the same side and sensors "
                       f"({session.side}; {', '.join(session.sensors)})")
     if hello.gyro_delay_s is not None and hello.gyro_delay_s != (session.gyro_delay_s or 0.0):
-        raise Refused(f"hello: gyro_delay_s {hello.gyro_delay_s} differs from the session's "
-                      f"({session.gyro_delay_s or 0.0} s, declared when it began); start a "
-                      "new session for a kit that declares another")
+        had = (": its kit declared none when it began (0 s, in step)"
+               if session.gyro_delay_s is None
+               else f" ({session.gyro_delay_s} s, declared when it began)")
+        raise Refused(f"hello: gyro_delay_s {hello.gyro_delay_s} differs from the session's"
+                      f"{had}; start a new session (resume null, no session) for a kit that "
+                      "declares another")
 
 
 def _marks_in_session(db: DbSession, session_id: int) -> int:
