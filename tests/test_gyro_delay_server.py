@@ -278,3 +278,35 @@ def test_a_resume_declaring_a_delay_the_session_never_had_says_so(module_server,
     print(reason)
     assert "gyro_delay_s 0.002" in reason and "declared none" in reason, reason
     assert "declared when it began" not in reason, reason
+
+
+def test_a_closed_sessions_resume_is_told_it_is_closed_whatever_its_kit(module_server, alice):
+    """A resume of a closed session is refused as closed (closed-session/1: with
+    ``next_seq``, the kit sends the rest as a new session) even when its hello names other
+    sensors or another delay: the kit's checks come after, as they did before they moved
+    ahead of the running connection's close."""
+    from websockets.asyncio.client import connect
+    patient = alice.patient("Closed, then resumed otherwise")
+    kit = alice.device(patient["id"])
+    headers = {"Authorization": f"Bearer {kit['token']}"}
+    hello = {"type": "hello", "protocol": 1, "device": "kit", "side": "right",
+             "sensors": ["forearm"], "rate_hz": 50, "nine_axis": False, "resume": None,
+             "extensions": ["closed-session/1"]}
+
+    async def go() -> list[dict]:
+        async with connect(module_server.ws_url, additional_headers=headers) as ws:
+            await ws.send(json.dumps(hello))
+            ready = json.loads(await ws.recv())
+        closed = await asyncio.to_thread(
+            alice.http.post, f"/api/sessions/{ready['session']}/close?wait=false")
+        assert closed.status_code == 202, closed.text
+        answers = []
+        for change in ({"sensors": ["hand"]}, {"gyro_delay_s": 0.002}):
+            async with connect(module_server.ws_url, additional_headers=headers) as ws:
+                await ws.send(json.dumps({**hello, "resume": ready["stream"], **change}))
+                answers.append(json.loads(await ws.recv()))
+        return answers
+
+    for answer in asyncio.run(go()):
+        assert answer["type"] == "error" and "closed" in answer["reason"], answer
+        assert answer.get("next_seq") == 0, answer

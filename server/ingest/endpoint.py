@@ -382,13 +382,20 @@ class IngestConnection:
             if session is None or session.patient_id != self.patient_id:
                 raise Refused(f"hello: no stream {hello.resume!r} to resume for this "
                               "device's patient")
-            _same_kit(hello, session, "a resumed stream")
+            if not self._ends_anyway(session) and "~continued_by" not in (stream.last_t or {}):
+                _same_kit(hello, session, "a resumed stream")
         elif hello.session is not None:
             session = db.get(models.Session, hello.session)
             if session is None or session.patient_id != self.patient_id:
                 raise Refused(f"hello: no session {hello.session} to continue for this "
                               "device's patient")
-            _same_kit(hello, session, "a stream continuing a session")
+            if not self._ends_anyway(session):
+                _same_kit(hello, session, "a stream continuing a session")
+
+    def _ends_anyway(self, session: models.Session) -> bool:
+        """A closed (or closing) session: the store step refuses its hello with its own
+        words (closed-session/1's ``next_seq``), before any other check."""
+        return session.status == "closed" or session.id in self.services.closing
 
     def _create_session(self, db: DbSession, hello: Hello, stream_id: str) -> tuple[int, float]:
         patient = db.get(models.Patient, self.patient_id)
