@@ -180,18 +180,6 @@ def _mean_turn_python(Rw, chain, offsets, turned, floor):
                 Rw[n, segment, 1, k] = s * r0 + c * r1
 
 
-def _turn_python(R, h):
-    """``Rz(h[n]) · R[n]`` in place for ``R`` (N, 3, 3) ``R_world_segment`` and ``h`` [rad]
-    (N,): a turn about the world's vertical."""
-    for n in range(R.shape[0]):
-        if h[n] != 0.0:
-            c, s = math.cos(h[n]), math.sin(h[n])
-            for k in range(3):
-                r0, r1 = R[n, 0, k], R[n, 1, k]
-                R[n, 0, k] = c * r0 - s * r1
-                R[n, 1, k] = s * r0 + c * r1
-
-
 def _compile(function):
     try:
         import numba
@@ -210,7 +198,6 @@ _line = _compile(_line_python)
 _constrain = _compile(_constrain_python)
 mean_turn = _compile(_mean_turn_python)
 turned_angle = _compile(_turned_python)
-turn_about_vertical = _compile(_turn_python)
 
 
 @dataclass

@@ -254,8 +254,45 @@ def _compile(function):
     return numba.njit(cache=True, nogil=True)(function)
 
 
+def _taken_at_python(t, h, times, R, out):
+    """At each of ``times`` [s] (M,), non-decreasing: the drift taken back [rad]
+    interpolated in time as ``np.interp(times, t, h[:, 0])`` does (the same numbers) into
+    ``out[:, 0]``, and the knot time [s] of the last sample at or before it (the first
+    sample before ``t[0]``) into ``out[:, 1]``; ``R`` (M, 3, 3) ``R_world_segment`` turned
+    in place about the world's vertical by the drift taken back (``Rz(H) · R``). ``t`` [s]
+    (N,) and ``h`` (N, 2) (``H``, knot) are a track's samples (``_drift_python``'s
+    output). One pass instead of a search, an interpolation and a turn per chunk."""
+    m = t.shape[0]
+    j = 0
+    for n in range(times.shape[0]):
+        x = times[n]
+        while j + 1 < m and t[j + 1] <= x:
+            j += 1
+        # np.interp: held at either end, a sample's own value at its time, else the line
+        if x >= t[m - 1] or j == m - 1:
+            value = h[m - 1, 0]
+        elif x < t[0] or x == t[j]:
+            value = h[0, 0] if x < t[0] else h[j, 0]
+        else:
+            slope = (h[j + 1, 0] - h[j, 0]) / (t[j + 1] - t[j])
+            value = slope * (x - t[j]) + h[j, 0]
+            if math.isnan(value):
+                value = slope * (x - t[j + 1]) + h[j + 1, 0]
+                if math.isnan(value) and h[j, 0] == h[j + 1, 0]:
+                    value = h[j, 0]
+        out[n, 0] = value
+        out[n, 1] = h[j, 1]
+        if value != 0.0:
+            c, s = math.cos(value), math.sin(value)
+            for k in range(3):
+                r0, r1 = R[n, 0, k], R[n, 1, k]
+                R[n, 0, k] = c * r0 - s * r1
+                R[n, 1, k] = s * r0 + c * r1
+
+
 _is_rest = _compile(_is_rest_python)
 drift_kernel = _compile(_drift_python)
+taken_at = _compile(_taken_at_python)
 
 
 class DriftTakeBack:

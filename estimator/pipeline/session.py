@@ -28,13 +28,8 @@ from ..orientation import DEFAULT_FILTER, GYRO_DELAY_FILTERS, LearntGyroBias, ch
 from ..recording import Mark, Pose
 from ..recording.points import PointsFrame
 from .calibrate import Calibration, calibrate, trunk_bias_from_poses
-from .constraints import (
-    DRIFT_RATE_PRIOR,
-    HeadingConstraint,
-    mean_turn,
-    turn_about_vertical,
-    turned_angle,
-)
+from .constraints import DRIFT_RATE_PRIOR, HeadingConstraint, mean_turn, turned_angle
+from .drift import taken_at
 from .estimates import REFERENCE_ORDER, EstimateArrays, Estimates
 from .magnetic import disagreeing_sensors, disagreement_warning
 from .segment_kernel import segment_orientations
@@ -69,12 +64,6 @@ class PipelineConfig:
     @property
     def reference(self) -> str:
         return next(s for s in REFERENCE_ORDER if s in self.sensors)
-
-
-def _turn_about_vertical(R: np.ndarray, h: np.ndarray) -> None:
-    """Turn ``R`` (N, 3, 3) ``R_world_segment`` about the world's vertical by ``h`` [rad]
-    (N,), in place (``Rz(h) · R``)."""
-    turn_about_vertical(R, np.ascontiguousarray(h, dtype=np.float64))
 
 
 class Pipeline:
@@ -319,9 +308,11 @@ class Pipeline:
                                  self.calibration.heading[name], out=Rw[:, index])
             present[index] = 1.0
             if track.nine_axis is False and self.gamma is None:  # points hold the heading
-                taken[index] = np.interp(times, t, track.headings_taken_back())
-                at = np.maximum(t.searchsorted(times, "right") - 1, 0)
-                knots[index] = track.knot_times()[at]
+                # each sensor's own drift taken back turns its segment now, before the
+                # joints tie them (no γ elbow here: it would come before the turn)
+                drift = np.empty((n, 2))
+                taken_at(t, track.drift_taken_back(), times, Rw[:, index], drift)
+                taken[index], knots[index] = drift[:, 0], drift[:, 1]
         if not present[0]:  # no trunk sensor: the thorax stays where calibration put it
             Rw[:, 0] = self.calibration.R_world_thorax
             present[0] = 1.0
@@ -330,8 +321,6 @@ class Pipeline:
             points_flexion, flagged = self.gamma.apply(
                 Rw, present, self._wrist.at(times), self._wrist.shoulder_thorax,
                 _SEGMENT_INDEX["upper_arm"], _SEGMENT_INDEX["forearm"])
-        for index, h in taken.items():  # each sensor's own, before the joints tie them
-            _turn_about_vertical(Rw[:, index], h)
         if self._constraints:
             self._apply_constraints(times, Rw, present, taken, knots)
         angles, residuals, positions, R_world_all = self._joints.update(Rw, present)

@@ -317,6 +317,10 @@ class SensorTrack:
         heading is ``Rz(h) · R(q)`` (a view)."""
         return self._h[self._start:self._end, 0]
 
+    def drift_taken_back(self) -> np.ndarray:
+        """``(headings_taken_back, knot_times)`` of the samples kept as one (N, 2) view."""
+        return self._h[self._start:self._end]
+
     def knot_times(self) -> np.ndarray:
         """At each sample kept, the time [s] of the rest (knot) from which the drift not yet
         taken back is counted (``drift``; NaN: none yet, or a 9-axis sensor) (a view)."""
