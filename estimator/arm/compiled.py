@@ -135,29 +135,26 @@ def _beyond(f, a, r, normal):
     return total
 
 
-def _matmul(A, B, out):
-    for r in range(3):
-        for c in range(3):
-            out[r, c] = A[r, 0] * B[0, c] + A[r, 1] * B[1, c] + A[r, 2] * B[2, c]
-
-
-def _elemental(axis, angle, out):
+def _turn_by_elemental(R, axis, angle):
+    """``R · E`` into ``R`` (3, 3), ``E`` the elemental rotation about ``axis`` by
+    ``angle`` [rad]: each entry the full three-term sum ``Σ R[r, m] E[m, c]``, the zeros'
+    products included (the numbers, down to the signs of zeros, of the product with ``E``
+    built as a matrix), without building ``E`` or a product matrix per elemental."""
     c, s = math.cos(angle), math.sin(angle)
+    if axis == 0:
+        e00, e01, e02, e10, e11, e12, e20, e21, e22 = 1.0, 0.0, 0.0, 0.0, c, -s, 0.0, s, c
+    elif axis == 1:
+        e00, e01, e02, e10, e11, e12, e20, e21, e22 = c, 0.0, s, 0.0, 1.0, 0.0, -s, 0.0, c
+    else:
+        e00, e01, e02, e10, e11, e12, e20, e21, e22 = c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0
     for r in range(3):
-        for k in range(3):
-            out[r, k] = 0.0
-    i = axis
-    j, k = (i + 1) % 3, (i + 2) % 3
-    out[i, i] = 1.0
-    out[j, j] = c
-    out[k, k] = c
-    out[k, j] = s
-    out[j, k] = -s
+        a0, a1, a2 = R[r, 0], R[r, 1], R[r, 2]
+        R[r, 0] = a0 * e00 + a1 * e10 + a2 * e20
+        R[r, 1] = a0 * e01 + a1 * e11 + a2 * e21
+        R[r, 2] = a0 * e02 + a1 * e12 + a2 * e22
 
 
 def _forward(angle, side_sign, lengths, positions, R_out):
-    E = np.empty((3, 3))
-    T = np.empty((3, 3))
     R = np.eye(3)
     # (axis, angle index, sign) of each elemental, chain order (joints.py)
     axes = (1, 0, 2, 0, 1, 2, 1, 0, 2)
@@ -167,11 +164,7 @@ def _forward(angle, side_sign, lengths, positions, R_out):
     e = 0
     for seg in range(4):
         while e < ends[seg]:
-            _elemental(axes[e], signs[e] * angle[index[e]], E)
-            _matmul(R, E, T)
-            for r in range(3):
-                for c in range(3):
-                    R[r, c] = T[r, c]
+            _turn_by_elemental(R, axes[e], signs[e] * angle[index[e]])
             e += 1
         for r in range(3):
             for c in range(3):
@@ -262,10 +255,10 @@ def _compile():
     except ImportError:  # the pure-Python fallback: same numbers, slower
         return _kernel_python, _relative_python, _to_world_python, _chunk_python, False
     jit = numba.njit(cache=True, nogil=True)
-    global _tait_bryan, _wrap, _continue, _beyond, _matmul, _elemental, _forward
+    global _tait_bryan, _wrap, _continue, _beyond, _turn_by_elemental, _forward
     _tait_bryan, _wrap, _continue, _beyond = (jit(_tait_bryan), jit(_wrap), jit(_continue),
                                               jit(_beyond))
-    _matmul, _elemental = jit(_matmul), jit(_elemental)
+    _turn_by_elemental = jit(_turn_by_elemental)
     _forward = jit(_forward)
     global _RELATIVE, _KERNEL, _TO_WORLD
     _KERNEL, _RELATIVE, _TO_WORLD = jit(_kernel_python), jit(_relative_python), jit(

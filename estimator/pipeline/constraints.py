@@ -27,6 +27,7 @@ than the arithmetic.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -200,6 +201,13 @@ mean_turn = _compile(_mean_turn_python)
 turned_angle = _compile(_turned_python)
 
 
+@functools.cache
+def _segments(turned: tuple[int, ...]) -> np.ndarray:
+    """``turned`` as the kernel's int64 array (one per tuple: a chunk's call builds none;
+    never written)."""
+    return np.array(turned, dtype=np.int64)
+
+
 @dataclass
 class HeadingConstraint:
     """Running estimate of a distal segment's heading error [rad] from a 2-DoF joint."""
@@ -219,6 +227,10 @@ class HeadingConstraint:
     #: The running sums, the last time, what was taken back (see ``_constrain``).
     _state: np.ndarray = field(default_factory=lambda: np.zeros(CONSTRAIN_STATE_SIZE),
                                init=False)
+    #: Nothing taken back (zeros, NaN knots), rows for the longest chunk so far: the
+    #: kernel reads only a chunk's rows, so a live stream's chunks share one pair.
+    _none: tuple[np.ndarray, np.ndarray] = field(
+        default_factory=lambda: (np.zeros((0, 2)), np.zeros((0, 2))), init=False)
 
     def apply(self, t: np.ndarray, Rw: np.ndarray, parent: int, child: int, u_axis: int,
               v_axis: int, turned: tuple[int, ...], taken: np.ndarray | None = None,
@@ -232,9 +244,11 @@ class HeadingConstraint:
         n = len(t)
         delta = np.empty(n)
         if taken is None or knots is None:
-            taken, knots = np.zeros((n, 2)), np.full((n, 2), np.nan)
+            if len(self._none[0]) < n:
+                self._none = np.zeros((n, 2)), np.full((n, 2), np.nan)
+            taken, knots = self._none
         _constrain(np.ascontiguousarray(t, dtype=np.float64), Rw, parent, child, u_axis,
-                   v_axis, np.array(turned, dtype=np.int64), self.tau, self.prior,
+                   v_axis, _segments(turned), self.tau, self.prior,
                    self.rate_prior, self.gate, self._state, delta,
                    np.ascontiguousarray(taken, dtype=np.float64),
                    np.ascontiguousarray(knots, dtype=np.float64))

@@ -264,6 +264,7 @@ def _taken_at_python(t, h, times, R, out):
     output). One pass instead of a search, an interpolation and a turn per chunk."""
     m = t.shape[0]
     j = 0
+    last, c, s = 0.0, 1.0, 0.0
     for n in range(times.shape[0]):
         x = times[n]
         while j + 1 < m and t[j + 1] <= x:
@@ -283,7 +284,8 @@ def _taken_at_python(t, h, times, R, out):
         out[n, 0] = value
         out[n, 1] = h[j, 1]
         if value != 0.0:
-            c, s = math.cos(value), math.sin(value)
+            if value != last:  # H holds between knots: its sine and cosine too
+                last, c, s = value, math.cos(value), math.sin(value)
             for k in range(3):
                 r0, r1 = R[n, 0, k], R[n, 1, k]
                 R[n, 0, k] = c * r0 - s * r1

@@ -35,6 +35,8 @@ def _compile():
 
 
 _not_increasing = _compile()
+#: A row of ``SensorTrack._h`` with no drift taken back: 0 rad, no knot.
+_NONE_TAKEN_BACK = np.array([0.0, np.nan])
 
 
 @dataclass
@@ -116,8 +118,7 @@ class SensorTrack:
         """A 6-axis sensor's heading drift between rests (``drift``) for the buffers' rows
         ``start:end``, into ``_h`` (zero on a 9-axis sensor)."""
         if self.nine_axis or not drift_module.ENABLED:
-            self._h[start:end, 0] = 0.0
-            self._h[start:end, 1] = np.nan
+            self._h[start:end] = _NONE_TAKEN_BACK
             return
         if self._drift is None:
             self._drift = drift_module.DriftTakeBack()
