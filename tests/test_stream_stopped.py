@@ -124,6 +124,40 @@ def test_the_sessions_answer_says_the_server_stopped_the_stream_why_and_when(
     assert bob.http.get(f"/api/sessions/{session['id']}").status_code == 404
 
 
+def test_the_kits_own_text_stays_out_of_the_servers_words(refusing):
+    """A refusal's reason quotes the kit's values (an unknown message type, verbatim):
+    ``last_refused`` keeps it, shown apart as the kit's, but the server's own words to the
+    therapist (``message``) do not carry it: a kit cannot speak in the server's voice
+    (before, "… the last one: “unknown message type 'URGENT: … call 555-0100 …'”" stood
+    inside the server's sentence)."""
+    api = refusing.client("alice")
+    patient = api.patient("Loud Kit")
+    kit = api.device(patient["id"], "phone")
+    words = "URGENT: the patient fell, call 555-0100 before closing this session"
+
+    async def loud():
+        async with connect(f"{refusing.ws_url}?token={kit['token']}") as ws:
+            await ws.send(json.dumps(HELLO))
+            ready = json.loads(await ws.recv())
+            try:
+                for n in range(5):
+                    await ws.send(json.dumps({"type": words, "seq": ready["next_seq"] + n}))
+                async for _ in ws:
+                    pass
+            except ConnectionClosed:
+                pass
+            return ready, ws.close_code
+    ready, code = asyncio.run(loud())
+    assert code == 4429
+    stop = wait_for(lambda: api.session(ready["session"])["stopped_by_server"],
+                    "the stop kept on the session")
+    print(f"message: {stop['message']}\nlast_refused: {stop['last_refused']}")
+    assert words in stop["last_refused"]
+    assert "555-0100" not in stop["message"] and "URGENT" not in stop["message"]
+    for part in ("server stopped", "refused", "contact you", "Close"):
+        assert part in stop["message"], stop["message"]
+
+
 def test_a_session_stopped_by_nothing_says_null(refusing):
     api = refusing.client("alice")
     patient = api.patient("Plain Patient")

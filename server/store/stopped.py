@@ -36,7 +36,9 @@ def record_stop(db: DbSession, session_id: int, stop: dict[str, Any]) -> bool:
 
 def stopped_by_server(session: models.Session) -> dict[str, Any] | None:
     """The session's stop record with ``message``, the therapist's words; None when the
-    server never stopped its stream."""
+    server never stopped its stream. ``message`` holds only the server's words:
+    ``last_refused`` quotes the kit's own values (an unknown message type, verbatim), so
+    it stays apart, shown as the kit's."""
     stop = (session.meta or {}).get(STOPPED_KEY)
     if not isinstance(stop, dict) or any(
             not isinstance(stop.get(k), kind if kind is not float else int | float)
@@ -46,8 +48,8 @@ def stopped_by_server(session: models.Session) -> dict[str, Any] | None:
     out["at"] = datetime.fromisoformat(stop["at"]).isoformat()
     out["message"] = (
         "The server stopped this kit's stream: it refused too many of the kit's messages "
-        f"(more than {stop['refused_limit']} within {stop['window_s']:g} s; the last one: "
-        f"\u201c{stop['last_refused']}\u201d), so the kit's data are not usable as sent. "
+        f"(more than {stop['refused_limit']} within {stop['window_s']:g} s; the server's "
+        "answer to the last one is shown apart), so the kit's data are not usable as sent. "
         "The kit stopped sending and asks the patient to contact you; everything it sent "
         "before is stored, and a phone kit keeps what it did not send. Check the kit with "
         "the patient (its software, its settings, its exercise labels) before the next "

@@ -225,9 +225,12 @@ function qualityBadge(quality) {
 
 // The server stopped a kit's stream (a session's stopped_by_server, docs/extensions/
 // stream-stopped.md): when, and the server's words for the therapist. Text only.
+// The last refused message's reason quotes the kit's own values: shown apart, as the kit's.
 function stoppedNote(stop, heading = "h2") {
   return [el(heading, {}, `The server stopped the kit's stream · ${fmtDate(stop.at)}`),
-    el("p", {}, stop.message)];
+    el("p", {}, stop.message),
+    el("p", { class: "small muted" }, "The server's answer to the kit's last refused message (quoting what the kit sent): ",
+      el("code", { class: "kit-text" }, stop.last_refused))];
 }
 
 function statusBadge(status) {
