@@ -1,5 +1,5 @@
 """Session summaries for the dashboard (read-only): the exercises (the marks; without
-marks, those the report detected, with their repetitions), the duration, the range of
+marks, those the report detected) with their repetitions once estimated, the duration, the range of
 motion of the angles that moved against normal values (calibration poses left out), a
 one-line ROM headline and the data quality (lost samples per sensor, calibration
 warnings, a session too short to judge). Computed from the stored samples and estimates;
@@ -91,18 +91,46 @@ def _rom(db: DbSession, session: models.Session, poses: list[tuple[float, float]
     return {name: {**rom.to_report(), "moved": rom.moved} for name, rom in table.items()}
 
 
-def detected_exercises(db: DbSession, session: models.Session) -> list[dict[str, Any]]:
-    """The exercises the session's report detected (no marks), with their repetitions;
-    none while it has no estimates."""
+def _report_exercises(db: DbSession, session: models.Session) -> list[Any]:
     from ..reports import content
 
     try:
-        report = content.session_report(db, session, targets={}, current={})
+        return content.session_report(db, session, targets={}, current={}).exercises
     except content.NoEstimates:
         return []
+
+
+def repetitions(exercise: Any) -> int:
+    """A report exercise's repetitions: those counted on the catalogue's angle of a
+    marked exercise (the programs' rule, ``docs/programs.md``), else on the angle that
+    counted most."""
+    from ..programs.catalogue import exercise as catalogue_entry
+
+    entry = catalogue_entry(exercise.name) if exercise.source == "marks" else None
+    counted = {a.angle: a.repetitions for a in exercise.angles}
+    if entry is not None:
+        return counted.get(entry.angle, 0)
+    return max(counted.values(), default=0)
+
+
+def detected_exercises(db: DbSession, session: models.Session) -> list[dict[str, Any]]:
+    """The exercises the session's report detected (no marks), with their repetitions;
+    none while it has no estimates."""
     return [{"name": e.name, "start": e.start_s, "end": e.end_s, "source": e.source,
-             "repetitions": max((a.repetitions for a in e.angles), default=0)}
-            for e in report.exercises]
+             "repetitions": repetitions(e)} for e in _report_exercises(db, session)]
+
+
+def count_marked(db: DbSession, session: models.Session,
+                 exercises: list[dict[str, Any]]) -> None:
+    """Gives each marked period the repetitions the session's report counted in it (the
+    report's period of the same name starting at the same mark)."""
+    counted = {(e.name, round(e.start_s, 3)): repetitions(e)
+               for e in _report_exercises(db, session)
+               if e.source == "marks" and e.start_s is not None}
+    for exercise in exercises:
+        found = counted.get((exercise["name"], round(exercise["start"], 3)))
+        if found is not None:
+            exercise["repetitions"] = found
 
 
 def headline(rom: dict[str, dict[str, Any]]) -> str | None:
@@ -131,8 +159,11 @@ def summarise(db: DbSession, session: models.Session) -> dict[str, Any]:
     for exercise in exercises:
         exercise["source"] = "marks"
     rom = _rom(db, session, poses) if session.estimate_columns else {}
-    if not exercises and session.estimate_columns and session.status == "closed":
-        exercises = detected_exercises(db, session)
+    if session.estimate_columns and session.status == "closed":
+        if exercises:
+            count_marked(db, session, exercises)
+        else:
+            exercises = detected_exercises(db, session)
     sensors = {name: {"samples": v["samples"],
                       "lost_fraction": lost_fraction(v, session.rate_hz)}
                for name, v in totals.items()}

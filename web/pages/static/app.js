@@ -206,7 +206,7 @@ function exerciseLabel(name) {
 // An exercise of a summary: its name in words, with the repetitions the report found.
 function exerciseChipText(e) {
   const name = e.name.split(" + ").map(exerciseLabel).join(" + ");
-  return e.source === "detected" && e.repetitions
+  return typeof e.repetitions === "number" && (e.source !== "detected" || e.repetitions)
     ? `${name} × ${e.repetitions}` : name;
 }
 

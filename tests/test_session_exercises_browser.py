@@ -1,0 +1,84 @@
+"""A session's exercises as the therapist sees them, in Debian's headless chromium at 390
+and 1366 px: the patients' sessions list and the session page give each exercise's
+repetitions, whether the kit marked the exercise (the phone kit's guided session, a
+kit following a program) or the report found it in the movement.
+
+Before, only a *found* exercise carried its count ("Elbow flexion × 5"); a marked one
+said "Elbow flexion" alone, although the report and the program's adherence counted its
+repetitions: the phone kit's sessions, the usual ones, showed no count anywhere on the
+pages. Skips with the reason when chromium or Playwright is absent."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import tempfile
+from pathlib import Path
+
+import pytest
+
+CHROMIUM = os.environ.get("ARMTRACK_CHROMIUM") or shutil.which("chromium") or "/usr/bin/chromium"
+ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+        "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+
+if not Path(CHROMIUM).is_file():
+    pytest.skip(f"needs Debian's chromium at {CHROMIUM} (apt-get install -y chromium)",
+                allow_module_level=True)
+sync_api = pytest.importorskip("playwright.sync_api",
+                               reason="needs Playwright: pip install -e '.[test]'")
+
+from browser_helpers import sign_in_as  # noqa: E402 (after the skips)
+from test_pages_browser import _exercise  # noqa: E402
+
+pytestmark = pytest.mark.slow
+
+REPETITIONS = 5
+
+
+@pytest.fixture(scope="module")
+def marked_session(module_server):
+    """A stored session whose kit marked an elbow flexion of ``REPETITIONS`` repetitions."""
+    from armtrack.estimator.recording import format_recording
+
+    api = module_server.client("alice")
+    patient = api.patient("Marked Patient")
+    answer = api.http.post("/api/recordings", data={"patient_id": str(patient["id"])},
+                           files={"file": ("elbow.csv", format_recording(
+                               _exercise("elbow_flexion", repetitions=REPETITIONS)))})
+    answer.raise_for_status()
+    session = api.wait_processed(answer.json()["id"], timeout=120)
+    report = api.http.get(f"/api/sessions/{session['id']}/report").json()
+    (exercise,) = report["exercises"]
+    assert exercise["source"] == "marks"
+    counted = {a["angle"]: a["repetitions"] for a in exercise["angles"]}
+    assert counted["elbow_flexion"] == REPETITIONS, counted  # the report counts them
+    return patient, session
+
+
+@pytest.mark.parametrize("width", [390, 1366])
+def test_a_marked_exercise_shows_its_repetitions(module_server, marked_session, width,
+                                                 tmp_path):
+    patient, session = marked_session
+    with sync_api.sync_playwright() as playwright:
+        profile = tempfile.mkdtemp(prefix="armtrack-chromium-")
+        context = playwright.chromium.launch_persistent_context(
+            profile, executable_path=CHROMIUM, args=ARGS, headless=True,
+            viewport={"width": width, "height": 900}, has_touch=width < 500,
+            is_mobile=width < 500)
+        try:
+            page = context.pages[0] if context.pages else context.new_page()
+            page.set_default_timeout(30_000)
+            sign_in_as(page, module_server.url, "alice")
+            page.goto(f"{module_server.url}/patients/{patient['id']}")
+            row = page.locator(f'#sessions [data-session="{session["id"]}"]')
+            sync_api.expect(row).to_contain_text(f"Elbow flexion × {REPETITIONS}")
+            page.screenshot(path=str(tmp_path / f"patient-{width}.png"), full_page=True)
+            page.goto(f"{module_server.url}/sessions/{session['id']}")
+            sync_api.expect(page.locator("#exercises")).to_contain_text(
+                re.compile(rf"Elbow flexion × {REPETITIONS} · \d+–\d+ s"))
+            page.screenshot(path=str(tmp_path / f"session-{width}.png"), full_page=True)
+            print(f"\nscreenshots at {width} px: {tmp_path}")
+        finally:
+            context.close()
+            shutil.rmtree(profile, ignore_errors=True)
