@@ -85,10 +85,12 @@ def _constrain_python(t, Rw, parent, child, u_axis, v_axis, turned, tau, prior, 
             state[8 + j] = knots[0, j]
             state[13 + j] = 0.0
     t_prev = state[2]
+    last_dt, decay = math.nan, 1.0
     for n in range(t.shape[0]):
         moved = t[n] - t_prev
         dt = moved
-        decay = math.exp(-dt / tau)  # weights are per second: independent of the rate
+        if dt != last_dt:  # a steady rate's interval repeats: so does its decay
+            last_dt, decay = dt, math.exp(-dt / tau)  # per second: whatever the rate
         for j in range(2):
             knot = knots[n, j]
             if knot != state[8 + j] and not (math.isnan(knot) and math.isnan(state[8 + j])):

@@ -91,7 +91,7 @@ class SensorTrack:
         if n == 0:
             return
         if self.nine_axis is None:
-            self.nine_axis = mag is not None
+            self._set_nine_axis(mag is not None)
         elif self.nine_axis != (mag is not None):
             raise InvalidArgument(f"sensor {self.name} changed between 6 and 9 axes mid-stream")
         if t[0] < self._run_stamp:  # (the last stamp as given, before ``_retime``)
@@ -114,10 +114,19 @@ class SensorTrack:
         if self.first_t == np.inf:
             self.first_t = float(t[0])
 
+    def _set_nine_axis(self, nine_axis: bool) -> None:
+        """The first chunk says whether the sensor has a magnetometer: a 9-axis one takes
+        no drift back, and its buffer's rows say so from now on (``_grow`` keeps it)."""
+        self.nine_axis = nine_axis
+        if nine_axis:
+            self._h[:] = _NONE_TAKEN_BACK
+
     def _take_back_drift(self, start: int, end: int) -> None:
         """A 6-axis sensor's heading drift between rests (``drift``) for the buffers' rows
         ``start:end``, into ``_h`` (zero on a 9-axis sensor)."""
-        if self.nine_axis or not drift_module.ENABLED:
+        if self.nine_axis:  # its rows hold ``_NONE_TAKEN_BACK`` (``_grow``, ``append``)
+            return
+        if not drift_module.ENABLED:
             self._h[start:end] = _NONE_TAKEN_BACK
             return
         if self._drift is None:
@@ -140,7 +149,7 @@ class SensorTrack:
             self.append(rows[:, 0], rows[:, 1:4], rows[:, 4:7], mag)
             return
         if self.nine_axis is None:
-            self.nine_axis = nine_axis
+            self._set_nine_axis(nine_axis)
         elif self.nine_axis != nine_axis:
             raise InvalidArgument(f"sensor {self.name} changed between 6 and 9 axes mid-stream")
         first = float(rows[0, 0])
@@ -299,6 +308,8 @@ class SensorTrack:
             new = np.empty((capacity, *old.shape[1:]))
             new[:size] = old[kept]
             setattr(self, name, new)
+        if self.nine_axis:
+            self._h[size:] = _NONE_TAKEN_BACK
         self._start, self._end = 0, size
 
     def discard_before(self, t: float) -> None:
