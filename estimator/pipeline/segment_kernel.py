@@ -34,12 +34,15 @@ def _segment_python(t, q, times, R_sensor_segment, heading, out):
         if dot < 0.0:
             bw, bx, by, bz, dot = -bw, -bx, -by, -bz, -dot
         dot = min(dot, 1.0)
-        theta = math.acos(dot)
-        s = math.sin(theta)
-        if s < 1e-9:
-            w0, w1 = 1.0 - u, u
+        if u == 0.0:  # at a sample's own time (the reference's, or a shared stamp):
+            w0, w1 = 1.0, 0.0  # sin(θ)/sin(θ) and sin(0)/sin(θ), exactly, without them
         else:
-            w0, w1 = math.sin((1.0 - u) * theta) / s, math.sin(u * theta) / s
+            theta = math.acos(dot)
+            s = math.sin(theta)
+            if s < 1e-9:
+                w0, w1 = 1.0 - u, u
+            else:
+                w0, w1 = math.sin((1.0 - u) * theta) / s, math.sin(u * theta) / s
         w, x, y, z = w0 * aw + w1 * bw, w0 * ax + w1 * bx, w0 * ay + w1 * by, w0 * az + w1 * bz
         norm = math.sqrt(w * w + x * x + y * y + z * z)
         w, x, y, z = w / norm, x / norm, y / norm, z / norm
