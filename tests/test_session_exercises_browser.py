@@ -43,6 +43,9 @@ def marked_session(module_server):
 
     api = module_server.client("alice")
     patient = api.patient("Marked Patient")
+    target = api.http.put(f"/api/patients/{patient['id']}/targets/elbow_flexion",
+                          json={"min_deg": 0, "max_deg": 140, "note": "by week 6"})
+    target.raise_for_status()
     answer = api.http.post("/api/recordings", data={"patient_id": str(patient["id"])},
                            files={"file": ("elbow.csv", format_recording(
                                _exercise("elbow_flexion", repetitions=REPETITIONS)))})
@@ -53,22 +56,27 @@ def marked_session(module_server):
     assert exercise["source"] == "marks"
     counted = {a["angle"]: a["repetitions"] for a in exercise["angles"]}
     assert counted["elbow_flexion"] == REPETITIONS, counted  # the report counts them
-    return patient, session
+    return patient, session, report
+
+
+def _page(playwright, width: int):
+    profile = tempfile.mkdtemp(prefix="armtrack-chromium-")
+    context = playwright.chromium.launch_persistent_context(
+        profile, executable_path=CHROMIUM, args=ARGS, headless=True,
+        viewport={"width": width, "height": 900}, has_touch=width < 500,
+        is_mobile=width < 500)
+    page = context.pages[0] if context.pages else context.new_page()
+    page.set_default_timeout(30_000)
+    return context, profile, page
 
 
 @pytest.mark.parametrize("width", [390, 1366])
 def test_a_marked_exercise_shows_its_repetitions(module_server, marked_session, width,
                                                  tmp_path):
-    patient, session = marked_session
+    patient, session, _ = marked_session
     with sync_api.sync_playwright() as playwright:
-        profile = tempfile.mkdtemp(prefix="armtrack-chromium-")
-        context = playwright.chromium.launch_persistent_context(
-            profile, executable_path=CHROMIUM, args=ARGS, headless=True,
-            viewport={"width": width, "height": 900}, has_touch=width < 500,
-            is_mobile=width < 500)
+        context, profile, page = _page(playwright, width)
         try:
-            page = context.pages[0] if context.pages else context.new_page()
-            page.set_default_timeout(30_000)
             sign_in_as(page, module_server.url, "alice")
             page.goto(f"{module_server.url}/patients/{patient['id']}")
             row = page.locator(f'#sessions [data-session="{session["id"]}"]')
@@ -79,6 +87,40 @@ def test_a_marked_exercise_shows_its_repetitions(module_server, marked_session, 
                 re.compile(rf"Elbow flexion × {REPETITIONS} · \d+–\d+ s"))
             page.screenshot(path=str(tmp_path / f"session-{width}.png"), full_page=True)
             print(f"\nscreenshots at {width} px: {tmp_path}")
+        finally:
+            context.close()
+            shutil.rmtree(profile, ignore_errors=True)
+
+
+@pytest.mark.parametrize("width", [390, 1366])
+def test_the_session_page_gives_the_reports_exercise_figures_and_target(
+        module_server, marked_session, width, tmp_path):
+    """docs/therapist.md: the session page "gives the report: range of motion per joint
+    against the normal values (AAOS) and your targets for the patient, the exercises with
+    their repetitions, movement time, peak velocity and smoothness". Before, the page had
+    neither the target nor those figures (only the PDF had them)."""
+    _, session, report = marked_session
+    (angle,) = [a for a in report["exercises"][0]["angles"] if a["angle"] == "elbow_flexion"]
+    rom = report["rom"]["elbow_flexion"]
+    assert (rom["target_min"], rom["target_max"]) == (0, 140)
+    with sync_api.sync_playwright() as playwright:
+        context, profile, page = _page(playwright, width)
+        try:
+            sign_in_as(page, module_server.url, "alice")
+            page.goto(f"{module_server.url}/sessions/{session['id']}")
+            figures = page.locator('#exercise-figures tr[data-angle="elbow_flexion"]')
+            sync_api.expect(figures).to_contain_text(f"{REPETITIONS}")
+            text = figures.inner_text()
+            assert f"{angle['mean_movement_time_s']:.1f} s" in text, text
+            assert f"{angle['peak_velocity_deg_s']:.0f}°/s" in text, text
+            assert f"{angle['median_sparc']:.1f}".replace("-", "−") in text, text
+            target = page.locator('#rom-targets [data-angle="elbow_flexion"]')
+            sync_api.expect(target).to_contain_text("0° to 140°")
+            sync_api.expect(target).to_contain_text(f"{rom['percent_of_target']:.0f} %")
+            overflow = page.evaluate("document.documentElement.scrollWidth")
+            assert overflow <= width, f"the page is {overflow} px wide in a {width}-px window"
+            page.screenshot(path=str(tmp_path / f"session-{width}.png"), full_page=True)
+            print(f"\nscreenshot at {width} px: {tmp_path}")
         finally:
             context.close()
             shutil.rmtree(profile, ignore_errors=True)

@@ -413,6 +413,45 @@ function streamedBy(session) {
   return session.metadata.device || "a kit";
 }
 
+/** A signed number with a true minus sign ("−3.5"). */
+function signed(value, digits) {
+  return value === null || value === undefined ? "—" : value.toFixed(digits).replace("-", "−");
+}
+
+/** The report's figures per exercise and angle: repetitions, mean movement time [s],
+ * peak angular velocity [deg/s] and median smoothness (SPARC), as the PDF gives them. */
+function exerciseFigures(report) {
+  const rows = report.exercises.flatMap((e) => e.angles.map((a) => [e, a]));
+  if (!rows.length) return null;
+  const several = report.exercises.length > 1;
+  return [el("table", { id: "exercise-figures" },
+    el("thead", {}, el("tr", {}, el("th", {}, "Angle"), el("th", { class: "num" }, "Reps"),
+      el("th", { class: "num" }, "Move time"), el("th", { class: "num" }, "Peak speed"),
+      el("th", { class: "num" }, "Smoothness"))),
+    el("tbody", {}, rows.map(([e, a]) => el("tr", { dataset: { angle: a.angle, exercise: e.name } },
+      el("td", { class: "name" }, (several ? exerciseChipText({ name: e.name }) + ": " : "") + (ANGLE_LABELS[a.angle] || a.angle)),
+      el("td", { class: "num" }, String(a.repetitions)),
+      el("td", { class: "num" }, a.mean_movement_time_s === null ? "—" : a.mean_movement_time_s.toFixed(1) + " s"),
+      el("td", { class: "num" }, a.peak_velocity_deg_s === null ? "—" : Math.round(a.peak_velocity_deg_s) + "°/s"),
+      el("td", { class: "num" }, signed(a.median_sparc, 1)))))),
+    el("p", { class: "muted small", style: "margin:4px 0" },
+      "Means over the repetitions; peak speed: the joint's fastest turn; smoothness: SPARC, closer to 0 is smoother.")];
+}
+
+/** The targets in force when the session was recorded, and how far each was reached. */
+function targetLines(report) {
+  const names = ANGLES.filter((n) => report.rom[n] && report.rom[n].target_max !== null
+    && report.rom[n].target_max !== undefined);
+  if (!names.length) return null;
+  return el("div", { id: "rom-targets", style: "margin-top:8px" }, names.map((n) => {
+    const r = report.rom[n];
+    return el("p", { dataset: { angle: n }, style: "margin:2px 0" },
+      el("b", {}, "Target then: "), `${ANGLE_LABELS[n]} ${deg(r.target_min)} to ${deg(r.target_max)}`,
+      r.percent_of_target === null ? "" : ` · ${Math.round(r.percent_of_target)}\u00a0% of it reached`,
+      r.target_reached ? " ✓" : "");
+  }));
+}
+
 async function showReplay() {
   const summary = await api(`/api/sessions/${session.id}/summary`);
   document.getElementById("facts").replaceChildren(
@@ -447,6 +486,15 @@ async function showReplay() {
     el("div", { class: "row", id: "exports" },
       download(`/api/sessions/${session.id}/recording.csv`, "recording.csv"),
       summary.processed ? download(`/api/sessions/${session.id}/angles.csv`, "angles.csv") : null));
+  if (summary.processed) {
+    try {
+      const report = await api(`/api/sessions/${session.id}/report`);
+      const targets = targetLines(report);
+      if (targets) document.getElementById("angles-card").append(targets);
+      const figures = exerciseFigures(report);
+      if (figures) document.getElementById("exercises").after(...figures);
+    } catch (_) { /* the summary above stands without the report's figures */ }
+  }
   // report exports, where this server has them
   if (summary.processed) {
     try {
