@@ -124,3 +124,42 @@ def test_the_session_page_gives_the_reports_exercise_figures_and_target(
         finally:
             context.close()
             shutil.rmtree(profile, ignore_errors=True)
+
+
+@pytest.mark.parametrize("width", [390])
+def test_the_patient_page_shows_a_session_that_ended_as_estimated(module_server, width,
+                                                                  tmp_path):
+    """A therapist keeps the patient's page open while the kit streams: when the session
+    ends and is estimated, its row says so (finished, the exercise with its count, the
+    range) without a reload. Before, the row kept "Live"/"when estimated" until the page
+    was loaded again (the page reloaded its list only when a new session began)."""
+    import asyncio
+    import threading
+
+    from armtrack.server.emulator import KitEmulator
+
+    api = module_server.client("alice")
+    patient = api.patient("Watched Patient")
+    token = api.device(patient["id"], "kit")["token"]
+    with sync_api.sync_playwright() as playwright:
+        context, profile, page = _page(playwright, width)
+        try:
+            sign_in_as(page, module_server.url, "alice")
+            page.goto(f"{module_server.url}/patients/{patient['id']}")
+            sync_api.expect(page.locator("#no-sessions")).to_be_visible()
+            kit = KitEmulator(_exercise("elbow_flexion", repetitions=3), module_server.ws_url,
+                              token, speed=4.0)
+            streaming = threading.Thread(target=lambda: asyncio.run(kit.run()))
+            streaming.start()  # (Playwright's sync API holds this thread's event loop)
+            streaming.join(120)
+            (session_id,) = [s[0] for s in module_server.sql(
+                "select id from sessions where patient_id = :p", p=patient["id"])]
+            api.wait_processed(session_id, timeout=120)
+            row = page.locator(f'#sessions [data-session="{session_id}"]')
+            sync_api.expect(row).to_contain_text("Finished", timeout=15_000)
+            sync_api.expect(row).to_contain_text("Elbow flexion × 3", timeout=15_000)
+            sync_api.expect(row).to_contain_text("elbow flexion 0° to", timeout=15_000)
+            page.screenshot(path=str(tmp_path / f"patient-{width}.png"), full_page=True)
+        finally:
+            context.close()
+            shutil.rmtree(profile, ignore_errors=True)
