@@ -163,3 +163,43 @@ def test_the_patient_page_shows_a_session_that_ended_as_estimated(module_server,
         finally:
             context.close()
             shutil.rmtree(profile, ignore_errors=True)
+
+
+def test_one_program_session_is_one_session_in_words(module_server, tmp_path):
+    """The progress PDF and the patient page's progress count one session as "1 session"
+    (before: "1 sessions", "1 session(s)")."""
+    import subprocess
+    from datetime import UTC, datetime
+
+    from armtrack.estimator.recording import format_recording
+
+    if not shutil.which("pdftotext"):
+        pytest.skip("needs poppler-utils (pdftotext)")
+    api = module_server.client("alice")
+    patient = api.patient("One Session Patient")
+    made = api.http.post(f"/api/patients/{patient['id']}/programs", json={
+        "name": "Elbow", "start_date": datetime.now(UTC).date().isoformat(),
+        "exercises": [{"exercise": "elbow_flexion", "sets": 1, "repetitions": 3,
+                       "days_per_week": 5}]})
+    assert made.status_code == 201, made.text
+    answer = api.http.post("/api/recordings", data={"patient_id": str(patient["id"])},
+                           files={"file": ("elbow.csv", format_recording(
+                               _exercise("elbow_flexion", repetitions=3)))})
+    answer.raise_for_status()
+    api.wait_processed(answer.json()["id"], timeout=120)
+    pdf = api.http.get(f"/api/patients/{patient['id']}/progress.pdf")
+    assert pdf.status_code == 200
+    (tmp_path / "progress.pdf").write_bytes(pdf.content)
+    text = subprocess.run(["pdftotext", "-layout", str(tmp_path / "progress.pdf"), "-"],
+                          capture_output=True, text=True, check=True).stdout
+    assert " · 1 session · " in text, text[:300]
+    with sync_api.sync_playwright() as playwright:
+        context, profile, page = _page(playwright, 390)
+        try:
+            sign_in_as(page, module_server.url, "alice")
+            page.goto(f"{module_server.url}/patients/{patient['id']}")
+            sync_api.expect(page.locator("#progress-card")).to_contain_text(
+                "1 session, change")
+        finally:
+            context.close()
+            shutil.rmtree(profile, ignore_errors=True)

@@ -80,7 +80,7 @@ const PatientTools = (() => {
       const trend = p.trend[a];
       return el("div", { class: "progress-angle", dataset: { angle: a } },
         el("h3", {}, ANGLE_LABELS[a] || a,
-          el("span", { class: "muted small" }, trend ? ` · ${trend.sessions} session(s), change ${trend.change_deg >= 0 ? "+" : ""}${Math.round(trend.change_deg)}°`
+          el("span", { class: "muted small" }, trend ? ` · ${trend.sessions} session${trend.sessions === 1 ? "" : "s"}, change ${trend.change_deg >= 0 ? "+" : ""}${Math.round(trend.change_deg)}°`
             + (trend.slope_deg_per_week !== null ? `, ${trend.slope_deg_per_week.toFixed(1)}°/week` : "") : "")),
         chart(a, rows, normals[a], today[a]));
     }) : el("p", { class: "muted" }, "No estimated session yet.");
