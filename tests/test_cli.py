@@ -258,3 +258,19 @@ def test_estimate_refuses_a_hostile_bias_memory_naming_the_file(tmp_path):
         assert result.returncode == 2, (what, result.stderr[-500:])
         assert str(memory) in result.stderr and "Traceback" not in result.stderr, what
         assert not out.exists()
+
+
+@pytest.mark.parametrize("command", ["create-user", "backup", "reprocess"])
+def test_commands_that_listen_on_nothing_offer_no_listen_address(command):
+    """`armtrack create-user --help` (the operator's first command, docs/operator.md)
+    offered --host and --port, "address to listen on", for a command that only opens the
+    database; likewise backup and reprocess. They take the database's options only."""
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-m", "armtrack.server.cli", command, "--help"],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert "--data-dir" in done.stdout and "--database-url" in done.stdout
+    assert "--host" not in done.stdout and "listen on" not in done.stdout, done.stdout
+    assert "--port" not in done.stdout, done.stdout

@@ -11,7 +11,7 @@ import os
 import sys
 from pathlib import Path
 
-from .serve import add_arguments as add_server_arguments
+from .serve import add_database_arguments
 
 HELP = "copy the database while the server runs (SQLite; PostgreSQL: pg_dump)"
 DESCRIPTION = ("Writes a consistent copy of the server's SQLite database to FILE while the "
@@ -23,7 +23,7 @@ DESCRIPTION = ("Writes a consistent copy of the server's SQLite database to FILE
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", type=Path, help="where to write the copy (must not exist)")
-    add_server_arguments(parser)
+    add_database_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -9,8 +9,7 @@ import argparse
 import getpass
 import sys
 
-from .serve import add_arguments as add_server_arguments
-from .serve import settings_from
+from .serve import add_database_arguments, settings_from
 
 MIN_PASSWORD = 8
 
@@ -27,7 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a clinic admin (manages therapists, reassigns patients)")
     parser.add_argument("--disable", action="store_true",
                         help="disable the existing account NAME instead (no password asked)")
-    add_server_arguments(parser)
+    add_database_arguments(parser)
 
 
 def _database(args: argparse.Namespace):

@@ -6,8 +6,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from .serve import add_arguments as add_server_arguments
-from .serve import settings_from
+from .serve import add_database_arguments, settings_from
 
 HELP = "recompute stored sessions' estimates with this estimator"
 DESCRIPTION = ("Re-estimates sessions from their stored raw data and records the estimator "
@@ -17,7 +16,7 @@ DESCRIPTION = ("Re-estimates sessions from their stored raw data and records the
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("session_ids", type=int, nargs="+", metavar="SESSION_ID")
     parser.add_argument("--filter", default="qcf", help="orientation filter (default qcf)")
-    add_server_arguments(parser)
+    add_database_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -42,6 +42,11 @@ class RedactTokens(logging.Filter):
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--host", help="address to listen on (ARMTRACK_HOST, default 127.0.0.1)")
     parser.add_argument("--port", type=int, help="port (ARMTRACK_PORT, default 8000)")
+    add_database_arguments(parser)
+
+
+def add_database_arguments(parser: argparse.ArgumentParser) -> None:
+    """The database's options only: for the commands that open it and listen on nothing."""
     parser.add_argument("--data-dir", type=Path,
                         help="folder for the database (ARMTRACK_DATA_DIR, default ./armtrack-data)")
     parser.add_argument("--database-url", help="SQLAlchemy URL (ARMTRACK_DATABASE_URL)")
@@ -50,7 +55,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def settings_from(args: argparse.Namespace):
     from armtrack.server.settings import Settings
 
-    given = {k: v for k, v in (("host", args.host), ("port", args.port),
+    given = {k: v for k, v in (("host", getattr(args, "host", None)),
+                               ("port", getattr(args, "port", None)),
                                ("data_dir", args.data_dir), ("database_url", args.database_url))
              if v is not None}
     return Settings(**given)
