@@ -187,21 +187,29 @@ def test_the_second_session_of_a_kit_starts_from_the_first_ones_biases(module_se
     np.testing.assert_allclose(table["t"], warm.t, atol=1e-6)
     np.testing.assert_allclose(table["forearm_pronation"],
                                np.rad2deg(warm.angles["forearm_pronation"]), atol=1e-3)
-    truth = np.interp(warm.t, day2.truth.t, np.rad2deg(day2.truth.angles["forearm_pronation"]))
     scored = warm.t > 10.5
+    arm_angles = ("elbow_flexion", "forearm_pronation", "wrist_flexion", "wrist_deviation")
 
     def rmse(estimates):
-        return float(np.sqrt(np.mean((np.rad2deg(estimates.angles["forearm_pronation"])
-                                      - truth)[scored] ** 2)))
-    print(f"session 2 (trunk swaying, never still): forearm pronation {rmse(cold):.2f}° cold "
-          f"→ {rmse(warm):.2f}° stored, from session 1's biases")
-    # (cold, qcf's tilt windows learn the bias in motion too: 1.43°, 10.77° before them)
-    assert rmse(warm) <= 2.0 and rmse(warm) < rmse(cold)
+        """RMSE [deg] of each of the arm's angles against session 2's truth, after 10.5 s."""
+        return {k: float(np.sqrt(np.mean((np.rad2deg(estimates.angles[k]) - np.interp(
+            estimates.t, day2.truth.t, np.rad2deg(day2.truth.angles[k])))[scored] ** 2)))
+            for k in arm_angles}
+    cold_deg, warm_deg = rmse(cold), rmse(warm)
+    print("session 2 (trunk swaying, never still), cold → stored from session 1's biases: "
+          + ", ".join(f"{k} {cold_deg[k]:.2f}° → {warm_deg[k]:.2f}°" for k in arm_angles))
+    # Cold, the forearm's pronation is held by the elbow too (qcf's tilt windows learn the
+    # bias in motion, and since 19bd042 the elbow fits the two sensors' drift apart:
+    # 10.77° before the windows, 1.43° before 19bd042, 0.77° now): the memory's help is
+    # read over the arm's four angles (test_cli's day 2 is this recording).
+    assert max(warm_deg.values()) <= 2.0
+    assert np.mean(np.square(list(warm_deg.values()))) < \
+        np.mean(np.square(list(cold_deg.values())))
     # … and so do its live estimates: the live pipeline started from the same prior
     pronation = REPORTED_ANGLES.index("forearm_pronation")
     live_t = np.array(live.trail_t)
     live_deg = np.array([row[pronation] for row in live.trail_deg])
-    later = live_t > 20.0  # where the cold estimate has drifted by degrees
+    later = live_t > 20.0  # where the cold estimate has drifted apart
     off_warm = np.abs(live_deg - np.interp(live_t, warm.t,
                                           np.rad2deg(warm.angles["forearm_pronation"])))
     off_cold = np.abs(live_deg - np.interp(live_t, cold.t,
@@ -210,7 +218,10 @@ def test_the_second_session_of_a_kit_starts_from_the_first_ones_biases(module_se
           f"pronation after 20 s within {off_warm[later].max():.3f}° of the stored ones, up "
           f"to {off_cold[later].max():.1f}° from the cold ones")
     assert later.sum() >= 100
-    assert off_warm[later].max() <= 0.011 and off_cold[later].max() > 2.0
+    # the live feed is the warm pipeline's (within 0.011°), not the cold one's: the two
+    # differ by 1.56° at most here (over 2° before 19bd042's elbow held the cold pronation
+    # too), a hundred times the match, so the test still tells them apart
+    assert off_warm[later].max() <= 0.011 and off_cold[later].max() > 100 * 0.011
     # session 2 taught nothing: the memory is session 1's still
     after = server.sql("SELECT sensor, session_id FROM kit_gyro_biases WHERE device_id = :d",
                        d=kit["id"])
