@@ -109,7 +109,7 @@ def patient_archive(db: DbSession, patient: models.Patient, out: BinaryIO) -> No
                         io.TextIOWrapper(member, encoding="utf-8", newline="") as text:
                     write_angles_csv(text, columns[:width], values[:, :width])
                 try:
-                    report = content.session_report(db, session, current=targets)
+                    report = content.session_report(db, session, current=targets, keep=False)
                     archive.writestr(folder + "report.json", report.model_dump_json(indent=2))
                 except NoEstimates:
                     pass

@@ -529,11 +529,13 @@ def report_key(session: models.Session) -> tuple:
 def session_report(db: DbSession, session: models.Session,
                    targets: Mapping[str, Target] | None = None,
                    data: SessionData | None = None,
-                   current: Mapping[str, Target] | None = None) -> SessionReport:
+                   current: Mapping[str, Target] | None = None,
+                   keep: bool = True) -> SessionReport:
     """The session's report (from ``data`` when loaded already) against ``targets``
     (default: the patient's targets in force when the session started), with ``current``
     (default: today's) beside; raises NoEstimates. The computed report is kept for the
-    next request while the session's estimates stay the same."""
+    next request while the session's estimates stay the same (``keep``; False for a
+    one-off pass over many sessions, as an export: it would fill the cache with them)."""
     from .targets import current_targets, targets_at
 
     if targets is None:
@@ -547,6 +549,8 @@ def session_report(db: DbSession, session: models.Session,
             _CACHE.move_to_end(key)
     if base is None:
         base = build_report(data or load_session(db, session), {})
+        if not keep:
+            return with_targets(base, targets, current)
         with _CACHE_LOCK:
             _CACHE[key] = base
             while len(_CACHE) > _CACHE_SIZE:
