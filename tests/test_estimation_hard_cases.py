@@ -210,6 +210,16 @@ def random_sway(seed: int, amplitude_deg: float) -> dict[str, Profile]:
     return trunk
 
 
+def run_random_sway(config: SimulationConfig, seed: int) -> tuple[str, float, float]:
+    """The kit of ``config`` under ``random_sway(seed)`` from the first sample (calibration
+    poses included): worst angle, its RMSE [deg], wrist RMSE [cm]."""
+    motion = replace(exercise_motion(config.exercise, calibration=True),
+                     trunk=random_sway(seed, config.trunk_sway[0]))
+    sim = simulate(replace(config, trunk_sway=None), motion=motion)
+    estimates, _ = estimate_recording(sim.recording)
+    return score(estimates, sim.truth.t, sim_truth_deg(sim), sim.truth.positions)
+
+
 @pytest.mark.parametrize("seed", [1, 6, 10])
 def test_a_swaying_kit_in_a_clean_field_keeps_its_magnetometers(seed, monkeypatch):
     """A random sway in the earth's field alone (dip 65°): the kit's check of the field
@@ -282,13 +292,7 @@ SWAY_TRUNK_HEADING = ("the filters: with the true sensor-to-segment rotations {}
 def test_a_swaying_kit_in_a_clean_field_meets_the_bar(seed):
     """The 9-axis kit under the low-pass random sway (the earth's field alone, the case's
     biases, no sensor ever rests): every angle within 1°, the wrist within 1 cm."""
-    config = sway_config(seed)
-    motion = replace(exercise_motion(config.exercise, calibration=True),
-                     trunk=random_sway(seed, config.trunk_sway[0]))
-    sim = simulate(replace(config, trunk_sway=None), motion=motion)
-    estimates, _ = estimate_recording(sim.recording)
-    worst, worst_deg, wrist_cm = score(estimates, sim.truth.t, sim_truth_deg(sim),
-                                       sim.truth.positions)
+    worst, worst_deg, wrist_cm = run_random_sway(sway_config(seed), seed)
     print(f"random sway 9-axis, seed {seed}: {worst} {worst_deg:.2f}°, wrist {wrist_cm:.2f} cm")
     assert worst_deg <= ANGLE_BAR_DEG[True] and wrist_cm <= WRIST_BAR_CM
 
@@ -469,13 +473,8 @@ def test_the_elbow_fits_its_drift_only_where_no_stillness_taught_the_biases():
 def test_six_axis_random_sway(seed):
     """The 6-axis kit under the low-pass random sway, with the case's biases: seed 1
     15.98° → 1.95° (wrist 0.97 cm)."""
-    config = six_axis_sway(seed, sway_config(seed).gyro_bias_max)
-    motion = replace(exercise_motion(config.exercise, calibration=True),
-                     trunk=random_sway(seed, config.trunk_sway[0]))
-    sim = simulate(replace(config, trunk_sway=None), motion=motion)
-    estimates, _ = estimate_recording(sim.recording)
-    worst, worst_deg, wrist_cm = score(estimates, sim.truth.t, sim_truth_deg(sim),
-                                       sim.truth.positions)
+    worst, worst_deg, wrist_cm = run_random_sway(
+        six_axis_sway(seed, sway_config(seed).gyro_bias_max), seed)
     print(f"6-axis random sway, seed {seed}: {worst} {worst_deg:.2f}°, wrist {wrist_cm:.2f} cm")
     assert worst_deg <= ANGLE_BAR_DEG[False] and wrist_cm <= WRIST_BAR_CM
 
