@@ -265,7 +265,7 @@ def test_a_swaying_kit_in_a_clean_field_keeps_its_magnetometers(seed, monkeypatc
 #: 2.1 ε at 65°, and the tilt's warm-up moves ε by tenths of a degree, which the first
 #: window takes for drift (irregular s4, no bias: 12 mrad against its 4-mrad noise, a
 #: step of 7.4 mrad/s). The stamps' jitter does nothing (1e-9 s: 1.67° against 1.64°).
-#: Keeping the warm-up's tilt changes out of those windows (four ways, bench/README.md)
+#: Keeping the warm-up's tilt changes out of those windows (five ways, bench/README.md)
 #: removes the false bias (no gyroscope bias: trunk heading RMS 0.63 → 0.35° over ten
 #: cases) but lets a true one in more slowly (irregular s2 0.58 → 1.54°): the bias along
 #: the field, which the magnetometer cannot see, reaches the windows only through the tilt
