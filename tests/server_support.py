@@ -27,6 +27,26 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def wait_port_free(port: int, timeout: float = 60.0) -> None:
+    """Wait until 127.0.0.1:``port`` can be bound again, as ``armtrack serve`` binds it
+    (``SO_REUSEADDR``). A SIGKILLed server's listening socket is closed only once the last
+    of its threads has exited; its main thread shows as a zombie (what a forked server's
+    ``kill()`` waits for) before that, the longer on a loaded machine, and a restart on the
+    same port in between failed with 'port ... is already in use' (test_reliability_faults,
+    two pytest processes on 2 cores)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        with socket.socket() as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            try:
+                s.bind(("127.0.0.1", port))
+                return
+            except OSError:
+                if time.monotonic() > deadline:
+                    raise RuntimeError(f"port {port} still held after {timeout} s") from None
+        time.sleep(0.02)
+
+
 async def send_paced(ws, plan, speed: float, *, first: int = 0,
                      stop_at_s: float | None = None, now_at_s: float | None = None,
                      hold_at_s: float | None = None, until=None,
@@ -102,12 +122,18 @@ class ServerProcess:
 
     def start(self, timeout: float = 120.0) -> ServerProcess:
         self.data_dir.mkdir(parents=True, exist_ok=True)
+        wait_port_free(self.port, timeout)  # a restart after kill(): see wait_port_free
         log = open(self.log, "ab")  # the child process writes to it
         self.process = subprocess.Popen(
             [sys.executable, "-m", "armtrack.server.cli", "serve", "--port", str(self.port),
              "--data-dir", str(self.data_dir)], stdout=log, stderr=subprocess.STDOUT,
             env=self.env)
         log.close()
+        return self._wait_healthy(timeout, 0.1)
+
+    def _wait_healthy(self, timeout: float, poll_s: float):
+        """Wait until the started server answers /healthz; raises with its log's tail if
+        it exits or does not answer within ``timeout`` [s]."""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if self.process.poll() is not None:
@@ -116,7 +142,7 @@ class ServerProcess:
                 if httpx.get(self.url + "/healthz", timeout=1).status_code == 200:
                     return self
             except httpx.HTTPError:
-                time.sleep(0.1)
+                time.sleep(poll_s)
         raise RuntimeError(f"server did not start: {self.log.read_text()[-2000:]}")
 
     def kill(self) -> None:
@@ -305,19 +331,11 @@ class ZygoteServerProcess(ServerProcess):
 
     def start(self, timeout: float = 60.0) -> ZygoteServerProcess:
         self.data_dir.mkdir(parents=True, exist_ok=True)
+        wait_port_free(self.port, timeout)  # a restart after kill(): see wait_port_free
         self.process = self.zygote.fork(  # type: ignore[assignment]
             ["serve", "--port", str(self.port), "--data-dir", str(self.data_dir)],
             self.log, self.extra_env)
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if self.process.poll() is not None:
-                raise RuntimeError(f"server exited: {self.log.read_text()[-2000:]}")
-            try:
-                if httpx.get(self.url + "/healthz", timeout=1).status_code == 200:
-                    return self
-            except httpx.HTTPError:
-                time.sleep(0.02)
-        raise RuntimeError(f"server did not start: {self.log.read_text()[-2000:]}")
+        return self._wait_healthy(timeout, 0.02)
 
 
 def add_patient(db, name: str = "p", therapist=None):

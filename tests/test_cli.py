@@ -209,6 +209,15 @@ def test_estimate_remembers_the_kits_gyroscope_biases_for_its_next_session(tmp_p
     assert json.loads(memory.read_text()) == day1_memory
 
 
+@pytest.fixture(scope="module")
+def elbow_rec(tmp_path_factory) -> Path:
+    """``armtrack simulate --exercise elbow_flexion``'s recording, made once for the tests
+    that only read it (the bias memory's refusals)."""
+    rec = tmp_path_factory.mktemp("elbow") / "r.csv"
+    run("simulate", "--exercise", "elbow_flexion", "-o", rec)
+    return rec
+
+
 @pytest.mark.parametrize("content, message", [
     ("not json", "not JSON"),
     ('{"format": "armtrack-gyro-bias/2", "sensors": {}}', "'format' must be"),
@@ -218,9 +227,8 @@ def test_estimate_remembers_the_kits_gyroscope_biases_for_its_next_session(tmp_p
     ('{"format": "armtrack-gyro-bias/1", "sensors": {"hand": {"bias_rad_s": [0, 0, 0], '
      '"learnt": "none", "still_s": 0, "age_s": 0}}}', "a bias never learnt is not remembered"),
 ])
-def test_estimate_refuses_a_bad_bias_memory(tmp_path, content, message):
-    rec, memory, out = tmp_path / "r.csv", tmp_path / "kit.json", tmp_path / "angles.csv"
-    run("simulate", "--exercise", "elbow_flexion", "-o", rec)
+def test_estimate_refuses_a_bad_bias_memory(tmp_path, elbow_rec, content, message):
+    rec, memory, out = elbow_rec, tmp_path / "kit.json", tmp_path / "angles.csv"
     memory.write_text(content)
     result = run("estimate", rec, "-o", out, "--gyro-bias-in", memory, check=False)
     assert result.returncode == 2 and message in result.stderr, result.stderr
@@ -229,12 +237,11 @@ def test_estimate_refuses_a_bad_bias_memory(tmp_path, content, message):
     assert result.returncode == 2 and "needs a filter that learns a bias" in result.stderr
 
 
-def test_estimate_refuses_a_bias_memory_for_a_filter_that_cannot_take_one(tmp_path):
+def test_estimate_refuses_a_bias_memory_for_a_filter_that_cannot_take_one(tmp_path, elbow_rec):
     """--gyro-bias-in with a filter other than qcf is refused naming the option, whatever
     the memory holds (an empty one, or only sensors the recording lacks, too), nothing
     written: the user asked for a memory that would not be used."""
-    rec, memory, out = tmp_path / "r.csv", tmp_path / "kit.json", tmp_path / "angles.csv"
-    run("simulate", "--exercise", "elbow_flexion", "-o", rec)
+    rec, memory, out = elbow_rec, tmp_path / "kit.json", tmp_path / "angles.csv"
     for sensors in ("{}", '{"trunk": {"bias_rad_s": [0.001, 0, 0], "learnt": "rest", '
                     '"still_s": 2, "age_s": 5}}', '{"forearm": {"bias_rad_s": [0.001, 0, 0], '
                     '"learnt": "rest", "still_s": 2, "age_s": 5}}'):
@@ -246,13 +253,12 @@ def test_estimate_refuses_a_bias_memory_for_a_filter_that_cannot_take_one(tmp_pa
         assert "Traceback" not in result.stderr and not out.exists()
 
 
-def test_estimate_refuses_a_hostile_bias_memory_naming_the_file(tmp_path):
+def test_estimate_refuses_a_hostile_bias_memory_naming_the_file(tmp_path, elbow_rec):
     """A memory file nested past the parser's depth, or holding a number too large for a
     float, is refused naming the file (exit 2), not a traceback: the reader's
     RecursionError, ValueError (more than 4300 digits) and OverflowError (math.isfinite of
     a huge int) escaped it before."""
-    rec, memory, out = tmp_path / "r.csv", tmp_path / "kit.json", tmp_path / "angles.csv"
-    run("simulate", "--exercise", "elbow_flexion", "-o", rec)
+    rec, memory, out = elbow_rec, tmp_path / "kit.json", tmp_path / "angles.csv"
     entry = ('{{"forearm": {{"bias_rad_s": [{}, 0, 0], "learnt": "rest", "still_s": 2, '
              '"age_s": 5}}}}')
     for what, text in (("nested", "[" * 200_000 + "]" * 200_000),

@@ -12,27 +12,18 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import dataclasses
-import os
 import re
-import shutil
-import tempfile
 import threading
 import time
 from pathlib import Path
 
 import pytest
+from browser_helpers import chromium, need_browser, screenshots_folder
 
-CHROMIUM = os.environ.get("ARMTRACK_CHROMIUM") or shutil.which("chromium") or "/usr/bin/chromium"
-ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-        "--disable-background-networking", "--disable-component-update", "--disable-sync"]
 #: How long the 3D view may take to draw its canvas [s].
 VIEWER_TIMEOUT_S = 30
 
-if not Path(CHROMIUM).is_file():
-    pytest.skip(f"needs Debian's chromium at {CHROMIUM} (apt-get install -y chromium; "
-                ".ci/run installs it)", allow_module_level=True)
-sync_api = pytest.importorskip("playwright.sync_api",
-                               reason="needs Playwright: pip install -e '.[test]'")
+sync_api = need_browser()
 
 from armtrack.server.emulator import KitEmulator  # noqa: E402 (after the skips)
 
@@ -115,25 +106,13 @@ class KitThread:
 
 @pytest.fixture(scope="module")
 def shots(tmp_path_factory) -> Path:
-    folder = Path(os.environ.get("ARMTRACK_SCREENSHOTS")
-                  or tmp_path_factory.mktemp("screenshots"))
-    folder.mkdir(parents=True, exist_ok=True)
-    print(f"\nscreenshots: {folder}")
-    return folder
+    return screenshots_folder(tmp_path_factory)
 
 
 @pytest.fixture(scope="module")
 def browser_context():
-    with sync_api.sync_playwright() as playwright:
-        profile = tempfile.mkdtemp(prefix="armtrack-chromium-")
-        context = playwright.chromium.launch_persistent_context(
-            profile, executable_path=CHROMIUM, args=ARGS, headless=True,
-            viewport={"width": 1400, "height": 900})
-        try:
-            yield context
-        finally:
-            context.close()
-            shutil.rmtree(profile, ignore_errors=True)
+    with sync_api.sync_playwright() as playwright, chromium(playwright, 1400) as context:
+        yield context
 
 
 @pytest.fixture

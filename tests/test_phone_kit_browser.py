@@ -19,28 +19,17 @@ Skips with the reason when chromium or Playwright is absent."""
 from __future__ import annotations
 
 import json
-import os
 import re
-import shutil
 import socket
-import tempfile
 import threading
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from browser_helpers import ARGS, chromium, first_page, need_browser, screenshots_folder
 
-CHROMIUM = os.environ.get("ARMTRACK_CHROMIUM") or shutil.which("chromium") or "/usr/bin/chromium"
-ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-        "--disable-background-networking", "--disable-component-update", "--disable-sync",
-        "--autoplay-policy=no-user-gesture-required"]
-
-if not Path(CHROMIUM).is_file():
-    pytest.skip(f"needs Debian's chromium at {CHROMIUM} (apt-get install -y chromium)",
-                allow_module_level=True)
-sync_api = pytest.importorskip("playwright.sync_api",
-                               reason="needs Playwright: pip install -e '.[test]'")
+sync_api = need_browser()
 
 pytestmark = pytest.mark.slow
 
@@ -213,28 +202,16 @@ def warm_up_live_estimation(server, timeout_s: float = 240.0) -> None:
 
 @pytest.fixture(scope="module")
 def shots(tmp_path_factory) -> Path:
-    folder = Path(os.environ.get("ARMTRACK_SCREENSHOTS") or tmp_path_factory.mktemp("kit-shots"))
-    folder.mkdir(parents=True, exist_ok=True)
-    print(f"\nscreenshots: {folder}")
-    return folder
+    return screenshots_folder(tmp_path_factory, "kit-shots")
 
 
 @pytest.fixture
 def phone():
     """A phone-sized chromium (390 × 844, touch) with its own profile (storage, worker)."""
-    with sync_api.sync_playwright() as playwright:
-        profile = tempfile.mkdtemp(prefix="armtrack-kit-")
-        context = playwright.chromium.launch_persistent_context(
-            profile, executable_path=CHROMIUM, args=ARGS, headless=True,
-            viewport={"width": 390, "height": 844}, device_scale_factor=1, has_touch=True,
-            is_mobile=True)
-        try:
-            page = context.pages[0] if context.pages else context.new_page()
-            page.set_default_timeout(30_000)
-            yield page
-        finally:
-            context.close()
-            shutil.rmtree(profile, ignore_errors=True)
+    with (sync_api.sync_playwright() as playwright,
+          chromium(playwright, 390, 844, phone=True, device_scale_factor=1,
+                   args=[*ARGS, "--autoplay-policy=no-user-gesture-required"]) as context):
+        yield first_page(context)
 
 
 def _start_kit(phone, url: str, token: str, shots: Path, prefix: str) -> None:

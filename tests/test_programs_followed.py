@@ -483,43 +483,14 @@ def test_the_progress_pdf_says_what_the_api_says(world, tmp_path):
 
 # --- the dashboard, in the real browser -------------------------------------------------
 
-def _browser():
-    """Debian's chromium through Playwright, or a skip naming what is missing."""
-    import os
-    import shutil
-    from pathlib import Path
-
-    chromium = (os.environ.get("ARMTRACK_CHROMIUM") or shutil.which("chromium")
-                or "/usr/bin/chromium")
-    if not Path(chromium).is_file():
-        pytest.skip(f"needs Debian's chromium at {chromium} (apt-get install -y chromium)")
-    sync_api = pytest.importorskip("playwright.sync_api",
-                                   reason="needs Playwright: pip install -e '.[test]'")
-    return chromium, sync_api
-
-
 @pytest.fixture(scope="module")
 def browser(world, tmp_path_factory):
-    import os
-    import shutil
-    import tempfile
-    from pathlib import Path
+    from browser_helpers import chromium, need_browser, screenshots_folder
 
-    chromium, sync_api = _browser()
-    shots = Path(os.environ.get("ARMTRACK_SCREENSHOTS") or tmp_path_factory.mktemp("shots"))
-    shots.mkdir(parents=True, exist_ok=True)
-    print(f"\nscreenshots: {shots}")
-    with sync_api.sync_playwright() as playwright:
-        profile = tempfile.mkdtemp(prefix="armtrack-chromium-")
-        context = playwright.chromium.launch_persistent_context(
-            profile, executable_path=chromium, headless=True, viewport={"width": 1366,
-                                                                      "height": 900},
-            args=["--headless", "--no-sandbox", "--disable-gpu", "--no-first-run"])
-        try:
-            yield context, sync_api, shots
-        finally:
-            context.close()
-            shutil.rmtree(profile, ignore_errors=True)
+    sync_api = need_browser()
+    shots = screenshots_folder(tmp_path_factory, "shots")
+    with sync_api.sync_playwright() as playwright, chromium(playwright, 1366) as context:
+        yield context, sync_api, shots
 
 
 def _signed_in_page(context, sync_api, base: str, width: int):

@@ -14,19 +14,14 @@ and still draw the arm. Screenshots are saved (their folder is printed;
 from __future__ import annotations
 
 import dataclasses
-import os
 import re
 import shutil
-import tempfile
 from pathlib import Path
 
 import httpx
 import pytest
+from browser_helpers import chromium, need_browser, screenshots_folder
 from server_support import ServerProcess
-
-CHROMIUM = os.environ.get("ARMTRACK_CHROMIUM") or shutil.which("chromium") or "/usr/bin/chromium"
-ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-        "--disable-background-networking", "--disable-component-update", "--disable-sync"]
 
 #: What the attacker named the patient (the report's exact payload, then more). What an
 #: injected script would write ("pwned") is not in the text itself.
@@ -103,28 +98,14 @@ def test_viewer_policy_allows_no_injected_script_and_no_other_host(srv, hostile)
 
 @pytest.fixture(scope="module")
 def shots(tmp_path_factory) -> Path:
-    folder = Path(os.environ.get("ARMTRACK_SCREENSHOTS")
-                  or tmp_path_factory.mktemp("screenshots"))
-    folder.mkdir(parents=True, exist_ok=True)
-    print(f"\nscreenshots: {folder}")
-    return folder
+    return screenshots_folder(tmp_path_factory)
 
 
 @pytest.fixture(scope="module")
 def browser():
-    if not Path(CHROMIUM).is_file():
-        pytest.skip(f"needs Debian's chromium at {CHROMIUM}")
-    sync_api = pytest.importorskip("playwright.sync_api", reason="needs Playwright")
-    with sync_api.sync_playwright() as playwright:
-        profile = tempfile.mkdtemp(prefix="armtrack-chromium-")
-        context = playwright.chromium.launch_persistent_context(
-            profile, executable_path=CHROMIUM, args=ARGS, headless=True,
-            viewport={"width": 1366, "height": 900})
-        try:
-            yield sync_api, context
-        finally:
-            context.close()
-            shutil.rmtree(profile, ignore_errors=True)
+    sync_api = need_browser()
+    with sync_api.sync_playwright() as playwright, chromium(playwright, 1366) as context:
+        yield sync_api, context
 
 
 def sign_in(sync_api, page, base: str) -> None:

@@ -144,7 +144,9 @@ def test_a_request_body_that_stalls_is_cut_off(srv):
 
 def test_signing_in_never_sends_the_browser_to_another_site(srv):
     # skips without chromium or playwright, as the page tests do
-    from test_pages_browser import ARGS, CHROMIUM, sync_api
+    from browser_helpers import ARGS, CHROMIUM, need_browser
+
+    sync_api = need_browser()
 
     with sync_api.sync_playwright() as playwright:
         browser = playwright.chromium.launch(executable_path=CHROMIUM, args=ARGS)

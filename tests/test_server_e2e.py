@@ -1,6 +1,7 @@
 """End to end: a real server process, the kit emulator streaming the shared recordings
 over the ingest protocol, the data read back over REST. On SQLite and, when the tests
-have one (``ARMTRACK_TEST_POSTGRES_URL``), on PostgreSQL."""
+have one (``ARMTRACK_TEST_POSTGRES_URL``), on PostgreSQL. One server per database for the
+module (``module_server``): each test adds patients of its own and reads only theirs."""
 
 import asyncio
 
@@ -38,7 +39,8 @@ def assert_same_samples(stored, original):
 
 
 def test_streamed_recordings_are_stored_exactly_and_estimated_as_the_cli_does(
-        server, recordings_dir, tmp_path):
+        module_server, recordings_dir, tmp_path):
+    server = module_server
     api = server.client("alice")
     for name in SHARED:
         path = recordings_dir / f"{name}.csv"
@@ -67,7 +69,8 @@ def test_streamed_recordings_are_stored_exactly_and_estimated_as_the_cli_does(
               f"ack p99 {1000 * stats.latency_percentiles((99,))[99]:.1f} ms, identical")
 
 
-def test_uploaded_recording_becomes_a_processed_session(server, recordings_dir):
+def test_uploaded_recording_becomes_a_processed_session(module_server, recordings_dir):
+    server = module_server
     api = server.client("alice")
     patient = api.patient()
     path = recordings_dir / "elbow_6axis.csv"
@@ -83,7 +86,8 @@ def test_uploaded_recording_becomes_a_processed_session(server, recordings_dir):
 
 
 @pytest.mark.parametrize("bad", [b"not a recording", b"# armtrack-recording: 1\n"])
-def test_a_bad_upload_is_refused_whole(server, bad):
+def test_a_bad_upload_is_refused_whole(module_server, bad):
+    server = module_server
     api = server.client("alice")
     patient = api.patient()
     answer = api.http.post("/api/recordings", data={"patient_id": patient["id"]},

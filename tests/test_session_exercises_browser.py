@@ -10,25 +10,15 @@ pages. Skips with the reason when chromium or Playwright is absent."""
 
 from __future__ import annotations
 
-import os
+import contextlib
 import re
 import shutil
-import tempfile
-from pathlib import Path
 
 import pytest
+from browser_helpers import chromium, first_page, need_browser, sign_in_as
 
-CHROMIUM = os.environ.get("ARMTRACK_CHROMIUM") or shutil.which("chromium") or "/usr/bin/chromium"
-ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-        "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+sync_api = need_browser()
 
-if not Path(CHROMIUM).is_file():
-    pytest.skip(f"needs Debian's chromium at {CHROMIUM} (apt-get install -y chromium)",
-                allow_module_level=True)
-sync_api = pytest.importorskip("playwright.sync_api",
-                               reason="needs Playwright: pip install -e '.[test]'")
-
-from browser_helpers import sign_in_as  # noqa: E402 (after the skips)
 from test_pages_browser import _exercise  # noqa: E402
 
 pytestmark = pytest.mark.slow
@@ -59,37 +49,29 @@ def marked_session(module_server):
     return patient, session, report
 
 
-def _page(playwright, width: int):
-    profile = tempfile.mkdtemp(prefix="armtrack-chromium-")
-    context = playwright.chromium.launch_persistent_context(
-        profile, executable_path=CHROMIUM, args=ARGS, headless=True,
-        viewport={"width": width, "height": 900}, has_touch=width < 500,
-        is_mobile=width < 500)
-    page = context.pages[0] if context.pages else context.new_page()
-    page.set_default_timeout(30_000)
-    return context, profile, page
+@contextlib.contextmanager
+def _page(width: int):
+    """A page of a chromium of its own, ``width`` px wide (touch below 500 px)."""
+    with (sync_api.sync_playwright() as playwright,
+          chromium(playwright, width, phone=width < 500) as context):
+        yield first_page(context)
 
 
 @pytest.mark.parametrize("width", [390, 1366])
 def test_a_marked_exercise_shows_its_repetitions(module_server, marked_session, width,
                                                  tmp_path):
     patient, session, _ = marked_session
-    with sync_api.sync_playwright() as playwright:
-        context, profile, page = _page(playwright, width)
-        try:
-            sign_in_as(page, module_server.url, "alice")
-            page.goto(f"{module_server.url}/patients/{patient['id']}")
-            row = page.locator(f'#sessions [data-session="{session["id"]}"]')
-            sync_api.expect(row).to_contain_text(f"Elbow flexion × {REPETITIONS}")
-            page.screenshot(path=str(tmp_path / f"patient-{width}.png"), full_page=True)
-            page.goto(f"{module_server.url}/sessions/{session['id']}")
-            sync_api.expect(page.locator("#exercises")).to_contain_text(
-                re.compile(rf"Elbow flexion × {REPETITIONS} · \d+–\d+ s"))
-            page.screenshot(path=str(tmp_path / f"session-{width}.png"), full_page=True)
-            print(f"\nscreenshots at {width} px: {tmp_path}")
-        finally:
-            context.close()
-            shutil.rmtree(profile, ignore_errors=True)
+    with _page(width) as page:
+        sign_in_as(page, module_server.url, "alice")
+        page.goto(f"{module_server.url}/patients/{patient['id']}")
+        row = page.locator(f'#sessions [data-session="{session["id"]}"]')
+        sync_api.expect(row).to_contain_text(f"Elbow flexion × {REPETITIONS}")
+        page.screenshot(path=str(tmp_path / f"patient-{width}.png"), full_page=True)
+        page.goto(f"{module_server.url}/sessions/{session['id']}")
+        sync_api.expect(page.locator("#exercises")).to_contain_text(
+            re.compile(rf"Elbow flexion × {REPETITIONS} · \d+–\d+ s"))
+        page.screenshot(path=str(tmp_path / f"session-{width}.png"), full_page=True)
+        print(f"\nscreenshots at {width} px: {tmp_path}")
 
 
 @pytest.mark.parametrize("width", [390, 1366])
@@ -103,27 +85,22 @@ def test_the_session_page_gives_the_reports_exercise_figures_and_target(
     (angle,) = [a for a in report["exercises"][0]["angles"] if a["angle"] == "elbow_flexion"]
     rom = report["rom"]["elbow_flexion"]
     assert (rom["target_min"], rom["target_max"]) == (0, 140)
-    with sync_api.sync_playwright() as playwright:
-        context, profile, page = _page(playwright, width)
-        try:
-            sign_in_as(page, module_server.url, "alice")
-            page.goto(f"{module_server.url}/sessions/{session['id']}")
-            figures = page.locator('#exercise-figures tr[data-angle="elbow_flexion"]')
-            sync_api.expect(figures).to_contain_text(f"{REPETITIONS}")
-            text = figures.inner_text()
-            assert f"{angle['mean_movement_time_s']:.1f} s" in text, text
-            assert f"{angle['peak_velocity_deg_s']:.0f}°/s" in text, text
-            assert f"{angle['median_sparc']:.1f}".replace("-", "−") in text, text
-            target = page.locator('#rom-targets [data-angle="elbow_flexion"]')
-            sync_api.expect(target).to_contain_text("0° to 140°")
-            sync_api.expect(target).to_contain_text(f"{rom['percent_of_target']:.0f} %")
-            overflow = page.evaluate("document.documentElement.scrollWidth")
-            assert overflow <= width, f"the page is {overflow} px wide in a {width}-px window"
-            page.screenshot(path=str(tmp_path / f"session-{width}.png"), full_page=True)
-            print(f"\nscreenshot at {width} px: {tmp_path}")
-        finally:
-            context.close()
-            shutil.rmtree(profile, ignore_errors=True)
+    with _page(width) as page:
+        sign_in_as(page, module_server.url, "alice")
+        page.goto(f"{module_server.url}/sessions/{session['id']}")
+        figures = page.locator('#exercise-figures tr[data-angle="elbow_flexion"]')
+        sync_api.expect(figures).to_contain_text(f"{REPETITIONS}")
+        text = figures.inner_text()
+        assert f"{angle['mean_movement_time_s']:.1f} s" in text, text
+        assert f"{angle['peak_velocity_deg_s']:.0f}°/s" in text, text
+        assert f"{angle['median_sparc']:.1f}".replace("-", "−") in text, text
+        target = page.locator('#rom-targets [data-angle="elbow_flexion"]')
+        sync_api.expect(target).to_contain_text("0° to 140°")
+        sync_api.expect(target).to_contain_text(f"{rom['percent_of_target']:.0f} %")
+        overflow = page.evaluate("document.documentElement.scrollWidth")
+        assert overflow <= width, f"the page is {overflow} px wide in a {width}-px window"
+        page.screenshot(path=str(tmp_path / f"session-{width}.png"), full_page=True)
+        print(f"\nscreenshot at {width} px: {tmp_path}")
 
 
 @pytest.mark.parametrize("width", [390])
@@ -141,28 +118,23 @@ def test_the_patient_page_shows_a_session_that_ended_as_estimated(module_server,
     api = module_server.client("alice")
     patient = api.patient("Watched Patient")
     token = api.device(patient["id"], "kit")["token"]
-    with sync_api.sync_playwright() as playwright:
-        context, profile, page = _page(playwright, width)
-        try:
-            sign_in_as(page, module_server.url, "alice")
-            page.goto(f"{module_server.url}/patients/{patient['id']}")
-            sync_api.expect(page.locator("#no-sessions")).to_be_visible()
-            kit = KitEmulator(_exercise("elbow_flexion", repetitions=3), module_server.ws_url,
-                              token, speed=4.0)
-            streaming = threading.Thread(target=lambda: asyncio.run(kit.run()))
-            streaming.start()  # (Playwright's sync API holds this thread's event loop)
-            streaming.join(120)
-            (session_id,) = [s[0] for s in module_server.sql(
-                "select id from sessions where patient_id = :p", p=patient["id"])]
-            api.wait_processed(session_id, timeout=120)
-            row = page.locator(f'#sessions [data-session="{session_id}"]')
-            sync_api.expect(row).to_contain_text("Finished", timeout=15_000)
-            sync_api.expect(row).to_contain_text("Elbow flexion × 3", timeout=15_000)
-            sync_api.expect(row).to_contain_text("elbow flexion 0° to", timeout=15_000)
-            page.screenshot(path=str(tmp_path / f"patient-{width}.png"), full_page=True)
-        finally:
-            context.close()
-            shutil.rmtree(profile, ignore_errors=True)
+    with _page(width) as page:
+        sign_in_as(page, module_server.url, "alice")
+        page.goto(f"{module_server.url}/patients/{patient['id']}")
+        sync_api.expect(page.locator("#no-sessions")).to_be_visible()
+        kit = KitEmulator(_exercise("elbow_flexion", repetitions=3), module_server.ws_url,
+                          token, speed=4.0)
+        streaming = threading.Thread(target=lambda: asyncio.run(kit.run()))
+        streaming.start()  # (Playwright's sync API holds this thread's event loop)
+        streaming.join(120)
+        (session_id,) = [s[0] for s in module_server.sql(
+            "select id from sessions where patient_id = :p", p=patient["id"])]
+        api.wait_processed(session_id, timeout=120)
+        row = page.locator(f'#sessions [data-session="{session_id}"]')
+        sync_api.expect(row).to_contain_text("Finished", timeout=15_000)
+        sync_api.expect(row).to_contain_text("Elbow flexion × 3", timeout=15_000)
+        sync_api.expect(row).to_contain_text("elbow flexion 0° to", timeout=15_000)
+        page.screenshot(path=str(tmp_path / f"patient-{width}.png"), full_page=True)
 
 
 def test_one_program_session_is_one_session_in_words(module_server, tmp_path):
@@ -193,13 +165,8 @@ def test_one_program_session_is_one_session_in_words(module_server, tmp_path):
     text = subprocess.run(["pdftotext", "-layout", str(tmp_path / "progress.pdf"), "-"],
                           capture_output=True, text=True, check=True).stdout
     assert " · 1 session · " in text, text[:300]
-    with sync_api.sync_playwright() as playwright:
-        context, profile, page = _page(playwright, 390)
-        try:
-            sign_in_as(page, module_server.url, "alice")
-            page.goto(f"{module_server.url}/patients/{patient['id']}")
-            sync_api.expect(page.locator("#progress-card")).to_contain_text(
-                "1 session, change")
-        finally:
-            context.close()
-            shutil.rmtree(profile, ignore_errors=True)
+    with _page(390) as page:
+        sign_in_as(page, module_server.url, "alice")
+        page.goto(f"{module_server.url}/patients/{patient['id']}")
+        sync_api.expect(page.locator("#progress-card")).to_contain_text(
+            "1 session, change")
