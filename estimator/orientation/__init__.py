@@ -22,9 +22,10 @@ DEFAULT_FILTER = "qcf"
 
 
 def make_filter(name: str = DEFAULT_FILTER, gyr_bias_prior=None,
-                gyro_delay_s: float = 0.0) -> OrientationFilter:
+                gyro_delay_s: float = 0.0, gyr_bias_prior_cov=None) -> OrientationFilter:
     """A fresh filter by name (``qcf``, ``ekf``, ``euler-cf``); ``gyr_bias_prior``: the
-    gyroscope bias to start from [rad/s] (sensor frame), ``qcf`` only (None: zero);
+    gyroscope bias to start from [rad/s] (sensor frame), ``qcf`` only (None: zero), and
+    ``gyr_bias_prior_cov`` its covariance [rad²/s²] (3 × 3; None: the filter's own);
     ``gyro_delay_s``: how far the kit's gyroscope lags its accelerometer [s], ``qcf`` only
     (0: in step)."""
     if name not in FILTERS:
@@ -35,10 +36,15 @@ def make_filter(name: str = DEFAULT_FILTER, gyr_bias_prior=None,
                               f"(gyro_delay_s); {', '.join(sorted(GYRO_DELAY_FILTERS))} can")
     extra = {"gyro_delay_s": delay} if delay else {}
     if gyr_bias_prior is None:
+        if gyr_bias_prior_cov is not None:
+            raise InvalidArgument("a gyroscope bias prior's covariance needs the prior "
+                                  "(gyr_bias_prior)")
         return FILTERS[name](**extra)
     if name not in BIAS_PRIOR_FILTERS:
         raise InvalidArgument(f"filter {name!r} cannot start from a remembered gyroscope "
                               f"bias; {', '.join(sorted(BIAS_PRIOR_FILTERS))} can")
+    if gyr_bias_prior_cov is not None:
+        extra["gyr_bias_prior_cov"] = gyr_bias_prior_cov
     return FILTERS[name](gyr_bias_prior=gyr_bias_prior, **extra)
 
 

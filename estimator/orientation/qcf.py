@@ -214,6 +214,26 @@ class LearntGyroBias:
         return self.learnt != LEARNT_NONE
 
 
+def check_bias_prior_cov(cov, bias_sigma: float) -> tuple[tuple[float, ...], ...]:
+    """A bias prior's covariance [rad²/s²]: 3 × 3, finite, symmetric, positive definite,
+    and no axis's variance above ``bias_sigma``² (an unknown bias's); else
+    ``InvalidArgument``."""
+    try:
+        values = np.asarray(cov, dtype=np.float64)
+    except (TypeError, ValueError):
+        values = np.empty(0)
+    if values.shape != (3, 3) or not np.all(np.isfinite(values)) \
+            or not np.allclose(values, values.T, rtol=0.0, atol=1e-12):
+        raise InvalidArgument(f"a gyroscope bias prior's covariance must be a symmetric 3 x 3 "
+                              f"matrix of finite numbers [rad^2/s^2], got {cov!r}")
+    eigenvalues = np.linalg.eigvalsh(values)
+    if eigenvalues[0] <= 0.0 or eigenvalues[-1] > bias_sigma**2 * (1.0 + 1e-9):
+        raise InvalidArgument(f"a gyroscope bias prior's covariance must be positive definite "
+                              f"and at most bias_sigma^2 = {bias_sigma**2} on every axis, "
+                              f"got eigenvalues {eigenvalues.tolist()}")
+    return tuple(tuple(float(v) for v in row) for row in values)
+
+
 def check_bias_prior(prior, bias_max: float) -> tuple[float, float, float]:
     """A remembered gyroscope bias as three floats [rad/s], or InvalidArgument naming
     what is wrong."""
@@ -271,21 +291,41 @@ class QuaternionComplementaryFilter:
     #: How far the kit's gyroscope lags its accelerometer [s]: its samples describe their
     #: time stamp minus this (0 to ``GYRO_DELAY_MAX_S``; 0: in step, today's numbers).
     gyro_delay_s: float = 0.0
+    #: The covariance of ``gyr_bias_prior`` [rad²/s²] (3 × 3, sensor frame) where it is
+    #: known better than ``QcfParams.bias_sigma`` along some axis (a swaying 6-axis kit's
+    #: biases from the held poses, ``pipeline.calibrate.biases_from_poses``): the
+    #: corrections in motion then move it along that axis only by what they show beyond it.
+    #: None: ``bias_sigma``² on each axis.
+    gyr_bias_prior_cov: tuple[tuple[float, ...], ...] | None = None
     name: str = field(default="qcf", init=False)
 
     def __post_init__(self) -> None:
         self.gyro_delay_s = check_gyro_delay(self.gyro_delay_s)
         self._params = np.append(self.params.as_array(), self.gyro_delay_s)
         assert self._params.shape == (KERNEL_PARAM_SIZE,)
+        if self.gyr_bias_prior_cov is not None:
+            if self.gyr_bias_prior is None:
+                raise InvalidArgument("a gyroscope bias prior's covariance needs the prior "
+                                      "(gyr_bias_prior)")
+            self.gyr_bias_prior_cov = check_bias_prior_cov(self.gyr_bias_prior_cov,
+                                                           self.params.bias_sigma)
         if self.gyr_bias_prior is not None:
             self.gyr_bias_prior = check_bias_prior(self.gyr_bias_prior, self.params.bias_max)
             if not self.state.vector[13]:
-                self.state.vector[9:12] = self.gyr_bias_prior
+                self._start_from_prior(self.state)
+
+    def _start_from_prior(self, state: QcfState) -> None:
+        assert self.gyr_bias_prior is not None
+        state.vector[9:12] = self.gyr_bias_prior
+        if self.gyr_bias_prior_cov is not None:
+            c = self.gyr_bias_prior_cov
+            state.vector[161:167] = (c[0][0], c[1][1], c[2][2], c[0][1], c[0][2], c[1][2])
+            state.vector[160] = 1.0
 
     def _fresh_state(self) -> QcfState:
         state = QcfState()
         if self.gyr_bias_prior is not None:
-            state.vector[9:12] = self.gyr_bias_prior
+            self._start_from_prior(state)
         return state
 
     def update(self, t, acc, gyr, mag=None) -> OrientationOutput:

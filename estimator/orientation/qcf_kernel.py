@@ -55,7 +55,10 @@ latest block [rad/s], ``[150]`` the accelerometer's Σ|a|² over the waiting blo
 · ``[153:156]`` the previous gyroscope sample at its own time (the kit's gyroscope delay
 taken out, see below) [rad/s] · ``[156]`` the current stillness's Σ (gyroscope deviation
 from its low-pass)² dt [rad²/s] · ``[157:160]`` the turn away from the low-passed rate's
-path (its high-pass over ``tau_lp``) [rad].
+path (its high-pass over ``tau_lp``) [rad] · ``[160]`` 1.0 when ``[161:167]`` hold the
+starting bias's covariance (p00, p11, p22, p01, p02, p12 [rad²/s²]: a prior known better
+than ``bias_sigma`` along some axis, ``QuaternionComplementaryFilter.gyr_bias_prior_cov``;
+the bias starts from it, and a still start taken back returns to it), 0.0: ``bias_sigma``².
 
 A kit whose gyroscope lags its accelerometer (``params[P_GYRO_DELAY]`` = d [s]: sample i's
 rates are those of ``t[i] − d``; 0 for most kits) is integrated over the accelerometer's
@@ -76,7 +79,7 @@ import numpy as np
 
 from ..scalar_rotations import quat_to_rows
 
-STATE_SIZE = 160
+STATE_SIZE = 167
 
 # Indices into the parameter vector, see QcfParams.as_array.
 (P_TAU_ACC, P_TAU_MAG, P_TAU_LP, P_REST_GYR, P_REST_ACC, P_REST_TIME,
@@ -355,6 +358,9 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
             t_start = t[i]
             initialised = 1.0
             p00, p11, p22, p01, p02, p12 = bias_var, bias_var, bias_var, 0.0, 0.0, 0.0
+            if state[160] != 0.0:  # the starting bias's own covariance
+                p00, p11, p22 = state[161], state[162], state[163]
+                p01, p02, p12 = state[164], state[165], state[166]
             b0x, b0y, b0z = bx, by, bz
             # the tilt's bias equation: R (sensor → I) and R b low-passed as the force is,
             # from the same start (the identity, still before)
@@ -521,6 +527,9 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
                         bx, by, bz = b0x, b0y, b0z
                         p00, p11, p22, p01, p02, p12 = (bias_var, bias_var, bias_var,
                                                         0.0, 0.0, 0.0)
+                        if state[160] != 0.0:  # the starting bias's own covariance
+                            p00, p11, p22 = state[161], state[162], state[163]
+                            p01, p02, p12 = state[164], state[165], state[166]
                         learnt_how, learnt_at, learnt_still = 0.0, 0.0, 0.0
             elif still_time >= rest_time_needed:
                 at_rest = True

@@ -27,6 +27,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.integrate import cumulative_trapezoid
 from scipy.spatial.transform import Rotation
 
 from ..body import Side
@@ -172,51 +173,123 @@ def _gyro_heading(arm: SensorTrack, trunk: SensorTrack, start: float, end: float
 
 
 #: A gyroscope's bias as one σ [rad/s] before anything is learnt (a MEMS zero-rate offset;
-#: ``QcfParams.bias_sigma``): the prior of ``trunk_bias_from_poses``.
+#: ``QcfParams.bias_sigma``): the prior of ``biases_from_poses``.
 BIAS_SIGMA = 0.01
 
 
 def _rigid_fit(arm: SensorTrack, trunk: SensorTrack, start: float, end: float):
     """The held pose ``start…end`` as one rigid turn of arm and trunk: the two gyroscopes
     read one rotation, ``ω_trunk = C ω_arm`` with ``C = R_trunk_arm``, fitted to the rates
-    less their means (which hold each sensor's bias). Returns ``(C, d, σ_d, Σ_C, v)``:
-    ``d`` the mean of ``ω_trunk − C ω_arm`` (= ``b_trunk − C b_arm`` [rad/s]), its σ per
-    axis, ``Σ_C`` the covariance of ``C``'s turn error (trunk frame, [rad²]) — the
-    residual's scatter over how the rates spread about each axis (a sway that turns about
-    one axis only leaves ``C`` blind about it) — and ``v = C ω̄_arm``, through which that
-    error enters ``d``; None without a pose's worth of samples."""
-    t, _, gyr, _ = arm.arrays()
+    less their means (which hold each sensor's bias), and the two accelerometers one
+    gravity, ``g_trunk = C g_arm`` (their means, unit): a sway turns about a horizontal
+    axis, which leaves the rates blind about it, and gravity sees every turn but the one
+    about the vertical, which the rates see. Each is weighed by its own scatter about the
+    fit (the gravity's not averaged down: the two sensors' levers from the sway's pivot
+    differ, an error that does not average out over a pose). Returns ``(C, d, σ_d, Σ_C,
+    v)``: ``d`` the mean of ``ω_trunk − C ω_arm`` (= ``b_trunk − C b_arm`` [rad/s]), its
+    σ per axis, ``Σ_C`` the covariance of ``C``'s turn error (trunk frame, [rad²]) and
+    ``v = C ω̄_arm``, through which that error enters ``d``; None without a pose's worth
+    of samples."""
+    t, acc, gyr, _ = arm.arrays()
     a, b = np.searchsorted(t, start, "left"), np.searchsorted(t, end, "right")
-    t_trunk, _, gyr_trunk, _ = trunk.arrays()
+    t_trunk, acc_trunk, gyr_trunk, _ = trunk.arrays()
     if b - a < 10 or len(t_trunk) < 2:
         return None
     w_arm = gyr[a:b]
     w_trunk = np.stack([np.interp(t[a:b], t_trunk, gyr_trunk[:, k]) for k in range(3)],
                        axis=1)
+    g_arm = _unit_rows(acc[a:b])
+    g_trunk = _unit_rows(np.stack([np.interp(t[a:b], t_trunk, acc_trunk[:, k])
+                                   for k in range(3)], axis=1))
+    mean_arm, mean_trunk = _up(g_arm), _up(g_trunk)
     c_arm, c_trunk = w_arm - w_arm.mean(axis=0), w_trunk - w_trunk.mean(axis=0)
-    u, _, vt = np.linalg.svd(c_arm.T @ c_trunk)
-    C = vt.T @ np.diag([1.0, 1.0, np.linalg.det(vt.T @ u.T)]) @ u.T
+    C = _kabsch(c_arm.T @ c_trunk)
+    for _ in range(2):  # each part weighed by its scatter about the last fit
+        residual = w_trunk - w_arm @ C.T
+        d = residual.mean(axis=0)
+        variance = max(float(np.mean(np.sum((residual - d) ** 2, axis=1)) / 3.0), 1e-30)
+        gravity_variance = max(float(np.mean(np.sum((g_trunk - g_arm @ C.T) ** 2,
+                                                    axis=1))), 1e-12)
+        C = _kabsch(c_arm.T @ c_trunk / variance
+                    + np.outer(mean_arm, mean_trunk) / gravity_variance)
     residual = w_trunk - w_arm @ C.T
     d = residual.mean(axis=0)
-    variance = float(np.mean(np.sum((residual - d) ** 2, axis=1)) / 3.0)
+    variance = max(float(np.mean(np.sum((residual - d) ** 2, axis=1)) / 3.0), 1e-30)
     spread = c_trunk.T @ c_trunk
-    information = (np.trace(spread) * np.eye(3) - spread) / max(variance, 1e-30)
+    information = (np.trace(spread) * np.eye(3) - spread) / variance \
+        + (np.eye(3) - np.outer(mean_trunk, mean_trunk)) / gravity_variance
     covariance = np.linalg.pinv(information) if np.linalg.det(information) > 0 else \
         np.eye(3) * np.inf
     return C, d, np.sqrt(variance / (b - a)), covariance, C @ w_arm.mean(axis=0)
 
 
-def trunk_bias_from_poses(tracks: Mapping[str, SensorTrack], plan: CalibrationPlan
-                          ) -> tuple[float, np.ndarray] | None:
-    """A 6-axis trunk sensor's gyroscope bias about the vertical [rad/s] and that vertical
-    (unit, sensor frame: its accelerometer's mean over the poses), from the held N- and T-poses: in
-    each the arm turns with the trunk as one (a sway), so every sample gives
-    ``ω_trunk − C ω_arm = b_trunk − C b_arm`` with ``C = R_trunk_arm`` fitted to the rates
-    (``_rigid_fit``); two poses that differ by the arm's turn about the thorax's X tell
-    ``b_trunk`` apart from the arm's biases but along that (horizontal) axis. The vertical
-    part is what the tilt never sees on a trunk that only sways; least squares over the
-    arm's sensors and both poses with the prior ``BIAS_SIGMA`` on every bias, each pose
-    weighed by its noise and by ``C``'s error (``_rigid_fit``). None without two poses."""
+def _tilt_bias(track: SensorTrack, start: float, end: float):
+    """The gyroscope bias across gravity a held pose ``start…end`` shows [rad/s] (sensor
+    frame), as information and evidence: the gyroscope's turn, integrated, must keep the
+    accelerometer's direction; what it drifts from it by, linearly in time, is the bias
+    (small turns: a held pose only sways). Its noise is the residual's, counted over the
+    samples it is correlated across (the sway's accelerations are slow). None without a
+    pose's worth of samples."""
+    t, acc, gyr, _ = track.arrays()
+    a, b = np.searchsorted(t, start, "left"), np.searchsorted(t, end, "right")
+    if b - a < 10:
+        return None
+    t, unit, gyr = t[a:b], _unit_rows(acc[a:b]), gyr[a:b]
+    g = _up(unit)
+    turned = cumulative_trapezoid(gyr, t, axis=0, initial=0.0)
+    y = unit + np.cross(turned, g)
+    y -= y.mean(axis=0)
+    tc = t - t.mean()
+    K = np.array([[0.0, -g[2], g[1]], [g[2], 0.0, -g[0]], [-g[1], g[0], 0.0]])
+    spread = float(np.sum(tc**2))
+    info = spread * (K.T @ K)
+    ev = -K.T @ np.sum(tc[:, None] * y, axis=0)
+    bias = np.linalg.pinv(info) @ ev
+    res = y + tc[:, None] * (K @ bias)[None]
+    variance = max(float(np.mean(np.sum(res**2, axis=1))) / 2.0, 1e-30)
+    r = res - res.mean(axis=0)
+    rho = float(np.sum(r[1:] * r[:-1]) / max(float(np.sum(r * r)), 1e-30))
+    rho = min(max(rho, 0.0), 0.999)
+    variance *= (1.0 + rho) / (1.0 - rho)  # an AR(1) residual's effective sample count
+    return info / variance, ev / variance
+
+
+def _kabsch(cross: np.ndarray) -> np.ndarray:
+    """The rotation ``C`` that best turns the first vectors into the second given their
+    weighed cross sum ``Σ w a bᵀ`` (Kabsch)."""
+    u, _, vt = np.linalg.svd(cross)
+    return vt.T @ np.diag([1.0, 1.0, np.linalg.det(vt.T @ u.T)]) @ u.T
+
+
+@dataclass(frozen=True)
+class PoseBiases:
+    """The gyroscope biases the held poses show on a 6-axis kit with a trunk sensor
+    (``biases_from_poses``): ``vertical`` the trunk's bias about the vertical [rad/s],
+    ``up`` that vertical (unit, trunk sensor frame), ``sigma`` its standard error [rad/s];
+    ``arm`` per arm sensor ``(bias [rad/s], covariance [rad²/s²])``, sensor frame."""
+
+    vertical: float
+    up: np.ndarray
+    sigma: float
+    arm: dict[str, tuple[np.ndarray, np.ndarray]]
+
+
+def biases_from_poses(tracks: Mapping[str, SensorTrack], plan: CalibrationPlan,
+                      priors: Mapping[str, np.ndarray] | None = None) -> PoseBiases | None:
+    """A 6-axis trunk sensor's gyroscope bias about the vertical, and the arm sensors'
+    biases, from the held N- and T-poses (``PoseBiases``). In each pose the arm turns with
+    the trunk as one (a sway), so every sample gives ``ω_trunk − C ω_arm = b_trunk −
+    C b_arm`` with ``C = R_trunk_arm`` fitted to the rates and gravity (``_rigid_fit``);
+    two poses that differ by the arm's turn about the thorax's X tell ``b_trunk`` apart
+    from the arm's biases but along that axis, which is horizontal in both poses: there
+    each sensor's own tilt drift over the pose shows its bias (``_tilt_bias``). The
+    trunk's vertical part is what the tilt never sees on a trunk that only sways; the
+    arm's are what its tilt windows learn only slowly in motion (the arm's own
+    accelerations hide them; no sensor of a swaying kit rests). Least squares over every
+    sensor and both poses with the prior ``BIAS_SIGMA`` on every bias, each pose weighed
+    by its noise and by ``C``'s error; ``priors``: a sensor's bias known before (a
+    remembered one [rad/s], sensor frame; else 0) as that prior's mean. None without two
+    poses."""
     if plan.npose is None or plan.tpose is None or "trunk" not in tracks:
         return None
     arms = [s for s in ARM if s in tracks]
@@ -244,13 +317,26 @@ def trunk_bias_from_poses(tracks: Mapping[str, SensorTrack], plan: CalibrationPl
     for row, d, weight in zip(rows, rhs, weights, strict=True):
         information += row.T @ weight @ row
         evidence += row.T @ weight @ d
+    for k, sensor in enumerate(["trunk", *arms]):
+        part = slice(3 * k, 3 * k + 3)
+        if priors is not None and sensor in priors:
+            evidence[part] += np.asarray(priors[sensor], dtype=np.float64) / BIAS_SIGMA**2
+        for pose in (plan.npose, plan.tpose):
+            tilt = _tilt_bias(tracks[sensor], pose.start, pose.end)
+            if tilt is not None:
+                information[part, part] += tilt[0]
+                evidence[part] += tilt[1]
     x = np.linalg.solve(information, evidence)
-    span = [p for p in (plan.npose, plan.tpose) if p is not None]
-    acc, _, _ = tracks["trunk"].window(min(p.start for p in span), max(p.end for p in span))
+    acc, _, _ = tracks["trunk"].window(min(plan.npose.start, plan.tpose.start),
+                                       max(plan.npose.end, plan.tpose.end))
     if not len(acc):
         return None
     up = _up(_unit_rows(acc))
-    return float(x[:3] @ up), up
+    covariance = np.linalg.inv(information)
+    arm = {sensor: (x[3 + 3 * k: 6 + 3 * k], covariance[3 + 3 * k: 6 + 3 * k, 3 + 3 * k: 6 + 3 * k])
+           for k, sensor in enumerate(arms)}
+    trunk = covariance[:3, :3]
+    return PoseBiases(float(x[:3] @ up), up, float(np.sqrt(up @ trunk @ up)), arm)
 
 
 def _sway_range(trunk: SensorTrack, start: float, end: float, axis: np.ndarray) -> float:

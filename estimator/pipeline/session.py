@@ -25,9 +25,10 @@ from ..body import SENSOR_NAMES, SegmentLengths, Side
 from ..calibration import CalibrationPlan, poses_from_marks
 from ..errors import InvalidArgument
 from ..orientation import DEFAULT_FILTER, GYRO_DELAY_FILTERS, LearntGyroBias, check_gyro_delay
+from ..orientation.qcf import QcfParams
 from ..recording import Mark, Pose
 from ..recording.points import PointsFrame
-from .calibrate import Calibration, calibrate, trunk_bias_from_poses
+from .calibrate import Calibration, biases_from_poses, calibrate
 from .constraints import DRIFT_RATE_PRIOR, HeadingConstraint, mean_turn, turned_angle
 from .drift import taken_at
 from .estimates import REFERENCE_ORDER, EstimateArrays, Estimates
@@ -229,15 +230,28 @@ class Pipeline:
         trunk = present.get("trunk")
         if trunk is not None and not any(t.nine_axis and not t.magnetometer_dropped
                                          for t in present.values()):
-            # a trunk that only sways never shows its vertical bias to the tilt: the
-            # held poses' gyroscopes give it (``trunk_bias_from_poses``)
-            found = trunk_bias_from_poses(present, plan)
+            # a trunk that only sways never shows its vertical bias to the tilt, and an
+            # arm that never rests shows its biases only slowly to its tilt windows (its
+            # own accelerations hide them): the held poses' gyroscopes give them
+            # (``biases_from_poses``), and each filter is restarted knowing them that well
+            # (else the first tilt window that sees the trunk's horizontal part learnt hands
+            # its model error to the barely seen vertical one: 1–4 mrad/s off, sine sway
+            # seed 2 −0.5 → −4.3 mrad/s at 20 s). An arm sensor that stillness taught its
+            # bias by the poses' end keeps its filter.
+            found = biases_from_poses(present, plan, {
+                name: _old_prior(track) for name, track in present.items()})
             if found is not None:
-                vertical, up = found
-                old = np.zeros(3) if trunk.gyr_bias_prior is None else \
-                    np.asarray(trunk.gyr_bias_prior)
-                prior = old + (vertical - old @ up) * up
-                trunk.restart_filter((float(prior[0]), float(prior[1]), float(prior[2])))
+                spread = QcfParams().bias_sigma
+                old = _old_prior(trunk)
+                prior = old + (found.vertical - old @ found.up) * found.up
+                sigma = min(found.sigma, spread)
+                covariance = spread**2 * np.eye(3) + (sigma**2 - spread**2) * np.outer(
+                    found.up, found.up)
+                trunk.restart_filter(_triple(prior), _bounded(covariance, spread))
+                for sensor, (bias, covariance) in found.arm.items():
+                    track = present[sensor]
+                    if not track.still_taught(final_time):
+                        track.restart_filter(_triple(bias), _bounded(covariance, spread))
         self.calibration = calibrate(present, plan, self.config.side, final_time)
         for track in self._tracks.values():
             track.forget_magnetometer()
@@ -393,6 +407,26 @@ class Pipeline:
                 own[j] = offsets[j - 1] if j else 0.0
             mean_turn(Rw, np.array(chain, dtype=np.int64), own, turned,
                       MEAN_HEADING_FLOOR_RAD)
+
+
+def _old_prior(track: SensorTrack) -> np.ndarray:
+    """The gyroscope bias a track's filter started from [rad/s] (zeros: none)."""
+    return np.zeros(3) if track.gyr_bias_prior is None else \
+        np.asarray(track.gyr_bias_prior, dtype=np.float64)
+
+
+def _triple(v: np.ndarray) -> tuple[float, float, float]:
+    return float(v[0]), float(v[1]), float(v[2])
+
+
+def _bounded(covariance: np.ndarray, spread: float) -> tuple[tuple[float, ...], ...]:
+    """A bias prior's covariance [rad²/s²] as the filter takes it: symmetric, each axis's
+    variance within (0, ``spread``²] (a least squares' own is within it but for rounding)."""
+    values, vectors = np.linalg.eigh(0.5 * (covariance + covariance.T))
+    values = np.clip(values, spread**2 * 1e-8, spread**2)
+    bounded = (vectors * values) @ vectors.T
+    bounded = 0.5 * (bounded + bounded.T)
+    return tuple(tuple(float(v) for v in row) for row in bounded)
 
 
 def _prior(value: Sequence[float] | None) -> tuple[float, float, float] | None:

@@ -51,6 +51,9 @@ class SensorTrack:
     gyr_bias_prior: tuple[float, float, float] | None = None
     #: How far the kit's gyroscope lags its accelerometer [s] (``make_filter``).
     gyro_delay_s: float = 0.0
+    #: The covariance of ``gyr_bias_prior`` [rad²/s²] (3 × 3; None: the filter's own),
+    #: set by ``restart_filter``.
+    gyr_bias_prior_cov: tuple | None = None
     filter: OrientationFilter = field(init=False)
     nine_axis: bool | None = field(default=None, init=False)
     #: The session left this 9-axis sensor's magnetometer out (``drop_magnetometer``).
@@ -83,7 +86,8 @@ class SensorTrack:
 
     def _new_filter(self) -> OrientationFilter:
         return make_filter(self.filter_name, gyr_bias_prior=self.gyr_bias_prior,
-                           gyro_delay_s=self.gyro_delay_s)
+                           gyro_delay_s=self.gyro_delay_s,
+                           gyr_bias_prior_cov=self.gyr_bias_prior_cov)
 
     def append(self, t, acc, gyr, mag) -> None:
         """Run the filter over a chunk and keep it."""
@@ -268,12 +272,15 @@ class SensorTrack:
             self._q[kept] = self.filter.update(self._t[kept], self._acc[kept],
                                                self._gyr[kept], None).q
 
-    def restart_filter(self, gyr_bias_prior: tuple[float, float, float]) -> None:
+    def restart_filter(self, gyr_bias_prior: tuple[float, float, float],
+                       covariance: tuple | None = None) -> None:
         """From now on, and for every sample kept, orient this sensor with a fresh filter
-        that starts from ``gyr_bias_prior`` [rad/s] (sensor frame): it re-runs over the
-        kept samples (the caller does it before anything was discarded, at calibration),
-        the drift taken back with it."""
+        that starts from ``gyr_bias_prior`` [rad/s] (sensor frame), known to ``covariance``
+        [rad²/s²] (3 × 3; None: the filter's own): it re-runs over the kept samples (the
+        caller does it before anything was discarded, at calibration), the drift taken
+        back with it."""
         self.gyr_bias_prior = gyr_bias_prior
+        self.gyr_bias_prior_cov = covariance
         self.filter = self._new_filter()
         self._drift = None
         kept = slice(self._start, self._end)
