@@ -358,8 +358,7 @@ def test_swapped_forearm_and_hand_sensors_are_flagged_by_the_joint_residuals():
 def test_repetitions_counted_on_the_estimates_match_the_truth(recordings, name):
     """The counts of the recordings' facts: the shared README's, or the stand-in's
     simulation's (tests/recording_sets.py)."""
-    from armtrack.estimator.metrics import repetitions_by_angle
-    from armtrack.server.commands.estimate import CALIBRATION_TAIL_S
+    from armtrack.estimator.metrics import CALIBRATION_TAIL_S, repetitions_by_angle
 
     expected = recordings.facts[name].counts()
     recording = read_recording(recordings.path(name))

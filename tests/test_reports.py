@@ -22,8 +22,8 @@ from datetime import UTC, datetime, timedelta
 import numpy as np
 import pytest
 from armtrack.estimator.arm.joints import REPORTED_ANGLES
+from armtrack.estimator.metrics import CALIBRATION_TAIL_S
 from armtrack.estimator.recording import read_recording
-from armtrack.server.commands.estimate import CALIBRATION_TAIL_S
 from armtrack.server.emulator import KitEmulator
 
 SHARED = ["elbow_flexion", "shoulder_abduction", "shoulder_flexion", "wrist_flexion",
@@ -144,6 +144,25 @@ def test_report_rom_matches_the_truth_and_repetitions_the_readme(
     # last, so that a stand-in the estimator misses (recording_sets) checks all the rest
     gap = recording_set.gap(name, "report-rom")
     assert (worst <= bar) != bool(gap), gap or (worst_angle, worst)
+
+
+@pytest.mark.parametrize("name", SHARED)
+def test_the_session_lists_range_of_motion_is_the_reports(alice, streamed, name):
+    """The sessions list and the session page show the summary's range of motion; the
+    report and its PDF the report's. They are one figure: the same samples left out (from
+    the first estimate to the calibration's end, as the live view does), not each pose's
+    window apart — a therapist read "elbow flexion -1° to 120°" on the list beside "0° to
+    120°" in the PDF."""
+    session_id, _, _ = streamed[name]
+    summary = alice.http.get(f"/api/sessions/{session_id}/summary").json()["rom"]
+    report = alice.http.get(f"/api/sessions/{session_id}/report").json()["rom"]
+    moved = {angle for angle, rom in summary.items() if rom["moved"]}
+    assert moved == set(report), (sorted(moved), sorted(report))
+    for angle in report:
+        listed = tuple(summary[angle][k] for k in ("min", "max", "range"))
+        reported = tuple(report[angle][k] for k in ("min", "max", "range"))
+        print(f"{name} {angle}: list {listed}, report {reported}")
+        assert listed == pytest.approx(reported, abs=5e-4), angle  # the report rounds to 0.001°
 
 
 def test_the_report_is_the_therapists_own(module_server, streamed):

@@ -35,7 +35,7 @@ report's ``rom`` object is in degrees.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -187,3 +187,19 @@ def range_of_motion_table(
 def rom_report(table: Mapping[str, RangeOfMotion]) -> dict[str, dict[str, float | None]]:
     """The report's ``rom`` object (``docs/spec/api.md``): angle name → entry, degrees."""
     return {name: rom.to_report() for name, rom in table.items()}
+
+
+#: Seconds after the last calibration pose's end still left out of every metric: the arm
+#: returns from the T-pose (the live view, ``armtrack estimate``, the reports and the
+#: sessions list all use this rule).
+CALIBRATION_TAIL_S = 2.5
+
+
+def calibration_exclusion(t_first: float, pose_ends: Iterable[float]
+                          ) -> list[tuple[float, float]]:
+    """The window every metric leaves out as calibration, ``[(start, end)]`` [s]: from
+    the first estimate ``t_first`` to ``CALIBRATION_TAIL_S`` after the last pose ends
+    (whatever the patient did before the poses is setting up, not exercise); ``[]``
+    without poses."""
+    ends = [float(e) for e in pose_ends]
+    return [(float(t_first), max(ends) + CALIBRATION_TAIL_S)] if ends else []

@@ -12,7 +12,7 @@ from typing import Annotated, Any
 import numpy as np
 from armtrack.estimator.arm.joints import REPORTED_ANGLES
 from armtrack.estimator.errors import EstimatorError
-from armtrack.estimator.metrics.rom import range_of_motion_table
+from armtrack.estimator.metrics.rom import calibration_exclusion, range_of_motion_table
 from fastapi import APIRouter, Query
 from sqlalchemy import select
 from sqlalchemy.orm import Session as DbSession
@@ -26,9 +26,6 @@ from .schemas import Id
 
 router = APIRouter(prefix="/api", tags=["sessions"])
 
-#: Seconds after a calibration pose still left out of the range of motion (the arm
-#: returns from the T-pose), as the live view does.
-POSE_TAIL_S = 2.5
 #: Lost-sample share above which the data quality is ``fair``, and ``poor``.
 LOST_FAIR, LOST_POOR = 0.01, 0.05
 #: A finished session shorter than this [s] is at best ``fair``: calibration poses
@@ -83,7 +80,10 @@ def _rom(db: DbSession, session: models.Session, poses: list[tuple[float, float]
     measured = set(session_coverage(session)["measured_angles"])
     angles = {name: np.deg2rad(values[:, columns.index(name)]) for name in REPORTED_ANGLES
               if name in columns and name in measured}
-    exclude = [(a, b + POSE_TAIL_S) for a, b in poses] or None
+    # the report's rule (``calibration_exclusion``): the calibration the estimate used,
+    # else the kit's pose marks
+    used = [p["end"] for p in (session.calibration or {}).get("poses") or []]
+    exclude = calibration_exclusion(float(t[0]), used or [b for _, b in poses]) or None
     try:
         table = range_of_motion_table(angles, t, exclude=exclude)
     except EstimatorError:

@@ -18,10 +18,6 @@ DESCRIPTION = ("Calibrates from the recording's poses, runs an orientation filte
                "(degrees), shoulder_elevation and shoulder_x … hand_z (metres, thorax frame); "
                "prints the range of motion against normal values.")
 
-#: Seconds after the last calibration pose still counted as calibration (the return to
-#: the N-pose), so the poses never count as range of motion.
-CALIBRATION_TAIL_S = 2.5
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("recording", type=Path)
@@ -39,7 +35,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from armtrack.estimator.metrics import range_of_motion_table, repetitions_by_angle
+    from armtrack.estimator.metrics import (
+        calibration_exclusion,
+        range_of_motion_table,
+        repetitions_by_angle,
+    )
     from armtrack.estimator.orientation import BIAS_PRIOR_FILTERS
     from armtrack.estimator.pipeline import run_recording
     from armtrack.estimator.pipeline.bias_memory import (
@@ -64,9 +64,8 @@ def run(args: argparse.Namespace) -> int:
     estimates, calibration = pipeline.finish(), pipeline.calibration
     assert calibration is not None
     columns, values = estimates.table()
-    poses = recording.calibration
-    exclude = ([(float(estimates.t[0]) if len(estimates) else 0.0,
-                 max(p.end for p in poses) + CALIBRATION_TAIL_S)] if poses else None)
+    exclude = calibration_exclusion(float(estimates.t[0]) if len(estimates) else 0.0,
+                                    (p.end for p in recording.calibration)) or None
     # every step that can fail comes before the file is written: a failed command leaves
     # no angles file behind
     table = range_of_motion_table(estimates.angles, estimates.t, exclude=exclude)

@@ -10,6 +10,7 @@ from collections.abc import Mapping
 import numpy as np
 from armtrack.estimator.arm.forward import POINTS
 from armtrack.estimator.arm.joints import REPORTED_ANGLES, SEGMENTS
+from armtrack.estimator.metrics.rom import CALIBRATION_TAIL_S
 from armtrack.estimator.pipeline import EstimateArrays, Pipeline, PipelineConfig
 from armtrack.estimator.recording import Mark
 from armtrack.estimator.recording.points import PointsFrame
@@ -19,8 +20,6 @@ from ..ingest.points import POINT_PREFIX
 from ..ingest.protocol import MarkMessage, Samples
 from .encoded import EncodedPose
 
-#: Seconds after the last calibration pose's end still counted as calibration.
-CALIBRATION_TAIL_S = 2.5
 #: Stream seconds after which a sensor named in hello that sent nothing is left out of
 #: the live estimates (the others would wait for it for ever).
 SILENT_SENSOR_S = 10.0

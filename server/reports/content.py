@@ -38,6 +38,7 @@ from armtrack.estimator.errors import EstimatorError
 from armtrack.estimator.metrics import (
     RangeOfMotion,
     Repetition,
+    calibration_exclusion,
     consistency,
     detect_repetitions,
     percent_of,
@@ -48,7 +49,6 @@ from armtrack.estimator.recording import Recording
 from pydantic import BaseModel, Field
 from sqlalchemy.orm import Session as DbSession
 
-from ..commands.estimate import CALIBRATION_TAIL_S
 from ..db import models
 from ..store.coverage import session_coverage
 from ..store.processing import stored_estimates
@@ -289,8 +289,7 @@ def load_session(db: DbSession, session: models.Session) -> SessionData:
     quats = {c[:-3]: values[:, index[c]:index[c] + 4] for c in columns if c.endswith("_qw")}
     recording = session_recording(db, session)
     poses = (session.calibration or {}).get("poses") or []
-    exclude = ([(float(t[0]) if len(t) else 0.0,
-                 max(float(p["end"]) for p in poses) + CALIBRATION_TAIL_S)] if poses else [])
+    exclude = calibration_exclusion(float(t[0]) if len(t) else 0.0, (p["end"] for p in poses))
     return SessionData(session=session, patient=patient, kit=device.name if device else None,
                        t=t, angles=angles, quats=quats, recording=recording, exclude=exclude)
 

@@ -13,6 +13,7 @@ import numpy as np
 from armtrack.estimator.arm.joints import SEGMENTS
 from armtrack.estimator.errors import EstimatorError
 from armtrack.estimator.metrics.assumptions import assumption_warnings
+from armtrack.estimator.metrics.rom import CALIBRATION_TAIL_S
 from armtrack.estimator.orientation import BIAS_PRIOR_FILTERS, DEFAULT_FILTER
 from armtrack.estimator.pipeline import Calibration, Estimates, run_recording
 from armtrack.estimator.pipeline.quality import residual_warnings
@@ -24,7 +25,6 @@ from sqlalchemy.orm import Session as DbSession
 from sqlalchemy.orm import sessionmaker
 
 from .. import clock
-from ..commands.estimate import CALIBRATION_TAIL_S
 from ..db import models
 from .blocks import pack, unpack_many
 from .gyro_bias import remember_session, session_priors
