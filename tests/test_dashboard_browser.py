@@ -127,6 +127,11 @@ def test_the_dashboard_reaches_progress_targets_record_interrupted_and_erasure(
         sync_api.expect(elbow.locator(".today")).to_have_text("today's target 0…115°")
         sync_api.expect(page.locator("#interrupted-card .close-session")).to_have_count(
             1, timeout=SLOW_MS)
+        # its row says what it takes to estimate it: an interrupted session is estimated
+        # only once closed (before: "when estimated", "when finished")
+        row = page.locator(f'#sessions tr[data-session="{interrupted_id}"]')
+        sync_api.expect(row).to_contain_text("close it to estimate", timeout=SLOW_MS)
+        assert "when " not in row.inner_text(), row.inner_text()
         no_horizontal_overflow(page, f"patient at {width}")
         elbow.scroll_into_view_if_needed()
         page.locator("#progress-card").screenshot(path=str(shots / f"progress-{width}.png"),
