@@ -80,7 +80,8 @@ async function programCard(patientId, p, box) {
           el("td", {}, e.title, el("div", { class: "small muted" }, "measured on " + (ANGLE_LABELS[e.angle] || e.angle))),
           el("td", {}, `${e.sets} × ${e.repetitions}` + (e.hold_s ? `, hold ${e.hold_s} s` : "") + (e.sets > 1 ? `, rest ${e.rest_s} s` : "")),
           el("td", { class: "num" }, String(e.days_per_week)),
-          el("td", {}, `${deg(e.target[0])} to ${deg(e.target[1])}`, el("div", { class: "small muted" }, e.target_source)),
+          el("td", {}, `${deg(e.target[0])} to ${deg(e.target[1])}`,
+            el("div", { class: "small muted" }, TARGET_SOURCE_WORDS[e.target_source] || e.target_source)),
           el("td", {}, last ? [deg(last.range_deg), " ", rangeChart(points)] : el("span", { class: "muted" }, "not done yet")),
           el("td", { class: "small" }, e.note || ""));
       })))),
@@ -138,6 +139,13 @@ function painLine(pain) {
     pain.map((p, i) => [i ? " · " : "", `${p.day}: pain ${p.pain ?? "—"}, effort ${p.effort ?? "—"}`]));
 }
 
+// Where an exercise's target comes from, in the therapist's words (the API's
+// ``target_source``): the program's own, else the patient's target for the angle, else
+// the exercise's usual range (the catalogue's).
+const TARGET_SOURCE_WORDS = {
+  program: "set in this program", patient: "the patient's target", catalogue: "the exercise's usual range",
+};
+
 // --- the editor -----------------------------------------------------------------------
 
 function exerciseRow(value) {
@@ -159,8 +167,8 @@ function exerciseRow(value) {
     el("label", {}, "Days a week", num("days_per_week", v.days_per_week, { min: 1, max: 7, required: true })),
     el("label", {}, "Hold (s)", num("hold_s", v.hold_s, { min: 0, max: 60, step: "any" })),
     el("label", {}, "Rest (s)", num("rest_s", v.rest_s, { min: 0, max: 600, step: "any" })),
-    el("label", {}, "Target from (°)", num("target_min_deg", v.target_min_deg, { step: "any", placeholder: "patient's" })),
-    el("label", {}, "to (°)", num("target_max_deg", v.target_max_deg, { step: "any", placeholder: "patient's" })),
+    el("label", {}, "Target from (°)", num("target_min_deg", v.target_min_deg, { step: "any" })),
+    el("label", {}, "to (°)", num("target_max_deg", v.target_max_deg, { step: "any" })),
     el("label", { class: "wide" }, "Note for the patient", el("input", { name: "note", value: v.note || "", maxlength: 500 })),
     el("div", { class: "row" },
       el("button", { type: "button", class: "secondary", title: "Move up", "aria-label": "Move up",
@@ -204,11 +212,15 @@ function openEditor(patientId, box, program) {
     program ? el("p", { class: "muted small" },
       "Sessions already done keep the version they followed.") : null,
     el("div", { class: "row wrap" },
-      program ? null : el("label", {}, "Name", el("input", { name: "name", required: true, maxlength: 120, placeholder: "e.g. Elbow after the fracture" })),
+      program ? null : el("label", { class: "name-field" }, "Name", el("input", { name: "name", required: true, maxlength: 120, placeholder: "e.g. Elbow after the fracture" })),
       el("label", {}, "Start", el("input", { name: "start_date", type: "date", required: true, value: v ? v.start_date : today })),
       el("label", {}, "End (optional)", el("input", { name: "end_date", type: "date", value: v && v.end_date ? v.end_date : "" }))),
     el("label", { class: "wide" }, "Note", el("textarea", { name: "note", maxlength: 2000, rows: 2 }, v && v.note ? v.note : "")),
-    el("h3", {}, "Exercises, in order"), notOffered(), rows,
+    el("h3", {}, "Exercises, in order"),
+    el("p", { class: "small muted", id: "target-hint" },
+      "A target left blank is the patient's own target for the exercise's angle, or else the "
+      + "exercise's usual range."),
+    notOffered(), rows,
     el("div", { class: "row", style: "margin-top:10px" },
       el("button", { type: "button", class: "secondary", id: "add-exercise", onclick: () => rows.append(exerciseRow(null)) }, "Add exercise"),
       el("span", { class: "grow" }),
