@@ -340,7 +340,7 @@ def test_a_swaying_kit_in_a_clean_field_meets_the_bar(seed):
     assert worst_deg <= ANGLE_BAR_DEG[True] and wrist_cm <= WRIST_BAR_CM
 
 
-@pytest.mark.parametrize("seed", range(1, 9))
+@pytest.mark.parametrize("seed", [*range(1, 9), 11])
 def test_long_six_axis_session_with_drifting_bias_and_rests(seed):
     """11 minutes, three rounds of shoulder sets with 20 s rests, upper arm, forearm and
     hand, no trunk sensor: each sensor's heading drift between two rests (as short as the
@@ -348,7 +348,10 @@ def test_long_six_axis_session_with_drifting_bias_and_rests(seed):
     mean of its sensors' own, each weighed by how little it has turned (at rest a heading
     holds). A joint turns what it remembers only by the part of a step that drifted before
     each remembered sample: seeds 5 and 7 (wrist flexion 2.11°, 2.22°, the forearm–hand
-    tie held through blind stretches) 0.37°, 0.81°; seeds 1–8 worst 0.31–1.39°."""
+    tie held through blind stretches) 0.37°, 0.81°. Seed 11 (held out, never tuned on)
+    missed at 2.22° (shoulder rotation): the noise of a short pause's mean at 50 Hz, each
+    knot taken as exact; the take-back is now a Kalman filter of the bias and the heading
+    integral, each knot weighed by its variance: 1.07°; seeds 1–8 worst 0.39–1.92°."""
     config = SimulationConfig(exercise="shoulder_sets", seed=seed, height_m=body(seed),
                               nine_axis=False, rate_hz=(100.0, 50.0)[seed % 2],
                               gyro_bias_max=0.02, errors=drifting(seed))
