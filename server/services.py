@@ -187,6 +187,7 @@ class Services:
             self._close_live(parked.worker)
 
     def _close_live(self, worker: LiveWorker) -> None:
+        worker.error = worker.error or "closed"  # at once: it publishes nothing from now
         task = asyncio.get_running_loop().create_task(worker.close())
         self.background.add(task)
         task.add_done_callback(self.background.discard)
@@ -218,17 +219,27 @@ class Services:
         return future
 
     async def end_session_streams(self, session_id: int, reason: str) -> None:
-        """Close the open streams of a session (1000, ``reason``) and wait until what
-        they sent is stored."""
+        """Close the open streams of a session (1000, ``reason``), wait until what they
+        sent is stored, and let go of the session's live sides, open or parked (a lost
+        stream's, kept for a resume that can no longer come): none publishes a pose of
+        the session after this returns."""
         for stream_id, connection in list(self.connections.items()):
             state = self.streams.get(stream_id)
             if state is not None and state.session_id == session_id:
                 await connection.close(1000, reason)
                 await state.idle.wait()
                 await connection.ended.wait()  # its clean-up is over: it marks nothing after
+        for stream_id, parked in list(self.parked_live.items()):
+            if parked.worker.session_id == session_id:
+                self._drop_parked(stream_id)
 
     async def revoke_device(self, device_id: int) -> None:
-        """Close every open stream of a device with 4401."""
+        """Close every open stream of a device with 4401, and let go of its parked live
+        sides (a revoked kit resumes nothing)."""
         for connection in list(self.connections.values()):
             if connection.device_id == device_id:
                 await connection.close(4401, "device token revoked")
+                await connection.ended.wait()  # its live side is parked, or closed, by now
+        for stream_id, parked in list(self.parked_live.items()):
+            if parked.device_id == device_id:
+                self._drop_parked(stream_id)

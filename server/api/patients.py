@@ -104,6 +104,7 @@ async def delete_patient(patient_id: Id, therapist: Therapist,
     for device_id in device_ids:
         await svc.revoke_device(device_id)
     await svc.run_db(erase_patient, patient_id)
+    svc.hub.forget_patient(patient_id)
     await svc.access.recheck()
 
 

@@ -127,6 +127,7 @@ async def delete_session(session_id: Id, therapist: Therapist,
     await svc.run_db(lambda db: own_session(db, therapist, session_id))
     await svc.end_session_streams(session_id, "session erased")
     await svc.run_db(erase_session, session_id)
+    svc.hub.forget_session(session_id)  # its last pose is no view's to draw any more
     await svc.access.recheck()
 
 

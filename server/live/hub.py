@@ -69,6 +69,17 @@ class LiveHub:
             if not subscribers:
                 del self._subscribers[subscription.patient_id]
 
+    def forget_session(self, session_id: int) -> None:
+        """An erased session's last pose is nobody's latest any more (a view opened later
+        would draw it)."""
+        for patient_id, pose in list(self.latest.items()):
+            if pose.get("session_id") == session_id:
+                del self.latest[patient_id]
+
+    def forget_patient(self, patient_id: int) -> None:
+        """An erased patient's last pose goes."""
+        self.latest.pop(patient_id, None)
+
     def publish(self, patient_id: int, update: Mapping[str, Any]) -> None:
         """``update``: a dict, or a pose as ``EncodedPose`` (read as one)."""
         if isinstance(update, EncodedPose) or update.get("kind") == "pose":
