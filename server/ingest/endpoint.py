@@ -172,7 +172,7 @@ class IngestConnection:
         self._closed = True
         if self.websocket.application_state != WebSocketState.DISCONNECTED:
             with contextlib.suppress(Exception):
-                await self.websocket.close(code, close_reason(reason))
+                await self.websocket.close(code, protocol.close_reason(reason, code))
 
     async def _ack_loop(self) -> None:
         """Acks what is stored (the group writer's ``on_durable`` wakes it after each
@@ -205,7 +205,7 @@ class IngestConnection:
         await self.send({"type": "error", "seq": error.seq, "reason": error.reason,
                          **error.extra})
         if error.close_code is not None:
-            await self.close(error.close_code, error.reason[:120])
+            await self.close(error.close_code, error.reason)  # whole, or the short form
             return
         now = time.monotonic()
         self._refused.append(now)
@@ -640,16 +640,6 @@ def _session_delay(db: DbSession, session_id: int) -> float:
     0 when it declared none."""
     session = db.get(models.Session, session_id)
     return 0.0 if session is None or session.gyro_delay_s is None else session.gyro_delay_s
-
-
-#: Most bytes of a close frame's reason (RFC 6455: 125 of payload, 2 taken by the code).
-CLOSE_REASON_BYTES = 123
-
-
-def close_reason(reason: str) -> str:
-    """``reason`` cut to fit a close frame (whole characters; a longer one, as a refusal
-    echoing a kit's wide characters makes, fails the close: the kit would see 1006)."""
-    return reason.encode("utf-8")[:CLOSE_REASON_BYTES].decode("utf-8", errors="ignore")
 
 
 def _same_kit(hello: Hello, session: models.Session, what: str) -> None:

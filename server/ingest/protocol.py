@@ -55,6 +55,27 @@ CLOSE_BAD_PROTOCOL = 4400
 CLOSE_TOO_BIG = 1009
 CLOSE_TOO_MANY_ERRORS = 4429
 
+#: Most bytes of a close frame's reason (RFC 6455: 125 of payload, 2 taken by the code).
+CLOSE_REASON_BYTES = 123
+#: A close's reason when the whole explanation (the ``error`` message sent just before
+#: the close) is longer than a close frame holds: a short, whole sentence by close code.
+SHORT_CLOSE_REASONS: dict[int, str] = {
+    CLOSE_BAD_PROTOCOL: "refused: the error message sent just before this close says why",
+    CLOSE_TOO_MANY_ERRORS: "refused for now: the error message sent just before this close "
+                           "says why",
+}
+#: The same for any other close code.
+SHORT_CLOSE_REASON = "closed: the error message sent just before this close says why"
+
+
+def close_reason(reason: str, code: int) -> str:
+    """``reason`` when it fits a close frame (``CLOSE_REASON_BYTES`` of UTF-8), else the
+    code's short sentence: never a sentence cut short, and never a frame too long to send
+    (a kit echoing wide characters in a refused value made one: it saw 1006, not 4400)."""
+    if len(reason.encode("utf-8")) <= CLOSE_REASON_BYTES:
+        return reason
+    return SHORT_CLOSE_REASONS.get(code, SHORT_CLOSE_REASON)
+
 
 class Refused(Exception):
     """A message refused whole. ``seq`` when it carried a valid one; ``close_code`` when

@@ -343,6 +343,7 @@ class KitStream {
     const ws = new WebSocket(`${scheme}//${location.host}/ws/ingest?token=${encodeURIComponent(this.token)}`);
     this.ws = ws;
     ws.onopen = () => {
+      this._lastError = null;
       ws.send(JSON.stringify({
         type: "hello", protocol: 1, device: this.device, side: this.side,
         sensors: [this.sensor], rate_hz: 60, nine_axis: false,
@@ -363,7 +364,9 @@ class KitStream {
       if (event.code === 4401) { this.error = "this link was revoked: ask your therapist for a new one"; return; }
       if (event.code === 4400 && this._closedNext != null) { this._carryOver(this._closedNext); return; }
       if (event.code === 4400 && this._gone) { this._abandon(); return; }
-      if (event.code === 4400) { this.error = "the server refused the stream: " + event.reason; return; }
+      // the error just before the close says why, whole (a close reason is at most 123
+      // bytes: a longer one's is the code's short sentence)
+      if (event.code === 4400) { this.error = "the server refused the stream: " + (this._lastError || event.reason); return; }
       // 4429 after ready: too many of this phone's own messages refused; sending them again
       // would be refused again (4429 in answer to hello is a busy server: tried again below)
       if (event.code === 4429 && ws.wasReady) { this._stopRefused(event.reason); return; }
@@ -485,6 +488,7 @@ class KitStream {
       this.onChange(this);
       if (this.ended) this._byeWhenDone();
     } else if (message.type === "error") {
+      this._lastError = message.reason;
       if (message.seq != null) this._lastRefused = message.reason;
       if (message.seq == null && /resume|session/.test(message.reason || "")) {
         this.error = message.reason;
