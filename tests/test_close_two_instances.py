@@ -1,0 +1,90 @@
+"""Security review (review7's finding 5): a therapist's close on one server instance while
+the kit streams to another (README "Scaling out"; two ``armtrack serve`` processes on one
+SQLite file here). ``mark_closed`` is one conditional UPDATE, so of closes at once exactly
+one wins, but the close ends only the streams of its own instance
+(``Services.end_session_streams``, ``Services.closing`` are per process): the kit's
+stream on the other instance goes on, and what it sends after the close is stored into
+the closed session and acked — after its estimation began, so the estimate leaves it
+out, and the kit is never told that its session ended. Measured on main: the 10 messages
+sent after the close's 202 were all acked (ack 19), the stream still open."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+
+import numpy as np
+import pytest
+from server_support import ServerProcess
+from websockets.asyncio.client import connect
+from websockets.exceptions import ConnectionClosed
+
+HELLO = {"type": "hello", "protocol": 1, "device": "kit", "side": "right",
+         "sensors": ["forearm"], "rate_hz": 50, "nine_axis": False, "resume": None}
+
+
+@pytest.fixture(scope="module")
+def two(tmp_path_factory):
+    """Servers A and B: two processes, one data folder (one SQLite file)."""
+    folder = tmp_path_factory.mktemp("two-instances")
+    a, b = ServerProcess(folder), ServerProcess(folder)
+    a.create_user("alice")
+    a.start()
+    b.start()
+    yield a, b
+    b.stop()
+    a.stop()
+
+
+def _samples(seq: int) -> str:
+    t = (np.arange(100) + 100 * seq) / 50
+    rows = np.column_stack([t, np.zeros(100), np.zeros(100), np.full(100, 9.81),
+                            np.zeros((100, 3)), np.full((100, 3), np.nan)])
+    return json.dumps({"type": "samples", "seq": seq, "sensor": "forearm",
+                       "rows": [[*r[:7], None, None, None] for r in rows.tolist()]})
+
+
+@pytest.mark.xfail(strict=True, reason="a close on instance A leaves the kit's stream on B "
+                   "open: 10 of 10 messages sent after the close were acked (ack 19), "
+                   "stored into the closed session")
+def test_a_close_on_one_instance_ends_the_stream_on_another(two):
+    a, b = two
+    api = a.client("alice")
+    patient = api.patient("Two servers")
+    token = api.device(patient["id"])["token"]
+
+    async def run():
+        async with connect(f"{b.ws_url}?token={token}") as ws:
+            await ws.send(json.dumps(HELLO))
+            ready = json.loads(await ws.recv())
+            assert ready["type"] == "ready", ready
+            for seq in range(10):
+                await ws.send(_samples(seq))
+            while (message := json.loads(await ws.recv())) != {"type": "ack", "seq": 9}:
+                assert message["type"] != "error", message
+            close = await asyncio.to_thread(api.http.post,
+                                            f"/api/sessions/{ready['session']}/close",
+                                            params={"wait": "false"})
+            assert close.status_code == 202, close.text
+            acked, closed = 9, None
+            try:
+                for seq in range(10, 20):
+                    await ws.send(_samples(seq))
+                async with asyncio.timeout(5):
+                    while True:
+                        message = json.loads(await ws.recv())
+                        if message["type"] == "ack":
+                            acked = message["seq"]
+            except ConnectionClosed as exc:
+                closed = exc.rcvd.code if exc.rcvd else -1
+            except TimeoutError:
+                pass
+            return ready["session"], acked, closed
+
+    session_id, acked, closed = asyncio.run(run())
+    stored = a.sql("SELECT COALESCE(SUM(n_rows), 0) FROM sample_blocks "
+                   "WHERE session_id = :s", s=session_id)[0][0]
+    print(f"after the close on A: last ack {acked}, close code on B {closed}, "
+          f"samples stored {stored} (1000 before the close)")
+    assert closed is not None, "the kit's stream on B stayed open after the close on A"
+    assert acked == 9, f"messages sent after the close were acked up to {acked}"
