@@ -276,7 +276,7 @@ class PoseBiases:
 
 def biases_from_poses(tracks: Mapping[str, SensorTrack], plan: CalibrationPlan,
                       priors: Mapping[str, np.ndarray] | None = None) -> PoseBiases | None:
-    """A 6-axis trunk sensor's gyroscope bias about the vertical, and the arm sensors'
+    """A trunk sensor's gyroscope bias about the vertical, and the arm sensors'
     biases, from the held N- and T-poses (``PoseBiases``). In each pose the arm turns with
     the trunk as one (a sway), so every sample gives ``ω_trunk − C ω_arm = b_trunk −
     C b_arm`` with ``C = R_trunk_arm`` fitted to the rates and gravity (``_rigid_fit``);

@@ -228,16 +228,19 @@ class Pipeline:
                     track.drop_magnetometer()
                 field_warning = disagreement_warning(disagreeing, list(present))
         trunk = present.get("trunk")
-        if trunk is not None and not any(t.nine_axis and not t.magnetometer_dropped
-                                         for t in present.values()):
+        if trunk is not None:
             # a trunk that only sways never shows its vertical bias to the tilt, and an
             # arm that never rests shows its biases only slowly to its tilt windows (its
             # own accelerations hide them): the held poses' gyroscopes give them
             # (``biases_from_poses``), and each filter is restarted knowing them that well
             # (else the first tilt window that sees the trunk's horizontal part learnt hands
             # its model error to the barely seen vertical one: 1–4 mrad/s off, sine sway
-            # seed 2 −0.5 → −4.3 mrad/s at 20 s). An arm sensor that stillness taught its
-            # bias by the poses' end keeps its filter.
+            # seed 2 −0.5 → −4.3 mrad/s at 20 s). A 9-axis trunk too: its first heading
+            # windows take the tilt warm-up's turn of the field for a vertical bias (4.9–6.3
+            # mrad/s off at 10.5 s on random sway seeds 4/7/8), which the poses' prior
+            # holds off. An arm sensor whose magnetometer holds its heading, or that
+            # stillness taught its bias by the poses' end, keeps its filter (restarting the
+            # 9-axis arm too failed irregular sway seed 1: 0.76 → 1.06°).
             found = biases_from_poses(present, plan, {
                 name: _old_prior(track) for name, track in present.items()})
             if found is not None:
@@ -250,7 +253,8 @@ class Pipeline:
                 trunk.restart_filter(_triple(prior), _bounded(covariance, spread))
                 for sensor, (bias, covariance) in found.arm.items():
                     track = present[sensor]
-                    if not track.still_taught(final_time):
+                    if not (track.nine_axis and not track.magnetometer_dropped) and \
+                            not track.still_taught(final_time):
                         track.restart_filter(_triple(bias), _bounded(covariance, spread))
         self.calibration = calibrate(present, plan, self.config.side, final_time)
         for track in self._tracks.values():
