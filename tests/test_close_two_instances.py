@@ -2,11 +2,14 @@
 the kit streams to another (README "Scaling out"; two ``armtrack serve`` processes on one
 SQLite file here). ``mark_closed`` is one conditional UPDATE, so of closes at once exactly
 one wins, but the close ends only the streams of its own instance
-(``Services.end_session_streams``, ``Services.closing`` are per process): the kit's
-stream on the other instance goes on, and what it sends after the close is stored into
-the closed session and acked — after its estimation began, so the estimate leaves it
-out, and the kit is never told that its session ended. Measured on main: the 10 messages
-sent after the close's 202 were all acked (ack 19), the stream still open."""
+(``Services.end_session_streams``, ``Services.closing`` are per process). Before, the
+kit's stream on the other instance went on, and what it sent after the close was stored
+into the closed session and acked — after its estimation began, so the estimate left it
+out, and the kit was never told its session ended (the 10 messages sent after the
+close's 202 were all acked, ack 19, the stream still open). Now the other instance's
+group writer reads the session with the stream's position in its commit (``writer``'s
+"Fencing"): a closed session takes nothing more, unacked, and the stream ends 1000 as a
+close on its own instance would end it."""
 
 from __future__ import annotations
 
@@ -44,9 +47,6 @@ def _samples(seq: int) -> str:
                        "rows": [[*r[:7], None, None, None] for r in rows.tolist()]})
 
 
-@pytest.mark.xfail(strict=True, reason="a close on instance A leaves the kit's stream on B "
-                   "open: 10 of 10 messages sent after the close were acked (ack 19), "
-                   "stored into the closed session")
 def test_a_close_on_one_instance_ends_the_stream_on_another(two):
     a, b = two
     api = a.client("alice")
@@ -88,3 +88,4 @@ def test_a_close_on_one_instance_ends_the_stream_on_another(two):
           f"samples stored {stored} (1000 before the close)")
     assert closed is not None, "the kit's stream on B stayed open after the close on A"
     assert acked == 9, f"messages sent after the close were acked up to {acked}"
+    assert closed == 1000 and stored == 1000, (closed, stored)

@@ -72,7 +72,7 @@ def test_a_stream_taken_over_elsewhere_is_fenced_off_not_stored_twice(database_u
         b_writer.start()
         fenced: list[str] = []
         a = StreamState("s1", session_id, 0, {})
-        a.on_fenced = lambda: fenced.append("a")
+        a.on_fenced = lambda why: fenced.append(("a", why))
         for seq in range(5):  # A stores 0..4
             a_writer.submit(Write(a, seq, samples=_samples(seq)))
         await asyncio.sleep(0.05)
@@ -81,7 +81,7 @@ def test_a_stream_taken_over_elsewhere_is_fenced_off_not_stored_twice(database_u
         with engine.connect() as connection:
             next_seq = connection.scalar(select(models.Stream.next_seq))
         b = StreamState("s1", session_id, next_seq, {"upperarm": 4.04})
-        b.on_fenced = lambda: fenced.append("b")
+        b.on_fenced = lambda why: fenced.append(("b", why))
         for seq in range(5, 8):
             b_writer.submit(Write(b, seq, samples=_samples(seq)))
         await asyncio.sleep(0.05)
@@ -96,7 +96,7 @@ def test_a_stream_taken_over_elsewhere_is_fenced_off_not_stored_twice(database_u
         return a, b, fenced
 
     a, b, fenced = asyncio.run(run())
-    assert fenced == ["a"] and a.fenced and not b.fenced
+    assert fenced == [("a", "taken")] and a.fenced and not b.fenced
     assert a.durable_seq == 4 and b.durable_seq == 7  # A never acks what it did not store
     with engine.connect() as connection:
         blocks = connection.execute(select(models.SampleBlock.ordinal, models.SampleBlock.data)
@@ -110,6 +110,45 @@ def test_a_stream_taken_over_elsewhere_is_fenced_off_not_stored_twice(database_u
     stored = np.concatenate([unpack(data, 10) for _, data in blocks])
     assert stored.tobytes() == np.concatenate([_samples(seq).rows for seq in range(8)]).tobytes()
     assert samples == 8 * 5 and next_seq == 8
+    engine.dispose()
+
+
+def test_a_stream_whose_session_was_closed_elsewhere_stores_and_acks_nothing_more(
+        database_url):
+    """A therapist closed the session on another instance (its estimate begins without
+    what follows): what this instance's writer commits after is dropped unacked, fenced as
+    ``closed`` — on PostgreSQL the session's row is read locked with the stream's."""
+    engine = make_engine(database_url)
+    upgrade(engine)
+    session_id = _session_with_stream(engine)
+
+    async def run() -> tuple[StreamState, list[str]]:
+        writer = GroupWriter(engine, 0.01)
+        writer.start()
+        fenced: list[str] = []
+        stream = StreamState("s1", session_id, 0, {})
+        stream.on_fenced = fenced.append
+        for seq in range(3):
+            writer.submit(Write(stream, seq, samples=_samples(seq)))
+        await asyncio.sleep(0.05)
+        await stream.idle.wait()
+        with engine.begin() as connection:  # the close, as another instance commits it
+            connection.execute(models.Session.__table__.update()
+                               .where(models.Session.id == session_id).values(status="closed"))
+        for seq in range(3, 6):
+            writer.submit(Write(stream, seq, samples=_samples(seq)))
+        await asyncio.sleep(0.05)
+        await stream.idle.wait()
+        await writer.stop()
+        return stream, fenced
+
+    stream, fenced = asyncio.run(run())
+    with engine.connect() as connection:
+        samples = connection.scalar(select(models.Session.samples))
+        next_seq = connection.scalar(select(models.Stream.next_seq))
+    print(f"fenced {fenced}, acked up to {stream.durable_seq}, stored {samples} samples")
+    assert fenced == ["closed"] and stream.fenced
+    assert stream.durable_seq == 2 and samples == 3 * 5 and next_seq == 3
     engine.dispose()
 
 

@@ -494,11 +494,13 @@ class IngestConnection:
         except Exception as exc:  # the database locked or full: the kit was told anyway
             log.warning("session %s: its stream's stop not kept: %s", session_id, exc)
 
-    def _fenced(self) -> None:
-        """Another instance stores this stream now (``writer``'s "Fencing"): this
-        connection ends without marking the session interrupted; the kit resumes."""
+    def _fenced(self, why: str) -> None:
+        """Another instance stores this stream now, or its session was closed there
+        (``writer``'s "Fencing"): this connection ends without marking the session
+        interrupted; the kit resumes (and is told then if the session is closed)."""
         asyncio.get_running_loop().create_task(
-            self.close(1013, "the stream goes on on another server: resume"))
+            self.close(1000, "session closed by the therapist") if why == "closed"
+            else self.close(1013, "the stream goes on on another server: resume"))
 
     def _storage_error(self, reason: str) -> None:
         error = {"type": "error", "seq": None, "reason": reason}

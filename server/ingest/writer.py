@@ -23,7 +23,12 @@ messages are stored only if the stream's stored ``next_seq`` is, in the same tra
 the stream over (its kit resumed there) and stored anything, the stream is *fenced* here:
 its writes are dropped, unstored and unacked, and its connection is closed
 (``on_fenced``), so the kit resumes from what the database holds. Every ``seq`` of a
-stream is thus stored once and in order, whichever instances stored it."""
+stream is thus stored once and in order, whichever instances stored it. The same check
+reads the stream's session (locked with it on PostgreSQL, so a close on another instance
+and this commit are one before the other): a session closed meanwhile — its estimate
+begun without what follows — takes nothing more; the stream is fenced as ``closed``, its
+writes unacked, and its connection ends as a close on this instance would have ended it
+(the kit's resume is told the session is closed, and its ``next_seq``)."""
 
 from __future__ import annotations
 
@@ -81,7 +86,9 @@ _SQLITE_UPDATE_STREAMS = ("UPDATE streams SET next_seq = v.column1, last_t = v.c
 _SQLITE_ADD_SAMPLES = ("UPDATE sessions SET samples = samples + v.column1, status = CASE "
                        "WHEN status = 'interrupted' THEN 'live' ELSE status END "
                        "FROM (VALUES {rows}) AS v WHERE sessions.id = v.column2")
-_SQLITE_STORED_SEQS = "SELECT json_group_object(id, next_seq) FROM streams WHERE id IN ({rows})"
+_SQLITE_STORED_SEQS = ("SELECT json_group_object(streams.id, json_array(streams.next_seq, "
+                       "sessions.status)) FROM streams JOIN sessions ON sessions.id = "
+                       "streams.session_id WHERE streams.id IN ({rows})")
 #: Rows in one SQLite statement (its parameters stay far below SQLite's 32,766).
 SQLITE_ROWS_PER_STATEMENT = 500
 
@@ -102,8 +109,9 @@ class StreamState:
     pending: int = 0
     on_durable: Callable[[], None] = lambda: None
     on_storage_error: Callable[[str], None] = lambda reason: None
-    #: another instance stores this stream now (see the module's "Fencing")
-    on_fenced: Callable[[], None] = lambda: None
+    #: another instance stores this stream now (``"taken"``), or its session was closed
+    #: (``"closed"``; see the module's "Fencing")
+    on_fenced: Callable[[str], None] = lambda why: None
     fenced: bool = False
     idle: asyncio.Event = field(default_factory=asyncio.Event)
     t_offset: float = 0.0
@@ -193,7 +201,8 @@ class GroupWriter:
             self.commits += 1
             self._done(batch, fenced)
 
-    def _done(self, batch: list[Write], fenced: set[str] = frozenset()) -> None:
+    def _done(self, batch: list[Write], fenced: dict[str, str] | None = None) -> None:
+        fenced = fenced or {}
         for write in batch:
             stream = write.stream
             stream.pending -= 1
@@ -205,15 +214,18 @@ class GroupWriter:
             if stream.stream_id in fenced:
                 if not stream.fenced:
                     stream.fenced = True
-                    log.warning("stream %s goes on on another instance: fenced off here",
-                                stream.stream_id)
-                    stream.on_fenced()
+                    why = fenced[stream.stream_id]
+                    log.warning("stream %s fenced off here: %s", stream.stream_id,
+                                "its session was closed" if why == "closed"
+                                else "it goes on on another instance")
+                    stream.on_fenced(why)
             else:
                 stream.on_durable()
 
-    def _commit(self, batch: list[Write]) -> set[str]:
-        """One transaction: the streams' stored positions checked (fencing), then
-        ``_store``; returns the ids of the streams fenced off (nothing of theirs stored)."""
+    def _commit(self, batch: list[Write]) -> dict[str, str]:
+        """One transaction: the streams' stored positions and sessions checked (fencing),
+        then ``_store``; returns the streams fenced off (nothing of theirs stored), each
+        with why: ``"taken"`` or ``"closed"``."""
         with self._engine.begin() as connection:
             fenced = _fence(connection, batch)
             if fenced:
@@ -298,9 +310,11 @@ def _blocks(stream: StreamState, sensor: str, run: list[tuple[int, np.ndarray]]
     return blocks
 
 
-def _fence(connection: Connection, batch: list[Write]) -> set[str]:
-    """The streams of ``batch`` whose stored ``next_seq`` is not their first ``seq`` here:
-    another instance stored (or stores) them. Their rows stay locked to the commit."""
+def _fence(connection: Connection, batch: list[Write]) -> dict[str, str]:
+    """The streams of ``batch`` not to store: ``"taken"`` when the stored ``next_seq`` is
+    not their first ``seq`` here (another instance stored or stores them), ``"closed"``
+    when their session is closed. Their rows and their sessions' stay locked to the
+    commit (PostgreSQL; SQLite's transaction holds the database)."""
     first: dict[str, int] = {}
     for write in batch:
         sid = write.stream.stream_id
@@ -313,12 +327,21 @@ def _fence(connection: Connection, batch: list[Write]) -> set[str]:
             found = connection.exec_driver_sql(
                 _SQLITE_STORED_SEQS.format(rows=", ".join("?" * len(part))),
                 tuple(part)).scalar()
-            stored.update(orjson.loads(found or "{}"))
+            stored.update({sid: tuple(v) for sid, v in orjson.loads(found or "{}").items()})
     else:
-        stored = dict(connection.execute(
-            select(_STREAMS.c.id, _STREAMS.c.next_seq).where(_STREAMS.c.id.in_(first))
-            .with_for_update()).all())
-    return {sid for sid, seq in first.items() if stored.get(sid) != seq}
+        stored = {sid: (seq, status) for sid, seq, status in connection.execute(
+            select(_STREAMS.c.id, _STREAMS.c.next_seq, _SESSIONS.c.status)
+            .join(_SESSIONS, _SESSIONS.c.id == _STREAMS.c.session_id)
+            .where(_STREAMS.c.id.in_(first)).order_by(_STREAMS.c.id)
+            .with_for_update(of=[_STREAMS, _SESSIONS])).all()}
+    out = {}
+    for sid, seq in first.items():
+        stored_seq, status = stored.get(sid, (None, None))
+        if stored_seq != seq:
+            out[sid] = "taken"
+        elif status == "closed":
+            out[sid] = "closed"
+    return out
 
 
 def _sqlite_many(connection: Connection, statement: str, rows: list[tuple]) -> None:
