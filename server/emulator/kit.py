@@ -28,6 +28,7 @@ from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidStatus, InvalidURI
 from websockets.uri import parse_uri
 
+from ..ingest.protocol import SHORT_CLOSE_REASON, SHORT_CLOSE_REASONS
 from .messages import MessagePlan, encode, hello_message
 from .outbox import KitError, KitRefused, KitStats, Outbox
 
@@ -60,6 +61,10 @@ class _Resync(Exception):
 class _Dropped(Exception):
     """The connection was dropped on purpose (``drop_after_seqs``)."""
 
+
+#: Close reasons that say "the error message sent just before this close says why"
+#: (``server/ingest/protocol.py``): the kit reports that error instead.
+_POINTING_REASONS = frozenset({SHORT_CLOSE_REASON, *SHORT_CLOSE_REASONS.values()})
 
 class KitEmulator:
     """Streams one recording to the server as a sensor kit would.
@@ -396,10 +401,13 @@ class KitEmulator:
 
     def _refusal_words(self, exc: ConnectionClosed) -> str:
         """The server's words for a close: the ``error`` just before it (whole), else the
-        close reason (at most 123 bytes)."""
+        close reason (at most 123 bytes). A reason that only points at that error (the
+        server's short sentence when the error is longer than a close frame holds) gives
+        the error."""
         reason = exc.rcvd.reason if exc.rcvd is not None else ""
         last = self.stats.errors[-1]["reason"] if self.stats.errors else ""
-        if last and (not reason or last.startswith(reason[:40])):
+        pointer = reason in _POINTING_REASONS
+        if last and (not reason or pointer or last.startswith(reason[:40])):
             return last
         return reason or last
 
