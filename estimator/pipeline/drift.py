@@ -25,7 +25,7 @@ its last. Each mean is a measurement with its variance, not the truth: the knots
 Kalman filter of the bias ``b`` and the heading integral ``I = ∫b·z dt`` (the walk ``q`` is
 the filter's own ``QcfParams.bias_walk``): between knots ``P_bb`` grows by ``q²`` a second
 and ``P_Ib`` by ``P_bb z dt``; at a rest its first ``KNOT_S`` mean (variance: the rest's own
-scatter over its samples, plus the walk within the span) is one step, whose heading part
+scatter over its samples) is one step, whose heading part
 ``P_Ib S⁻¹ ν`` takes the line's place — with exact knots it is the line; a short pause at
 50 Hz (0.8 mrad/s) moves the heading and the next knot's bias only by what it is worth
 (per-sensor heading RMS on simulated 11-min sessions, seeds 1–16: 1.21 → 1.14°). A long
