@@ -263,7 +263,7 @@ def _kabsch(cross: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class PoseBiases:
-    """The gyroscope biases the held poses show on a 6-axis kit with a trunk sensor
+    """The gyroscope biases the held poses show on a kit with a trunk sensor
     (``biases_from_poses``): ``vertical`` the trunk's bias about the vertical [rad/s],
     ``up`` that vertical (unit, trunk sensor frame), ``sigma`` its standard error [rad/s];
     ``arm`` per arm sensor ``(bias [rad/s], covariance [rad²/s²])``, sensor frame."""
