@@ -172,13 +172,15 @@ class ServerProcess:
         return Api(self.url, name, password)
 
 
-def server_fixture(name: str, *users: str, timeout: float = 180.0):
+def server_fixture(name: str, *users: str, timeout: float = 180.0,
+                   env: dict[str, str] | None = None):
     """A module-scoped pytest fixture: a started ``ServerProcess`` in a new folder
-    ``name`` with a therapist account for each of ``users``, stopped after the module."""
+    ``name`` (with the settings ``env``) with a therapist account for each of ``users``,
+    stopped after the module."""
 
     @pytest.fixture(scope="module")
     def server(tmp_path_factory):
-        process = ServerProcess(tmp_path_factory.mktemp(name))
+        process = ServerProcess(tmp_path_factory.mktemp(name), env)
         for user in users:
             process.create_user(user)
         process.start(timeout=timeout)

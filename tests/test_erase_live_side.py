@@ -17,7 +17,7 @@ import time
 import numpy as np
 import pytest
 from armtrack.estimator.simulation import SimulationConfig, simulate
-from server_support import ServerProcess
+from server_support import server_fixture
 from test_viewer import texts
 from test_viewer import watch as watch_view
 from websockets.asyncio.client import connect
@@ -26,14 +26,7 @@ POSES_HZ = 0.25  # one pose each 4 s: the held estimates wait that long
 AFTER_S = 5.0  # how long the feed is watched after the erase (past the held re-ask)
 
 
-@pytest.fixture(scope="module")
-def server(tmp_path_factory):
-    process = ServerProcess(tmp_path_factory.mktemp("erase-live"),
-                            {"ARMTRACK_LIVE_POSES_HZ": str(POSES_HZ)})
-    process.create_user("alice")
-    process.start()
-    yield process
-    process.stop()
+server = server_fixture("erase-live", "alice", env={"ARMTRACK_LIVE_POSES_HZ": str(POSES_HZ)})
 
 
 @pytest.fixture(scope="module")

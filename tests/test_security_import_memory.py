@@ -12,20 +12,14 @@ import time
 
 import httpx
 import pytest
-from server_support import ServerProcess
+from server_support import ServerProcess, server_fixture
 
 #: the test server's upload limit (ARMTRACK_MAX_UPLOAD_BYTES)
 LIMIT = 8 << 20
 
 
-@pytest.fixture(scope="module")
-def small_limit_server(tmp_path_factory):
-    process = ServerProcess(tmp_path_factory.mktemp("server"),
-                            {"ARMTRACK_MAX_UPLOAD_BYTES": str(LIMIT)})
-    process.create_user("alice")
-    process.start()
-    yield process
-    process.stop()
+small_limit_server = server_fixture("server", "alice",
+                                    env={"ARMTRACK_MAX_UPLOAD_BYTES": str(LIMIT)})
 
 
 def peak_rss_mb(pid: int) -> float:
