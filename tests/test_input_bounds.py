@@ -198,3 +198,69 @@ def test_an_upload_refuses_marks_beyond_the_bounds(srv):
     answer = api.http.post("/api/recordings", data={"patient_id": str(patient["id"])},
                            files={"file": ("marks.csv", text)})
     assert answer.status_code == 422 and "time bounds" in answer.text, answer.text
+
+
+def test_hello_refuses_a_program_name_that_is_not_text(srv):
+    """``programs/1``: a ``hello`` naming its program by a name holding a lone surrogate
+    went to the database as it was: SQLite's driver raised UnicodeEncodeError inside the
+    handler, the socket dropped without a close frame (1006) and the kit learnt nothing.
+    Now refused like any malformed hello, naming the field (4400)."""
+    api = srv.client("alice")
+    patient = api.patient(name="Program surrogate")
+    device = api.device(patient["id"])
+    hello = hello_text().replace(', "resume": null}', ', "resume": null, "extensions": '
+                                 '["programs/1"], "program": ' + SURROGATE_JSON + '}')
+    answers = asyncio.run(stream(srv.ws_url, device["token"], hello, [], 0))
+    print(answers)
+    assert answers[0]["type"] == "error" and "program" in answers[0]["reason"], answers
+    assert {"type": "closed", "code": 4400} in answers
+    assert api.http.get(f"/api/patients/{patient['id']}/sessions").json() == []
+
+
+@pytest.mark.parametrize("rid", [SURROGATE_JSON, '"kit\\u0000x"'], ids=["surrogate", "nul"])
+def test_an_effort_rating_whose_id_is_not_text_is_refused_and_the_stream_goes_on(srv, rid):
+    """``effort-pain/1``: a rating whose ``id`` held a lone surrogate reached the database:
+    the handler died on UnicodeEncodeError, the stream ended without its ack nor an
+    error, and the session was left 'interrupted'. (A NUL is refused too: PostgreSQL
+    cannot store one.) Now the protocol's ``error`` names ``id``, and the stream goes on."""
+    api = srv.client("alice")
+    patient = api.patient(name=f"Rating id {rid[5:9]}")
+    device = api.device(patient["id"])
+    hello = hello_text().replace(', "resume": null}', ', "resume": null, "extensions": '
+                                 '["effort-pain/1"]}')
+    bad = ('{"type": "effort_pain", "id": ' + rid + ', "exercise": "elbow_flexion", '
+           '"effort": 3}')
+
+    async def run() -> list[dict]:
+        answers: list[dict] = []
+        async with connect(srv.ws_url,
+                           additional_headers={"Authorization": f"Bearer {device['token']}"}
+                           ) as ws:
+            await ws.send(hello)
+            answers.append(json.loads(await asyncio.wait_for(ws.recv(), 30)))
+            await ws.send(json.dumps({"type": "samples", "seq": 0, "sensor": "upper_arm",
+                                      "rows": [row(0.0)]}))
+            await ws.send(bad)
+            await ws.send(json.dumps({"type": "samples", "seq": 1, "sensor": "upper_arm",
+                                      "rows": [row(0.01)]}))
+            try:
+                while not any(a["type"] == "ack" and a["seq"] >= 1 for a in answers):
+                    answers.append(json.loads(await asyncio.wait_for(ws.recv(), 30)))
+                await ws.send(json.dumps({"type": "bye"}))
+                await asyncio.wait_for(ws.wait_closed(), 30)
+                answers.append({"type": "closed", "code": ws.close_code})
+            except ConnectionClosed as closed:
+                answers.append({"type": "closed",
+                                "code": closed.rcvd.code if closed.rcvd else None})
+        return answers
+
+    answers = asyncio.run(run())
+    print(answers)
+    errors = [a for a in answers if a["type"] == "error"]
+    assert len(errors) == 1 and "effort_pain: id" in errors[0]["reason"], answers
+    assert errors[0]["seq"] is None
+    assert any(a["type"] == "ack" and a["seq"] == 1 for a in answers), answers
+    assert answers[-1] == {"type": "closed", "code": 1000}, answers
+    session = api.http.get(f"/api/sessions/{answers[0]['session']}").json()
+    print(session["status"], session["samples"])
+    assert session["status"] == "closed" and session["samples"] == 2

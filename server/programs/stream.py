@@ -23,6 +23,7 @@ from sqlalchemy.orm import Session as DbSession
 from .. import clock
 from ..db import models
 from ..ingest.protocol import CLOSE_BAD_PROTOCOL, MARK_LABEL_MAX, Hello, Refused
+from ..plain_text import text_problem
 from ..reports.targets import patient_targets
 from . import catalogue, store
 
@@ -48,7 +49,11 @@ def check_program(message: dict[str, Any], hello: Hello) -> int | str | None:
     if isinstance(ref, int) and not isinstance(ref, bool) and 0 < ref < 2**31:
         return ref
     if isinstance(ref, str) and 0 < len(ref) <= 120:
-        return ref
+        problem = text_problem(ref)  # the database cannot hold a lone surrogate or a NUL
+        if problem is None:
+            return ref
+        raise Refused(f"hello: program must be valid text: {problem}",
+                      close_code=CLOSE_BAD_PROTOCOL)
     raise Refused("hello: program must be a program's id or its name (1 to 120 "
                   f"characters), got {ref!r}", close_code=CLOSE_BAD_PROTOCOL)
 
@@ -115,6 +120,9 @@ def check_effort_pain(message: dict[str, Any]) -> EffortPain:
     if not isinstance(rid, str) or not 0 < len(rid) <= RATING_ID_MAX:
         raise bad(f"id must be the kit's id of this message, 1 to {RATING_ID_MAX} "
                   "characters")
+    problem = text_problem(rid)  # stored with the rating: no lone surrogate, no NUL
+    if problem:
+        raise bad(f"id must be valid text: {problem}")
     exercise = message.get("exercise")
     if isinstance(exercise, str) and len(f"exercise:{exercise}") > MARK_LABEL_MAX:
         raise bad(f"exercise must be the name the kit marked, a mark's label being at most "
