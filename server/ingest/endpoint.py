@@ -33,7 +33,7 @@ from armtrack.estimator.errors import EstimatorError
 from armtrack.estimator.orientation import DEFAULT_FILTER
 from armtrack.estimator.pipeline import PipelineConfig
 from fastapi import APIRouter, WebSocket
-from sqlalchemy import func, select
+from sqlalchemy import func, select, update
 from sqlalchemy.orm import Session as DbSession
 from starlette.websockets import WebSocketDisconnect, WebSocketState
 
@@ -439,8 +439,7 @@ class IngestConnection:
             raise Refused(f"hello: no session {hello.session} to continue for this device's "
                           "patient")
         if session.status == "closed" or session.id in self.services.closing:
-            raise Refused(f"hello: session {session.id} is closed; start a new session "
-                          "(resume null, no session)")
+            raise _continued_closed(session.id)
         _same_kit(hello, session, "a stream continuing a session")  # (checked again: a race)
         blocks = models.SampleBlock
         ends = dict(db.execute(
@@ -458,9 +457,8 @@ class IngestConnection:
             earlier.last_t = {**earlier.last_t, "~continued_by": stream_id}
         db.add(models.Stream(id=stream_id, session_id=session.id, device_id=self.device_id,
                              next_seq=0, last_t=last_t))
-        session.status = "live"
-        session.ended_at = None
-        db.commit()
+        if not _reopened(db, session.id):  # closed on another instance since the check
+            raise _continued_closed(session.id)
         self.program = program_stream.followed_program(db, session.id)
         return session.id, session.height_m, last_t
 
@@ -473,17 +471,14 @@ class IngestConnection:
         # what of it is stored: the kit sends the rest (closing: the therapist's close is
         # under way, its commit a moment away)
         if session.status == "closed" or session.id in self.services.closing:
-            raise Refused(f"hello: the session of stream {stream_id} is closed; "  # anew
-                          "start a new stream (resume null)",
-                          extra={"next_seq": stream.next_seq}
-                          if CLOSED_SESSION_EXTENSION in hello.extensions else None)
+            raise _resumed_closed(hello, stream_id, stream.next_seq)
         if "~continued_by" in (stream.last_t or {}):
             raise Refused(f"hello: session {session.id} goes on in a newer stream; "
                           f"continue it with resume null and session {session.id}")
         _same_kit(hello, session, "a resumed stream")
-        session.status = "live"
-        session.ended_at = None
-        db.commit()
+        next_seq = stream.next_seq
+        if not _reopened(db, session.id):  # closed on another instance since the check
+            raise _resumed_closed(hello, stream_id, next_seq)
         self.program = program_stream.followed_program(db, session.id)
         return session.id, session.height_m, stream.next_seq, dict(stream.last_t)
 
@@ -642,6 +637,38 @@ def _session_delay(db: DbSession, session_id: int) -> float:
     0 when it declared none."""
     session = db.get(models.Session, session_id)
     return 0.0 if session is None or session.gyro_delay_s is None else session.gyro_delay_s
+
+
+def _reopened(db: DbSession, session_id: int) -> bool:
+    """Make the session live again (a resumed or continued stream), with what ``db`` holds
+    besides, committed; False, all of it rolled back, when the session is closed. One
+    conditional UPDATE: a close committed on another instance after the caller's check
+    (``Services.closing`` is per process) is never undone (PostgreSQL re-reads the row
+    that a close changed meanwhile, or waits for the close's commit)."""
+    changed = db.execute(update(models.Session)
+                         .where(models.Session.id == session_id,
+                                models.Session.status != "closed")
+                         .values(status="live", ended_at=None)).rowcount
+    if not changed:
+        db.rollback()
+        return False
+    db.commit()
+    return True
+
+
+def _resumed_closed(hello: Hello, stream_id: str, next_seq: int) -> Refused:
+    """The refusal of a resume whose session is closed: the kit sends the rest anew
+    (closed-session/1: from ``next_seq``, what is stored)."""
+    return Refused(f"hello: the session of stream {stream_id} is closed; "
+                   "start a new stream (resume null)",
+                   extra={"next_seq": next_seq}
+                   if CLOSED_SESSION_EXTENSION in hello.extensions else None)
+
+
+def _continued_closed(session_id: int) -> Refused:
+    """The refusal of a stream continuing a closed session."""
+    return Refused(f"hello: session {session_id} is closed; start a new session "
+                   "(resume null, no session)")
 
 
 def _same_kit(hello: Hello, session: models.Session, what: str) -> None:
