@@ -34,13 +34,17 @@ def recording():
     return simulate(SimulationConfig(exercise="elbow_flexion", repetitions=3, seed=4)).recording
 
 
-def _stream_until_a_pose_then(server, api, recording, end: str):
+def _stream_until_a_pose_then(server, api, recording, end: str, watcher=None):
     """A kit streams the patient's session; once the feed shows its first pose, the
     therapist ``end``s it ("erase" or "close", the kit still connected). What the feed
-    got after the answer, the session's id, and the frames of a 3D view opened after."""
+    got after the answer, the session's id, and the frames of a 3D view opened after.
+    ``watcher``: the instance (``ServerProcess``) of the feed and the 3D view, if not
+    ``server`` (another instance on its database and broker)."""
+    watcher = watcher or server
+    viewer = api if watcher is server else watcher.client("alice")
     patient = api.patient(f"Ada {end}")
     token = api.device(patient["id"])["token"]
-    feed_url = f"ws://127.0.0.1:{server.port}/ws/live?patient={patient['id']}"
+    feed_url = f"ws://127.0.0.1:{watcher.port}/ws/live?patient={patient['id']}"
     updates: list[tuple[float, dict]] = []
 
     async def watch(feed):
@@ -65,8 +69,8 @@ def _stream_until_a_pose_then(server, api, recording, end: str):
 
     async def run():
         feed = await connect(feed_url, additional_headers={
-            "Authorization": f"Bearer {api.token}"})
-        watcher = asyncio.create_task(watch(feed))
+            "Authorization": f"Bearer {viewer.token}"})
+        watching = asyncio.create_task(watch(feed))
         ws = await connect(f"{server.ws_url}?token={token}")
         await ws.send(json.dumps({"type": "hello", "protocol": 1, "device": "kit",
                                   "side": "right", "sensors": ["upper_arm", "forearm", "hand"],
@@ -91,13 +95,13 @@ def _stream_until_a_pose_then(server, api, recording, end: str):
         sender.cancel()
         await asyncio.gather(sender, return_exceptions=True)
         await asyncio.sleep(AFTER_S)
-        watcher.cancel()
+        watching.cancel()
         await feed.close()
         await ws.close()
-        grant = await asyncio.to_thread(api.http.post, "/api/viewer",
+        grant = await asyncio.to_thread(viewer.http.post, "/api/viewer",
                                         json={"patient_id": patient["id"]})
         assert grant.status_code == 200, grant.text
-        view = await watch_view(f"ws://127.0.0.1:{server.port}"
+        view = await watch_view(f"ws://127.0.0.1:{watcher.port}"
                                 f"{grant.json()['url'].rstrip('/')}",
                                 lambda messages: "Live ·" in texts(messages), 15.0)
         after = [u for at, u in updates if at > answered]

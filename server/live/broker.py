@@ -14,6 +14,13 @@ in one process: if the broker is slow or away, the oldest queued updates are dro
 stored data are not concerned) and the hub reconnects. A relayed update carries
 ``published_at``: the sending instance's wall time of ``publish`` [s since the epoch].
 
+An erase (``forget_session``, ``forget_patient``) goes to every instance, watched there
+or not, on the channel ``armtrack:live:forget`` that each instance reads from its start:
+an instance whose therapist watched the patient holds the session's last pose as the
+patient's latest, and a 3D view opened there later would draw the erased arm. It is
+queued behind the erased session's poses on the same connection, so none of them
+arrives after it.
+
 Why Redis and not NATS: ``bench/broker.py`` (README "Scaling out") measured both equal
 within this machine's noise for pose-sized messages (p50 ~0.4 ms, p99 3–12 ms, ~12 000
 messages/s through one Python connection with the ``hiredis`` parser); Redis is Debian's
@@ -38,6 +45,8 @@ from .hub import LiveHub, Subscription
 log = logging.getLogger("armtrack.live")
 
 CHANNEL_PREFIX = "armtrack:live:"
+#: Every instance's channel: erased sessions and patients whose last pose goes.
+FORGET_CHANNEL = CHANNEL_PREFIX + "forget"
 #: Most updates queued for the broker before the oldest are dropped.
 MAX_QUEUED = 20000
 RECONNECT_S = 1.0
@@ -63,8 +72,8 @@ class RedisHub(LiveHub):
 
         self._redis = redis.Redis.from_url(self.url)
         self._pubsub = self._redis.pubsub(ignore_subscribe_messages=True)
-        # always subscribed to something, so that reading never ends for want of channels
-        await self._pubsub.subscribe(CHANNEL_PREFIX + "instance:" + self.instance.decode())
+        # every instance hears of erasures (and so reading never ends for want of channels)
+        await self._pubsub.subscribe(FORGET_CHANNEL)
         self._tasks = [asyncio.create_task(self._send(), name="armtrack-broker-send"),
                        asyncio.create_task(self._read(), name="armtrack-broker-read"),
                        asyncio.create_task(self._subscriptions(), name="armtrack-broker-sub")]
@@ -102,7 +111,19 @@ class RedisHub(LiveHub):
         else:
             data = orjson.dumps({**update, "published_at": time.time()},
                                 option=orjson.OPT_SERIALIZE_NUMPY)
-        self._queue.append((f"{CHANNEL_PREFIX}{patient_id}", self.instance + b" " + data))
+        self._enqueue(f"{CHANNEL_PREFIX}{patient_id}", data)
+
+    def forget_session(self, session_id: int) -> None:
+        super().forget_session(session_id)
+        self._enqueue(FORGET_CHANNEL, orjson.dumps({"session_id": session_id}))
+
+    def forget_patient(self, patient_id: int) -> None:
+        super().forget_patient(patient_id)
+        self._enqueue(FORGET_CHANNEL, orjson.dumps({"patient_id": patient_id}))
+
+    def _enqueue(self, channel: str, data: bytes) -> None:
+        """``data`` for ``channel``, named as this instance's, sent by ``_send``."""
+        self._queue.append((channel, self.instance + b" " + data))
         if len(self._queue) > MAX_QUEUED:
             del self._queue[:len(self._queue) - MAX_QUEUED]
             self.dropped += 1
@@ -161,6 +182,9 @@ class RedisHub(LiveHub):
             channel = message["channel"]
             if isinstance(channel, bytes):
                 channel = channel.decode()
+            if channel == FORGET_CHANNEL:
+                self._forget(data)
+                continue
             try:
                 patient_id = int(channel.rsplit(":", 1)[1])
                 update = orjson.loads(data)
@@ -168,6 +192,18 @@ class RedisHub(LiveHub):
                 continue
             self.received += 1
             LiveHub.publish(self, patient_id, update)
+
+
+    def _forget(self, data: bytes) -> None:
+        """Another instance's erase: its session's or patient's last pose goes here too."""
+        try:
+            erased = orjson.loads(data)
+            if "session_id" in erased:
+                LiveHub.forget_session(self, int(erased["session_id"]))
+            else:
+                LiveHub.forget_patient(self, int(erased["patient_id"]))
+        except (ValueError, TypeError, KeyError, orjson.JSONDecodeError):
+            log.warning("broker: an erasure not understood: %r", data[:200])
 
 
 def make_hub(broker_url: str | None) -> LiveHub:
