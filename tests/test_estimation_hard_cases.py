@@ -232,6 +232,31 @@ def test_the_thorax_upright_through_a_random_sway():
     assert rms <= 0.9 and max(errors) <= 1.8
 
 
+def test_a_long_pose_span_keeps_the_upright_fit_small(monkeypatch):
+    """The upright's fit (``calibrate._sway_centre``) solves one system over the poses'
+    span in blocks; the span is the kit's marks (a pose is as long as it was held), so its
+    size is bounded however long they are: a 3-minute span at 50 Hz (a sine sway of 8° at
+    0.15 Hz about an upright tilted 5°) is fitted over at most 240 blocks (before: 720, the
+    work growing as the span's cube), and still finds that upright to 0.1°."""
+    from armtrack.estimator.pipeline import calibrate as calibrate_module
+
+    sizes = []
+    solve = np.linalg.solve
+
+    def spy(a, b):
+        sizes.append(len(a))
+        return solve(a, b)
+
+    monkeypatch.setattr(calibrate_module.np.linalg, "solve", spy)
+    t = np.arange(0.0, 180.0, 0.02)
+    lean = np.deg2rad(5.0) + np.deg2rad(8.0) * np.sin(2 * np.pi * 0.15 * t)
+    up = np.stack([np.sin(lean), np.cos(lean), np.zeros_like(t)], axis=1)
+    centre = calibrate_module._sway_centre(t, up)
+    error = abs(np.rad2deg(np.arctan2(centre[0], centre[1])) - 5.0)
+    print(f"3-min span: {sizes} blocks, upright off by {error:.3f}°")
+    assert sizes and max(sizes) <= 240 and error < 0.1
+
+
 def irregular_sway(seed: int, amplitude_deg: float, frequency_hz: float) -> dict[str, Profile]:
     """A sway that is no sine: per axis three incommensurate sines (f, √2 f, 1.24 f; the
     side bend at 0.8 f and half the amplitude), amplitudes 0.7/0.5/0.35 of the case's,

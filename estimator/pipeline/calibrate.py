@@ -347,6 +347,10 @@ SWAY_BAND_HZ = (0.05, 0.5)
 #: left in a block's mean, as a fraction of the sway's σ.
 SWAY_BLOCK_S = 0.25
 SWAY_NOISE = 0.1
+#: At most this many blocks (a minute of ``SWAY_BLOCK_S``; a longer span has longer blocks:
+#: the fit's work grows as the blocks' count cubed, and the span is as long as the kit's
+#: poses were held).
+SWAY_MAX_BLOCKS = 240
 
 
 def _sway_centre(t: np.ndarray, up: np.ndarray) -> np.ndarray:
@@ -358,8 +362,9 @@ def _sway_centre(t: np.ndarray, up: np.ndarray) -> np.ndarray:
     estimate of its mean (generalised least squares over ``SWAY_BLOCK_S`` blocks): weights
     that sum to one and cancel the band's partial cycles as far as the span allows (the
     ends weigh most: they pin the slow part). A still trunk's is its mean to within the
-    noise."""
-    block = np.floor((t - t[0]) / SWAY_BLOCK_S).astype(int)
+    noise. At most ``SWAY_MAX_BLOCKS`` blocks."""
+    length = max(SWAY_BLOCK_S, float(t[-1] - t[0]) / (SWAY_MAX_BLOCKS - 1))
+    block = np.minimum(np.floor((t - t[0]) / length).astype(int), SWAY_MAX_BLOCKS - 1)
     count = np.bincount(block)
     kept = count > 0
     times = (np.bincount(block, t) / np.maximum(count, 1))[kept]
