@@ -78,6 +78,11 @@ class Settings(BaseSettings):
         "next hello without resume or session: error naming the limit, close 4429; the kit "
         "keeps its data and tries again); resumes and new streams of a session are not "
         "new sessions")
+    max_session_samples: int = Field(
+        2_000_000, ge=1, description="most samples (rows, all sensors and points together) "
+        "one session holds, streamed or uploaded: a closed session's estimation holds them "
+        "all in memory (about 0.6 kB a row); a stream's message that would pass it is "
+        "refused (error naming it, the stream stays open), an upload over it is 413")
     max_live_feeds_per_user: int = Field(
         20, ge=1, description="most live feeds one therapist account holds open at once, "
         "all its sign-ins together, in one server instance: /ws/live feeds, open 3D views "

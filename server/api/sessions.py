@@ -247,6 +247,14 @@ def _count_and_store(db, svc: Services, patient: models.Patient, device_id: int 
         recording = imports.import_upload(files, sensors, patient, format, calibration,
                                           side, height_m, options,
                                           svc.settings.max_upload_bytes)
+    held = sum(len(s) for s in recording.sensors.values()) \
+        + sum(len(p) for p in recording.points.values())
+    if held > svc.settings.max_session_samples:  # its estimation would hold every row
+        name = (file.filename if file is not None else None) or "the files"
+        raise HTTPException(status.HTTP_413_CONTENT_TOO_LARGE,
+                            f"{name}: the recording holds {held} samples, more than one "
+                            f"session holds ({svc.settings.max_session_samples}, "
+                            "ARMTRACK_MAX_SESSION_SAMPLES): split it into shorter sessions")
     blocks = upload_blocks(recording)  # packed before the database's write lock is taken
     if device_id is not None:
         new_sessions.count_turn(db, device_id)  # a hello of the kit counts before or after

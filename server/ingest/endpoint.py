@@ -146,6 +146,8 @@ class IngestConnection:
         self.feedback: FeedbackRunner | None = None
         #: marks the session holds (counted from the database at this stream's first)
         self.marks_kept: int | None = None
+        #: samples the session holds (counted from the database at this stream's first)
+        self.samples_kept: int | None = None
         #: programs/1 (docs/extensions/programs-hello.md): the program hello named, and
         #: what ready says of it
         self.program_ref: int | str | None = None
@@ -522,6 +524,7 @@ class IngestConnection:
                     if kind == "samples":
                         item = protocol.check_samples(message, seq, self.hello, state.last_t,
                                                      state.t_offset)
+                        await self._room_for(len(item.rows), seq)
                         state.last_t[item.sensor] = float(item.rows[-1, 0])
                         self.received += len(item.rows)
                         self._count(item.sensor, len(item.rows), received)
@@ -529,6 +532,7 @@ class IngestConnection:
                     elif kind == "points":  # docs/extensions/points.md
                         item = protocol.check_points(message, seq, self.hello, state.last_t,
                                                     state.t_offset)
+                        await self._room_for(len(item.rows), seq)
                         state.last_t[item.sensor] = float(item.rows[-1, 0])
                         self.services.writer.submit(Write(state, seq, samples=item))
                     else:
@@ -573,6 +577,21 @@ class IngestConnection:
         except Refused as error:
             await self.refuse(error)
         return not self._closed
+
+    async def _room_for(self, rows: int, seq: int) -> None:
+        """Refuse message ``seq`` when its ``rows`` would take the session past
+        ``ARMTRACK_MAX_SESSION_SAMPLES`` (its closed estimation holds every row in memory);
+        else count them in."""
+        assert self.state is not None
+        if self.samples_kept is None:
+            self.samples_kept = await self.services.run_db(_samples_in_session,
+                                                           self.state.session_id)
+        limit = self.settings.max_session_samples
+        if self.samples_kept + rows > limit:
+            raise Refused(f"samples: this session holds {self.samples_kept} samples; "
+                          f"{rows} more would pass {limit}, the most one session holds "
+                          "(ARMTRACK_MAX_SESSION_SAMPLES): start a new session", seq)
+        self.samples_kept += rows
 
     def _count(self, sensor: str, n: int, now: float) -> None:
         stats = self.sensor_stats.setdefault(sensor, {"samples": 0, "first": now})
@@ -684,6 +703,11 @@ def _same_kit(hello: Hello, session: models.Session, what: str) -> None:
         raise Refused(f"hello: gyro_delay_s {hello.gyro_delay_s} differs from the session's"
                       f"{had}; start a new session (resume null, no session) for a kit that "
                       "declares another")
+
+
+def _samples_in_session(db: DbSession, session_id: int) -> int:
+    return db.scalar(select(models.Session.samples)
+                     .where(models.Session.id == session_id)) or 0
 
 
 def _marks_in_session(db: DbSession, session_id: int) -> int:
