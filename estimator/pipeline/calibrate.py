@@ -176,6 +176,42 @@ def _gyro_heading(arm: SensorTrack, trunk: SensorTrack, start: float, end: float
 #: A gyroscope's bias as one σ [rad/s] before anything is learnt (a MEMS zero-rate offset;
 #: ``QcfParams.bias_sigma``): the prior of ``biases_from_poses``.
 BIAS_SIGMA = 0.01
+#: How much more the rigid fit's first guess weighs the two mean gravities than the rates
+#: (both unit-normed): gravity held exactly, the rates give the turn about it.
+GRAVITY_FIRST = 1e3
+#: Half the span [s] of the line fitted through a held pose's rates for their derivative,
+#: the angular acceleration that moves a sensor held off the sway's pivot (``_tilt_bias``):
+#: a sway of ≤ 0.5 Hz is a line over 0.5 s, the gyroscope's noise averaged over ~25 samples.
+LEVER_HALF_S = 0.25
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """The cross-product matrices ``[v]×`` of vectors ``v`` (..., 3): ``[v]× u = v × u``."""
+    v = np.asarray(v, dtype=np.float64)
+    out = np.zeros((*v.shape[:-1], 3, 3))
+    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
+    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
+    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
+    return out
+
+
+def _local_slope(t: np.ndarray, x: np.ndarray, half: float) -> np.ndarray:
+    """``dx/dt`` at each sample ``t`` [s] of ``x`` (N, k): the least-squares line through
+    the samples within ±``half`` [s] (fewer at the ends), any sampling."""
+    a = np.searchsorted(t, t - half, "left")
+    b = np.searchsorted(t, t + half, "right")
+    s = t - t[0]
+
+    def sums(v: np.ndarray) -> np.ndarray:
+        return np.concatenate([np.zeros((1, *v.shape[1:])), np.cumsum(v, axis=0)])
+
+    count = (b - a).astype(np.float64)
+    st, stt, sx, stx = sums(s), sums(s * s), sums(x), sums(s[:, None] * x)
+    mean_t = (st[b] - st[a]) / count
+    var_t = (stt[b] - stt[a]) / count - mean_t**2
+    mean_x = (sx[b] - sx[a]) / count[:, None]
+    cov_tx = (stx[b] - stx[a]) / count[:, None] - mean_t[:, None] * mean_x
+    return cov_tx / np.maximum(var_t, 1e-12)[:, None]
 
 
 def _rigid_fit(arm: SensorTrack, trunk: SensorTrack, start: float, end: float):
@@ -204,7 +240,13 @@ def _rigid_fit(arm: SensorTrack, trunk: SensorTrack, start: float, end: float):
                                    for k in range(3)], axis=1))
     mean_arm, mean_trunk = _up(g_arm), _up(g_trunk)
     c_arm, c_trunk = w_arm - w_arm.mean(axis=0), w_trunk - w_trunk.mean(axis=0)
-    C = _kabsch(c_arm.T @ c_trunk)
+    # Start from gravity held exactly and the rates for the turn about it: started from the
+    # rates alone (blind about the sway's axis), a wrong turn there made gravity's scatter
+    # about the fit large, its weight small, and the fit stayed wrong (up to 124° off with
+    # a σ of 5°: sine sway seed 10's N-pose).
+    cross = c_arm.T @ c_trunk
+    C = _kabsch(cross / max(float(np.linalg.norm(cross)), 1e-30)
+                + GRAVITY_FIRST * np.outer(mean_arm, mean_trunk))
     for _ in range(2):  # each part weighed by its scatter about the last fit
         residual = w_trunk - w_arm @ C.T
         d = residual.mean(axis=0)
@@ -228,31 +270,96 @@ def _tilt_bias(track: SensorTrack, start: float, end: float):
     """The gyroscope bias across gravity a held pose ``start…end`` shows [rad/s] (sensor
     frame), as information and evidence: the gyroscope's turn, integrated, must keep the
     accelerometer's direction; what it drifts from it by, linearly in time, is the bias
-    (small turns: a held pose only sways). Its noise is the residual's, counted over the
-    samples it is correlated across (the sway's accelerations are slow). None without a
-    pose's worth of samples."""
+    (small turns: a held pose only sways). The sway moves the sensor too: held on a body
+    that turns about a fixed pivot, it accelerates by ``a = α × r + ω × (ω × r)`` (sensor
+    frame; ``r`` the pivot-to-sensor lever, ``α`` the rates' slope), which tilts the
+    accelerometer's direction slowly, alike for seconds: a quarter of a slow sway's cycle
+    looks like drift (the bias 7.4 mrad/s RMS off while its σ said 2.1; arm sensors in the
+    T-pose, far from the pivot, up to 22). ``r`` is fitted beside the bias, and the bias's
+    information is what is left once ``r`` is free (2.4 mrad/s off, σ 4.5). The residual's
+    noise is counted over the samples it is correlated across. Returns ``(information,
+    evidence, t, residual)``, the last the fit's residual direction (N, 3; sensor frame) at
+    the pose's sample times ``t`` [s]; None without a pose's worth of samples."""
     t, acc, gyr, _ = track.arrays()
     a, b = np.searchsorted(t, start, "left"), np.searchsorted(t, end, "right")
     if b - a < 10:
         return None
-    t, unit, gyr = t[a:b], _unit_rows(acc[a:b]), gyr[a:b]
+    t, acc, gyr = t[a:b], acc[a:b], gyr[a:b]
+    unit = _unit_rows(acc)
     g = _up(unit)
     turned = cumulative_trapezoid(gyr, t, axis=0, initial=0.0)
     y = unit + np.cross(turned, g)
     y -= y.mean(axis=0)
     tc = t - t.mean()
-    K = np.array([[0.0, -g[2], g[1]], [g[2], 0.0, -g[0]], [-g[1], g[0], 0.0]])
-    spread = float(np.sum(tc**2))
-    info = spread * (K.T @ K)
-    ev = -K.T @ np.sum(tc[:, None] * y, axis=0)
-    bias = np.linalg.pinv(info) @ ev
-    res = y + tc[:, None] * (K @ bias)[None]
+    # the design: the bias's drift, −t [g]× b, and the sway's acceleration across gravity
+    # over its norm, (I − g gᵀ)([α]× + [ω]×[ω]×) r / |f| (each less its mean)
+    skew_w = _skew(gyr)
+    lever = np.einsum("ij,njk->nik", np.eye(3) - np.outer(g, g),
+                      _skew(_local_slope(t, gyr, LEVER_HALF_S)) + skew_w @ skew_w)
+    lever = (lever - lever.mean(axis=0)) / float(np.mean(np.linalg.norm(acc, axis=1)))
+    design = np.concatenate([-tc[:, None, None] * _skew(g)[None], lever], axis=2)
+    design = design.reshape(-1, 6)
+    normal, moment = design.T @ design, design.T @ y.reshape(-1)
+    solution = np.linalg.lstsq(normal, moment, rcond=None)[0]
+    res = y - (design @ solution).reshape(-1, 3)
     variance = max(float(np.mean(np.sum(res**2, axis=1))) / 2.0, 1e-30)
     r = res - res.mean(axis=0)
     rho = float(np.sum(r[1:] * r[:-1]) / max(float(np.sum(r * r)), 1e-30))
     rho = min(max(rho, 0.0), 0.999)
     variance *= (1.0 + rho) / (1.0 - rho)  # an AR(1) residual's effective sample count
-    return info / variance, ev / variance
+    # the bias's part once the lever is free (its Schur complement)
+    gain = normal[:3, 3:] @ np.linalg.pinv(normal[3:, 3:])
+    info = normal[:3, :3] - gain @ normal[3:, :3]
+    ev = moment[:3] - gain @ moment[3:]
+    return info / variance, ev / variance, t, res
+
+
+#: The blocks [s] the tilt drifts' residuals are averaged over before their correlation
+#: from sensor to sensor is taken (``_common_share``): the accelerometers' white noise
+#: averages out, the sway's slow error (its period 2–20 s) stays.
+DRIFT_BLOCK_S = 0.5
+
+
+def _common_share(tilts: Mapping[str, tuple | None], turns: Mapping[str, np.ndarray]
+                  ) -> float:
+    """ρ ∈ [0, 1]: the mean correlation, from sensor to sensor, of the tilt drifts'
+    residuals (``_tilt_bias``) over one held pose, each turned into the trunk sensor's frame
+    (``turns``: per arm sensor ``R_trunk_arm``), at the trunk's sample times, averaged over
+    ``DRIFT_BLOCK_S`` blocks. 0 with fewer than two."""
+    trunk = tilts.get("trunk")
+    if trunk is None:
+        return 0.0
+    t0 = trunk[2]
+    series = [trunk[3]]
+    for sensor, C in turns.items():
+        tilt = tilts.get(sensor)
+        if tilt is not None:
+            turned = tilt[3] @ C.T
+            series.append(np.stack([np.interp(t0, tilt[2], turned[:, k]) for k in range(3)],
+                                   axis=1))
+    block = np.floor((t0 - t0[0]) / DRIFT_BLOCK_S).astype(int)
+    count = np.bincount(block)
+    kept = count > 0  # (a gap in the samples leaves a block empty)
+    means = []
+    for r in series:
+        m = np.stack([np.bincount(block, r[:, k])[kept] for k in range(3)], axis=1) \
+            / count[kept, None]
+        means.append(m - m.mean(axis=0))
+    pairs = [float(np.sum(a * b) / max(np.sqrt(np.sum(a * a) * np.sum(b * b)), 1e-30))
+             for j, a in enumerate(means) for b in means[j + 1:]]
+    return float(np.clip(np.mean(pairs), 0.0, 1.0)) if pairs else 0.0
+
+
+def _white_variance(track: SensorTrack, start: float, end: float) -> float:
+    """The variance [rad²/s²] of the mean over ``start…end`` of a gyroscope's white noise
+    per axis: its variance from the rates' second differences (``ω[i+1] − 2ω[i] + ω[i−1]``
+    holds 6σ² of white noise, next to nothing of a slow turn), over the samples' count."""
+    t, _, gyr, _ = track.arrays()
+    a, b = np.searchsorted(t, start, "left"), np.searchsorted(t, end, "right")
+    if b - a < 3:
+        return 0.0
+    second = gyr[a + 2: b] - 2.0 * gyr[a + 1: b - 1] + gyr[a: b - 2]
+    return float(np.mean(second**2)) / 6.0 / (b - a)
 
 
 def _kabsch(cross: np.ndarray) -> np.ndarray:
@@ -287,46 +394,78 @@ def biases_from_poses(tracks: Mapping[str, SensorTrack], plan: CalibrationPlan,
     trunk's vertical part is what the tilt never sees on a trunk that only sways; the
     arm's are what its tilt windows learn only slowly in motion (the arm's own
     accelerations hide them; no sensor of a swaying kit rests). Least squares over every
-    sensor and both poses with the prior ``BIAS_SIGMA`` on every bias, each pose weighed
-    by its noise and by ``C``'s error; ``priors``: a sensor's bias known before (a
-    remembered one [rad/s], sensor frame; else 0) as that prior's mean. None without two
-    poses."""
+    sensor and both poses with the prior ``BIAS_SIGMA`` on every bias; what each pose
+    shows of a gyroscope is its mean, the bias plus its white noise averaged over the
+    pose (one unknown per sensor and pose, its variance from the rates' second
+    differences, in every fit of that gyroscope: counted once, not once per fit); each
+    rigid fit weighed by what else is in its residual and by ``C``'s error; the tilt
+    drifts, whose sway errors are one from sensor to sensor, by their effective count
+    (``_common_share``). ``priors``: a sensor's bias known before (a remembered one
+    [rad/s], sensor frame; else 0) as that prior's mean. None without two poses."""
     if plan.npose is None or plan.tpose is None or "trunk" not in tracks:
         return None
     arms = [s for s in ARM if s in tracks]
-    rows, rhs, weights = [], [], []
-    for k, sensor in enumerate(arms):
-        for pose in (plan.npose, plan.tpose):
+    if not arms:
+        return None
+    sensors = ["trunk", *arms]
+    poses = (plan.npose, plan.tpose)
+    n = len(sensors)
+    # the unknowns: each sensor's bias b_i, then each gyroscope's noise averaged over each
+    # pose, u_ip: a pose shows a gyroscope's mean, b_i + u_ip, never b_i alone, to every
+    # fit that uses that gyroscope (its tilt drift and each rigid fit it is in)
+    size = 3 * n * (1 + len(poses))
+
+    def bias(i: int) -> slice:
+        return slice(3 * i, 3 * i + 3)
+
+    def mean_noise(i: int, p: int) -> slice:
+        return slice(3 * n * (1 + p) + 3 * i, 3 * n * (1 + p) + 3 * i + 3)
+
+    information = np.zeros((size, size))
+    evidence = np.zeros(size)
+    for i, sensor in enumerate(sensors):
+        information[bias(i), bias(i)] = np.eye(3) / BIAS_SIGMA**2
+        if priors is not None and sensor in priors:
+            evidence[bias(i)] = np.asarray(priors[sensor], dtype=np.float64) / BIAS_SIGMA**2
+        for p, pose in enumerate(poses):
+            information[mean_noise(i, p), mean_noise(i, p)] = np.eye(3) / max(
+                _white_variance(tracks[sensor], pose.start, pose.end), 1e-30)
+    for p, pose in enumerate(poses):
+        turns = {}
+        for k, sensor in enumerate(arms, start=1):
             fit = _rigid_fit(tracks[sensor], tracks["trunk"], pose.start, pose.end)
             if fit is None:
                 return None
             C, d, sigma_d, covariance, v = fit
-            row = np.zeros((3, 3 + 3 * len(arms)))
-            row[:, :3] = np.eye(3)
-            row[:, 3 + 3 * k: 6 + 3 * k] = -C
-            rows.append(row)
-            rhs.append(d)
-            # C's turn error ε moves d by ε × v
-            cross = np.array([[0.0, v[2], -v[1]], [-v[2], 0.0, v[0]], [v[1], -v[0], 0.0]])
-            noise = sigma_d**2 * np.eye(3) + cross @ np.nan_to_num(
-                covariance, posinf=1e6) @ cross.T
-            weights.append(np.linalg.inv(noise))
-    if not rows:
-        return None
-    information = np.eye(rows[0].shape[1]) / BIAS_SIGMA**2
-    evidence = np.zeros(rows[0].shape[1])
-    for row, d, weight in zip(rows, rhs, weights, strict=True):
-        information += row.T @ weight @ row
-        evidence += row.T @ weight @ d
-    for k, sensor in enumerate(["trunk", *arms]):
-        part = slice(3 * k, 3 * k + 3)
-        if priors is not None and sensor in priors:
-            evidence[part] += np.asarray(priors[sensor], dtype=np.float64) / BIAS_SIGMA**2
-        for pose in (plan.npose, plan.tpose):
-            tilt = _tilt_bias(tracks[sensor], pose.start, pose.end)
-            if tilt is not None:
-                information[part, part] += tilt[0]
-                evidence[part] += tilt[1]
+            turns[sensor] = C
+            row = np.zeros((3, size))
+            row[:, bias(0)] = row[:, mean_noise(0, p)] = np.eye(3)
+            row[:, bias(k)] = row[:, mean_noise(k, p)] = -C
+            # the residual's scatter less the gyroscopes' white noise (now in u), and C's
+            # turn error ε, which moves d by ε × v
+            white = _white_variance(tracks["trunk"], pose.start, pose.end) + \
+                _white_variance(tracks[sensor], pose.start, pose.end)
+            noise = (max(sigma_d**2 - white, 0.0) + 1e-12) * np.eye(3) + _skew(
+                v) @ np.nan_to_num(covariance, posinf=1e6) @ _skew(v).T
+            weight = np.linalg.inv(noise)
+            information += row.T @ weight @ row
+            evidence += row.T @ weight @ d
+        tilts = {sensor: _tilt_bias(tracks[sensor], pose.start, pose.end)
+                 for sensor in sensors}
+        # the sway's acceleration, as far as the lever leaves it, is one error in every
+        # sensor's tilt drift (they turn as one): the drifts' residuals, averaged over
+        # DRIFT_BLOCK_S and turned into the trunk's frame, are correlated by ρ, and n such
+        # fits hold the information of n / (1 + (n − 1) ρ) (the tilt drifts' bias errors
+        # were correlated 0.5–0.65 from sensor to sensor, each counted whole)
+        shared = 1.0 / (1.0 + (n - 1) * _common_share(tilts, turns))
+        for i, sensor in enumerate(sensors):
+            tilt = tilts[sensor]
+            if tilt is None:
+                continue
+            for one in (bias(i), mean_noise(i, p)):
+                evidence[one] += shared * tilt[1]
+                for other in (bias(i), mean_noise(i, p)):
+                    information[one, other] += shared * tilt[0]
     x = np.linalg.solve(information, evidence)
     acc, _, _ = tracks["trunk"].window(min(plan.npose.start, plan.tpose.start),
                                        max(plan.npose.end, plan.tpose.end))
@@ -334,8 +473,8 @@ def biases_from_poses(tracks: Mapping[str, SensorTrack], plan: CalibrationPlan,
         return None
     up = _up(_unit_rows(acc))
     covariance = np.linalg.inv(information)
-    arm = {sensor: (x[3 + 3 * k: 6 + 3 * k], covariance[3 + 3 * k: 6 + 3 * k, 3 + 3 * k: 6 + 3 * k])
-           for k, sensor in enumerate(arms)}
+    arm = {sensor: (x[bias(k)], covariance[bias(k), bias(k)])
+           for k, sensor in enumerate(arms, start=1)}
     trunk = covariance[:3, :3]
     return PoseBiases(float(x[:3] @ up), up, float(np.sqrt(up @ trunk @ up)), arm)
 
