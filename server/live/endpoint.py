@@ -93,7 +93,7 @@ async def _watched(websocket: WebSocket, services, token: str | None, therapist_
 
     def revoke(code: int, reason: str) -> None:
         revoked.append((code, reason))
-        subscription.put(None)
+        subscription.end()
 
     with services.hub.subscribe(patient) as subscription:
         watch = Watch(hash_token(token or ""), therapist_id, patient, None, revoke)
@@ -117,7 +117,7 @@ async def _feed(websocket: WebSocket, services, patient: int, subscription) -> N
     async def watch_gone() -> None:
         with contextlib.suppress(Exception):
             await websocket.receive()
-        subscription.put(None)
+        subscription.end()
 
     gone = asyncio.create_task(watch_gone())
     try:

@@ -23,16 +23,31 @@ class Subscription:
         self.patient_id = patient_id
         self.queue: asyncio.Queue[Mapping[str, Any] | None] = asyncio.Queue(QUEUE_SIZE)
         self.dropped = 0
+        self.ended = False
 
     def put(self, update: Mapping[str, Any] | None) -> None:
+        if self.ended:
+            return
         if self.queue.full():
             self.queue.get_nowait()
             self.dropped += 1
         self.queue.put_nowait(update)
 
+    def end(self) -> None:
+        """No more updates (the feed's right is gone, or its viewer left): ``get`` answers
+        None from now on, whatever is published after. (An end put in the queue like an
+        update was pushed out by the next ``QUEUE_SIZE`` updates, a kit's flood of
+        ``status``, before the feed's task read it: the feed stayed open for good.)"""
+        if not self.ended:
+            self.put(None)  # wakes a get waiting on the queue
+            self.ended = True
+
     async def get(self) -> Mapping[str, Any] | None:
         """The next update; None once the subscriber's side put an end to it."""
-        return await self.queue.get()
+        if self.ended:
+            return None
+        update = await self.queue.get()
+        return None if self.ended else update
 
     def close(self) -> None:
         self.hub.unsubscribe(self)
