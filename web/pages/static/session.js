@@ -485,7 +485,8 @@ async function showReplay() {
     el("h3", {}, "Exports"),
     el("div", { class: "row", id: "exports" },
       download(`/api/sessions/${session.id}/recording.csv`, "recording.csv"),
-      summary.processed ? download(`/api/sessions/${session.id}/angles.csv`, "angles.csv") : null));
+      summary.processed ? download(`/api/sessions/${session.id}/angles.csv`, "angles.csv") : null),
+    el("div", { class: "row", style: "margin-top:18px" }, eraseSessionButton(card)));
   if (summary.processed) {
     try {
       const report = await api(`/api/sessions/${session.id}/report`);
@@ -505,6 +506,21 @@ async function showReplay() {
       }
     } catch (_) { /* no OpenAPI document: the raw exports are enough */ }
   }
+}
+
+/** "Erase this session…": a recording imported to the wrong patient, a session streamed by
+ * the wrong kit, is corrected without erasing the patient. Asks first, naming the session;
+ * then back to the patient's page, where it is gone. */
+function eraseSessionButton(card) {
+  return el("button", { class: "danger", id: "erase-session", onclick: async () => {
+    const what = `session ${session.id} of ${patient.name} (${fmtDate(session.started_at)})`;
+    if (!confirm(`Erase ${what} with its recording, angles and reports, for good? `
+      + "The patient's other sessions stay.")) return;
+    try {
+      await api(`/api/sessions/${session.id}`, { method: "DELETE" });
+      location.href = "/patients/" + patient.id;
+    } catch (e) { showError(card, e); }
+  } }, "Erase this session…");
 }
 
 // ---------------------------------------------------------------- stopped by the server
