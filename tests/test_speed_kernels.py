@@ -157,3 +157,28 @@ def test_angle_turned_in_chunks_equals_whole_compiled_or_not():
             kernel(t[first:], gyr[first:], chunk, state, out)
             parts.append(out)
         np.testing.assert_allclose(np.concatenate(parts), expected, rtol=1e-12)
+
+
+def test_one_symmetric_3x3_inverse_for_the_qcf_kernel_and_the_drift_take_back():
+    """The qcf kernel's bias updates and the drift take-back's Kalman step invert their
+    symmetric 3×3 matrix with one compiled helper (it was written in each): its cofactors
+    over its determinant are numpy's inverse, compiled or not, bit for bit alike."""
+    from armtrack.estimator import scalar_linalg
+    from armtrack.estimator.orientation import qcf_kernel
+    from armtrack.estimator.pipeline import drift
+
+    assert qcf_kernel.sym3_adjugate is drift.sym3_adjugate is scalar_linalg.sym3_adjugate
+    rng = np.random.default_rng(3)
+    worst = 0.0
+    for scale in (1e-10, 1e-6, 1.0, 1e3):  # rad²/s² covariances to large ones
+        a = rng.normal(size=(3, 3)) * np.sqrt(scale)
+        s = a @ a.T + scale * 1e-3 * np.eye(3)
+        upper = (s[0, 0], s[1, 1], s[2, 2], s[0, 1], s[0, 2], s[1, 2])
+        c00, c01, c02, c11, c12, c22, det = scalar_linalg.sym3_adjugate(*upper)
+        assert (c00, c01, c02, c11, c12, c22, det) == scalar_linalg._sym3_adjugate(*upper)
+        inverse = np.array([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]]) / det
+        expected = np.linalg.inv(s)
+        worst = max(worst, np.abs(inverse - expected).max() / np.abs(expected).max())
+        assert det == pytest.approx(np.linalg.det(s), rel=1e-9)
+    print(f"\nlargest relative difference from numpy's inverse: {worst:.1e}")
+    assert worst < 1e-9

@@ -77,6 +77,7 @@ import math
 
 import numpy as np
 
+from ..scalar_linalg import sym3_adjugate
 from ..scalar_rotations import quat_to_rows
 
 STATE_SIZE = 167
@@ -135,13 +136,7 @@ def _field_turn_update(bx, by, bz, p00, p11, p22, p01, p02, p12, vx, vy, vz, yx,
     s02 = a0x * m02 + a0y * m12 + a0z * m22
     s12 = a1x * m02 + a1y * m12 + a1z * m22
     # S⁻¹ (symmetric, positive definite: r > 0)
-    c00 = s11 * s22 - s12 * s12
-    c01 = s02 * s12 - s01 * s22
-    c02 = s01 * s12 - s02 * s11
-    c11 = s00 * s22 - s02 * s02
-    c12 = s01 * s02 - s00 * s12
-    c22 = s00 * s11 - s01 * s01
-    det = s00 * c00 + s01 * c01 + s02 * c02
+    c00, c01, c02, c11, c12, c22, det = sym3_adjugate(s00, s11, s22, s01, s02, s12)
     if not det > 0.0:
         return bx, by, bz, p00, p11, p22, p01, p02, p12, scatter
     f = 1.0 / det

@@ -44,6 +44,7 @@ import math
 import numpy as np
 
 from ..orientation.qcf import QcfParams
+from ..scalar_linalg import sym3_adjugate
 
 #: Deviation from the run's mean that still counts as still: gyroscope [rad/s],
 #: accelerometer [m/s²].
@@ -138,14 +139,8 @@ def _gap_step_python(state, gap):
     p11 += walk
     p22 += walk
     # S = P_bb + r, its inverse (symmetric, positive definite)
-    s00, s11, s22 = p00 + r, p11 + r, p22 + r
-    c00 = s11 * s22 - p12 * p12
-    c01 = p02 * p12 - p01 * s22
-    c02 = p01 * p12 - p02 * s11
-    c11 = s00 * s22 - p02 * p02
-    c12 = p01 * p02 - s00 * p12
-    c22 = s00 * s11 - p01 * p01
-    det = s00 * c00 + p01 * c01 + p02 * c02
+    c00, c01, c02, c11, c12, c22, det = sym3_adjugate(p00 + r, p11 + r, p22 + r,
+                                                      p01, p02, p12)
     nx = state[39] / state[42] - state[4]
     ny = state[40] / state[42] - state[5]
     nz = state[41] / state[42] - state[6]
