@@ -21,6 +21,17 @@ handler attribute or ``srcdoc`` frame does not run. Styles stay ``'unsafe-inline
 When the page is not of that shape (another viser), only its literal inline scripts are
 hashed; the view may then fail to draw, which the browser tests catch, but the policy
 never loosens.
+
+One change to the served page (``_served_page``): viser's bundle compiles its Gaussian
+splat sorter (an Emscripten module, ``Sorter.wasm``) at load, whether or not a splat is
+ever shown, and that module's embind glue builds its JavaScript invokers with
+``Function(...)`` — ``eval``, refused by this policy (Chromium: "Evaluating a string as
+JavaScript violates …", an uncaught error on every 3D view). armtrack shows no splats, so
+the served payload loads the sorter when a splat first awaits it (never here; the splat
+worker's source, which loads it the same way, too); the rest of the bundle is byte for
+byte viser's. The one other ``eval`` in the bundle, viser's ``run_javascript``
+(``Function(source)()``), armtrack never calls. Splats would need ``'unsafe-eval'`` in
+this policy (their sorter's worker too), which it does not allow: docs/security.md.
 """
 
 from __future__ import annotations
@@ -34,6 +45,7 @@ import re
 from functools import cache
 from pathlib import Path
 
+import numpy as np
 import viser
 
 log = logging.getLogger(__name__)
@@ -51,9 +63,54 @@ def _page_path() -> Path:
 
 @cache
 def client_page() -> tuple[bytes, bytes]:
-    """viser's client page (one self-contained file), plain and gzipped."""
-    page = _page_path().read_bytes()
+    """viser's client page as served (one self-contained file), plain and gzipped."""
+    page = _served_page()
     return page, gzip.compress(page, 6)
+
+
+#: viser's eager load of its splat sorter (minified): ``X=fetch(URL).then(e=>e.
+#: arrayBuffer()).then(e=>MAKE({wasmBinary:e}))``, a promise made at load.
+_EAGER_SORTER = re.compile(rb"=(fetch\([\w$]+\)\.then\(e=>e\.arrayBuffer\(\)\)"
+                           rb"\.then\(e=>[\w$]+\(\{wasmBinary:e\}\)\))")
+
+
+def _lazy_sorter(code: bytes) -> bytes | None:
+    """viser's bundle with its splat sorter made on first ``await`` or ``then`` (a
+    thenable that starts the same promise then), or None when the bundle has no such load.
+    viser 1.1 has two: the page's, and the same in its splat worker's source (run only in
+    that worker, which only splats start)."""
+    if not _EAGER_SORTER.search(code):
+        return None
+    return _EAGER_SORTER.sub(rb"={then(_ok,_no){return(this.p??=\1).then(_ok,_no)}}", code)
+
+
+@cache
+def _served_page() -> bytes:
+    """viser's page with its payload's sorter load made lazy (module docstring), or the
+    page as it is (and a warning) when its shape is not the one known."""
+    page = _page_path().read_bytes()
+    for attributes, _body in _INLINE_SCRIPT.findall(page):
+        found = {k.decode(): v.decode() for k, v in _ATTRIBUTE.findall(attributes)}
+        if not {"data-p", "data-ss", "data-cs"} <= found.keys():
+            continue
+        try:
+            import zstandard  # viser's own dependency
+
+            css, code = int(found["data-ss"]), int(found["data-cs"])
+            data = zstandard.ZstdDecompressor().decompress(
+                _base88(html.unescape(found["data-p"])), max_output_size=css + code)
+            lazy = _lazy_sorter(data[css:css + code])
+        except Exception:
+            lazy = None
+        if lazy is None:
+            log.warning("viser's client page: its splat sorter's load was not found; the "
+                        "3D view may log an 'unsafe-eval' refusal (web/viewer/page.py)")
+            return page
+        frame = zstandard.ZstdCompressor(level=9).compress(data[:css] + lazy)
+        changed = (attributes.replace(found["data-p"].encode(), _to_base88(frame))
+                   .replace(f'data-cs="{code}"'.encode(), f'data-cs="{len(lazy)}"'.encode()))
+        return page.replace(attributes, changed, 1)
+    return page
 
 
 def _sha256(text: bytes) -> str:
@@ -80,6 +137,22 @@ def _base88(text: str) -> bytes:
     return bytes(out)
 
 
+def _to_base88(data: bytes) -> bytes:
+    """The inverse of ``_base88``: 4 bytes → 5 characters; a last r bytes → r + 1."""
+    digits = np.frombuffer(_ALPHABET.encode(), np.uint8)
+    whole = len(data) - len(data) % 4
+    values = np.frombuffer(data[:whole], ">u4").astype(np.uint64)
+    groups = np.empty((len(values), 5), np.uint8)
+    for j in range(4, -1, -1):
+        groups[:, j] = values % 88
+        values //= 88
+    value, rest = int.from_bytes(data[whole:], "big"), len(data) - whole
+    last = bytearray(rest + 1 if rest else 0)
+    for j in range(len(last) - 1, -1, -1):
+        value, last[j] = divmod(value, 88)
+    return digits[groups].tobytes() + digits[np.frombuffer(bytes(last), np.uint8)].tobytes()
+
+
 def _payload_script(attributes: bytes) -> bytes | None:
     """The JavaScript the loader runs as an inline module, as the browser hashes it (the
     UTF-8 of its text), or None when the script carries no payload."""
@@ -98,7 +171,7 @@ def _payload_script(attributes: bytes) -> bytes | None:
 def script_hashes() -> tuple[str, ...]:
     """The SHA-256 sources of every script viser's page runs inline."""
     hashes = []
-    for attributes, body in _INLINE_SCRIPT.findall(_page_path().read_bytes()):
+    for attributes, body in _INLINE_SCRIPT.findall(_served_page()):
         hashes.append(_sha256(body))
         try:
             module = _payload_script(attributes)
