@@ -1,7 +1,7 @@
 """Issue 17, a clinic admin's reach, on a real server: an admin holds no patients — they
 cannot give one to themself (nor to another admin) to read it, cannot add one, and a
 patient the database says is theirs (made before this rule) is 404 to them like anyone
-else's (item 5), an upload's progress too; an admin cannot make an account named
+else's (item 5), an upload's progress and the flags too; an admin cannot make an account named
 ``demo``, the name ``armtrack serve`` refuses to start with (low)."""
 
 from __future__ import annotations
@@ -105,3 +105,29 @@ def test_an_uploads_progress_is_404_to_an_admin_the_database_gives_the_patient(c
     assert answer.status_code == 404, answer.text
     assert answer.json() == root.http.get("/api/recordings/999999/progress").json() | {
         "detail": f"no uploaded session {session_id}"}
+
+
+def test_the_flags_say_nothing_to_an_admin_the_database_gives_a_patient(clinic):
+    """``GET /api/flags`` listed the patients whose row names the caller, admin or not:
+    an admin holding a patient made before the rule read that patient's flags (the
+    program, no session for N days, each exercise's falling range, rising pain with
+    their figures) while every route of the patient was 404 to them."""
+    import datetime
+
+    alice, root = clinic.client("alice"), clinic.client("root")
+    patient = alice.patient("Flagged Person")
+    started = datetime.date.today() - datetime.timedelta(days=10)
+    answer = alice.http.post(f"/api/patients/{patient['id']}/programs", json={
+        "name": "Elbow", "start_date": started.isoformat(), "exercises": [
+            {"exercise": "elbow_flexion", "sets": 2, "repetitions": 10,
+             "days_per_week": 7}]})
+    assert answer.status_code == 201, answer.text
+    flagged = [f for f in alice.http.get("/api/flags").json()
+               if f["patient_id"] == patient["id"]]
+    assert flagged and flagged[0]["flags"][0]["kind"] == "no_session", flagged
+    clinic.sql("UPDATE patients SET therapist_id = :admin WHERE id = :id",
+               admin=ids(root)["root"], id=patient["id"])
+    assert root.http.get(f"/api/patients/{patient['id']}").status_code == 404
+    answer = root.http.get("/api/flags")
+    print(answer.status_code, answer.text[:300])
+    assert answer.status_code == 200 and answer.json() == [], answer.text
