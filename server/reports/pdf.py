@@ -28,7 +28,7 @@ from matplotlib.figure import Figure
 
 from .content import SessionData, SessionReport
 from .pdf_summary import Letterhead, local, style_table, summary_page
-from .words import exercise_words
+from .words import duration_words, exercise_words
 
 # Names and notes are a user's text: "$…$" in a patient's name is no formula (mathtext made
 # such a name fail the whole PDF, issue 17). Set once for the process, not per call with
@@ -89,7 +89,7 @@ def _header(fig: Figure, report: SessionReport, letterhead: Letterhead) -> None:
                       for p in cal.poses) or "none"
     lines = [
         ("Patient", s.patient_name + (f", height {s.height_m:.2f} m" if s.height_m else "")),
-        ("Date", local(started, letterhead.zone) + f", {s.duration_s / 60:.1f} min"),
+        ("Date", local(started, letterhead.zone) + f", {duration_words(s.duration_s)}"),
         ("Side", f"{s.side} arm"),
         ("Kit", f"{s.kit or '(uploaded file)'} · sensors: "
                 + ", ".join(SENSORS.get(n, n) for n in s.sensors)

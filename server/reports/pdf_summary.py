@@ -15,7 +15,7 @@ from zoneinfo import ZoneInfo
 from matplotlib.figure import Figure
 
 from .content import RomEntry, SessionReport
-from .words import ANGLE_WORDS, exercise_words
+from .words import ANGLE_WORDS, duration_words, exercise_words
 
 LABELS = ANGLE_WORDS
 #: A change of range smaller than this [deg] is "about the same" (within what one
@@ -151,7 +151,7 @@ def summary_page(fig: Figure, report: SessionReport, letterhead: Letterhead,
         ("Clinic no.", lh.clinic_number or "–"),
         ("Date of birth", f"{lh.date_of_birth.day} {lh.date_of_birth:%b %Y}"
          if lh.date_of_birth else "–"),
-        ("Session", f"{when}{dated} · {s.duration_s / 60:.1f} min · {s.side} arm"
+        ("Session", f"{when}{dated} · {duration_words(s.duration_s)} · {s.side} arm"
                     + (f" · kit {s.kit}" if s.kit else " · uploaded file")),
     ]
     for key, value in rows:

@@ -37,3 +37,10 @@ def mark_words(label: str) -> str:
     else:
         return label
     return f"{text} ends" if end else text
+
+
+def duration_words(seconds: float) -> str:
+    """A duration [s] as the pages say it (``fmtDuration`` in web/pages/static/app.js):
+    "35 s", "2 min 05 s" — not "0.6 min", which a reader must convert."""
+    whole = round(seconds)
+    return f"{whole // 60} min {whole % 60:02d} s" if whole >= 60 else f"{whole} s"
