@@ -7,13 +7,15 @@ actor, ``own_patient`` / ``own_session`` the patient and session reached — and
 entry once the route has answered with success. A route that reached no patient's data
 writes nothing (sign-in, admin's therapist management); a refused request writes nothing.
 A repeated view of the same thing by the same actor within ``ARMTRACK_AUDIT_REPEAT_S`` is
-logged once (the dashboard polls its live status twice a second). Erasures by the
-retention task and views of the live feed are written with ``record``."""
+logged once (the dashboard polls its live status twice a second), a repeated opening of
+the same live feed too (``RepeatWindow``). Erasures by the retention task and views of
+the live feed are written with ``record``."""
 
 from __future__ import annotations
 
 import contextvars
 import hashlib
+import threading
 import time
 from datetime import UTC, datetime
 from typing import Any
@@ -77,12 +79,39 @@ def record(db: DbSession, *, action: str, route: str, therapist_id: int | None =
         db.commit()
 
 
+class RepeatWindow:
+    """Which views are the first of their kind within ``ARMTRACK_AUDIT_REPEAT_S``: kinds
+    as 16-byte digests, at most ``MAX_RECENT`` (the oldest go first, to be logged again:
+    more entries, never fewer). Safe to use from any thread."""
+
+    def __init__(self) -> None:
+        self._recent: dict[bytes, float] = {}  # kind's digest → its last logged view
+        self._lock = threading.Lock()
+
+    def first(self, kind: tuple, window_s: float) -> bool:
+        """Whether a view of ``kind`` (what its entry would say) is to be logged now."""
+        if window_s <= 0:
+            return True
+        key = hashlib.blake2b(repr(kind).encode("utf-8", "surrogatepass"),
+                              digest_size=16).digest()
+        now = time.monotonic()
+        with self._lock:
+            last = self._recent.get(key)
+            if last is not None and now - last < window_s:
+                return False
+            self._recent.pop(key, None)
+            self._recent[key] = now  # the newest last: the dict is in the order logged
+            while len(self._recent) > MAX_RECENT:
+                del self._recent[next(iter(self._recent))]
+        return True
+
+
 class AuditMiddleware:
     """Pure ASGI: one note per API request, written after a successful answer."""
 
     def __init__(self, app: Any):
         self.app = app
-        self._recent: dict[bytes, float] = {}  # kind's digest → its last logged view
+        self._recent = RepeatWindow()
 
     async def __call__(self, scope: dict, receive: Any, send: Any) -> None:
         if scope["type"] != "http" or not scope["path"].startswith("/api/") \
@@ -124,21 +153,8 @@ class AuditMiddleware:
         """Whether this view is the first of its kind within ``ARMTRACK_AUDIT_REPEAT_S``.
         Its kind is what the entry would say — actor, action, method and path, not the
         query string, which the entry leaves out (with it, each new query string made a
-        new entry and was kept whole for the window: unbounded memory). Kinds are kept
-        as 16-byte digests, at most ``MAX_RECENT`` (the oldest go first, to be logged
-        again: more entries, never fewer)."""
-        window = scope["app"].state.services.settings.audit_repeat_s
-        if window <= 0:
-            return True
-        key = hashlib.blake2b(repr((current.get("therapist_id"), current.get("device_id"),
-                                    action, scope["method"], scope["path"])).encode(
-                                        "utf-8", "surrogatepass"), digest_size=16).digest()
-        now = time.monotonic()
-        last = self._recent.get(key)
-        if last is not None and now - last < window:
-            return False
-        self._recent.pop(key, None)
-        self._recent[key] = now  # the newest last: the dict is in the order logged
-        while len(self._recent) > MAX_RECENT:
-            del self._recent[next(iter(self._recent))]
-        return True
+        new entry and was kept whole for the window: unbounded memory)."""
+        return self._recent.first(
+            (current.get("therapist_id"), current.get("device_id"), action,
+             scope["method"], scope["path"]),
+            scope["app"].state.services.settings.audit_repeat_s)

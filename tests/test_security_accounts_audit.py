@@ -154,6 +154,34 @@ def test_query_strings_neither_grow_the_server_nor_the_audit_log(srv):
 
 
 
+def test_repeated_live_feeds_are_logged_once_a_minute(srv):
+    """Opening ``/ws/live`` wrote one ``viewed_live`` entry every time, with no repeat
+    window: one signed-in therapist (or a stolen token) opening and closing a feed in a
+    loop wrote 200 entries in about 2 s, each a commit of the database, without bound.
+    A repeated view of the same patient's feed is logged once a minute like a repeated
+    REST view (``ARMTRACK_AUDIT_REPEAT_S``); another patient's is its own entry."""
+    import asyncio
+
+    from websockets.asyncio.client import connect
+
+    alice = srv.client("alice")
+    first, second = alice.patient("Watched Often"), alice.patient("Watched Once")
+
+    async def open_feeds(patient_id: int, times: int) -> None:
+        for _ in range(times):
+            async with connect(f"ws://127.0.0.1:{srv.port}/ws/live?patient={patient_id}",
+                               additional_headers={"Authorization": f"Bearer {alice.token}"}):
+                pass
+
+    asyncio.run(open_feeds(first["id"], 200))
+    asyncio.run(open_feeds(second["id"], 3))
+    rows = dict(srv.sql("SELECT patient_id, count(*) FROM audit_log WHERE action = "
+                        "'viewed_live' AND patient_id IN (:a, :b) GROUP BY patient_id",
+                        a=first["id"], b=second["id"]))
+    print(f"\n200 feeds of one patient, 3 of another: viewed_live entries {rows}")
+    assert rows == {first["id"]: 1, second["id"]: 1}, rows
+
+
 def test_a_reset_code_sets_a_password_once_when_sent_many_times_at_once(srv):
     """A code sent 8 times at once (two tabs, a double click, or its holder racing the
     therapist): each request read it unused, hashed its password, then marked it used,

@@ -32,11 +32,13 @@ router = APIRouter()
 CLOSE_NOT_FOUND = 4404
 #: Close code when the account holds all its live feeds (``ARMTRACK_MAX_LIVE_FEEDS_PER_USER``).
 CLOSE_TOO_MANY = 4429
+#: Live feeds opened lately, per therapist and patient: logged once a repeat window
+LIVE_VIEWS = audit.RepeatWindow()
 
 
 def _therapist_patient(db, token: str | None, patient_id: int, slots: FeedSlots,
-                       demo_mode: bool = False, client: str | None = None
-                       ) -> tuple[int, Slot] | str:
+                       demo_mode: bool = False, client: str | None = None,
+                       repeat_s: float = 0.0) -> tuple[int, Slot] | str:
     """The id of the token's therapist and the feed's slot if they may watch the patient,
     else why not ("token", "patient", "full": the account holds all its slots)."""
     therapist = therapist_of_token(db, token, demo_mode)
@@ -47,9 +49,11 @@ def _therapist_patient(db, token: str | None, patient_id: int, slots: FeedSlots,
     slot = slots.take(therapist.id)
     if slot is None:
         return "full"
-    try:
-        audit.record(db, action="viewed_live", route=f"WS /ws/live?patient={patient_id}",
-                     therapist_id=therapist.id, patient_id=patient_id, client=client)
+    route = f"WS /ws/live?patient={patient_id}"
+    try:  # a feed opened again within ARMTRACK_AUDIT_REPEAT_S is logged once, as a view
+        if LIVE_VIEWS.first((therapist.id, "viewed_live", route), repeat_s):
+            audit.record(db, action="viewed_live", route=route, therapist_id=therapist.id,
+                         patient_id=patient_id, client=client)
     except BaseException:
         slot.release()
         raise
@@ -65,7 +69,8 @@ async def live(websocket: WebSocket,
     checked_at = services.access.generation
     slots = services.feed_slots
     allowed = await services.run_db(_therapist_patient, token, patient, slots,
-                                    services.settings.demo_mode, client)
+                                    services.settings.demo_mode, client,
+                                    services.settings.audit_repeat_s)
     if isinstance(allowed, str):
         await websocket.accept()
         if allowed == "token":
