@@ -36,7 +36,7 @@ from .audit import AuditMiddleware
 from .ingest import endpoint
 from .live import endpoint as live_endpoint
 from .plain_text import validation_error
-from .security import BodyLimit, SecurityHeaders, UploadGate
+from .security import BodyLimit, SecurityHeaders, UntrustedProxyNotice, UploadGate
 from .services import Services
 from .settings import Settings
 from .store.processing import estimator_version
@@ -126,6 +126,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(UploadGate)  # inside the body limit: 413 by length comes first
     app.add_middleware(BodyLimit, settings=settings)
     app.add_middleware(SecurityHeaders, settings=settings)
+    app.add_middleware(UntrustedProxyNotice, settings=settings)
 
     @app.get("/healthz", include_in_schema=False)
     def health() -> dict[str, str]:

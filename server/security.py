@@ -10,6 +10,7 @@ import base64
 import hashlib
 import ipaddress
 import json
+import logging
 import math
 import re
 import time
@@ -91,6 +92,45 @@ class SecurityHeaders:
             await send(message)
 
         await self.app(scope, receive, send_headers)
+
+
+class UntrustedProxyNotice:
+    """Pure ASGI: says in the log, once per peer (at most ``MAX_NAMED`` peers), when a
+    request carries ``X-Forwarded-For`` from a peer not in ``ARMTRACK_TRUSTED_PROXIES``:
+    behind such a proxy every audit entry names the proxy and all its clients share one
+    sign-in limit, which nothing else shows. A trusted proxy's requests arrive with
+    uvicorn's client already taken from the header (one of its addresses): no notice."""
+
+    MAX_NAMED = 8  # a client forging the header itself cannot fill the log
+
+    def __init__(self, app: Any, settings: Settings):
+        self.app = app
+        self.trusted = trusted_proxies(settings)
+        self.named: set[str] = set()
+
+    async def __call__(self, scope: dict, receive: Any, send: Any) -> None:
+        if scope["type"] in ("http", "websocket") and len(self.named) < self.MAX_NAMED:
+            self._look(scope)
+        await self.app(scope, receive, send)
+
+    def _look(self, scope: dict) -> None:
+        forwarded = next((v for k, v in scope.get("headers", ()) if k == b"x-forwarded-for"),
+                         None)
+        client = scope.get("client")
+        if forwarded is None or not client or client[0] in self.named:
+            return
+        peer = client[0]
+        named = {a.strip() for a in forwarded.decode("latin-1").split(",")}
+        if peer in named:  # taken from the header: the peer before it was trusted
+            return
+        self.named.add(peer)
+        setting = ",".join([*self.trusted, peer])
+        logging.getLogger("armtrack.security").warning(
+            "the peer %s forwards requests (X-Forwarded-For) but is not in "
+            "ARMTRACK_TRUSTED_PROXIES: the audit log and the sign-in limit see %s for every "
+            "client behind it. If it is your reverse proxy, set "
+            "ARMTRACK_TRUSTED_PROXIES=%s (or its network); if not, that client wrote the "
+            "header itself and it is ignored (docs/security.md)", peer, peer, setting)
 
 
 class _TooLarge(BaseException):

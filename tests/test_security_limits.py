@@ -180,5 +180,41 @@ def test_behind_a_trusted_proxy_each_client_is_limited_on_its_own(tmp_path, ngin
             time.sleep(0.2)
         clients = {e["client"] for e in entries}
         assert clients == {"127.0.0.21"}, clients
+        assert UNTRUSTED_PROXY not in server.log.read_text()  # a trusted proxy: no warning
+    finally:
+        server.stop()
+
+
+#: What the server's log says when a proxy it does not trust forwards requests.
+UNTRUSTED_PROXY = "forwards requests (X-Forwarded-For) but is not in ARMTRACK_TRUSTED_PROXIES"
+
+
+def test_a_proxy_left_out_of_the_trusted_proxies_is_named_in_the_log(tmp_path, nginx):
+    """The operator's guide's reverse proxy with ARMTRACK_BEHIND_PROXY=true alone (as
+    docker/compose.yaml's scale profile had it): every audit entry named the proxy and the
+    whole clinic shared one sign-in limit, and nothing said so. The log now names the
+    proxy's address and the setting to add, once."""
+    server = start(tmp_path, "untrusted", ARMTRACK_BEHIND_PROXY="true")
+    try:
+        url = nginx(server.port)
+        for source in ("127.0.0.10", "127.0.0.11"):
+            answer = sign_in(url, "alice", PASSWORD, source)
+            assert answer.status_code == 200
+            with httpx.Client(base_url=url, transport=httpx.HTTPTransport(
+                    local_address=source), headers={
+                    "Authorization": "Bearer " + answer.json()["access_token"]}) as alice:
+                alice.get("/api/patients")
+        deadline = time.monotonic() + 10
+        while not (entries := server.client("alice").http.get("/api/audit").json()) \
+                and time.monotonic() < deadline:
+            time.sleep(0.2)
+        clients = [e["client"] for e in entries]
+        print(f"\naudit clients (two browsers, 127.0.0.10 and .11): {clients}")
+        assert set(clients) == {"127.0.0.5"}  # what the setting is for: the proxy's address
+        warnings = [line for line in server.log.read_text().splitlines()
+                    if UNTRUSTED_PROXY in line]
+        print("\n".join(warnings))
+        assert len(warnings) == 1, warnings
+        assert "127.0.0.5" in warnings[0] and "ARMTRACK_TRUSTED_PROXIES=127.0.0.5" in warnings[0]
     finally:
         server.stop()
