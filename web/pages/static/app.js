@@ -180,6 +180,12 @@ function fmtDate(iso, options = {}) {
   return d.toLocaleString(undefined, parts);
 }
 
+// A calendar date ("2026-11-16": a birth date, a program's start) as the pages write dates
+// ("Nov 16, 2026"); read at noon UTC so that no clinic's time zone moves it a day.
+function fmtDay(date) {
+  return date ? fmtDate(date + "T12:00:00Z", { dateOnly: true }) : "—";
+}
+
 function fmtDuration(seconds) {
   if (seconds === null || seconds === undefined) return "—";
   const s = Math.round(seconds);

@@ -50,7 +50,7 @@ async function mountPrograms(patientId, box) {
 async function programCard(patientId, p, box) {
   const v = p.version;
   const adherence = await api(`/api/programs/${p.id}/adherence`);
-  const dates = `from ${v.start_date}` + (v.end_date ? ` to ${v.end_date}` : "");
+  const dates = `from ${fmtDay(v.start_date)}` + (v.end_date ? ` to ${fmtDay(v.end_date)}` : "");
   return el("div", { class: "program", dataset: { program: p.id } },
     el("div", { class: "row", style: "justify-content:space-between;align-items:baseline;flex-wrap:wrap" },
       el("h3", { style: "margin:8px 0" }, p.name, " ",
@@ -126,7 +126,8 @@ function weeksTable(weeks) {
       el("thead", {}, el("tr", {}, ["Week", "Sessions", "Exercises", "Repetitions", "Adherence"]
         .map((h, i) => el("th", { class: i ? "num" : "" }, h)))),
       el("tbody", {}, weeks.slice().reverse().map((w) => el("tr", { dataset: { week: w.week } },
-        el("td", {}, w.week, el("span", { class: "small muted" }, ` v${w.version}`)),
+        el("td", { title: `ISO week ${w.week}` }, `week of ${fmtDay(w.monday)}`,
+          el("span", { class: "small muted" }, ` v${w.version}`)),
         cell(w.done.sessions, w.prescribed.sessions), cell(w.done.exercises, w.prescribed.exercises),
         cell(w.done.repetitions, w.prescribed.repetitions),
         el("td", { class: "num " + percentClass(w.adherence_percent) },

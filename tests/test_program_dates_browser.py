@@ -1,0 +1,49 @@
+"""A program's dates on the patient's page read as the page's other dates do ("Nov 16,
+2026"), in Debian's headless chromium at 390 and 1280 px against a real server.
+
+Before, a program's header said "version 1, from 2026-11-16 to 2026-11-29" and its
+adherence rows "2026-W47" (an ISO week number) beside sessions dated "Thu, Dec 3, 2026":
+a therapist had to work out which week W47 is. Now "from Nov 16, 2026 to Nov 29, 2026"
+and "week of Nov 16, 2026" (the ISO week stays in the row's title). Skips with the
+reason when chromium or Playwright is absent."""
+
+from __future__ import annotations
+
+import contextlib
+
+import pytest
+from browser_helpers import chromium, first_page, need_browser, sign_in_as
+
+sync_api = need_browser()
+
+pytestmark = pytest.mark.slow
+
+PROGRAM = {"name": "Elbow after the fracture", "start_date": "2026-11-16",
+           "end_date": "2026-11-29", "exercises": [
+               {"exercise": "elbow_flexion", "sets": 2, "repetitions": 10, "days_per_week": 5}]}
+
+
+@contextlib.contextmanager
+def _page(width: int):
+    with (sync_api.sync_playwright() as playwright,
+          chromium(playwright, width, phone=width < 500) as context):
+        yield first_page(context)
+
+
+@pytest.mark.parametrize("width", [390, 1280])
+def test_a_programs_dates_read_as_dates(module_server, width, tmp_path):
+    api = module_server.client("alice")
+    patient = api.patient(f"Program Patient {width}")
+    made = api.http.post(f"/api/patients/{patient['id']}/programs", json=PROGRAM)
+    assert made.status_code == 201, made.text
+    with _page(width) as page:
+        sign_in_as(page, module_server.url, "alice")
+        page.goto(f"{module_server.url}/patients/{patient['id']}")
+        card = page.locator(f'.program[data-program="{made.json()["id"]}"]')
+        sync_api.expect(card).to_contain_text("from Nov 16, 2026 to Nov 29, 2026")
+        week = card.locator('tr[data-week="2026-W47"] td').nth(0)
+        sync_api.expect(week).to_contain_text("week of Nov 16, 2026")
+        text = card.inner_text()
+        page.screenshot(path=str(tmp_path / f"program-{width}.png"), full_page=True)
+        print(f"\n{width} px: {tmp_path}\n{text}")
+        assert "2026-11-16" not in text and "2026-W" not in text, text
