@@ -81,3 +81,16 @@ def test_the_first_page_is_a_summary_a_doctor_reads(clinic, recordings_dir, tmp_
     appendix = subprocess.run(["pdftotext", "-f", "4", "-l", "4", str(pdf), "-"],
                               capture_output=True, text=True, check=True).stdout
     assert "Appendix" in appendix and "Estimator" in appendix
+
+
+def test_a_duration_reads_as_the_pages_read_it():
+    """``words.duration_words`` says a duration as ``fmtDuration`` (web/pages/static/app.js)
+    does, halves included: ``Math.round`` rounds a half up, Python's ``round`` to even (a
+    40.5-s session read '41 s' on its page and '40 s' in its PDF)."""
+    from armtrack.server.reports.words import duration_words
+
+    pages = {0.4: "0 s", 35.2: "35 s", 40.5: "41 s", 59.5: "1 min 00 s",
+             62.5: "1 min 03 s", 125.0: "2 min 05 s"}
+    said = {seconds: duration_words(seconds) for seconds in pages}
+    print(said)
+    assert said == pages

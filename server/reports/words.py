@@ -5,6 +5,8 @@ heavy import: the live page, the 3D view's replay and the PDF use them alike."""
 
 from __future__ import annotations
 
+import math
+
 #: Angles (``REPORTED_ANGLES``) in words.
 ANGLE_WORDS = {
     "clavicle_protraction": "Clavicle protraction", "clavicle_elevation": "Clavicle elevation",
@@ -41,6 +43,7 @@ def mark_words(label: str) -> str:
 
 def duration_words(seconds: float) -> str:
     """A duration [s] as the pages say it (``fmtDuration`` in web/pages/static/app.js):
-    "35 s", "2 min 05 s" — not "0.6 min", which a reader must convert."""
-    whole = round(seconds)
+    "35 s", "2 min 05 s" — not "0.6 min", which a reader must convert. A half rounds up
+    (``Math.round``), not to even as Python's ``round``."""
+    whole = math.floor(seconds + 0.5)
     return f"{whole // 60} min {whole % 60:02d} s" if whole >= 60 else f"{whole} s"
