@@ -215,6 +215,32 @@ def test_the_held_poses_biases_are_as_sure_as_they_say():
         assert low <= total <= high, sensor
 
 
+@pytest.mark.parametrize("nine_axis", [False, True])
+def test_a_noiseless_still_kit_has_finite_pose_biases(nine_axis):
+    """The held poses of a still kit whose readings carry no noise (a simulation's, or a
+    gyroscope whose resolution hides its noise): every variance the pose-bias fit
+    (``biases_from_poses``) takes from the readings is zero there. Before, floored at
+    1e-30, its information held 1e30 beside 1e4: the trunk's σ came out NaN (the square
+    root of a negative variance) and the estimation stopped with LinAlgError ('Eigenvalues
+    did not converge') restarting the trunk's filter. Now σ finite and positive, the arm's
+    covariances positive definite, and the estimates within the bars."""
+    config = replace(sway_config(3), trunk_sway=None, nine_axis=nine_axis)
+    config = replace(config, errors=replace(config.errors, gyro_noise=0.0, acc_noise=0.0,
+                                            mag_noise=0.0))
+    sim = simulate(config)
+    found = pose_biases(sim.recording)
+    assert found is not None
+    eigen = {s: np.linalg.eigvalsh(c) for s, (_, c) in found.arm.items()}
+    print(f"noiseless still kit (nine_axis {nine_axis}): trunk σ {found.sigma * 1e3:.4f} "
+          "mrad/s, arm covariances' eigenvalues "
+          + ", ".join(f"{s} {e.min():.2e}–{e.max():.2e}" for s, e in eigen.items()))
+    assert np.isfinite(found.sigma) and found.sigma > 0
+    assert all(np.all(np.isfinite(e)) and e.min() > 0 for e in eigen.values())
+    worst, worst_deg, wrist_cm, _ = run(config)
+    print(f"  {worst} {worst_deg:.2f}°, wrist {wrist_cm:.2f} cm")
+    assert worst_deg <= ANGLE_BAR_DEG[nine_axis] and wrist_cm <= WRIST_BAR_CM
+
+
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_six_axis_trunk_sway(seed):
     """With the case's gyroscope biases (up to 12 mrad/s an axis): seed 1 13.15° →

@@ -157,7 +157,7 @@ def _gyro_heading(arm: SensorTrack, trunk: SensorTrack, start: float, end: float
     the arm sensor's, and its σ [rad], from a held pose ``start…end``: the arm held still
     on the body turns with the trunk as one (a sway), so the two gyroscopes read one
     rotation (``_rigid_fit``); the σ is the fit's about the trunk's vertical. None without
-    a pose's worth of samples."""
+    a pose's worth of samples, or when the rates showed no turn about the vertical."""
     fit = _rigid_fit(arm, trunk, start, end)
     if fit is None:
         return None
@@ -169,6 +169,8 @@ def _gyro_heading(arm: SensorTrack, trunk: SensorTrack, start: float, end: float
     vertical = R_trunk[:, 2, :].mean(axis=0)  # the world's vertical in the trunk's frame
     vertical /= np.linalg.norm(vertical)
     sigma = float(np.sqrt(vertical @ covariance @ vertical))
+    if not np.isfinite(sigma):  # no turn about the vertical seen (a still pose)
+        return None
     turn = quat_to_matrix(q[a:b]) @ C.T @ np.transpose(R_trunk, (0, 2, 1))  # Rz per sample
     return float(yaw_of(Rotation.from_matrix(turn).mean().as_matrix())), sigma
 
@@ -176,6 +178,17 @@ def _gyro_heading(arm: SensorTrack, trunk: SensorTrack, start: float, end: float
 #: A gyroscope's bias as one σ [rad/s] before anything is learnt (a MEMS zero-rate offset;
 #: ``QcfParams.bias_sigma``): the prior of ``biases_from_poses``.
 BIAS_SIGMA = 0.01
+#: The finest step a kit's readings come in, as the floor of every variance the held poses'
+#: fits take from them: a gyroscope's [rad/s] (16 bits over ±125 °/s) and an accelerometer's
+#: direction [rad] (16 bits over ±2 g). Readings whose noise that step hides (a still kit,
+#: a simulation without noise) show none, and a variance floored near 0 made the fits'
+#: information 1e30 beside the prior's 1e4: a negative variance, σ NaN, the estimation
+#: stopped (``test_a_noiseless_still_kit_has_finite_pose_biases``). Any real noise is above.
+GYRO_STEP = np.deg2rad(250.0 / 2**16)
+TILT_STEP = 4.0 / 2**16
+#: The variance of a rounding to such a step: step² / 12.
+GYRO_STEP_VARIANCE = GYRO_STEP**2 / 12.0
+TILT_STEP_VARIANCE = TILT_STEP**2 / 12.0
 #: How much more the rigid fit's first guess weighs the two mean gravities than the rates
 #: (both unit-normed): gravity held exactly, the rates give the turn about it.
 GRAVITY_FIRST = 1e3
@@ -250,19 +263,23 @@ def _rigid_fit(arm: SensorTrack, trunk: SensorTrack, start: float, end: float):
     for _ in range(2):  # each part weighed by its scatter about the last fit
         residual = w_trunk - w_arm @ C.T
         d = residual.mean(axis=0)
-        variance = max(float(np.mean(np.sum((residual - d) ** 2, axis=1)) / 3.0), 1e-30)
+        variance = max(float(np.mean(np.sum((residual - d) ** 2, axis=1)) / 3.0),
+                       2.0 * GYRO_STEP_VARIANCE)
         gravity_variance = max(float(np.mean(np.sum((g_trunk - g_arm @ C.T) ** 2,
                                                     axis=1))), 1e-12)
         C = _kabsch(c_arm.T @ c_trunk / variance
                     + np.outer(mean_arm, mean_trunk) / gravity_variance)
     residual = w_trunk - w_arm @ C.T
     d = residual.mean(axis=0)
-    variance = max(float(np.mean(np.sum((residual - d) ** 2, axis=1)) / 3.0), 1e-30)
+    variance = max(float(np.mean(np.sum((residual - d) ** 2, axis=1)) / 3.0),
+                   2.0 * GYRO_STEP_VARIANCE)
     spread = c_trunk.T @ c_trunk
     information = (np.trace(spread) * np.eye(3) - spread) / variance \
         + (np.eye(3) - np.outer(mean_trunk, mean_trunk)) / gravity_variance
+    # a turn the fit cannot see (rates without a turn, a still pose): infinite variances,
+    # no NaN of 0 · inf off the diagonal
     covariance = np.linalg.pinv(information) if np.linalg.det(information) > 0 else \
-        np.eye(3) * np.inf
+        np.diag(np.full(3, np.inf))
     return C, d, np.sqrt(variance / (b - a)), covariance, C @ w_arm.mean(axis=0)
 
 
@@ -302,7 +319,7 @@ def _tilt_bias(track: SensorTrack, start: float, end: float):
     normal, moment = design.T @ design, design.T @ y.reshape(-1)
     solution = np.linalg.lstsq(normal, moment, rcond=None)[0]
     res = y - (design @ solution).reshape(-1, 3)
-    variance = max(float(np.mean(np.sum(res**2, axis=1))) / 2.0, 1e-30)
+    variance = max(float(np.mean(np.sum(res**2, axis=1))) / 2.0, TILT_STEP_VARIANCE)
     r = res - res.mean(axis=0)
     rho = float(np.sum(r[1:] * r[:-1]) / max(float(np.sum(r * r)), 1e-30))
     rho = min(max(rho, 0.0), 0.999)
@@ -353,13 +370,14 @@ def _common_share(tilts: Mapping[str, tuple | None], turns: Mapping[str, np.ndar
 def _white_variance(track: SensorTrack, start: float, end: float) -> float:
     """The variance [rad²/s²] of the mean over ``start…end`` of a gyroscope's white noise
     per axis: its variance from the rates' second differences (``ω[i+1] − 2ω[i] + ω[i−1]``
-    holds 6σ² of white noise, next to nothing of a slow turn), over the samples' count."""
+    holds 6σ² of white noise, next to nothing of a slow turn; at least ``GYRO_STEP``'s
+    rounding), over the samples' count."""
     t, _, gyr, _ = track.arrays()
     a, b = np.searchsorted(t, start, "left"), np.searchsorted(t, end, "right")
     if b - a < 3:
-        return 0.0
+        return GYRO_STEP_VARIANCE
     second = gyr[a + 2: b] - 2.0 * gyr[a + 1: b - 1] + gyr[a: b - 2]
-    return float(np.mean(second**2)) / 6.0 / (b - a)
+    return max(float(np.mean(second**2)) / 6.0, GYRO_STEP_VARIANCE) / (b - a)
 
 
 def _kabsch(cross: np.ndarray) -> np.ndarray:
@@ -428,8 +446,8 @@ def biases_from_poses(tracks: Mapping[str, SensorTrack], plan: CalibrationPlan,
         if priors is not None and sensor in priors:
             evidence[bias(i)] = np.asarray(priors[sensor], dtype=np.float64) / BIAS_SIGMA**2
         for p, pose in enumerate(poses):
-            information[mean_noise(i, p), mean_noise(i, p)] = np.eye(3) / max(
-                _white_variance(tracks[sensor], pose.start, pose.end), 1e-30)
+            information[mean_noise(i, p), mean_noise(i, p)] = np.eye(3) / _white_variance(
+                tracks[sensor], pose.start, pose.end)
     for p, pose in enumerate(poses):
         turns = {}
         for k, sensor in enumerate(arms, start=1):
