@@ -47,3 +47,35 @@ def test_a_programs_dates_read_as_dates(module_server, width, tmp_path):
         page.screenshot(path=str(tmp_path / f"program-{width}.png"), full_page=True)
         print(f"\n{width} px: {tmp_path}\n{text}")
         assert "2026-11-16" not in text and "2026-W" not in text, text
+
+
+@pytest.mark.parametrize("width", [390, 1280])
+def test_the_editor_says_a_wrong_target_in_the_forms_words(module_server, width, tmp_path):
+    """A target the wrong way round: the editor said the API's 422 as it came
+    ("exercises.0: Value error, elbow_flexion: target_min_deg must be below
+    target_max_deg, got 100.0 and 20.0"); it now names the exercise and the form's fields."""
+    api = module_server.client("alice")
+    patient = api.patient(f"Editor Patient {width}")
+    with _page(width) as page:
+        sign_in_as(page, module_server.url, "alice")
+        page.goto(f"{module_server.url}/patients/{patient['id']}")
+        page.click("#new-program")
+        editor = page.locator("#program-editor")
+        editor.locator('[name="name"]').fill("Elbow after the fracture")
+        row = editor.locator(".exercise-row").nth(0)
+        row.locator('[name="exercise"]').select_option("elbow_flexion")
+        row.locator('[name="target_min_deg"]').fill("100")
+        row.locator('[name="target_max_deg"]').fill("20")
+        page.click("#save-program")
+        error = editor.locator(".error")
+        sync_api.expect(error).to_contain_text(
+            "Bend the elbow: the target's “from” (100°) must be below its “to” (20°)")
+        said = error.inner_text()
+        page.screenshot(path=str(tmp_path / f"editor-{width}.png"), full_page=True)
+        print(f"\n{width} px: {said}  ({tmp_path})")
+        assert "target_min_deg" not in said and "Value error" not in said, said
+        row.locator('[name="target_max_deg"]').fill("")
+        page.click("#save-program")
+        sync_api.expect(error.first).to_contain_text(
+            "Bend the elbow: give both ends of the target, or neither")
+    assert api.http.get(f"/api/patients/{patient['id']}/programs").json() == []

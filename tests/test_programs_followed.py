@@ -590,7 +590,7 @@ def test_the_editor_prescribes_and_changes_a_program(world, browser):
     page.screenshot(path=str(shots / "editor-new-1366.png"), full_page=True)
     page.click("#save-program")
     sync_api.expect(page.locator("#program-editor .error")).to_contain_text(
-        "target_min_deg must be below target_max_deg")
+        "the target's “from” (100°) must be below its “to” (20°)")  # the form's words
     assert alice.http.get(f"/api/patients/{patient['id']}/programs").json() == []
     second.locator('[name="target_min_deg"]').fill("")
     second.locator('[name="target_max_deg"]').fill("")

@@ -189,6 +189,20 @@ function readRow(row) {
     note: value("note") || null };
 }
 
+/** What is wrong with the exercises' targets, in the form's words (the API would refuse the
+ * same with its field names: "target_min_deg must be below target_max_deg"), or null. */
+function targetProblem(exercises) {
+  for (const e of exercises) {
+    const title = (catalogue.find((c) => c.name === e.exercise) || { title: e.exercise }).title;
+    const a = e.target_min_deg, b = e.target_max_deg;
+    if ((a === null) !== (b === null))
+      return `${title}: give both ends of the target, or neither (then the patient's own target applies).`;
+    if (a !== null && !(a < b))
+      return `${title}: the target's “from” (${a}°) must be below its “to” (${b}°).`;
+  }
+  return null;
+}
+
 /** The exercises left out of the editor's choice, each with why (the server's words). */
 function notOffered() {
   if (catalogue.every((c) => c.measurable == null)) {
@@ -232,6 +246,8 @@ function openEditor(patientId, box, program) {
     const data = new FormData(form);
     const body = { start_date: data.get("start_date"), end_date: data.get("end_date") || null,
       note: data.get("note") || null, exercises: [...rows.children].map(readRow) };
+    const problem = targetProblem(body.exercises);
+    if (problem) { showError(form, problem); return; }
     try {
       if (program) await api(`/api/programs/${program.id}`, { method: "PUT", body });
       else await api(`/api/patients/${patientId}/programs`, { method: "POST", body: { name: data.get("name"), ...body } });
