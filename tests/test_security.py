@@ -17,6 +17,7 @@ import shutil
 import subprocess
 import time
 import zipfile
+from datetime import UTC, datetime, timedelta
 
 import httpx
 import pytest
@@ -468,6 +469,37 @@ def test_closed_sessions_past_the_retention_period_are_erased_and_logged(
         "/api/audit", params={"action": "erased_retention"}).json()
     assert [(e["patient_id"], e["session_id"]) for e in entries] == [(patient["id"],
                                                                       session_id)]
+
+
+def test_an_upload_whose_times_run_years_ahead_is_erased_like_any_other(retention_server,
+                                                                        tmp_path):
+    """A session's end for retention was ``started_at`` + the recording's span of ``t``,
+    and ``t`` may step up to a day (docs/extensions/time-bounds.md): 3650 rows a day apart,
+    uploaded now (by a kit's token, or anyone's), made a session that 'ended' in ten years,
+    which ``ARMTRACK_RETENTION_DAYS`` would erase only then. An uploaded session was
+    recorded before it arrived: it is erased at the latest a day after its arrival is past
+    the period (here: it arrived two days ago, set in the database)."""
+    alice = retention_server.client("alice")
+    patient = alice.patient("Ten years ahead")
+    kit = alice.device(patient["id"])
+    rows = "".join(f"{day * 86400.0},forearm,0,9.81,0,0,0,0,,,\n" for day in range(3650))
+    answer = httpx.post(retention_server.url + "/api/recordings",
+                        headers={"Authorization": f"Bearer {kit['token']}"},
+                        data={"wait": "false"}, files={"file": ("years.csv", (
+                            "# armtrack-recording: 1\n# side: right\n# height_m: 1.75\n"
+                            "t,sensor,ax,ay,az,gx,gy,gz,mx,my,mz\n" + rows).encode())},
+                        timeout=60)
+    assert answer.status_code == 202, answer.text
+    session = answer.json()
+    print("uploaded", session["started_at"], "ends", session["ended_at"])
+    retention_server.sql("UPDATE sessions SET created_at = :at WHERE id = :id",
+                         at=(datetime.now(UTC) - timedelta(days=2)).strftime(
+                             "%Y-%m-%d %H:%M:%S.%f"), id=session["id"])
+    deadline = time.monotonic() + 30
+    while alice.http.get(f"/api/sessions/{session['id']}").status_code == 200:
+        assert time.monotonic() < deadline, (
+            f"not erased 30 s past a 3 s retention: it 'ends' {session['ended_at']}")
+        time.sleep(0.3)
 
 
 # -- device tokens ----------------------------------------------------------------------------

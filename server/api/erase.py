@@ -9,13 +9,16 @@ from __future__ import annotations
 import logging
 from datetime import UTC, datetime, timedelta
 
-from sqlalchemy import delete, select
+from sqlalchemy import and_, delete, or_, select
 from sqlalchemy.orm import Session as DbSession
 
 from .. import audit
 from ..db import models
 
 log = logging.getLogger("armtrack.erase")
+
+#: How far past its arrival an uploaded session's end may count for retention.
+UPLOAD_END_SLACK = timedelta(days=1)
 
 
 def _delete_session_rows(db: DbSession, session_id: int) -> None:
@@ -67,11 +70,16 @@ def erase_patient(db: DbSession, patient_id: int) -> None:
 def erase_expired(db: DbSession, retention_days: float, now: datetime | None = None
                   ) -> list[int]:
     """Erase the closed sessions that ended more than ``retention_days`` ago, each logged
-    as ``erased_retention``; returns their ids."""
+    as ``erased_retention``; returns their ids. An uploaded session was recorded before
+    it arrived, whatever its times say (``started_at`` + its span of ``t``, which may step
+    a day at a time: 3650 rows made one 'end' in ten years): it is past the period at the
+    latest ``UPLOAD_END_SLACK`` after its arrival is (the slack ``start_time`` has too)."""
     cutoff = (now or datetime.now(UTC)) - timedelta(days=retention_days)
     expired = db.execute(select(models.Session.id, models.Session.patient_id).where(
         models.Session.status == "closed", models.Session.ended_at.is_not(None),
-        models.Session.ended_at < cutoff)).all()
+        or_(models.Session.ended_at < cutoff,
+            and_(models.Session.source == "upload",
+                 models.Session.created_at < cutoff - UPLOAD_END_SLACK)))).all()
     for session_id, patient_id in expired:
         _delete_session_rows(db, session_id)
         audit.record(db, action="erased_retention", route="retention", patient_id=patient_id,
