@@ -79,6 +79,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 "no therapist account yet: make one with `armtrack create-user NAME` "
                 "(same --data-dir/ARMTRACK_DATABASE_URL as this server), then sign in at "
                 "/signin")
+        if not settings.clinic_name:
+            logging.getLogger("armtrack").warning(
+                "ARMTRACK_CLINIC_NAME is not set: session reports (PDF) print no clinic "
+                "name; set it to the name reports should carry (docs/operator.md)")
         await services.start()
         heap.settle()  # what start-up loaded is out of the collector's way from now on
         retention = (asyncio.create_task(retention_loop(services))

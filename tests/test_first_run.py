@@ -30,6 +30,8 @@ def first_run_hint_shown(html: str) -> bool:
 def test_a_fresh_server_says_how_to_make_an_account(fresh_server):
     log = fresh_server.log.read_text()
     assert "no therapist account yet" in log and "armtrack create-user NAME" in log
+    # the clinic's name left unset is said to the operator here, not printed on reports
+    assert "ARMTRACK_CLINIC_NAME is not set" in log, log[-2000:]
     page = httpx.get(fresh_server.url + "/signin").text
     assert first_run_hint_shown(page)
     assert "armtrack create-user NAME" in page

@@ -73,6 +73,7 @@ def test_the_first_page_is_a_summary_a_doctor_reads(clinic, recordings_dir, tmp_
                   "10° more range than on Tue 24 Nov 2026", "Targets set since this session"):
         assert words in flat, words
     assert "UTC" not in first and "upper_arm" not in first and "estimator" not in first
+    assert "ARMTRACK_CLINIC_NAME" not in clinic.log.read_text()  # set: nothing to say
     # the duration in the words the session page uses ("35 s", "2 min 05 s"), not "0.6 min"
     seconds = round(alice.http.get(f"/api/sessions/{latest['id']}/summary").json()["duration_s"])
     duration = f"{seconds // 60} min {seconds % 60:02d} s" if seconds >= 60 else f"{seconds} s"

@@ -296,30 +296,35 @@ def _details_page(fig: Figure, report: SessionReport) -> None:
         y -= 0.016
 
 
-def report_pdf(report: SessionReport, data: SessionData,
-               letterhead: Letterhead | None = None,
-               previous: Sequence[tuple[datetime, SessionReport]] = ()) -> bytes:
-    """The report as PDF bytes; ``previous``: earlier sessions' (start, report), newest
-    first, for the summary's comparison."""
+def report_pages(report: SessionReport, data: SessionData,
+                 letterhead: Letterhead | None = None,
+                 previous: Sequence[tuple[datetime, SessionReport]] = ()) -> list[Figure]:
+    """The report's four pages as figures (A4 portrait, not yet drawn); ``previous``:
+    earlier sessions' (start, report), newest first, for the summary's comparison."""
     letterhead = letterhead or Letterhead()
     repetitions: dict[str, int] = {}
     for exercise in report.exercises:
         for a in exercise.angles:
             repetitions[a.angle] = repetitions.get(a.angle, 0) + a.repetitions
+    first = _page("Session report: summary", report, 1, 4)
+    summary_page(first, report, letterhead, previous)
+    second = _page("Range of motion in detail", report, 2, 4)
+    _header(second, report, letterhead)
+    _rom_bars(second, report, _rom_table(second, report, repetitions))
+    third = _page("Joint angles over time", report, 3, 4)
+    _angles_page(third, report, data)
+    fourth = _page("Repetitions and smoothness; appendix", report, 4, 4)
+    _details_page(fourth, report)
+    return [first, second, third, fourth]
+
+
+def report_pdf(report: SessionReport, data: SessionData,
+               letterhead: Letterhead | None = None,
+               previous: Sequence[tuple[datetime, SessionReport]] = ()) -> bytes:
+    """The report as PDF bytes (``report_pages`` saved)."""
     out = io.BytesIO()
     with PdfPages(out, metadata={"Title": f"armtrack session {report.session.session_id}",
                                  "Creator": "armtrack"}) as pages:
-        first = _page("Session report: summary", report, 1, 4)
-        summary_page(first, report, letterhead, previous)
-        pages.savefig(first)
-        second = _page("Range of motion in detail", report, 2, 4)
-        _header(second, report, letterhead)
-        _rom_bars(second, report, _rom_table(second, report, repetitions))
-        pages.savefig(second)
-        third = _page("Joint angles over time", report, 3, 4)
-        _angles_page(third, report, data)
-        pages.savefig(third)
-        fourth = _page("Repetitions and smoothness; appendix", report, 4, 4)
-        _details_page(fourth, report)
-        pages.savefig(fourth)
+        for fig in report_pages(report, data, letterhead, previous):
+            pages.savefig(fig)
     return out.getvalue()

@@ -135,11 +135,11 @@ def summary_page(fig: Figure, report: SessionReport, letterhead: Letterhead,
     s = report.session
     lh = letterhead
     y = 0.93
-    fig.text(0.06, y, lh.clinic_name or "Clinic name not set (ARMTRACK_CLINIC_NAME)",
-             fontsize=11, weight="bold", color="#15324d" if lh.clinic_name else "#999")
+    if lh.clinic_name:  # unset: no line (the server's log tells the operator at start)
+        fig.text(0.06, y, lh.clinic_name, fontsize=11, weight="bold", color="#15324d")
     if lh.clinic_address:
-        fig.text(0.06, y - 0.017, lh.clinic_address.replace("\\n", ", "), fontsize=8,
-                 color="#444")
+        fig.text(0.06, y - 0.017 if lh.clinic_name else y,
+                 lh.clinic_address.replace("\\n", ", "), fontsize=8, color="#444")
     fig.text(0.94, y, f"Therapist: {lh.therapist or '–'}", ha="right", fontsize=9)
     y -= 0.05
     started = s.started_at
