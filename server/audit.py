@@ -64,6 +64,10 @@ def action_of(method: str, route: str) -> str:
         return "revoked_device"
     if route == "/api/patients/{patient_id}/devices":
         return "issued_device"
+    if route == "/api/patients/{patient_id}/discharge":
+        return "discharged"
+    if route == "/api/patients/{patient_id}/readmit":
+        return "readmitted"
     return "changed"
 
 

@@ -43,10 +43,12 @@ def create_patient(body: PatientIn, db: Db, therapist: Therapist) -> models.Pati
 
 @router.get("/patients", response_model=list[PatientOut])
 def list_patients(db: Db, therapist: Therapist, page: Annotated[Page, Depends()],
-                  q: str | None = None) -> list[PatientOut]:
+                  q: str | None = None, discharged: bool | None = None) -> list[PatientOut]:
     """The therapist's patients by name, each with when their latest session started;
     ``q`` keeps those whose name contains it (a clinic admin holds none:
-    ``/api/admin/patients`` lists everyone's)."""
+    ``/api/admin/patients`` lists everyone's). Extension (docs/extensions/discharge.md):
+    ``discharged=false`` keeps the patients in care, ``true`` the discharged ones; without
+    it, every patient, as before."""
     if therapist.is_admin:
         return []
     last = (select(models.Session.patient_id,
@@ -57,6 +59,9 @@ def list_patients(db: Db, therapist: Therapist, page: Annotated[Page, Depends()]
              .where(models.Patient.therapist_id == therapist.id))
     if q:
         query = query.where(models.Patient.name.icontains(q, autoescape=True))
+    if discharged is not None:
+        column = models.Patient.discharged_at
+        query = query.where(column.is_not(None) if discharged else column.is_(None))
     rows = db.execute(query.order_by(models.Patient.name, models.Patient.id)
                       .limit(page.limit).offset(page.offset)).all()
     return [PatientOut.model_validate(patient).model_copy(
@@ -93,6 +98,28 @@ def update_patient(patient_id: Id, body: PatientUpdate, db: Db,
 @router.get("/patients/{patient_id}", response_model=PatientOut)
 def get_patient(patient_id: Id, db: Db, therapist: Therapist) -> models.Patient:
     return own_patient(db, therapist, patient_id)
+
+
+@router.post("/patients/{patient_id}/discharge", response_model=PatientOut)
+def discharge_patient(patient_id: Id, db: Db, therapist: Therapist) -> models.Patient:
+    """Discharge the patient (docs/extensions/discharge.md): every session, report and
+    program stays; their kits start no new session (a stream under way goes on) until
+    readmitted. Again on a discharged patient: the first date stays."""
+    patient = own_patient(db, therapist, patient_id)
+    if patient.discharged_at is None:
+        patient.discharged_at = datetime.now(UTC)
+        db.commit()
+    return patient
+
+
+@router.post("/patients/{patient_id}/readmit", response_model=PatientOut)
+def readmit_patient(patient_id: Id, db: Db, therapist: Therapist) -> models.Patient:
+    """Take a discharged patient back into care: their kits start sessions again."""
+    patient = own_patient(db, therapist, patient_id)
+    if patient.discharged_at is not None:
+        patient.discharged_at = None
+        db.commit()
+    return patient
 
 
 @router.delete("/patients/{patient_id}", status_code=status.HTTP_204_NO_CONTENT)

@@ -58,6 +58,9 @@ class PatientOut(BaseModel):
     date_of_birth: date | None = None
     last_session_at: datetime | None = Field(
         None, description="when the patient's latest session started (lists only)")
+    discharged_at: datetime | None = Field(
+        None, description="when the therapist discharged the patient, null while in care "
+        "(docs/extensions/discharge.md)")
 
 
 class DeviceIn(BaseModel):

@@ -19,7 +19,7 @@ from .. import audit
 from ..auth import hash_token
 from ..commands.output import write_angles_csv
 from ..db import models
-from ..kit import new_sessions
+from ..kit import discharge, new_sessions
 from ..services import Services
 from ..store.background import ProcessingFailed
 from ..store.coverage import plain_metadata, session_coverage
@@ -179,6 +179,8 @@ def upload_recording(db: Db, who: Annotated[models.Therapist | models.Device,
         if patient_id is not None and patient_id != who.patient_id:
             raise HTTPException(status.HTTP_404_NOT_FOUND, f"no patient {patient_id}")
         patient = db.get(models.Patient, who.patient_id)
+        if patient is not None and (why := discharge.refusal(patient)) is not None:
+            raise HTTPException(status.HTTP_403_FORBIDDEN, why)  # nothing is read
         device_id = who.id
         # a kit's upload is one of its new sessions (ARMTRACK_MAX_NEW_SESSIONS_PER_KIT_HOUR):
         # counted, then stored, one upload of the kit at a time; one coming meanwhile is

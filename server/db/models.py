@@ -103,6 +103,9 @@ class Patient(Base):
     #: the clinic's own patient number (its records' identifier), optional
     clinic_number: Mapped[str | None] = mapped_column(String(64))
     date_of_birth: Mapped[date | None] = mapped_column(Date)
+    #: when the therapist discharged the patient (docs/extensions/discharge.md): their
+    #: records stay, their kits start no new session; None while in care
+    discharged_at: Mapped[datetime | None] = mapped_column(UtcDateTime)
 
 
 class Device(Base):

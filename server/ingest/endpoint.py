@@ -40,7 +40,7 @@ from starlette.websockets import WebSocketDisconnect, WebSocketState
 from .. import clock
 from ..auth import hash_token
 from ..db import models
-from ..kit import new_sessions
+from ..kit import discharge, new_sessions
 from ..live.worker import LiveWorker
 from ..programs import stream as program_stream
 from ..programs.today import exercise_bands
@@ -402,6 +402,8 @@ class IngestConnection:
     def _create_session(self, db: DbSession, hello: Hello, stream_id: str) -> tuple[int, float]:
         patient = db.get(models.Patient, self.patient_id)
         assert patient is not None
+        if (why := discharge.refusal(patient)) is not None:  # before anything is stored
+            raise Refused(f"hello: {why}")
         # one token, no flood of sessions (each one costs every later progress report):
         # refused before anything is stored; the kit keeps its data and tries again later.
         # Counted in the kit's turn, held until the commit below: an upload of the kit

@@ -1,0 +1,136 @@
+"""Discharge (docs/extensions/discharge.md) on a real server: a discharged patient stays with
+every session and report, is listed as before unless the client asks to leave them out, and
+their kit starts no new session (a refused hello and upload, in words) until readmitted."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from datetime import UTC, datetime
+
+import sqlalchemy as sa
+from armtrack.estimator.recording import format_recording
+from armtrack.estimator.simulation import SimulationConfig, simulate
+from armtrack.server.emulator import KitEmulator
+from server_support import server_fixture
+from websockets.asyncio.client import connect
+from websockets.exceptions import ConnectionClosed
+
+discharge_server = server_fixture("discharge", "alice", "bob")
+
+
+def _hello(ws_url: str, token: str) -> tuple[dict, int | None]:
+    """A kit's hello for a new session: (the server's first answer, the close code if the
+    server closed the socket after it)."""
+
+    async def run():
+        async with connect(ws_url, additional_headers={"Authorization": f"Bearer {token}"}
+                           ) as ws:
+            await ws.send(json.dumps({"type": "hello", "protocol": 1, "device": "kit",
+                                      "side": "right", "sensors": ["forearm"],
+                                      "rate_hz": 100, "nine_axis": False, "resume": None}))
+            answer = json.loads(await ws.recv())
+            code = None
+            try:
+                await asyncio.wait_for(ws.recv(), 5)
+            except ConnectionClosed as closed:
+                code = closed.rcvd.code if closed.rcvd else None
+            except TimeoutError:
+                pass
+            return answer, code
+
+    return asyncio.run(run())
+
+
+def test_a_discharged_patient_keeps_their_records_and_their_kit_starts_nothing(
+        discharge_server):
+    alice = discharge_server.client("alice")
+    bob = discharge_server.client("bob")
+    patient = alice.patient("Dora Discharged")
+    other = alice.patient("Ivan In-care")
+    assert patient["discharged_at"] is None
+    token = alice.device(patient["id"])["token"]
+    recording = simulate(SimulationConfig(exercise="elbow_flexion", repetitions=1)).recording
+    stats = asyncio.run(KitEmulator(recording, discharge_server.ws_url, token, speed=0,
+                                    rows_per_message=200).run())
+    alice.wait_processed(stats.session, timeout=120)
+    url = f"/api/patients/{patient['id']}"
+
+    # another therapist's patient: as if it did not exist
+    assert bob.http.post(url + "/discharge").status_code == 404
+    assert bob.http.post(url + "/readmit").status_code == 404
+
+    before = datetime.now(UTC)
+    answer = alice.http.post(url + "/discharge")
+    assert answer.status_code == 200, answer.text
+    discharged_at = datetime.fromisoformat(answer.json()["discharged_at"])
+    print("discharged at", discharged_at)
+    assert discharged_at.tzinfo is not None and discharged_at >= before.replace(microsecond=0)
+    again = alice.http.post(url + "/discharge").json()  # a retry keeps the first date
+    assert datetime.fromisoformat(again["discharged_at"]) == discharged_at
+    assert datetime.fromisoformat(alice.http.get(url).json()["discharged_at"]) == discharged_at
+
+    # the list answers as before unless asked: an existing client still sees everyone
+    everyone = {p["id"]: p for p in alice.http.get("/api/patients").json()}
+    assert set(everyone) == {patient["id"], other["id"]}
+    assert everyone[patient["id"]]["discharged_at"] is not None
+    assert everyone[other["id"]]["discharged_at"] is None
+    in_care = [p["id"] for p in alice.http.get("/api/patients?discharged=false").json()]
+    assert in_care == [other["id"]]
+    gone = [p["id"] for p in alice.http.get("/api/patients?discharged=true").json()]
+    assert gone == [patient["id"]]
+    assert alice.http.get("/api/patients?discharged=maybe").status_code == 422
+
+    # their records stay readable
+    assert alice.http.get(url + "/sessions").json()[0]["id"] == stats.session
+    assert alice.http.get(f"/api/sessions/{stats.session}/report").status_code == 200
+    assert alice.http.get(f"/api/sessions/{stats.session}/recording.csv").status_code == 200
+    assert alice.http.get(url + "/progress").status_code == 200
+
+    # their kit starts no new session: the hello and an upload refused in words
+    answer, code = _hello(discharge_server.ws_url, token)
+    print("refused hello:", answer, code)
+    assert answer["type"] == "error" and code == 4400
+    assert "discharged by the therapist" in answer["reason"]
+    upload = discharge_server.sql("SELECT count(*) FROM sessions WHERE patient_id = :p",
+                                  p=patient["id"])
+    assert upload == [(1,)]  # nothing stored
+    refused = alice.http.post("/api/recordings", headers={"Authorization": f"Bearer {token}"},
+                              files={"file": ("home.csv", format_recording(recording),
+                                              "text/csv")})
+    print("refused upload:", refused.status_code, refused.text)
+    assert refused.status_code == 403 and "discharged by the therapist" in refused.text
+    assert len(alice.http.get(url + "/sessions").json()) == 1
+
+    # readmitted: the kit starts sessions again
+    back = alice.http.post(url + "/readmit")
+    assert back.status_code == 200 and back.json()["discharged_at"] is None
+    answer, code = _hello(discharge_server.ws_url, token)
+    assert answer["type"] == "ready", answer
+    assert {p["id"] for p in alice.http.get("/api/patients?discharged=false").json()} == {
+        other["id"], patient["id"]}
+
+    # audited as the patient's changes
+    actions = [(e["action"], e["patient_id"]) for e in alice.http.get(
+        f"/api/audit?patient_id={patient['id']}").json()]
+    print(actions[:6])
+    assert ("discharged", patient["id"]) in actions and ("readmitted", patient["id"]) in actions
+
+
+def test_the_migration_leaves_every_patient_in_care(tmp_path):
+    from armtrack.server.db.engine import make_engine
+    from armtrack.server.db.migrate import upgrade
+
+    engine = make_engine(f"sqlite:///{tmp_path / 'm.db'}")
+    upgrade(engine, "0009")
+    with engine.begin() as connection:
+        connection.exec_driver_sql(
+            "INSERT INTO therapists (id, username, password_hash, created_at, is_admin) "
+            "VALUES (1, 'a', 'x', '2026-01-01 00:00:00', 0)")
+        connection.exec_driver_sql(
+            "INSERT INTO patients (id, therapist_id, name, side, height_m, created_at) "
+            "VALUES (1, 1, 'p', 'right', 1.7, '2026-01-01 00:00:00')")
+    upgrade(engine)
+    with engine.connect() as connection:
+        assert connection.execute(sa.text("SELECT name, discharged_at FROM patients")
+                                  ).one() == ("p", None)
