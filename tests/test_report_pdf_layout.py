@@ -1,7 +1,7 @@
 """The session PDF's pages as drawn (server/reports/pdf.py ``report_pages``), with the
 longest things a report prints: every table lies inside the page's text frame (the
 title's left edge to the page number's right edge), every cell's words inside their cell,
-no exercise name cut; and a server without ``ARMTRACK_CLINIC_NAME`` prints no operator's
+no exercise name cut, nothing else past the frame or into other words; and a server without ``ARMTRACK_CLINIC_NAME`` prints no operator's
 hint on a document a patient may be given (pdftotext of the PDF)."""
 
 from __future__ import annotations
@@ -27,8 +27,11 @@ from armtrack.server.reports.content import (
     TargetOut,
     Window,
 )
-from armtrack.server.reports.pdf import report_pdf
+from armtrack.server.reports.pdf import report_pages, report_pdf
 from armtrack.server.reports.pdf_summary import Letterhead
+from armtrack.server.reports.words import exercise_words
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.table import Table
 
 #: The widest figures each column prints (negative ranges, three-digit targets, ✓).
 ANGLES = ["shoulder_rotation", "wrist_deviation", "clavicle_protraction",
@@ -103,6 +106,58 @@ def frame(fig, renderer) -> tuple[float, float]:
     return (title.get_window_extent(renderer).x0, number.get_window_extent(renderer).x1)
 
 
+def test_every_table_fits_the_text_frame_and_every_cell_its_words():
+    report, data, letterhead, previous = worst_pages()
+    figures = report_pages(report, data, letterhead, previous)
+    assert len(figures) == 4
+    problems = []
+    names_drawn = []
+    for page, fig in enumerate(figures, 1):
+        canvas = FigureCanvasAgg(fig)
+        fig.set_dpi(100)
+        canvas.draw()
+        renderer = canvas.get_renderer()
+        left, right = frame(fig, renderer)
+        tables = [t for t in fig.findobj(Table)]
+        for table in tables:
+            box = table.get_window_extent(renderer)
+            print(f"page {page}: table {box.x0:.1f}…{box.x1:.1f} px, "
+                  f"text frame {left:.1f}…{right:.1f} px")
+            if box.x0 < left - 0.5 or box.x1 > right + 0.5:
+                problems.append(f"page {page}: table {box.x0:.0f}…{box.x1:.0f} px outside "
+                                f"the text frame {left:.0f}…{right:.0f}")
+            for (row, col), cell in table.get_celld().items():
+                words = cell.get_text()
+                if page == 4 and col == 0 and row > 0:
+                    names_drawn.append(words.get_text())
+                inside, cell_box = words.get_window_extent(renderer), cell.get_window_extent(
+                    renderer)
+                if (inside.x0 < cell_box.x0 - 0.5 or inside.x1 > cell_box.x1 + 0.5
+                        or inside.y0 < cell_box.y0 - 0.5 or inside.y1 > cell_box.y1 + 0.5):
+                    problems.append(f"page {page}: {words.get_text()!r} "
+                                    f"({inside.width:.0f}×{inside.height:.0f} px) spills "
+                                    f"out of its cell ({cell_box.width:.0f}×"
+                                    f"{cell_box.height:.0f} px)")
+        assert tables or page == 3, f"page {page} drew no table"
+        # nothing else drawn past the frame either: headers, notes, appendix, charts
+        # with their tick labels and axis names
+        drawn = [(t.get_text()[:40], t.get_window_extent(renderer)) for t in fig.texts
+                 if t.get_text()]
+        drawn += [(ax.get_ylabel()[:40] or ax.get_title(loc="left")[:40] or "a chart",
+                   ax.get_tightbbox(renderer)) for ax in fig.axes if ax.axison]
+        for k, (what, box) in enumerate(drawn):
+            problems += [f"page {page}: {what!r} runs into {other!r}"
+                         for other, near in drawn[:k] if box.overlaps(near)]
+            if box.x0 < left - 0.5 or box.x1 > right + 0.5:
+                problems.append(f"page {page}: {what!r} {box.x0:.0f}…{box.x1:.0f} px")
+    print("\n".join(problems))
+    assert not problems
+    # a long exercise name is wrapped, not cut: every name is there in full
+    flat = [" ".join(n.split()) for n in names_drawn]
+    for k, name in enumerate(EXERCISES, 1):
+        assert f"{k}. {exercise_words(name)}" in flat, (name, flat)
+
+
 def test_an_unset_clinic_name_prints_no_setting_on_the_document():
     if shutil.which("pdftotext") is None:
         pytest.skip("pdftotext (Debian poppler-utils) is missing")
@@ -113,3 +168,20 @@ def test_an_unset_clinic_name_prints_no_setting_on_the_document():
     print(text[:600])
     assert "ARMTRACK" not in text and "not set" not in text
     assert "Therapist: Dr Alice Martin" in text and "Session report: summary" in text
+
+
+def test_what_was_done_keeps_to_its_lines_and_says_what_is_left():
+    """Many long exercises: the summary's list wraps inside the frame, stops at
+    ``DONE_LINES`` and says how many more are on page 4 (none dropped silently)."""
+    from armtrack.server.reports.pdf_summary import DONE_LINES
+
+    report, data, letterhead, previous = worst_pages()
+    many = [e.model_copy(update={"start_s": 20.0 + 40 * k, "end_s": 50.0 + 40 * k})
+            for k, e in enumerate(report.exercises * 4)]
+    figures = report_pages(report.model_copy(update={"exercises": many}), data, letterhead,
+                           previous)
+    bullets = [t.get_text() for t in figures[0].texts if t.get_text().startswith(("• ", "   "))]
+    print("\n".join(bullets))
+    assert len(bullets) <= DONE_LINES
+    shown = sum(b.startswith("• ") for b in bullets[:-1])
+    assert bullets[-1] == f"• {len(many) - shown} more exercises on page 4"

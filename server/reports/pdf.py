@@ -37,8 +37,11 @@ from .words import duration_words, exercise_words
 matplotlib.rcParams["text.parse_math"] = False
 
 A4 = (8.27, 11.69)
-#: Rows of the repetitions table that fit on page 3.
+#: Rows of the repetitions table that fit on page 4 (a row: two lines of an exercise's
+#: name).
 MAX_EXERCISE_ROWS = 24
+#: Characters on a line of an exercise's name in that table (6.5 pt in its column).
+NAME_CHARS = 40
 #: Points drawn per curve at most.
 MAX_POINTS = 6000
 DISCLAIMER = "armtrack supports therapy; it is not a diagnostic device."
@@ -68,7 +71,8 @@ def _page(title: str, report: SessionReport, page: int, pages: int) -> Figure:
     fig = Figure(figsize=A4)
     s = report.session
     fig.text(0.06, 0.965, title, fontsize=15, weight="bold")
-    fig.text(0.94, 0.965, f"{s.patient_name} · session {s.session_id}", ha="right",
+    # below the title, not beside it: a long name beside a long title ran into it
+    fig.text(0.94, 0.947, f"{s.patient_name} · session {s.session_id}", ha="right",
              fontsize=9, color="#444")
     fig.text(0.06, 0.02, DISCLAIMER, fontsize=7, color="#666")
     fig.text(0.94, 0.02, f"page {page} of {pages}", ha="right", fontsize=7, color="#666")
@@ -141,7 +145,8 @@ def _rom_table(fig: Figure, report: SessionReport, repetitions: dict[str, int]) 
 
 
 def _rom_bars(fig: Figure, report: SessionReport, top: float) -> None:
-    height = min(top - 0.1, 0.09 * max(1, len(report.rom)) + 0.08)
+    # the ticks and the axis' name below it stay above the page's footer
+    height = min(top - 0.135, 0.09 * max(1, len(report.rom)) + 0.08)
     ax = fig.add_axes((0.25, top - 0.05 - height, 0.68, height))
     fig.text(0.06, top - 0.025, "Session range against normal and target", fontsize=11,
              weight="bold")
@@ -190,7 +195,8 @@ def _angles_page(fig: Figure, report: SessionReport, data: SessionData) -> None:
             for d in a.details:
                 peaks.setdefault(a.angle, []).append((d.peak_s, d.direction))
     for i, angle in enumerate(names):
-        ax = fig.add_axes((0.1, top - (i + 1) * height + 0.012, 0.85, height - 0.03))
+        # the angle's name and ticks left of the axes, inside the page's text frame
+        ax = fig.add_axes((0.15, top - (i + 1) * height + 0.012, 0.79, height - 0.03))
         values = data.angles[angle]
         ax.plot(t[::stride], values[::stride], color="#1f3b66", linewidth=0.7)
         if excluded is not None:
@@ -231,8 +237,7 @@ def _details_page(fig: Figure, report: SessionReport) -> None:
               "SPARC", "LDLJ", "CV ampl.", "CV time"]
     rows = []
     for k, exercise in enumerate(report.exercises, 1):
-        name = f"{k}. {exercise_words(exercise.name)}"
-        name = name if len(name) <= 40 else name[:39] + "…"
+        name = "\n".join(textwrap.wrap(f"{k}. {exercise_words(exercise.name)}", NAME_CHARS))
         for a in exercise.angles:
             main = max(a.consistency, key=lambda c: c.repetitions, default=None)
             rows.append([name, LABELS.get(a.angle, a.angle), str(a.repetitions),
@@ -246,18 +251,22 @@ def _details_page(fig: Figure, report: SessionReport) -> None:
                               is not None else None, ".0f", "%")])
     note = ("Means over the repetitions; SPARC and LDLJ: medians (closer to 0 is smoother); "
             "CV: coefficient of variation of the direction with most repetitions.")
-    if len(rows) > MAX_EXERCISE_ROWS:
-        note = (f"First {MAX_EXERCISE_ROWS} of {len(rows)} rows (all in report.csv). "
-                + note)
-        rows = rows[:MAX_EXERCISE_ROWS]
-    height = ROW * (max(1, len(rows)) + 1)
+    # a row holds two lines of the name; a longer name makes its row taller [rows]
+    tall = [max(1.0, (row[0].count("\n") + 1) / 2) for row in rows]
+    shown = int(np.searchsorted(np.cumsum(tall), MAX_EXERCISE_ROWS, side="right"))
+    if shown < len(rows):
+        note = f"First {shown} of {len(rows)} rows (all in report.csv). " + note
+        rows, tall = rows[:shown], tall[:shown]
+    height = ROW * (max(1.0, sum(tall)) + 1)
     bottom = 0.9 - height
-    ax = fig.add_axes((0.04, bottom, 0.92, height))
+    ax = fig.add_axes((0.06, bottom, 0.88, height))
     ax.axis("off")
     if rows:
         table = ax.table(cellText=rows, colLabels=header, cellLoc="center",
                          colWidths=[0.27, 0.15, 0.05, 0.08, 0.08, 0.08, 0.06, 0.06, 0.07,
                                     0.07], bbox=(0, 0, 1, 1))
+        for (row, _), cell in table.get_celld().items():  # the bbox keeps the ratios
+            cell.set_height(tall[row - 1] if row else 1.0)
         style_table(table, fontsize=6.5, names_left=False)
     else:
         ax.text(0, 0.5, "No repetitions found.", fontsize=9)

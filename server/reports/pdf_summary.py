@@ -21,6 +21,10 @@ LABELS = ANGLE_WORDS
 #: A change of range smaller than this [deg] is "about the same" (within what one
 #: session's estimate may differ from the next: the estimator's bar plus its extremes).
 SAME_DEG = 3.0
+#: "What was done": characters on a line (9 pt from the bullet to the frame's right
+#: edge) and lines at most.
+DONE_CHARS = 105
+DONE_LINES = 8
 
 
 @dataclass(frozen=True)
@@ -161,8 +165,17 @@ def summary_page(fig: Figure, report: SessionReport, letterhead: Letterhead,
     y -= 0.015
     fig.text(0.06, y, "What was done", fontsize=11, weight="bold")
     y -= 0.022
-    for line in done_lines(report)[:6]:
-        fig.text(0.08, y, "• " + line, fontsize=9)
+    done = done_lines(report)
+    lines: list[str] = []
+    for k, line in enumerate(done):
+        wrapped = textwrap.wrap("• " + line, DONE_CHARS, subsequent_indent="   ")
+        if len(lines) + len(wrapped) > DONE_LINES - (k < len(done) - 1):
+            more = len(done) - k
+            lines.append(f"• {more} more exercise{'s' if more > 1 else ''} on page 4")
+            break
+        lines += wrapped
+    for line in lines:
+        fig.text(0.08, y, line, fontsize=9)
         y -= 0.019
     y -= 0.02
     fig.text(0.06, y, "Range of motion (degrees; calibration poses left out)", fontsize=11,
@@ -190,7 +203,7 @@ def summary_page(fig: Figure, report: SessionReport, letterhead: Letterhead,
         ax = fig.add_axes((0.06, y - height, 0.88, height))
         ax.axis("off")
         table = ax.table(cellText=table_rows, colLabels=header, cellLoc="center",
-                         colWidths=[0.19, 0.13, 0.13, 0.2, 0.25, 0.1], bbox=(0, 0, 1, 1))
+                         colWidths=[0.23, 0.13, 0.11, 0.19, 0.26, 0.08], bbox=(0, 0, 1, 1))
         style_table(table)
         y -= height + 0.02
     else:
@@ -221,4 +234,4 @@ def summary_page(fig: Figure, report: SessionReport, letterhead: Letterhead,
         "% of normal: how far the joint reached on the side it moved most, as a share of "
         "the AAOS normal range on that side of zero (flexion to 150° of −60…180° is 83 %). "
         "Target then: the target in force when the session was recorded. Details, curves "
-        "and a technical appendix follow on pages 2 to 4.", 150), fontsize=7, color="#555")
+        "and a technical appendix: pages 2 to 4.", 145), fontsize=7, color="#555")
