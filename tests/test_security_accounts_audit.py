@@ -206,3 +206,33 @@ def test_a_reset_code_sets_a_password_once_when_sent_many_times_at_once(srv):
         loser = next(p for p in passwords if p != winner)  # one: failures slow sign-in
         assert _sign_in(srv, "rita", loser) == 401
         assert _sign_in(srv, "rita", winner) == 200
+
+
+def test_a_password_reset_is_in_the_audit_log_with_its_address(srv):
+    """An admin's reset code sets the therapist's password: the admin who holds it could
+    use it themself, sign in as the therapist and read their patients (an admin holds
+    none), and the log then showed only the therapist's views: neither issuing nor using
+    a reset was written. Now both are, each with its actor and address, so the admin's
+    audit page and the therapist's own show who reset the account, from where, and when
+    the views under that account began."""
+    srv.create_user("tess")
+    root = srv.client("root")
+    tess_id = _id(srv, "tess")
+    code = root.http.post(f"/api/admin/therapists/{tess_id}/reset").json()["reset_token"]
+    used = httpx.post(srv.url + "/api/auth/reset", json={"new_password": "chosen by whom"},
+                      headers={"Authorization": f"Bearer {code}"})
+    assert used.status_code == 204, used.text
+    root_id = _id(srv, "root")
+    entries = root.http.get("/api/audit").json()
+    issued = [e for e in entries if e["action"] == "issued_reset"
+              and e["route"].endswith(f"/{tess_id}/reset")]
+    reset = [e for e in entries if e["action"] == "reset_password"
+             and e["therapist_id"] == tess_id]
+    print("\n", issued[:1], reset[:1])
+    assert [(e["therapist_id"], e["route"]) for e in issued] == [
+        (root_id, f"POST /api/admin/therapists/{tess_id}/reset")], issued
+    assert [(e["therapist_id"], e["client"]) for e in reset] == [(tess_id, "127.0.0.1")], reset
+    tess = srv.client("tess", "chosen by whom")
+    assert [e["action"] for e in tess.http.get("/api/audit").json()
+            if e["action"] == "reset_password"] == ["reset_password"]
+

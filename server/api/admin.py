@@ -8,7 +8,7 @@ from __future__ import annotations
 from datetime import UTC, datetime, timedelta
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, HTTPException, status
+from fastapi import APIRouter, Depends, HTTPException, Request, status
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 from sqlalchemy import delete, func, select
 from sqlalchemy.orm import Session as DbSession
@@ -144,7 +144,7 @@ def enable_therapist(therapist_id: Id, db: Db, admin: Admin) -> TherapistOut:
 
 @router.post("/therapists/{therapist_id}/reset", response_model=ResetOut)
 def issue_reset(therapist_id: Id, db: Db, admin: Admin,
-                svc: Annotated[Services, Depends(services)]) -> ResetOut:
+                svc: Annotated[Services, Depends(services)], request: Request) -> ResetOut:
     """A one-time reset token for a therapist who forgot their password (used with
     ``POST /api/auth/reset``; earlier unused ones stop working). One made for a disabled
     account sets nothing until the account is enabled; disabling it ends the token."""
@@ -156,6 +156,10 @@ def issue_reset(therapist_id: Id, db: Db, admin: Admin,
     lifetime = timedelta(hours=svc.settings.reset_token_hours)
     db.add(models.PasswordReset(therapist_id=therapist_id, token_hash=digest,
                                 issued_by=admin.id, expires_at=datetime.now(UTC) + lifetime))
+    # logged: whoever holds the code chooses the account's password (the admin too)
+    audit.record(db, action="issued_reset", route=f"POST {request.url.path}",
+                 therapist_id=admin.id, client=request.client.host if request.client else None,
+                 commit=False)
     db.commit()
     return ResetOut(reset_token=token, expires_in=int(lifetime.total_seconds()))
 

@@ -16,6 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy import delete, select, update
 from sqlalchemy.orm import Session as DbSession
 
+from .. import audit
 from ..auth import hash_password, hash_token, new_token, verify_password
 from ..db import models
 from ..plain_text import Secret
@@ -138,7 +139,8 @@ def reset_grant(db: Db, token: Annotated[str | None, Depends(oauth2)]
     403: {"description": "the account is disabled"}})
 async def reset_password(body: PasswordReset,
                          row: Annotated[models.PasswordReset, Depends(reset_grant)],
-                         svc: Annotated[Services, Depends(services)]) -> None:
+                         svc: Annotated[Services, Depends(services)],
+                         request: Request) -> None:
     """Set a new password with the one-time reset token a clinic admin issued, given as
     the bearer token (``Authorization: Bearer rt_…``). Every sign-in of the account ends,
     with its live feeds and 3D views."""
@@ -160,6 +162,9 @@ async def reset_password(body: PasswordReset,
                    .values(password_hash=password_hash))
         db.execute(delete(models.AccessToken).where(
             models.AccessToken.therapist_id == row.therapist_id))
+        # logged with its address: the account's views from now on are whoever chose it
+        audit.record(db, action="reset_password", route="POST /api/auth/reset",
+                     therapist_id=row.therapist_id, client=_client(request), commit=False)
         db.commit()
 
     await svc.run_db(work)

@@ -9,7 +9,8 @@ const AUDIT_ACTIONS = {
   erased: "Erased", erased_retention: "Erased (retention)", viewed_3d: "Opened the 3D view",
   reassigned: "Reassigned", issued_device: "Issued a kit", revoked_device: "Revoked a kit",
   discharged: "Discharged", readmitted: "Readmitted",
-  changed: "Changed",
+  changed: "Changed", viewed_live: "Watched live", issued_reset: "Issued a password reset",
+  reset_password: "Reset the password",
 };
 
 frame([{ text: "Audit log" }]);
