@@ -167,9 +167,22 @@ const PatientTools = (() => {
       try { await api(`/api/patients/${patientId}`, { method: "DELETE" }); location.href = "/patients"; }
       catch (error) { showError(form, error); }
     } }, "Erase the patient…");
+    // docs/extensions/discharge.md: the records stay, the kits start no new session; the
+    // page's notice (patient.html) says so and readmits
+    const discharge = el("button", { class: "secondary", id: "discharge-patient", hidden: !!patient.discharged_at, onclick: async () => {
+      if (!confirm(`Discharge ${patient.name}? Their sessions, reports and kits stay; their kits start no new session until you readmit them, and the patient list shows them only under “Show discharged”.`)) return;
+      try {
+        patient = await api(`/api/patients/${patientId}/discharge`, { method: "POST" });
+        document.dispatchEvent(new CustomEvent("armtrack:patient", { detail: patient }));
+      } catch (error) { showError(form, error); }
+    } }, "Discharge…");
+    document.addEventListener("armtrack:patient", (event) => {
+      patient = event.detail;
+      discharge.hidden = !!patient.discharged_at;
+    });
     card("record-card", "Patient record", form,
       el("div", { class: "row", style: "margin-top:12px;align-items:center" }, exportButton,
-        el("span", { class: "grow" }), erase));
+        el("span", { class: "grow" }), discharge, erase));
   }
 
   function showSaved(where) {

@@ -10,13 +10,14 @@ function flagChip(flag) {
     "⚑ " + (FLAG_LABELS[flag.kind] || flag.kind));
 }
 
-// The patients list: a "needs a look" chip per flag, in the row's last-but-one cell.
+// The patients list: a "needs a look" chip per flag, in the row's last-but-one cell (none
+// for a discharged patient: docs/extensions/discharge.md).
 async function showPatientFlags(tbody) {
   let flagged;
   try { flagged = await api("/api/flags"); } catch (_) { return; }
   for (const entry of flagged) {
     const row = tbody.querySelector(`tr[data-patient="${entry.patient_id}"]`);
-    if (!row) continue;
+    if (!row || "discharged" in row.dataset) continue;  // in care no more: nothing to look at
     const cell = row.querySelector(".now-cell");
     cell.append(...entry.flags.map((f) => el("div", { class: "flag-line" }, flagChip(f),
       el("span", { class: "small muted" }, " " + f.message))));

@@ -1,0 +1,93 @@
+"""Discharging a patient from the pages, in Debian's headless chromium at 390 and 1280 px
+against a real server (docs/extensions/discharge.md).
+
+Before, the patient list only grew: the one way to take a patient off it was "Erase the
+patient…", with every session. Now the patient's page has "Discharge…" (it asks first;
+dismissed, nothing changes); a discharged patient's page says so, with "Readmit"; the list
+shows the patients in care, and "Show discharged" adds the rest, marked "Discharged".
+Skips with the reason when chromium or Playwright is absent."""
+
+from __future__ import annotations
+
+import contextlib
+
+import pytest
+from browser_helpers import chromium, first_page, need_browser, sign_in_as
+
+sync_api = need_browser()
+
+from test_layout_browser import fits  # noqa: E402
+
+pytestmark = pytest.mark.slow
+
+
+@contextlib.contextmanager
+def _page(width: int):
+    """A page of a chromium of its own, ``width`` px wide (touch below 500 px)."""
+    with (sync_api.sync_playwright() as playwright,
+          chromium(playwright, width, phone=width < 500) as context):
+        yield first_page(context)
+
+
+@pytest.mark.parametrize("width", [390, 1280])
+def test_a_patient_is_discharged_and_readmitted_from_the_pages(module_server, width,
+                                                               tmp_path):
+    api = module_server.client("alice")
+    dora = api.patient(f"Dora Discharged {width}")
+    ivan = api.patient(f"Ivan In-care {width}")
+    url = module_server.url
+    rows = "#patients tbody tr[data-patient='{}']"
+    with _page(width) as page:
+        sign_in_as(page, url, "alice")
+        sync_api.expect(page.locator(rows.format(dora["id"]))).to_be_visible()
+
+        page.goto(f"{url}/patients/{dora['id']}")
+        button = page.get_by_role("button", name="Discharge…")
+        sync_api.expect(button).to_be_visible()
+        questions: list[str] = []
+
+        def dismiss(dialog):
+            questions.append(dialog.message)
+            dialog.dismiss()
+
+        page.once("dialog", dismiss)
+        button.click()
+        page.wait_for_timeout(500)
+        print(f"\nthe question: {questions}")
+        assert questions and dora["name"] in questions[0] and "stay" in questions[0]
+        assert api.http.get(f"/api/patients/{dora['id']}").json()["discharged_at"] is None
+
+        page.once("dialog", lambda dialog: dialog.accept())
+        button.click()
+        notice = page.locator("#discharged")
+        sync_api.expect(notice).to_be_visible()
+        sync_api.expect(notice).to_contain_text("Discharged on")
+        sync_api.expect(page.get_by_role("button", name="Readmit")).to_be_visible()
+        sync_api.expect(button).to_be_hidden()
+        print("the page says:", notice.inner_text())
+        assert api.http.get(f"/api/patients/{dora['id']}").json()["discharged_at"] is not None
+        fits(page, tmp_path, "patient-discharged", width)
+        page.screenshot(path=str(tmp_path / f"discharged-{width}.png"), full_page=True)
+
+        # the list: the patients in care; "Show discharged" adds the rest, marked
+        page.goto(f"{url}/patients")
+        sync_api.expect(page.locator(rows.format(ivan["id"]))).to_be_visible()
+        sync_api.expect(page.locator(rows.format(dora["id"]))).to_have_count(0)
+        page.get_by_label("Show discharged").check()
+        dora_row = page.locator(rows.format(dora["id"]))
+        sync_api.expect(dora_row).to_be_visible()
+        sync_api.expect(dora_row).to_contain_text("Discharged")
+        sync_api.expect(page.locator(rows.format(ivan["id"]))).to_be_visible()
+        fits(page, tmp_path, "patients-discharged", width)
+        page.screenshot(path=str(tmp_path / f"list-{width}.png"), full_page=True)
+
+        # readmitted: back in the list, the page as before
+        dora_row.locator("a").click()
+        page.wait_for_url(f"{url}/patients/{dora['id']}")
+        page.get_by_role("button", name="Readmit").click()
+        sync_api.expect(notice).to_be_hidden()
+        sync_api.expect(page.get_by_role("button", name="Discharge…")).to_be_visible()
+        assert api.http.get(f"/api/patients/{dora['id']}").json()["discharged_at"] is None
+        page.goto(f"{url}/patients")
+        sync_api.expect(page.locator(rows.format(dora["id"]))).to_be_visible()
+        print(f"screenshots at {width} px: {tmp_path}")
