@@ -1,7 +1,8 @@
 """The session PDF's pages as drawn (server/reports/pdf.py ``report_pages``), with the
 longest things a report prints: every table lies inside the page's text frame (the
 title's left edge to the page number's right edge), every cell's words inside their cell,
-no exercise name cut, nothing else past the frame or into other words; and a server without ``ARMTRACK_CLINIC_NAME`` prints no operator's
+no exercise name cut, nothing else past the frame or into other words, page 3's
+exercise bands named; and a server without ``ARMTRACK_CLINIC_NAME`` prints no operator's
 hint on a document a patient may be given (pdftotext of the PDF)."""
 
 from __future__ import annotations
@@ -185,3 +186,34 @@ def test_what_was_done_keeps_to_its_lines_and_says_what_is_left():
     assert len(bullets) <= DONE_LINES
     shown = sum(b.startswith("• ") for b in bullets[:-1])
     assert bullets[-1] == f"• {len(many) - shown} more exercises on page 4"
+
+
+def test_page_3_names_each_exercise_band():
+    """Each exercise's band on page 3 carries its number as on page 4 ("3."), with its
+    name where the band is wide enough; the labels are drawn (they sat above the axes,
+    clipped by them: never seen), inside the frame, apart."""
+    report, data, letterhead, previous = worst_pages()
+    fig = report_pages(report, data, letterhead, previous)[2]
+    canvas = FigureCanvasAgg(fig)
+    fig.set_dpi(100)
+    canvas.draw()
+    renderer = canvas.get_renderer()
+    left, right = frame(fig, renderer)
+    labels = []
+    for ax in fig.axes:
+        inside = ax.get_window_extent(renderer)
+        for text in ax.texts:
+            box = text.get_window_extent(renderer)
+            seen = text.get_visible() and (not text.get_clip_on() or (
+                inside.x0 <= box.x0 and box.x1 <= inside.x1 and inside.y0 <= box.y0
+                and box.y1 <= inside.y1))
+            if seen:
+                labels.append((text.get_text(), box))
+    print([(t, round(b.x0), round(b.x1)) for t, b in labels])
+    said = [t for t, _ in labels]
+    for k, exercise in enumerate(report.exercises, 1):
+        assert f"{k}. {exercise_words(exercise.name)}" in said or f"{k}." in said, (k, said)
+    assert "3. Elbow flexion" in said  # its band holds the name
+    for k, (what, box) in enumerate(labels):
+        assert left - 0.5 <= box.x0 and box.x1 <= right + 0.5, what
+        assert not any(box.overlaps(b) for _, b in labels[:k]), what

@@ -25,8 +25,9 @@ import matplotlib
 import numpy as np
 from matplotlib.backends.backend_pdf import PdfPages
 from matplotlib.figure import Figure
+from matplotlib.textpath import TextPath
 
-from .content import SessionData, SessionReport
+from .content import Exercise, SessionData, SessionReport
 from .pdf_summary import Letterhead, local, style_table, summary_page
 from .words import duration_words, exercise_words
 
@@ -181,6 +182,27 @@ def _rom_bars(fig: Figure, report: SessionReport, top: float) -> None:
     ax.legend(fontsize=7, loc="lower left", bbox_to_anchor=(0, 1.0), ncol=3, frameon=False)
 
 
+#: Width of page 3's charts [figure fraction] and of their band labels' font [pt].
+CHART_WIDTH = 0.79
+BAND_FONT = 7.0
+
+
+def _band_label(ax, number: int, exercise: Exercise, t: np.ndarray) -> None:
+    """Above an exercise's band: "3. Elbow flexion" where the band holds it, else "3."
+    (page 4 numbers the exercises alike); nothing for a band outside the chart."""
+    t0, t1 = (float(t[0]), float(t[-1])) if t.size > 1 else (0.0, 1.0)
+    start, end = max(exercise.start_s, t0), min(exercise.end_s, t1)
+    if end <= start:
+        return
+    band_pt = (end - start) / (t1 - t0) * CHART_WIDTH * A4[0] * 72
+    text = f"{number}. {exercise_words(exercise.name)}"
+    if TextPath((0, 0), text, size=BAND_FONT).get_extents().width > band_pt:
+        text = f"{number}."
+    ax.text(0.5 * (start + end), 1.02, text, transform=ax.get_xaxis_transform(),
+            ha="center", fontsize=BAND_FONT, color=COLOURS[(number - 1) % len(COLOURS)],
+            clip_on=False)
+
+
 def _angles_page(fig: Figure, report: SessionReport, data: SessionData) -> None:
     names = list(report.rom) or ["elbow_flexion"]
     t = data.t
@@ -196,7 +218,8 @@ def _angles_page(fig: Figure, report: SessionReport, data: SessionData) -> None:
                 peaks.setdefault(a.angle, []).append((d.peak_s, d.direction))
     for i, angle in enumerate(names):
         # the angle's name and ticks left of the axes, inside the page's text frame
-        ax = fig.add_axes((0.15, top - (i + 1) * height + 0.012, 0.79, height - 0.03))
+        ax = fig.add_axes((0.15, top - (i + 1) * height + 0.012, CHART_WIDTH,
+                           height - 0.03))
         values = data.angles[angle]
         ax.plot(t[::stride], values[::stride], color="#1f3b66", linewidth=0.7)
         if excluded is not None:
@@ -206,9 +229,7 @@ def _angles_page(fig: Figure, report: SessionReport, data: SessionData) -> None:
             ax.axvspan(exercise.start_s, exercise.end_s, color=COLOURS[k % len(COLOURS)],
                        alpha=0.12, linewidth=0)
             if i == 0:
-                ax.text(0.5 * (exercise.start_s + exercise.end_s), 1.02, exercise.name,
-                        transform=ax.get_xaxis_transform(), ha="center", fontsize=6,
-                        color=COLOURS[k % len(COLOURS)], clip_on=True)
+                _band_label(ax, k + 1, exercise, t)
         if peaks.get(angle):
             pt = np.array([p for p, _ in peaks[angle]])
             ax.plot(pt, np.interp(pt, t, values), "v", color="#C44E52", markersize=3)
@@ -222,8 +243,8 @@ def _angles_page(fig: Figure, report: SessionReport, data: SessionData) -> None:
         if i < n - 1:
             ax.tick_params(labelbottom=False)
         else:
-            ax.set_xlabel("time [s] (grey: calibration, not counted; bands: exercises; "
-                          "▼ repetition peaks)", fontsize=7)
+            ax.set_xlabel("time [s] (grey: calibration, not counted; bands: exercises, "
+                          "numbered as on page 4; ▼ repetition peaks)", fontsize=7)
         ax.set_xlim(float(t[0]) if t.size else 0, float(t[-1]) if t.size else 1)
 
 
