@@ -217,3 +217,20 @@ def test_page_3_names_each_exercise_band():
     for k, (what, box) in enumerate(labels):
         assert left - 0.5 <= box.x0 and box.x1 <= right + 0.5, what
         assert not any(box.overlaps(b) for _, b in labels[:k]), what
+
+
+def test_page_2_share_labels_stay_inside_the_chart():
+    """'104% of normal' beside a bar reaching 180° (shoulder flexion's normal end) ran
+    into the chart's right edge."""
+    report, data, letterhead, previous = worst_pages()
+    fig = report_pages(report, data, letterhead, previous)[1]
+    canvas = FigureCanvasAgg(fig)
+    fig.set_dpi(100)
+    canvas.draw()
+    renderer = canvas.get_renderer()
+    chart = next(ax for ax in fig.axes if ax.axison)
+    edge = chart.get_window_extent(renderer).x1
+    ends = [t.get_window_extent(renderer).x1 for t in chart.texts
+            if t.get_text().endswith("of normal")]
+    print(f"labels end at {max(ends):.1f} px, the chart at {edge:.1f} px")
+    assert len(ends) == len(report.rom) and max(ends) < edge - 2

@@ -173,7 +173,9 @@ def _rom_bars(fig: Figure, report: SessionReport, top: float) -> None:
         label = _fmt(r.percent_of_normal, ".0f", "% of normal")
         ax.text(max(r.max, r.normal_max or r.max) + 4, yi, label, va="center", fontsize=7)
     ax.set_yticks(y, [LABELS.get(n, n) for n in names], fontsize=8)
-    ax.set_xlim(-110, 230)
+    # room right of the farthest bar for its "…% of normal" (about 50° wide at 7 pt)
+    ax.set_xlim(-110, max([245.0] + [max(r.max, r.normal_max or r.max) + 4 + 60
+                                     for r in report.rom.values()]))
     ax.axvline(0, color="#888", linewidth=0.6)
     ax.set_xlabel("angle [deg] (kinematics contract signs: flexion, abduction, internal "
                   "rotation, pronation, ulnar deviation +)", fontsize=7)
