@@ -87,7 +87,11 @@ def test_a_discharged_patient_keeps_their_records_and_their_kit_starts_nothing(
     assert alice.http.get(f"/api/sessions/{stats.session}/recording.csv").status_code == 200
     assert alice.http.get(url + "/progress").status_code == 200
 
-    # their kit starts no new session: the hello and an upload refused in words
+    # their kit is told (docs/extensions/device-today.md), and starts no new session:
+    # the hello and an upload refused in words
+    kit = {"Authorization": f"Bearer {token}"}
+    today = alice.http.get("/api/device/today", headers=kit).json()
+    assert today["discharged"] is True
     answer, code = _hello(discharge_server.ws_url, token)
     print("refused hello:", answer, code)
     assert answer["type"] == "error" and code == 4400
@@ -107,6 +111,7 @@ def test_a_discharged_patient_keeps_their_records_and_their_kit_starts_nothing(
     assert back.status_code == 200 and back.json()["discharged_at"] is None
     answer, code = _hello(discharge_server.ws_url, token)
     assert answer["type"] == "ready", answer
+    assert alice.http.get("/api/device/today", headers=kit).json()["discharged"] is False
     assert {p["id"] for p in alice.http.get("/api/patients?discharged=false").json()} == {
         other["id"], patient["id"]}
 

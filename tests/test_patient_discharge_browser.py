@@ -4,7 +4,8 @@ against a real server (docs/extensions/discharge.md).
 Before, the patient list only grew: the one way to take a patient off it was "Erase the
 patient…", with every session. Now the patient's page has "Discharge…" (it asks first;
 dismissed, nothing changes); a discharged patient's page says so, with "Readmit"; the list
-shows the patients in care, and "Show discharged" adds the rest, marked "Discharged".
+shows the patients in care, and "Show discharged" adds the rest, marked "Discharged". The
+patient's phone kit, opened, says they were discharged instead of offering a session.
 Skips with the reason when chromium or Playwright is absent."""
 
 from __future__ import annotations
@@ -91,3 +92,22 @@ def test_a_patient_is_discharged_and_readmitted_from_the_pages(module_server, wi
         page.goto(f"{url}/patients")
         sync_api.expect(page.locator(rows.format(dora["id"]))).to_be_visible()
         print(f"screenshots at {width} px: {tmp_path}")
+
+
+def test_a_discharged_patients_phone_kit_says_so(module_server, tmp_path):
+    """Before, the kit offered "Start" and walked the patient into the poses, and only the
+    refused hello's words in its status line said why nothing was sent."""
+    api = module_server.client("alice")
+    patient = api.patient("Kit Discharged")
+    token = api.device(patient["id"], "phone")["token"]
+    api.http.post(f"/api/patients/{patient['id']}/discharge").raise_for_status()
+    with _page(390) as phone:
+        phone.goto(f"{module_server.url}/kit#token={token}")
+        heading = phone.locator("h1")
+        sync_api.expect(heading).to_contain_text("discharged")
+        sync_api.expect(phone.locator("#start")).to_have_count(0)
+        print("\nthe kit says:", phone.locator("main").inner_text())
+        phone.screenshot(path=str(tmp_path / "kit-discharged.png"))
+        api.http.post(f"/api/patients/{patient['id']}/readmit").raise_for_status()
+        phone.reload()
+        sync_api.expect(phone.locator("#start")).to_be_visible()

@@ -44,8 +44,11 @@ Device = Annotated[models.Device, Depends(current_device)]
 def today(request: Request, db: Db, device: Device) -> dict[str, Any]:
     """Today's exercises for this device's patient, with their target bands, for a phone
     on either segment (each exercise names its ``sensor``): the program in force today
-    (the clinic's day) with its dose and version, else the default session."""
+    (the clinic's day) with its dose and version, else the default session; ``discharged``:
+    the therapist discharged the patient, the kit starts no new session
+    (docs/extensions/discharge.md)."""
     patient = db.get(models.Patient, device.patient_id)
     assert patient is not None  # a device goes with its patient (cascade)
     day = clinic_today(request.app.state.services.settings.clinic_zone())
-    return {"device": device.name, **todays_exercises(db, patient, day)}
+    return {"device": device.name, **todays_exercises(db, patient, day),
+            "discharged": patient.discharged_at is not None}

@@ -640,7 +640,14 @@ async function main() {
       el("p", { class: "lead" }, "Your therapist has replaced or removed it. Ask them for a new link."));
   }
   kit.side = kit.today.side || "right";
+  // a session under way goes on (its stream's resume is taken: docs/extensions/discharge.md)
   if (kept && !kept.finished && kept.stream !== undefined) return resume(kept);
+  if (kit.today.discharged) {  // offline: as the server last said
+    noStatus();
+    return screen(el("h1", {}, "Your therapist has discharged you"),
+      el("p", { class: "lead", id: "discharged" }, "This link starts no new session now. Everything you recorded is kept with your therapist."),
+      el("p", {}, "If you should go on with the exercises, ask your therapist to readmit you: this same link then works again."));
+  }
   welcome();
 }
 
