@@ -49,6 +49,17 @@ def chromium(playwright, width: int, height: int = 900, *, phone: bool = False,
         shutil.rmtree(profile, ignore_errors=True)
 
 
+@contextlib.contextmanager
+def page_at(width: int):
+    """The first tab of a chromium of its own, ``width`` px wide (touch and a mobile
+    viewport below 500 px: a phone)."""
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as playwright, chromium(playwright, width,
+                                                   phone=width < 500) as context:
+        yield first_page(context)
+
+
 def first_page(context, timeout_ms: float = 30_000):
     """The persistent context's first tab (opened if none), with ``timeout_ms``."""
     page = context.pages[0] if context.pages else context.new_page()

@@ -10,10 +10,8 @@ Skips with the reason when chromium or Playwright is absent."""
 
 from __future__ import annotations
 
-import contextlib
-
 import pytest
-from browser_helpers import chromium, first_page, need_browser, sign_in_as
+from browser_helpers import need_browser, page_at, sign_in_as
 
 sync_api = need_browser()
 
@@ -21,13 +19,6 @@ from test_layout_browser import fits  # noqa: E402
 
 pytestmark = pytest.mark.slow
 
-
-@contextlib.contextmanager
-def _page(width: int):
-    """A page of a chromium of its own, ``width`` px wide (touch below 500 px)."""
-    with (sync_api.sync_playwright() as playwright,
-          chromium(playwright, width, phone=width < 500) as context):
-        yield first_page(context)
 
 
 @pytest.mark.parametrize("width", [390, 1280])
@@ -38,7 +29,7 @@ def test_a_patient_is_discharged_and_readmitted_from_the_pages(module_server, wi
     ivan = api.patient(f"Ivan In-care {width}")
     url = module_server.url
     rows = "#patients tbody tr[data-patient='{}']"
-    with _page(width) as page:
+    with page_at(width) as page:
         sign_in_as(page, url, "alice")
         sync_api.expect(page.locator(rows.format(dora["id"]))).to_be_visible()
 
@@ -101,7 +92,7 @@ def test_a_discharged_patients_phone_kit_says_so(module_server, tmp_path):
     patient = api.patient("Kit Discharged")
     token = api.device(patient["id"], "phone")["token"]
     api.http.post(f"/api/patients/{patient['id']}/discharge").raise_for_status()
-    with _page(390) as phone:
+    with page_at(390) as phone:
         phone.goto(f"{module_server.url}/kit#token={token}")
         heading = phone.locator("h1")
         sync_api.expect(heading).to_contain_text("discharged")

@@ -9,10 +9,8 @@ reason when chromium or Playwright is absent."""
 
 from __future__ import annotations
 
-import contextlib
-
 import pytest
-from browser_helpers import chromium, first_page, need_browser, sign_in_as
+from browser_helpers import need_browser, page_at, sign_in_as
 
 sync_api = need_browser()
 
@@ -23,12 +21,6 @@ PROGRAM = {"name": "Elbow after the fracture", "start_date": "2026-11-16",
                {"exercise": "elbow_flexion", "sets": 2, "repetitions": 10, "days_per_week": 5}]}
 
 
-@contextlib.contextmanager
-def _page(width: int):
-    with (sync_api.sync_playwright() as playwright,
-          chromium(playwright, width, phone=width < 500) as context):
-        yield first_page(context)
-
 
 @pytest.mark.parametrize("width", [390, 1280])
 def test_a_programs_dates_read_as_dates(module_server, width, tmp_path):
@@ -36,7 +28,7 @@ def test_a_programs_dates_read_as_dates(module_server, width, tmp_path):
     patient = api.patient(f"Program Patient {width}")
     made = api.http.post(f"/api/patients/{patient['id']}/programs", json=PROGRAM)
     assert made.status_code == 201, made.text
-    with _page(width) as page:
+    with page_at(width) as page:
         sign_in_as(page, module_server.url, "alice")
         page.goto(f"{module_server.url}/patients/{patient['id']}")
         card = page.locator(f'.program[data-program="{made.json()["id"]}"]')
@@ -56,7 +48,7 @@ def test_the_editor_says_a_wrong_target_in_the_forms_words(module_server, width,
     target_max_deg, got 100.0 and 20.0"); it now names the exercise and the form's fields."""
     api = module_server.client("alice")
     patient = api.patient(f"Editor Patient {width}")
-    with _page(width) as page:
+    with page_at(width) as page:
         sign_in_as(page, module_server.url, "alice")
         page.goto(f"{module_server.url}/patients/{patient['id']}")
         page.click("#new-program")

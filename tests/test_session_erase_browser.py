@@ -12,10 +12,8 @@ Skips with the reason when chromium or Playwright is absent."""
 
 from __future__ import annotations
 
-import contextlib
-
 import pytest
-from browser_helpers import chromium, first_page, need_browser, sign_in_as
+from browser_helpers import need_browser, page_at, sign_in_as
 
 sync_api = need_browser()
 
@@ -24,13 +22,6 @@ from test_pages_browser import _exercise  # noqa: E402
 
 pytestmark = pytest.mark.slow
 
-
-@contextlib.contextmanager
-def _page(width: int):
-    """A page of a chromium of its own, ``width`` px wide (touch below 500 px)."""
-    with (sync_api.sync_playwright() as playwright,
-          chromium(playwright, width, phone=width < 500) as context):
-        yield first_page(context)
 
 
 def _uploaded_session(server, patient_name: str) -> tuple[dict, dict, object]:
@@ -50,7 +41,7 @@ def _uploaded_session(server, patient_name: str) -> tuple[dict, dict, object]:
 def test_a_session_is_erased_from_its_page(module_server, width, tmp_path):
     patient, session, api = _uploaded_session(module_server, f"Wrong Patient {width}")
     url = module_server.url
-    with _page(width) as page:
+    with page_at(width) as page:
         sign_in_as(page, url, "alice")
         page.goto(f"{url}/sessions/{session['id']}")
         button = page.get_by_role("button", name="Erase this session…")

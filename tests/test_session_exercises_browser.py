@@ -10,12 +10,11 @@ pages. Skips with the reason when chromium or Playwright is absent."""
 
 from __future__ import annotations
 
-import contextlib
 import re
 import shutil
 
 import pytest
-from browser_helpers import chromium, first_page, need_browser, sign_in_as
+from browser_helpers import need_browser, page_at, sign_in_as
 
 sync_api = need_browser()
 
@@ -49,19 +48,12 @@ def marked_session(module_server):
     return patient, session, report
 
 
-@contextlib.contextmanager
-def _page(width: int):
-    """A page of a chromium of its own, ``width`` px wide (touch below 500 px)."""
-    with (sync_api.sync_playwright() as playwright,
-          chromium(playwright, width, phone=width < 500) as context):
-        yield first_page(context)
-
 
 @pytest.mark.parametrize("width", [390, 1366])
 def test_a_marked_exercise_shows_its_repetitions(module_server, marked_session, width,
                                                  tmp_path):
     patient, session, _ = marked_session
-    with _page(width) as page:
+    with page_at(width) as page:
         sign_in_as(page, module_server.url, "alice")
         page.goto(f"{module_server.url}/patients/{patient['id']}")
         row = page.locator(f'#sessions [data-session="{session["id"]}"]')
@@ -85,7 +77,7 @@ def test_the_session_page_gives_the_reports_exercise_figures_and_target(
     (angle,) = [a for a in report["exercises"][0]["angles"] if a["angle"] == "elbow_flexion"]
     rom = report["rom"]["elbow_flexion"]
     assert (rom["target_min"], rom["target_max"]) == (0, 140)
-    with _page(width) as page:
+    with page_at(width) as page:
         sign_in_as(page, module_server.url, "alice")
         page.goto(f"{module_server.url}/sessions/{session['id']}")
         figures = page.locator('#exercise-figures tr[data-angle="elbow_flexion"]')
@@ -118,7 +110,7 @@ def test_the_patient_page_shows_a_session_that_ended_as_estimated(module_server,
     api = module_server.client("alice")
     patient = api.patient("Watched Patient")
     token = api.device(patient["id"], "kit")["token"]
-    with _page(width) as page:
+    with page_at(width) as page:
         sign_in_as(page, module_server.url, "alice")
         page.goto(f"{module_server.url}/patients/{patient['id']}")
         sync_api.expect(page.locator("#no-sessions")).to_be_visible()
@@ -165,7 +157,7 @@ def test_one_program_session_is_one_session_in_words(module_server, tmp_path):
     text = subprocess.run(["pdftotext", "-layout", str(tmp_path / "progress.pdf"), "-"],
                           capture_output=True, text=True, check=True).stdout
     assert " · 1 session · " in text, text[:300]
-    with _page(390) as page:
+    with page_at(390) as page:
         sign_in_as(page, module_server.url, "alice")
         page.goto(f"{module_server.url}/patients/{patient['id']}")
         sync_api.expect(page.locator("#progress-card")).to_contain_text(
