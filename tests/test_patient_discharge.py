@@ -139,3 +139,30 @@ def test_the_migration_leaves_every_patient_in_care(tmp_path):
     with engine.connect() as connection:
         assert connection.execute(sa.text("SELECT name, discharged_at FROM patients")
                                   ).one() == ("p", None)
+
+
+def test_a_discharged_patient_needs_no_look(discharge_server):
+    """``GET /api/flags`` lists the patients who need a look: one discharged with a program
+    still running is flagged "no session for N days" ever after, though no session is
+    expected of them any more. Discharged, they leave the flags; readmitted, they are back."""
+    import datetime
+
+    alice = discharge_server.client("alice")
+    patient = alice.patient("Fay Flagged")
+    started = datetime.date.today() - datetime.timedelta(days=10)
+    answer = alice.http.post(f"/api/patients/{patient['id']}/programs", json={
+        "name": "Elbow", "start_date": started.isoformat(), "exercises": [
+            {"exercise": "elbow_flexion", "sets": 2, "repetitions": 10, "days_per_week": 7}]})
+    assert answer.status_code == 201, answer.text
+
+    def flagged() -> list[str]:
+        return [f["kind"] for row in alice.http.get("/api/flags").json()
+                if row["patient_id"] == patient["id"] for f in row["flags"]]
+
+    assert flagged() == ["no_session"]
+    url = f"/api/patients/{patient['id']}"
+    assert alice.http.post(url + "/discharge").status_code == 200
+    print("discharged:", flagged())
+    assert flagged() == []
+    assert alice.http.post(url + "/readmit").status_code == 200
+    assert flagged() == ["no_session"]

@@ -152,12 +152,14 @@ class PatientFlags(BaseModel):
 @router.get("/flags", response_model=list[PatientFlags])
 def get_flags(db: Db, therapist: Therapist, settings: SettingsDep) -> list[PatientFlags]:
     """The therapist's patients who need a look (``docs/programs.md``, "Flags"): no
-    session for days, range falling, pain rising. Patients without a flag are left out.
+    session for days, range falling, pain rising. Patients without a flag are left out,
+    and discharged ones (docs/extensions/discharge.md: no session is expected of them).
     A clinic admin holds no patients (docs/security.md), whatever the database says."""
     if therapist.is_admin:
         return []
     patients = list(db.scalars(select(models.Patient.id).where(
-        models.Patient.therapist_id == therapist.id).order_by(models.Patient.id)))
+        models.Patient.therapist_id == therapist.id, models.Patient.discharged_at.is_(None))
+        .order_by(models.Patient.id)))
     found = adherence.flags_by_patient(db, patients, settings)
     return [PatientFlags(patient_id=p, flags=found[p]) for p in patients if p in found]
 
