@@ -60,6 +60,21 @@ def page_at(width: int):
         yield first_page(context)
 
 
+def dismissed_question(page, button) -> list[str]:
+    """Click ``button``, answer the confirm it opens with Cancel; the question(s) asked
+    (empty when none came within 0.5 s)."""
+    questions: list[str] = []
+
+    def dismiss(dialog):
+        questions.append(dialog.message)
+        dialog.dismiss()
+
+    page.once("dialog", dismiss)
+    button.click()
+    page.wait_for_timeout(500)
+    return questions
+
+
 def first_page(context, timeout_ms: float = 30_000):
     """The persistent context's first tab (opened if none), with ``timeout_ms``."""
     page = context.pages[0] if context.pages else context.new_page()

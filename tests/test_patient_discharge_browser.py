@@ -11,7 +11,7 @@ Skips with the reason when chromium or Playwright is absent."""
 from __future__ import annotations
 
 import pytest
-from browser_helpers import need_browser, page_at, sign_in_as
+from browser_helpers import dismissed_question, need_browser, page_at, sign_in_as
 
 sync_api = need_browser()
 
@@ -36,15 +36,7 @@ def test_a_patient_is_discharged_and_readmitted_from_the_pages(module_server, wi
         page.goto(f"{url}/patients/{dora['id']}")
         button = page.get_by_role("button", name="Discharge…")
         sync_api.expect(button).to_be_visible()
-        questions: list[str] = []
-
-        def dismiss(dialog):
-            questions.append(dialog.message)
-            dialog.dismiss()
-
-        page.once("dialog", dismiss)
-        button.click()
-        page.wait_for_timeout(500)
+        questions = dismissed_question(page, button)
         print(f"\nthe question: {questions}")
         assert questions and dora["name"] in questions[0] and "stay" in questions[0]
         assert api.http.get(f"/api/patients/{dora['id']}").json()["discharged_at"] is None

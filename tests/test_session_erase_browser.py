@@ -13,7 +13,7 @@ Skips with the reason when chromium or Playwright is absent."""
 from __future__ import annotations
 
 import pytest
-from browser_helpers import need_browser, page_at, sign_in_as
+from browser_helpers import dismissed_question, need_browser, page_at, sign_in_as
 
 sync_api = need_browser()
 
@@ -48,15 +48,7 @@ def test_a_session_is_erased_from_its_page(module_server, width, tmp_path):
         sync_api.expect(button).to_be_visible()
         fits(page, tmp_path, "session", width)  # no wider than the window, hints whole
 
-        questions: list[str] = []
-
-        def dismiss(dialog):
-            questions.append(dialog.message)
-            dialog.dismiss()
-
-        page.once("dialog", dismiss)
-        button.click()
-        page.wait_for_timeout(500)
+        questions = dismissed_question(page, button)
         print(f"\nthe question: {questions}")
         assert questions and f"session {session['id']}" in questions[0], questions
         assert api.http.get(f"/api/sessions/{session['id']}").status_code == 200  # kept
