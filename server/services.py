@@ -17,6 +17,7 @@ from sqlalchemy import update
 from .db import models
 from .db.engine import make_engine, make_sessionmaker
 from .db.migrate import upgrade
+from .ingest.budget import KitBudget
 from .ingest.writer import GroupWriter, StreamState
 from .live.access import AccessWatch
 from .live.broker import make_hub
@@ -82,6 +83,9 @@ class Services:
         self.streams: dict[str, StreamState] = {}
         self.connections: dict[str, Any] = {}  # stream id → open IngestConnection
         self.kit_sockets: dict[int, int] = {}  # device id → its open ingest connections
+        #: device id → how fast its messages are read (ingest/budget.py), kept while it
+        #: has a socket open or a debt to pay
+        self.kit_budgets: dict[int, KitBudget] = {}
         #: sessions the therapist is closing: a resume or continuation of one is refused as
         #: closed (a kit reconnecting between its stream's end and the close's commit)
         self.closing: set[int] = set()
@@ -133,6 +137,14 @@ class Services:
         self.db_pool.shutdown(wait=True)
         self.cpu_pool.shutdown(wait=True)
         self.engine.dispose()
+
+    def kit_budget(self, device_id: int) -> KitBudget:
+        """The reading budget of kit ``device_id``, one for all its streams."""
+        budget = self.kit_budgets.get(device_id)
+        if budget is None:
+            budget = self.kit_budgets[device_id] = KitBudget(
+                self.settings.kit_messages_per_s, self.settings.kit_rows_per_s)
+        return budget
 
     def park_live(self, stream_id: str, worker: LiveWorker, feedback: Any,
                   device_id: int | None = None, therapist_id: int | None = None) -> None:

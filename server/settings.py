@@ -73,6 +73,16 @@ class Settings(BaseSettings):
                                   "a request body [s] (else 408)")
     max_streams_per_kit: int = Field(4, ge=1, description="most ingest connections one kit "
                                      "token holds open at once (more: 4429)")
+    kit_messages_per_s: float = Field(
+        3000.0, gt=0, description="most ingest messages the server reads from one kit "
+        "token a second, all its streams together (60x real time of a kit of 5 sensors "
+        "at 100 Hz sending 10 rows a message, 50 a second): past it the server reads "
+        "the kit's sockets no faster (TCP pushes back; nothing refused, nothing acked "
+        "lost)")
+    kit_rows_per_s: float = Field(
+        50000.0, gt=0, description="most sample rows the server reads from one kit token "
+        "a second, all its streams and sensors together (100x real time of 5 sensors at "
+        "100 Hz): past it the server reads the kit's sockets no faster")
     max_new_sessions_per_kit_hour: int = Field(
         20, ge=1, description="most new sessions one kit token starts in an hour (the "
         "next hello without resume or session: error naming the limit, close 4429; the kit "

@@ -48,7 +48,7 @@ from ..services import Services
 from ..store.gyro_bias import session_prior, session_priors_by_id
 from ..store.processing import mark_closed
 from ..store.stopped import record_stop
-from . import protocol
+from . import budget, protocol
 from .feedback import FEEDBACK_EXTENSION, Band, FeedbackRunner, FeedbackTracker
 from .protocol import Hello, Refused
 from .writer import (
@@ -121,6 +121,8 @@ async def ingest(websocket: WebSocket) -> None:
             services.kit_sockets[device_id] = left
         else:
             del services.kit_sockets[device_id]
+            if services.kit_budgets[device_id].full():  # else kept: a reconnect pays on
+                del services.kit_budgets[device_id]
 
 
 class IngestConnection:
@@ -155,6 +157,9 @@ class IngestConnection:
         self.program_error: str | None = None
         #: the server stopped this stream after ready (store/stopped.py's record)
         self.stopped: dict[str, Any] | None = None
+        #: how fast this kit's messages are read, all its streams together
+        self.budget = services.kit_budget(device_id)
+        self._slice_from = time.perf_counter()
 
     # -- sending ------------------------------------------------------------------------
     async def send(self, message: dict[str, Any]) -> None:
@@ -250,9 +255,11 @@ class IngestConnection:
                 return
             ack_task = asyncio.create_task(self._ack_loop())
             while not self._closed:
+                await self._pace()
                 text = await self.receive()
                 if text is None:
                     break
+                self.budget.spend(messages=1)
                 if not await self._handle(text):
                     break
         except WebSocketDisconnect:
@@ -262,6 +269,19 @@ class IngestConnection:
                 await self._end(ack_task)
             finally:
                 self.ended.set()
+
+    async def _pace(self) -> None:
+        """Before the next message: wait while the kit is past its budget (its socket
+        unread: back-pressure), and let the loop serve others after ``SLICE_S`` of
+        messages handled back to back (one read may bring in hundreds)."""
+        wait = self.budget.wait_s()
+        if wait >= budget.PAUSE_MIN_S:
+            await asyncio.sleep(wait)
+        elif time.perf_counter() - self._slice_from >= budget.SLICE_S:
+            await asyncio.sleep(0)
+        else:
+            return
+        self._slice_from = time.perf_counter()
 
     async def _start(self) -> bool:
         text = await self.receive()
@@ -526,6 +546,7 @@ class IngestConnection:
                     if kind == "samples":
                         item = protocol.check_samples(message, seq, self.hello, state.last_t,
                                                      state.t_offset)
+                        self.budget.spend(rows=len(item.rows))
                         await self._room_for(len(item.rows), seq)
                         state.last_t[item.sensor] = float(item.rows[-1, 0])
                         self.received += len(item.rows)
@@ -534,6 +555,7 @@ class IngestConnection:
                     elif kind == "points":  # docs/extensions/points.md
                         item = protocol.check_points(message, seq, self.hello, state.last_t,
                                                     state.t_offset)
+                        self.budget.spend(rows=len(item.rows))
                         await self._room_for(len(item.rows), seq)
                         state.last_t[item.sensor] = float(item.rows[-1, 0])
                         self.services.writer.submit(Write(state, seq, samples=item))

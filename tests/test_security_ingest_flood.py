@@ -1,0 +1,180 @@
+"""Security review (Medium): one kit token could make the server slow for everyone. Four
+streams of one kit sending valid one-row ``samples`` as fast as one Python client can
+(~11,000 messages a second) took another therapist's ``GET /api/patients`` from 14 ms to
+1.3 s (median): nothing bounded how fast the server read a kit's messages. Now a kit's
+messages are read no faster than its budget (``ARMTRACK_KIT_MESSAGES_PER_S``,
+``ARMTRACK_KIT_ROWS_PER_S``, all its streams together): past it the server stops reading
+its sockets for a while, TCP pushes back on the kit, nothing is refused and nothing acked
+is lost; and a burst already read never holds the event loop for long. A kit replaying a
+recording at 50× real time is not slowed.
+
+Real server, real WebSocket clients (the flooding kit in a process of its own, so that
+its CPU does not slow the measuring client's), real database file."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import multiprocessing
+import statistics
+import time
+
+import httpx
+import pytest
+from server_support import server_fixture
+
+#: A flood's page median may be at most this many times the same page's median measured
+#: just before it (in the same test: the machine's load is in both)
+SLOWDOWN_MAX = 3.0
+FLOOD_S = 8.0
+SOCKETS = 4  # ARMTRACK_MAX_STREAMS_PER_KIT's default
+
+srv = server_fixture("ingest-flood", "alice", "bob")
+
+
+def _flood(url: str, token: str, rows: int, seconds: float, started, out) -> None:
+    """``SOCKETS`` streams of one kit, each sending valid ``samples`` of ``rows`` rows as
+    fast as its socket takes them for ``seconds``; puts each one's (messages sent, acked,
+    errors, seconds it sent for) on ``out``."""
+    from websockets.asyncio.client import connect
+
+    async def one(k: int) -> tuple[int, int, list]:
+        hello = {"type": "hello", "protocol": 1, "device": f"flood-{k}", "side": "right",
+                 "sensors": ["forearm"], "rate_hz": 100, "nine_axis": False,
+                 "resume": None}
+        async with connect(url, additional_headers={"Authorization": f"Bearer {token}"},
+                           open_timeout=60, close_timeout=1) as ws:
+            await ws.send(json.dumps(hello))
+            ready = json.loads(await ws.recv())
+            assert ready["type"] == "ready", ready
+            acked, errors = [-1], []
+
+            async def acks() -> None:
+                async for raw in ws:
+                    message = json.loads(raw)
+                    if message["type"] == "ack":
+                        acked[0] = max(acked[0], message["seq"])
+                    elif message["type"] == "error":
+                        errors.append(message)
+            reader = asyncio.create_task(acks())
+            started.set()
+            seq, end = 0, time.monotonic() + seconds
+            row = ",0.1,0.2,9.8,0.01,0.02,0.03,null,null,null]"
+            began = time.monotonic()
+            while time.monotonic() < end:
+                t0 = seq * rows
+                await ws.send(f'{{"type":"samples","seq":{seq},"sensor":"forearm",'
+                              '"rows":[' + ",".join(f"[{(t0 + i) / 100}{row}"
+                                                    for i in range(rows)) + "]}")
+                seq += 1
+            took = time.monotonic() - began
+            reader.cancel()
+            return seq, acked[0] + 1, errors, took
+
+    async def all_() -> list:
+        return await asyncio.gather(*(one(k) for k in range(SOCKETS)))
+    out.put(asyncio.run(all_()))
+
+
+def _page_times(http: httpx.Client, seconds: float) -> list[float]:
+    """Seconds each ``GET /api/patients`` took, one every 50 ms for ``seconds``."""
+    times, end = [], time.monotonic() + seconds
+    while time.monotonic() < end:
+        began = time.perf_counter()
+        http.get("/api/patients").raise_for_status()
+        times.append(time.perf_counter() - began)
+        time.sleep(0.05)
+    return times
+
+
+@pytest.mark.parametrize("rows", [1, 1000])
+def test_one_kits_flood_does_not_slow_another_therapists_pages(srv, rows):
+    """Valid ``samples`` of one row (the most messages) or of 1000 (the most rows)."""
+    alice = srv.client("alice")
+    token = alice.device(alice.patient("Flood")["id"])["token"]
+    bob = srv.client("bob")
+    bob.patient("Elsewhere")
+    _page_times(bob.http, 1.0)  # warm
+    before = _page_times(bob.http, 4.0)
+    context = multiprocessing.get_context("spawn")
+    started, out = context.Event(), context.Queue()
+    flood = context.Process(target=_flood, args=(srv.ws_url, token, rows, FLOOD_S, started, out))
+    flood.start()
+    try:
+        assert started.wait(60), "the flooding kit did not start"
+        time.sleep(1.0)
+        during = _page_times(bob.http, FLOOD_S - 2.0)
+        results = out.get(timeout=120)
+    finally:
+        flood.join(30)
+        if flood.is_alive():
+            flood.kill()
+    took = max(r[3] for r in results)
+    sent = sum(r[0] for r in results)
+    acked = sum(r[1] for r in results)
+    errors = [e for r in results for e in r[2]]
+    base, flooded = statistics.median(before), statistics.median(during)
+    print(f"\nGET /api/patients median {base * 1e3:.1f} ms (max {max(before) * 1e3:.0f}) "
+          f"before, {flooded * 1e3:.1f} ms (max {max(during) * 1e3:.0f}) during one kit's "
+          f"flood ({SOCKETS} streams, {rows} rows a message): {flooded / base:.1f}x; the kit "
+          f"sent {sent:,} messages in {took:.1f} s, {acked:,} acked "
+          f"({acked / took:,.0f}/s, {acked * rows / took:,.0f} rows/s), "
+          f"{len(errors)} refused")
+    assert not errors, errors[:3]  # valid data are never refused, only read more slowly
+    assert acked > 0
+    assert flooded <= SLOWDOWN_MAX * base, (flooded, base)
+
+
+#: Real time a kit replaying as fast as it can must at least reach, all its streams
+#: together: "a recording replayed at 10–50× real time" (``armtrack stream --speed``, the
+#: phone kit sending its outbox after a reconnect)
+REPLAY_SPEED_MIN = 50.0
+
+
+def test_a_kit_replaying_a_recording_fast_is_not_slowed(srv):
+    """Five sensors at 100 Hz, ~8 minutes, 10 rows a message (``armtrack stream``'s default):
+    paced at 50× real time it ends on time; as fast as it can, it goes at least 50× real
+    time (rows acked per second from ``ready`` to the ``bye``'s ack)."""
+    from armtrack.estimator.simulation import SimulationConfig, simulate
+    from armtrack.server.emulator import KitEmulator
+
+    recording = simulate(SimulationConfig(
+        exercise="elbow_flexion", rate_hz=100, repetitions=100,
+        sensors=("trunk", "clavicle", "upper_arm", "forearm", "hand"))).recording
+    rows = sum(len(s.t) for s in recording.sensors.values())
+    span_s = max(s.t[-1] - s.t[0] for s in recording.sensors.values())
+    alice = srv.client("alice")
+    token = alice.device(alice.patient("Replay")["id"])["token"]
+    took = {}
+    for speed in (REPLAY_SPEED_MIN, 0):
+        stats = asyncio.run(KitEmulator(recording, srv.ws_url, token, speed=speed,
+                                        ack_timeout_s=60).run())
+        assert stats.acked == stats.total and not stats.errors, stats.errors[:3]
+        took[speed] = stats.finished - stats.started
+        print(f"\nreplay at speed {speed or 'as fast as it can'}: {rows:,} rows "
+              f"({span_s:.0f} s x 5 sensors) in {took[speed]:.2f} s: "
+              f"{rows / took[speed]:,.0f} rows/s, {span_s / took[speed]:.0f}x real time, "
+              f"{stats.total / took[speed]:,.0f} messages/s")
+    assert took[REPLAY_SPEED_MIN] <= 1.25 * span_s / REPLAY_SPEED_MIN + 0.5
+    assert span_s / took[0] >= REPLAY_SPEED_MIN
+
+
+def test_the_budget_counts_messages_and_rows_and_holds_a_second_of_each():
+    """On a made-up clock: a second's worth at once, then as fast as it refills; the wait
+    is the larger of the two debts [s]; a pause refills no more than a second's worth."""
+    from armtrack.server.ingest.budget import KitBudget
+
+    now = [0.0]
+    budget = KitBudget(messages_per_s=100, rows_per_s=1000, clock=lambda: now[0])
+    budget.spend(messages=100, rows=500)
+    assert budget.wait_s() == 0.0 and not budget.full()
+    budget.spend(messages=10)
+    assert budget.wait_s() == 0.1  # 10 messages over, at 100/s
+    budget.spend(rows=700)
+    assert abs(budget.wait_s() - 0.2) < 1e-12  # 200 rows over, at 1000/s
+    now[0] = 0.2
+    assert budget.wait_s() == 0.0
+    now[0] = 100.0
+    assert budget.full()
+    budget.spend(messages=101)
+    assert abs(budget.wait_s() - 0.01) < 1e-12
