@@ -10,6 +10,7 @@ in, with the field named: 422 in REST, an ``error`` (close 4400) for a ``hello``
 
 from __future__ import annotations
 
+import math
 import re
 from typing import Annotated
 
@@ -61,20 +62,33 @@ Note = Annotated[str, AfterValidator(_check(lines=True))]
 Secret = Annotated[str, AfterValidator(_check_secret)]
 
 
-def printable(value):
-    """``value`` (JSON-like: dicts, lists, strings, numbers) with every lone surrogate
-    replaced by U+FFFD, so that it can be encoded (an error that echoes a client's input)."""
+#: How deep an error's echo of the input goes; deeper containers are shown as "…".
+ECHO_DEPTH = 8
+
+
+def printable(value, depth: int = 0):
+    """``value`` (JSON-like: dicts, lists, strings, numbers) as a JSON answer can hold it,
+    to echo a client's input in an error: a lone surrogate becomes U+FFFD, NaN and ±Infinity
+    (Python's JSON reads them) their names as text, a container deeper than ``ECHO_DEPTH``
+    "…" (one nested some hundreds deep overflowed the encoder's recursion). Anything else
+    is left as it is (an error's context: ``jsonable_encoder`` writes it)."""
     if isinstance(value, str):
         return value.encode("utf-16", "surrogatepass").decode("utf-16", "replace")
+    if isinstance(value, float) and not math.isfinite(value):
+        return "NaN" if math.isnan(value) else ("Infinity" if value > 0 else "-Infinity")
+    if isinstance(value, dict | list | tuple) and depth >= ECHO_DEPTH:
+        return "…"
     if isinstance(value, dict):
-        return {printable(k): printable(v) for k, v in value.items()}
+        return {printable(k): printable(v, depth + 1) for k, v in value.items()}
     if isinstance(value, list | tuple):
-        return [printable(v) for v in value]
+        return [printable(v, depth + 1) for v in value]
     return value
 
 
 async def validation_error(request, exc) -> JSONResponse:
-    """FastAPI's 422 answer, with the echoed input made encodable: a lone surrogate in a
-    body made the answer itself fail (a 500 instead of the 422 naming the field)."""
+    """FastAPI's 422 answer, with the echoed input made encodable: a lone surrogate, a NaN
+    or a deeply nested input in a body made the answer itself fail (a 500 instead of the
+    422 naming the field)."""
     return JSONResponse(status_code=422,
-                        content={"detail": printable(jsonable_encoder(exc.errors()))})
+                        # again after the encoder: an error's context it wrote as text
+                        content={"detail": printable(jsonable_encoder(printable(exc.errors())))})

@@ -125,7 +125,7 @@ def six_axis_sway_kit(kind: str, seed: int, config: SimulationConfig | None = No
     trunk = random_sway(seed, config.trunk_sway[0]) if kind == "random" else \
         irregular_sway(seed, *config.trunk_sway)
     return simulate(replace(config, trunk_sway=None), motion=replace(
-        exercise_motion(config.exercise, calibration=True), trunk=trunk))
+        exercise_motion(config.exercise, calibration=True, npose_s=config.npose_s), trunk=trunk))
 
 
 def pose_biases(recording):
@@ -330,10 +330,169 @@ def test_a_long_pose_span_keeps_the_upright_fit_small(monkeypatch):
     t = np.arange(0.0, 180.0, 0.02)
     lean = np.deg2rad(5.0) + np.deg2rad(8.0) * np.sin(2 * np.pi * 0.15 * t)
     up = np.stack([np.sin(lean), np.cos(lean), np.zeros_like(t)], axis=1)
-    centre = calibrate_module._sway_centre(t, up)
+    centre, _ = calibrate_module._sway_centre(t, up)
     error = abs(np.rad2deg(np.arctan2(centre[0], centre[1])) - 5.0)
     print(f"3-min span: {sizes} blocks, upright off by {error:.3f}°")
     assert sizes and max(sizes) <= 240 and error < 0.1
+
+
+def random_sway_kit(seed: int, config: SimulationConfig | None = None):
+    """The kit of ``config`` (default ``sway_config(seed)``) under ``random_sway(seed)``."""
+    config = sway_config(seed) if config is None else config
+    motion = replace(exercise_motion(config.exercise, calibration=True, npose_s=config.npose_s),
+                     trunk=random_sway(seed, config.trunk_sway[0]))
+    return simulate(replace(config, trunk_sway=None), motion=motion)
+
+
+def test_a_swaying_kit_is_told_its_upright_is_not_known():
+    """The 9-axis kit of random sway seed 9 (its thorax's upright 1.68° off, nearly all a
+    side lean the sway kept over the poses' 7.5 s): the calibration says so, in words a
+    therapist can act on ('trunk-swayed', the lean's 95 % range, what to do: a still
+    trunk; a longer N-pose is offered only to 6-axis kits, where it helps:
+    ``test_a_longer_npose_brings_a_swaying_kit_within_the_bars``). The same kit with a
+    still trunk says nothing of it. The level (2σ over the 1° bar, 2° without a
+    magnetometer: ``quality.LEAN_SD_MAX_DEG``) was set from the bars before looking at
+    which kits miss them. Before: no such warning."""
+    swaying = calibration_only(random_sway_kit(9).recording)
+    still = calibration_only(simulate(replace(sway_config(9), trunk_sway=None)).recording)
+    for name, calibration in (("swaying", swaying), ("still", still)):
+        print(f"{name}: " + "; ".join(f"{w.code}: {w.message}" for w in calibration.warnings))
+    found = [w for w in swaying.warnings if w.code == "trunk-swayed"]
+    assert len(found) == 1 and found[0].sensor == "trunk"
+    print(f"lean σ side/forward: swaying {swaying.lean_sd_deg[0]:.2f}/"
+          f"{swaying.lean_sd_deg[1]:.2f}°, still {still.lean_sd_deg[0]:.3f}/"
+          f"{still.lean_sd_deg[1]:.3f}°")
+    assert f"±{2 * swaying.lean_sd_deg[0]:.1f}°" in found[0].message
+    assert "trunk swayed" in found[0].message and "back supported" in found[0].message
+    assert "15 s" not in found[0].message
+    assert "trunk-swayed" not in {w.code for w in still.warnings}
+    assert max(still.lean_sd_deg) < 0.5 and swaying.lean_sd_deg[0] > 0.5
+
+
+def swaying_kit(kind: str, seed: int, nine_axis: bool, npose_s: float = 3.0):
+    """The swaying kit of ``seed`` (9-axis ``sway_config``, else its 6-axis one with the
+    case's biases) under the ``sine``, ``random`` or ``irregular`` sway, its N-pose held
+    ``npose_s`` [s]."""
+    config = sway_config(seed) if nine_axis else six_axis_sway(
+        seed, sway_config(seed).gyro_bias_max)
+    return six_axis_sway_kit(kind, seed, replace(config, npose_s=npose_s))
+
+
+#: A 15-s N-pose (the poses' span 0.5–20 s, not 0.5–8) on the 6-axis kits that miss the
+#: bar with the shared timeline's 3 s: tuning random 9 (1.47°, 1.06 cm) and sine 4 (2.07°,
+#: 1.47 cm); held out random 11/15/18 (1.60°/1.48°/1.77°, 1.19/1.39/1.13 cm), irregular
+#: 17/18 (1.30°/1.31°, 1.66/1.18 cm), sine 17/18 (0.97°/1.03°, 1.14/1.16 cm). Measured over
+#: 6-axis random, irregular and sine seeds 1–20: within both bars 28 → 30 of 30 tuning, 18
+#: → 28 of 30 held out (random 13 then misses at 7.20°, elbow flexion, and random 19 at
+#: 1.33 cm: not looked into). A longer pose draws other noise and biases (the simulator's
+#: draws follow the recording's length): the same sway and body, not the same samples.
+@pytest.mark.parametrize("kind, seed", [
+    ("random", 9), ("sine", 4),
+    ("random", 11), ("random", 15), ("random", 18), ("irregular", 17), ("irregular", 18),
+    ("sine", 17), ("sine", 18)])
+def test_a_longer_npose_brings_a_swaying_kit_within_the_bars(kind, seed):
+    """The remedy the 6-axis kit's trunk-swayed warning offers works: the same swaying
+    kit with its N-pose held 15 s meets the bars (2°, 1 cm) and its calibration no longer
+    warns (the side lean's σ 0.06–0.14°, against 0.3–1.2° from 7.5 s)."""
+    from armtrack.estimator.simulation.scenarios import SCORED_FROM_S, calibration_offset
+
+    sim = swaying_kit(kind, seed, False, npose_s=15.0)
+    estimates, calibration = estimate_recording(sim.recording)
+    worst, worst_deg, wrist_cm = score(estimates, sim.truth.t, sim_truth_deg(sim),
+                                       sim.truth.positions,
+                                       scored_from=SCORED_FROM_S + calibration_offset(15.0))
+    print(f"6-axis {kind} sway, seed {seed}, 15-s N-pose: {worst} {worst_deg:.2f}°, wrist "
+          f"{wrist_cm:.2f} cm; lean σ {calibration.lean_sd_deg[0]:.2f}/"
+          f"{calibration.lean_sd_deg[1]:.2f}°; {sorted({w.code for w in calibration.warnings})}")
+    assert "trunk-swayed" not in {w.code for w in calibration.warnings}
+    assert worst_deg <= ANGLE_BAR_DEG[False] and wrist_cm <= WRIST_BAR_CM
+
+
+@pytest.mark.parametrize("seed", [
+    pytest.param(1, marks=pytest.mark.xfail(strict=True, reason=(
+        "measured shoulder rotation 1.51°, wrist 1.08 cm (0.67°, 0.66 cm with the 3-s "
+        "N-pose): the side lean is now known (σ 0.14°), but the upper arm's 9-axis filter, "
+        "which keeps its own bias (only the trunk's restarts from the poses'), drifts about "
+        "the vertical through the long sway as its heading windows take the sway for a "
+        "bias, and the thorax's heading comes from the arm's over the N-pose"))),
+    pytest.param(15, marks=pytest.mark.xfail(strict=True, reason=(
+        "measured shoulder rotation 2.47°, wrist 1.60 cm (1.23°, 1.05 cm with the 3-s "
+        "N-pose): the upper arm's heading −1.1° off at 2 s, −4.1° at 14 s against the "
+        "trunk's ±0.6°, so the thorax's turn about its long axis is −2.5° off")))])
+def test_a_longer_npose_on_a_nine_axis_swaying_kit(seed):
+    """The same remedy on the 9-axis kit does not work yet (random sway 1–20 / irregular /
+    sine with a 15-s N-pose: within the 1° bar 11 / 14 / 15 of 20, against 13 / 20 / 18 with
+    3 s), which is why the 9-axis warning does not offer it."""
+    from armtrack.estimator.simulation.scenarios import SCORED_FROM_S, calibration_offset
+
+    sim = swaying_kit("random", seed, True, npose_s=15.0)
+    estimates, _ = estimate_recording(sim.recording)
+    worst, worst_deg, wrist_cm = score(estimates, sim.truth.t, sim_truth_deg(sim),
+                                       sim.truth.positions,
+                                       scored_from=SCORED_FROM_S + calibration_offset(15.0))
+    print(f"9-axis random sway, seed {seed}, 15-s N-pose: {worst} {worst_deg:.2f}°, wrist "
+          f"{wrist_cm:.2f} cm")
+    assert worst_deg <= ANGLE_BAR_DEG[True] and wrist_cm <= WRIST_BAR_CM
+
+
+def upright_errors(sim, monkeypatch) -> tuple[float, float, float, float]:
+    """The calibration of ``sim``'s recording: its thorax's side lean (the sway's centre,
+    before anything else turns it) and forward lean (as calibrated) against the simulator's
+    mounting, and the σ it gives each [deg]."""
+    from armtrack.estimator.pipeline import calibrate as calibrate_module
+    from scipy.spatial.transform import Rotation
+
+    centres = []
+    fit = calibrate_module._sway_centre
+
+    def spy(t, up):
+        found = fit(t, up)
+        centres.append(found[0])
+        return found
+
+    monkeypatch.setattr(calibrate_module, "_sway_centre", spy)
+    calibration = calibration_only(sim.recording)
+    true = sim.truth.mounts["trunk"].R_segment_sensor  # rows: the thorax's axes, sensor frame
+    side = float(np.rad2deg((centres[-1] - true[1]) @ true[2]))  # up along Z: about X
+    turn = Rotation.from_matrix(true @ calibration.R_sensor_segment["trunk"]).as_rotvec()
+    return side, float(np.rad2deg(turn[2])), *calibration.lean_sd_deg
+
+
+@pytest.mark.parametrize("seeds", [range(1, 11), range(11, 21)], ids=["tuning", "held-out"])
+def test_the_uprights_lean_is_as_sure_as_it_says(seeds, monkeypatch):
+    """The thorax's side and forward lean a 9-axis swaying kit's calibration takes are off
+    by about the σ it gives (``Calibration.lean_sd_deg``): over the random, irregular and
+    sine sway of seeds 1–10 (tuning) and 11–20 (held out), the squared errors over the
+    variances sum to within the chi-square distribution's 0.5–99.5 % range (30 kits, 1
+    degree of freedom each). The side lean's σ is the sway centre's under the model that
+    makes it (a flat band, its size from the blocks' scatter); the forward lean's that
+    centre's share and the abduction axis's. Measured (mean per kit, tuning / held out;
+    sums 21.9 / 41.3 side, 28.5 / 28.9 forward, of 13.8–53.7):
+    side random 1.11 / 3.27, irregular 0.64 / 0.63, sine 0.44 / 0.23; forward 0.77 / 1.29,
+    0.91 / 0.80, 1.16 / 0.80. Not alike per kind: a sway whose power sits lower than the
+    poses' span shows (the random sway's 1/f) is under-told (held-out random 13 and 15:
+    side 1.11° and 1.44° against σ 0.42° and 0.44°), a sine over-told."""
+    from scipy.stats import chi2
+
+    sums, per_kind = np.zeros(2), {}
+    for kind in ("random", "irregular", "sine"):
+        z2 = []
+        for seed in seeds:
+            sim = random_sway_kit(seed) if kind == "random" else simulate(
+                sway_config(seed)) if kind == "sine" else simulate(
+                replace(sway_config(seed), trunk_sway=None), motion=replace(
+                    exercise_motion("reach", calibration=True),
+                    trunk=irregular_sway(seed, *sway_config(seed).trunk_sway)))
+            side, forward, side_sd, forward_sd = upright_errors(sim, monkeypatch)
+            z2.append(((side / side_sd) ** 2, (forward / forward_sd) ** 2))
+        per_kind[kind] = np.mean(z2, axis=0)
+        sums += np.sum(z2, axis=0)
+    n = 3 * len(seeds)
+    low, high = chi2.ppf(0.005, n), chi2.ppf(0.995, n)
+    print("normalised squared error per kit, side / forward: " + ", ".join(
+        f"{k} {v[0]:.2f} / {v[1]:.2f}" for k, v in per_kind.items())
+        + f"; sums {sums[0]:.1f} / {sums[1]:.1f} of {low:.1f}–{high:.1f} ({n} kits)")
+    assert low <= sums[0] <= high and low <= sums[1] <= high
 
 
 def irregular_sway(seed: int, amplitude_deg: float, frequency_hz: float) -> dict[str, Profile]:
@@ -385,9 +544,7 @@ def random_sway(seed: int, amplitude_deg: float) -> dict[str, Profile]:
 def run_random_sway(config: SimulationConfig, seed: int) -> tuple[str, float, float]:
     """The kit of ``config`` under ``random_sway(seed)`` from the first sample (calibration
     poses included): worst angle, its RMSE [deg], wrist RMSE [cm]."""
-    motion = replace(exercise_motion(config.exercise, calibration=True),
-                     trunk=random_sway(seed, config.trunk_sway[0]))
-    sim = simulate(replace(config, trunk_sway=None), motion=motion)
+    sim = random_sway_kit(seed, config)
     estimates, _ = estimate_recording(sim.recording)
     return score(estimates, sim.truth.t, sim_truth_deg(sim), sim.truth.positions)
 

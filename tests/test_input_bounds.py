@@ -72,6 +72,27 @@ def test_rest_refuses_control_characters_in_names(srv):
     assert answer.status_code == 422 and "control character" in answer.text, answer.text
 
 
+
+@pytest.mark.parametrize("body,field", [
+    ('{"name": "Ada", "side": "right", "height_m": NaN}', "height_m"),
+    ('{"name": "Ada", "side": "right", "height_m": -Infinity}', "height_m"),
+    ('{"name": "Ada", "side": "right", "height_m": 1.7, "note": [1e999]}', "note"),
+    ('{"name": %s, "side": "right", "height_m": 1.7}' % ("[" * 500 + "]" * 500), "name"),
+    ('{"name": "Ada", "side": "right", "height_m": 1.7, "x": %s}'
+     % ('{"a": ' * 400 + "1" + "}" * 400), "x"),
+], ids=["nan", "-inf", "inf-in-list", "500-deep", "400-deep"])
+def test_a_refused_body_whose_input_json_cannot_echo_is_still_a_422(srv, body, field):
+    # the 422 echoes the input it refused: NaN/Infinity (which Python's JSON reads) made
+    # the answer itself fail, and so did input nested some hundreds deep (RecursionError):
+    # a 500, the connection reset, and a traceback of ~100 lines in the log per request
+    api = srv.client("alice")
+    answer = post_raw(api, "POST", "/api/patients", body)
+    print(answer.status_code, answer.text[:300])
+    assert answer.status_code == 422, answer.text[:300]
+    detail = json.loads(answer.text)["detail"]
+    assert any(field in e["loc"] for e in detail), detail
+
+
 # -- the stream ----------------------------------------------------------------------------
 
 def hello_text(device_json: str = '"kit"', rate: int = 100) -> str:

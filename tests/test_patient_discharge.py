@@ -166,3 +166,26 @@ def test_a_discharged_patient_needs_no_look(discharge_server):
     assert flagged() == []
     assert alice.http.post(url + "/readmit").status_code == 200
     assert flagged() == ["no_session"]
+
+
+def test_the_admins_patient_list_says_who_is_discharged(discharge_server):
+    """``GET /api/admin/patients`` (the admin's hand-over list) carries ``discharged_at``
+    and takes ``discharged=false|true`` as ``GET /api/patients`` does; without it, every
+    patient as before."""
+    discharge_server.create_admin("root")
+    alice, root = discharge_server.client("alice"), discharge_server.client("root")
+    gone = alice.patient("Gus Gone")
+    here = alice.patient("Hal Here")
+    assert alice.http.post(f"/api/patients/{gone['id']}/discharge").status_code == 200
+
+    def listed(**params) -> dict[int, str | None]:
+        answer = root.http.get("/api/admin/patients", params={"limit": 500, **params})
+        assert answer.status_code == 200, answer.text
+        return {p["id"]: p["discharged_at"] for p in answer.json()
+                if p["id"] in (gone["id"], here["id"])}
+
+    every = listed()
+    print("admin's list:", every)
+    assert every[here["id"]] is None and every[gone["id"]] is not None
+    assert set(listed(discharged="false")) == {here["id"]}
+    assert set(listed(discharged="true")) == {gone["id"]}

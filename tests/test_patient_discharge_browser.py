@@ -94,3 +94,33 @@ def test_a_discharged_patients_phone_kit_says_so(module_server, tmp_path):
         api.http.post(f"/api/patients/{patient['id']}/readmit").raise_for_status()
         phone.reload()
         sync_api.expect(phone.locator("#start")).to_be_visible()
+
+
+@pytest.mark.parametrize("width", [390, 1280])
+def test_the_admins_patient_list_shows_discharge_as_the_therapists_does(module_server,
+                                                                        width, tmp_path):
+    """The clinic admin's "Patients and their therapists" listed a discharged patient as one
+    in care, unmarked, beside the therapist's list that leaves them out. Now it lists the
+    patients in care, and "Show discharged" adds the rest, marked "Discharged"."""
+    admin = f"root{width}"
+    module_server.create_admin(admin)
+    api = module_server.client("alice")
+    dora = api.patient(f"Dora Admin-listed {width}")
+    ivan = api.patient(f"Ivan Admin-listed {width}")
+    assert api.http.post(f"/api/patients/{dora['id']}/discharge").status_code == 200
+    rows = "#admin-patients tbody tr[data-patient='{}']"
+    with page_at(width) as page:
+        sign_in_as(page, module_server.url, admin)
+        page.goto(f"{module_server.url}/admin")
+        sync_api.expect(page.locator(rows.format(ivan["id"]))).to_be_visible()
+        sync_api.expect(page.locator(rows.format(dora["id"]))).to_have_count(0)
+        page.locator("#admin-show-discharged").check()
+        dora_row = page.locator(rows.format(dora["id"]))
+        sync_api.expect(dora_row).to_be_visible()
+        sync_api.expect(dora_row).to_contain_text("Discharged")
+        sync_api.expect(page.locator(rows.format(ivan["id"]))).not_to_contain_text(
+            "Discharged")
+        print("\n" + page.locator("#admin-patients").inner_text())
+        fits(page, tmp_path, "admin-discharged", width)
+        page.screenshot(path=str(tmp_path / f"admin-{width}.png"), full_page=True)
+        print(f"screenshots at {width} px: {tmp_path}")

@@ -234,3 +234,29 @@ def test_page_2_share_labels_stay_inside_the_chart():
             if t.get_text().endswith("of normal")]
     print(f"labels end at {max(ends):.1f} px, the chart at {edge:.1f} px")
     assert len(ends) == len(report.rom) and max(ends) < edge - 2
+
+
+def test_angles_are_named_in_full_as_on_the_pages():
+    """The angles on pages 2, 3 and 4 are named as the pages and page 1 name them
+    (``words.ANGLE_WORDS``, "Shoulder internal rotation"), a long one wrapped in its cell,
+    none shortened ("Shoulder int. rotation" was page 2's, 3's and 4's own word)."""
+    from armtrack.server.reports.words import ANGLE_WORDS
+
+    report, data, letterhead, previous = worst_pages()
+    figures = report_pages(report, data, letterhead, previous)
+    drawn = {2: [], 3: [], 4: []}
+    for page in drawn:
+        fig = figures[page - 1]
+        for table in fig.findobj(Table):
+            column = 1 if page == 4 else 0
+            drawn[page] += [cell.get_text().get_text()
+                            for (row, col), cell in table.get_celld().items()
+                            if col == column and row > 0]
+        drawn[page] += [t.get_text() for ax in fig.axes for t in ax.get_yticklabels()]
+        drawn[page] += [ax.get_ylabel().rsplit("[deg]", 1)[0] for ax in fig.axes
+                        if "[deg]" in ax.get_ylabel()]
+    for page, names in drawn.items():
+        flat = {" ".join(n.split()) for n in names if any(c.isalpha() for c in n)}
+        print(f"page {page}: {sorted(flat)}")
+        assert {ANGLE_WORDS[a] for a in ANGLES[:3]} <= flat, (page, flat)
+        assert not any("." in n for n in flat), (page, flat)

@@ -64,9 +64,10 @@ def test_an_admin_cannot_take_a_patient_to_read_its_data(clinic):
     assert root.http.post("/api/viewer", json={"patient_id": patient["id"]}
                           ).status_code == 404
     assert asyncio.run(live_outcome(clinic, root.token, patient["id"])) == "4404"
-    # admins see who holds whom, to reassign: that list names patients, nothing clinical
+    # admins see who holds whom, to reassign: that list names patients and whether their
+    # care ended (docs/extensions/discharge.md), nothing clinical
     listed = root.http.get("/api/admin/patients").json()
-    assert {"id", "name", "therapist_id"} == set(listed[0])
+    assert {"id", "name", "therapist_id", "discharged_at"} == set(listed[0])
     back = root.http.post(f"/api/admin/patients/{patient['id']}/reassign",
                           json={"therapist_id": therapists["alice"]})
     assert back.status_code == 200, back.text

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import shutil
 import subprocess
+import threading
 import time
 from pathlib import Path
 
@@ -216,5 +217,63 @@ def test_a_proxy_left_out_of_the_trusted_proxies_is_named_in_the_log(tmp_path, n
         print("\n".join(warnings))
         assert len(warnings) == 1, warnings
         assert "127.0.0.5" in warnings[0] and "ARMTRACK_TRUSTED_PROXIES=127.0.0.5" in warnings[0]
+    finally:
+        server.stop()
+
+
+def _burst(url: str, attempts: list[tuple[str, dict]]) -> list[int]:
+    """Send every (user name, headers) sign-in at once; their statuses in order."""
+    import asyncio
+
+    async def run() -> list[int]:
+        async with httpx.AsyncClient(base_url=url, timeout=300,
+                                     limits=httpx.Limits(max_connections=200)) as http:
+            answers = await asyncio.gather(*[
+                http.post("/api/auth/token", data={"username": user, "password": "wrong"},
+                          headers=headers) for user, headers in attempts])
+        return [a.status_code for a in answers]
+    return asyncio.run(run())
+
+
+def test_a_burst_of_sign_ins_sent_at_once_gets_no_more_guesses(tmp_path):
+    # sent at once, every attempt passed the limiter's check before the first had failed:
+    # 100 at once from one address for one name were 49 guesses, not the 10 free ones
+    server = start(tmp_path, "burst")
+    try:
+        statuses = _burst(server.url, [("alice", {})] * 100)
+        guesses = statuses.count(401)
+        print(f"\n100 sign-ins at once: {guesses} guesses checked, "
+              f"{statuses.count(429)} answered 429")
+        assert statuses.count(401) + statuses.count(429) == 100, statuses
+        assert guesses == 10, f"{guesses} guesses of alice's password, not 10"
+    finally:
+        server.stop()
+
+
+def test_sign_ins_at_once_from_many_addresses_hash_a_few_at_a_time(tmp_path):
+    # each password check (argon2id) takes 64 MiB: 100 at once from 100 addresses (a
+    # proxy's clients) took the server from ~310 to ~1280 MB
+    server = start(tmp_path, "burst-memory", ARMTRACK_TRUSTED_PROXIES="127.0.0.1")
+    try:
+        sign_in(server.url, "warm-up", "wrong", headers={"X-Forwarded-For": "198.51.100.1"})
+        before = rss_mb(server.process.pid)
+        peak, done = [before], threading.Event()
+
+        def watch() -> None:
+            while not done.is_set():
+                peak[0] = max(peak[0], rss_mb(server.process.pid))
+                time.sleep(0.01)
+        watcher = threading.Thread(target=watch)
+        watcher.start()
+        try:
+            statuses = _burst(server.url, [(f"user{i}", {"X-Forwarded-For": f"198.51.100.{i + 2}"})
+                                           for i in range(100)])
+        finally:
+            done.set()
+            watcher.join()
+        grown = peak[0] - before
+        print(f"\n100 sign-ins at once from 100 addresses: server peak +{grown:.0f} MB")
+        assert statuses == [401] * 100, statuses
+        assert grown < 250, f"+{grown:.0f} MB for 100 password checks at once"
     finally:
         server.stop()

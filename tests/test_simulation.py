@@ -195,3 +195,27 @@ def test_every_exercise_writes_a_recording_that_reads_back(exercise):
     assert [p.name for p in back.calibration] == ["npose", "tpose"]
     motion = exercise_motion(exercise)
     assert sim.truth.t[-1] >= motion.end_time()
+
+
+def test_a_longer_npose_moves_the_rest_of_the_session_later():
+    """``npose_s``: the N-pose held that long from the start; the T-pose, its windows and
+    the exercise come that much later (the 3-s default is the shared timeline)."""
+    from armtrack.estimator.errors import InvalidArgument
+    from armtrack.estimator.simulation import SimulationConfig, simulate
+
+    short = simulate(SimulationConfig(exercise="elbow_flexion", repetitions=1, seed=1))
+    long = simulate(SimulationConfig(exercise="elbow_flexion", repetitions=1, seed=1,
+                                     npose_s=15.0))
+    windows = [(p.name, p.start, p.end) for p in long.recording.calibration]
+    print(windows)
+    assert windows == [("npose", 0.5, 15.0), ("tpose", 17.5, 20.0)]
+    assert [(p.start, p.end) for p in short.recording.calibration] == [(0.5, 3.0), (5.5, 8.0)]
+    abduction = np.rad2deg(long.truth.angles["shoulder_abduction"])
+    t = long.truth.t
+    assert abs(abduction[t <= 15.0]).max() < 1.0
+    assert abduction[(t >= 17.5) & (t <= 20.0)].min() > 89.0
+    def first_rep(sim):
+        return sim.truth.t[np.rad2deg(sim.truth.angles["elbow_flexion"]) > 10.0][0]
+    assert first_rep(long) - first_rep(short) == pytest.approx(12.0, abs=0.02)
+    with pytest.raises(InvalidArgument, match="npose_s must be within 1–600 s"):
+        SimulationConfig(npose_s=0.5)

@@ -3,7 +3,9 @@
 * a pose that was not still (the gyroscope or the accelerometer moved during it);
 * a T-pose that was not a T-pose (the upper arm did not turn about 90° from the N-pose);
 * a sensor that looks swapped (an arm sensor that did not turn with the arm, or a trunk
-  or clavicle sensor that turned as if it were on the arm).
+  or clavicle sensor that turned as if it were on the arm);
+* a trunk that swayed through the poses so that the thorax's upright is not known to the
+  accuracy the angles need.
 """
 
 from __future__ import annotations
@@ -39,8 +41,9 @@ def place(sensor: str) -> str:
 
 @dataclass(frozen=True)
 class CalibrationWarning:
-    """``code``: ``pose-not-still``, ``not-a-tpose``, ``sensor-swapped`` or
-    ``default-mounting``; ``sensor``: the sensor concerned, or None; ``message``: plain words."""
+    """``code``: ``pose-not-still``, ``not-a-tpose``, ``sensor-swapped``,
+    ``default-mounting`` or ``trunk-swayed``; ``sensor``: the sensor concerned, or None;
+    ``message``: plain words."""
 
     code: str
     sensor: str | None
@@ -111,3 +114,30 @@ def turn_warning(sensor: str, up_npose: np.ndarray, up_tpose: np.ndarray
             f"the {place(sensor)} sensor turned {turn:.0f}° between N-pose and T-pose as if it "
             f"were on the arm; is it swapped with an arm sensor?")
     return None
+
+
+#: The thorax's lean is known well enough when twice its σ (a 95 % range) stays within the
+#: accuracy bar every angle is held to: 1° with a magnetometer, 2° without (a lean of the
+#: thorax's upright tilts every segment's calibration alike). Set from the bars, before
+#: looking at which kits miss them.
+LEAN_SD_MAX_DEG = {True: 0.5, False: 1.0}
+
+
+def trunk_sway_warning(side_sd_deg: float, forward_sd_deg: float, nine_axis: bool
+                       ) -> CalibrationWarning | None:
+    """A warning when the trunk swayed through the poses so that the thorax's upright, the
+    sway's centre, is known only to more than ``LEAN_SD_MAX_DEG`` (one σ of its side lean
+    and forward lean [deg]; ``nine_axis``: the kit has magnetometers). A longer N-pose is
+    offered as a remedy only without magnetometers: there a 15-s N-pose brings the
+    simulated swaying kits within the bars; with them, the arm sensors' headings drift
+    through a long sway (tests/test_estimation_hard_cases.py)."""
+    sd = max(side_sd_deg, forward_sd_deg)
+    if sd <= LEAN_SD_MAX_DEG[nine_axis]:
+        return None
+    lean = "side lean" if side_sd_deg >= forward_sd_deg else "forward lean"
+    remedy = "" if nine_axis else ", or hold the arm-down pose (N-pose) for 15 s"
+    return CalibrationWarning(
+        "trunk-swayed", "trunk",
+        f"the trunk swayed during the calibration poses: its upright is known only to "
+        f"±{2 * sd:.1f}° ({lean}), and the arm's angles may be off by as much. Repeat the "
+        f"poses with the trunk still (sitting with the back supported){remedy}")

@@ -42,7 +42,7 @@ from ..calibration import (
     turn_warning,
     two_pose_R_sensor_segment,
 )
-from ..calibration.quality import TPOSE_TURN_DEG
+from ..calibration.quality import TPOSE_TURN_DEG, trunk_sway_warning
 from ..rotations import quat_to_matrix, yaw_of
 from .segment_kernel import segment_orientations
 from .tracks import SensorTrack
@@ -63,7 +63,10 @@ class Calibration:
     ``R_sensor_segment`` per sensor; ``heading`` per sensor [rad], the turn about the
     vertical applied to its world (0 with a magnetometer); ``R_world_thorax`` the fixed
     thorax when there is no trunk sensor; ``warnings``. A segment's orientation is
-    ``Rz(heading) · R_world_sensor · R_sensor_segment`` (``segment_kernel``)."""
+    ``Rz(heading) · R_world_sensor · R_sensor_segment`` (``segment_kernel``).
+    ``lean_sd_deg``: how well the thorax's upright is known through a trunk's sway, one σ
+    of its side lean (about the thorax's X) and forward lean (about its Z) [deg]; None
+    when the upright is not the sway's centre (no trunk sensor, no poses)."""
 
     method: str
     final_time_s: float
@@ -71,6 +74,7 @@ class Calibration:
     heading: dict[str, float]
     R_world_thorax: np.ndarray
     warnings: tuple[CalibrationWarning, ...]
+    lean_sd_deg: tuple[float, float] | None = None
 
 
 def _up(acc: np.ndarray) -> np.ndarray:
@@ -510,16 +514,20 @@ SWAY_NOISE = 0.1
 SWAY_MAX_BLOCKS = 240
 
 
-def _sway_centre(t: np.ndarray, up: np.ndarray) -> np.ndarray:
+def _sway_centre(t: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The trunk's upright (unit, sensor frame) from its up directions ``up`` (N, 3) at
-    times ``t`` [s] through a sway. The sway's lean is seen only in its changes; a plain
+    times ``t`` [s] through a sway, and that upright's error covariance (3, 3) [rad²,
+    sensor frame]. The sway's lean is seen only in its changes; a plain
     mean over a few seconds keeps what its slow partial cycles did not average out (up to
     2–3° at 0.1–0.2 Hz over the poses' 7.5 s). Taken as a zero-mean process filling
     ``SWAY_BAND_HZ`` flat, plus ``SWAY_NOISE``, the upright is the best linear unbiased
     estimate of its mean (generalised least squares over ``SWAY_BLOCK_S`` blocks): weights
     that sum to one and cancel the band's partial cycles as far as the span allows (the
     ends weigh most: they pin the slow part). A still trunk's is its mean to within the
-    noise. At most ``SWAY_MAX_BLOCKS`` blocks."""
+    noise. At most ``SWAY_MAX_BLOCKS`` blocks. The covariance is the model's (the weights'
+    ``wᵀ C w``) scaled by the sway's size, which the blocks' scatter about the upright gives
+    against what the model expects of it (``tr(P C Pᵀ)``, ``P`` the residual's operator):
+    long spans and still trunks make it small."""
     length = max(SWAY_BLOCK_S, float(t[-1] - t[0]) / (SWAY_MAX_BLOCKS - 1))
     block = np.minimum(np.floor((t - t[0]) / length).astype(int), SWAY_MAX_BLOCKS - 1)
     count = np.bincount(block)
@@ -535,8 +543,15 @@ def _sway_centre(t: np.ndarray, up: np.ndarray) -> np.ndarray:
                           / (2 * np.pi * (hi - lo) * safe))
     covariance += SWAY_NOISE**2 * np.diag(count[kept].max() / count[kept])
     weights = np.linalg.solve(covariance, np.ones(len(times)))
-    centre = (weights / weights.sum()) @ means
-    return centre / np.linalg.norm(centre)
+    weights /= weights.sum()
+    centre = weights @ means
+    residual = means - centre
+    spread = np.eye(len(times)) - weights[None, :]  # residual = spread @ means
+    expected = float(np.trace(spread @ covariance @ spread.T))
+    scatter = residual.T @ residual / max(expected, 1e-300)  # the sway's (3, 3) [rad²]
+    error = scatter * float(weights @ covariance @ weights)
+    norm = np.linalg.norm(centre)
+    return centre / norm, error / norm**2
 
 
 def _sway_range(trunk: SensorTrack, start: float, end: float, axis: np.ndarray) -> float:
@@ -603,7 +618,7 @@ def calibrate(tracks: Mapping[str, SensorTrack], plan: CalibrationPlan, side: Si
         t_trunk, acc_trunk, _, _ = tracks["trunk"].arrays()
         a = np.searchsorted(t_trunk, min(p.start for p in span), "left")
         b = np.searchsorted(t_trunk, max(p.end for p in span), "right")
-        trunk_up = _sway_centre(t_trunk[a:b], _unit_rows(acc_trunk[a:b]))
+        trunk_up, up_covariance = _sway_centre(t_trunk[a:b], _unit_rows(acc_trunk[a:b]))
         # That centre still keeps what the span cannot tell from a tilted mounting (random
         # sway seeds 1–10: 0.88° RMS, the plain mean's 1.02°; 0.46° with the true upright).
         # Its part toward the thorax's X (a forward lean) hurts most: the T-pose turns the
@@ -616,6 +631,7 @@ def calibrate(tracks: Mapping[str, SensorTrack], plan: CalibrationPlan, side: Si
         # more), taken as 2σ; the axis's σ is AXIS_SIGMA_RAD; a still trunk keeps its
         # centre.
         axis = _abduction_axis(tracks, plan, turns) if method == "two-pose" else None
+        weight = 0.0
         if axis is not None:
             along = trunk_up @ axis
             sway = 0.25 * _sway_range(tracks["trunk"], min(p.start for p in span),
@@ -699,8 +715,22 @@ def calibrate(tracks: Mapping[str, SensorTrack], plan: CalibrationPlan, side: Si
         R_sensor_segment["trunk"] = R_sensor_segment["trunk"] @ Rotation.from_rotvec(
             [0.0, turn, 0.0]).as_matrix()
         heading["trunk"] = headings["trunk"]
+    lean_sd_deg = None
+    if sway_corrected:
+        # the thorax's X (forward) and Z (lateral) in the trunk sensor's frame: a side lean
+        # (about X) moves the upright along Z, a forward lean (about Z) along X; the axis
+        # correction replaced the share ``weight`` of the forward part by the axis's own
+        forward, lateral = R_sensor_segment["trunk"][:, 0], R_sensor_segment["trunk"][:, 2]
+        side_var = float(lateral @ up_covariance @ lateral)
+        forward_var = ((1.0 - weight) ** 2 * float(forward @ up_covariance @ forward)
+                       + weight**2 * AXIS_SIGMA_RAD**2)
+        lean_sd_deg = (float(np.rad2deg(np.sqrt(side_var))),
+                       float(np.rad2deg(np.sqrt(forward_var))))
+        if (warning := trunk_sway_warning(*lean_sd_deg, nine_axis)) is not None:
+            warnings.append(warning)
     return Calibration(method=method, final_time_s=final_time_s,
                        R_sensor_segment=R_sensor_segment, heading=heading,
-                       R_world_thorax=R_world_thorax, warnings=tuple(warnings))
+                       R_world_thorax=R_world_thorax, warnings=tuple(warnings),
+                       lean_sd_deg=lean_sd_deg)
 
 

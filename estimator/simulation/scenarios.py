@@ -2,7 +2,9 @@
 
 Timeline (as in ``shared/data/recordings``): N-pose still from 0 to 3.0 s (header window
 0.5–3.0 s), up to the T-pose by 5.0 s, held to 8.5 s (header window 5.5–8.0 s), back to
-the N-pose by 10.0 s; the exercise starts at ``EXERCISE_START_S`` = 11 s.
+the N-pose by 10.0 s; the exercise starts at ``EXERCISE_START_S`` = 11 s. A longer N-pose
+(``npose_s``, the seconds it is held from the start: 3.0 here) moves everything after it
+later by the difference (``pose_windows``, ``calibration_offset``).
 """
 
 from __future__ import annotations
@@ -22,10 +24,31 @@ EXERCISE_START_S = 11.0
 SCORED_FROM_S = 10.5
 
 
-def calibration_sequence() -> dict[str, Profile]:
-    """N-pose, then T-pose (90° abduction) and back: ramps on ``shoulder_abduction``."""
-    return {"shoulder_abduction": Profile(ramps=(Ramp(4.0, 90 * DEG, 0.25),
-                                                 Ramp(9.25, -90 * DEG, 0.1875)))}
+#: How long the N-pose is held from the start [s], as in ``shared/data/recordings``.
+NPOSE_S = 3.0
+
+
+def calibration_offset(npose_s: float = NPOSE_S) -> float:
+    """How much later than the shared timeline everything after an N-pose held
+    ``npose_s`` [s] from the start happens [s]."""
+    if not 1.0 <= npose_s <= 600.0:
+        raise InvalidArgument(f"npose_s must be within 1–600 s, got {npose_s}")
+    return npose_s - NPOSE_S
+
+
+def pose_windows(npose_s: float = NPOSE_S) -> tuple[tuple[float, float], tuple[float, float]]:
+    """The header's N- and T-pose windows [s] of an N-pose held ``npose_s`` [s]."""
+    offset = calibration_offset(npose_s)
+    return ((NPOSE_WINDOW_S[0], NPOSE_WINDOW_S[1] + offset),
+            (TPOSE_WINDOW_S[0] + offset, TPOSE_WINDOW_S[1] + offset))
+
+
+def calibration_sequence(npose_s: float = NPOSE_S) -> dict[str, Profile]:
+    """N-pose (held ``npose_s`` [s]), then T-pose (90° abduction) and back: ramps on
+    ``shoulder_abduction``."""
+    offset = calibration_offset(npose_s)
+    return {"shoulder_abduction": Profile(ramps=(Ramp(4.0 + offset, 90 * DEG, 0.25),
+                                                 Ramp(9.25 + offset, -90 * DEG, 0.1875)))}
 
 
 def _merge(*parts: dict[str, Profile]) -> dict[str, Profile]:
@@ -203,17 +226,19 @@ EXERCISES: dict[str, ExerciseBuilder] = {
 
 def exercise_motion(name: str, *, repetitions_count: int | None = None,
                     amplitude_deg: float | None = None, calibration: bool = True,
-                    start_s: float | None = None) -> Motion:
-    """The calibration sequence (optional) followed by the named exercise."""
+                    start_s: float | None = None, npose_s: float = NPOSE_S) -> Motion:
+    """The calibration sequence (optional; its N-pose held ``npose_s`` [s]) followed by the
+    named exercise."""
     if name not in EXERCISES:
         raise InvalidArgument(f"unknown exercise {name!r}; one of {', '.join(sorted(EXERCISES))}")
     # without calibration poses the kit still lies still for 3 s before the exercise
-    start = (EXERCISE_START_S if calibration else 3.0) if start_s is None else start_s
+    start = ((EXERCISE_START_S + calibration_offset(npose_s)) if calibration else 3.0) \
+        if start_s is None else start_s
     joints, trunk = EXERCISES[name](repetitions_count, amplitude_deg, start)
     if calibration:
-        joints = _merge(calibration_sequence(), joints)
+        joints = _merge(calibration_sequence(npose_s), joints)
     return Motion(joints=joints, trunk=trunk)
 
 
-__all__ = ["EXERCISES", "SCORED_FROM_S", "calibration_sequence", "exercise_motion",
-           "hold_and_return"]
+__all__ = ["EXERCISES", "NPOSE_S", "SCORED_FROM_S", "calibration_offset",
+           "calibration_sequence", "exercise_motion", "hold_and_return", "pose_windows"]

@@ -27,7 +27,7 @@ from .imu import (
 )
 from .points import WRIST_SOURCES, wrist_points
 from .profiles import Excursion, Motion, Profile, Sine
-from .scenarios import NPOSE_WINDOW_S, TPOSE_WINDOW_S, exercise_motion
+from .scenarios import NPOSE_S, calibration_offset, exercise_motion, pose_windows
 
 
 @dataclass(frozen=True)
@@ -41,7 +41,9 @@ class SimulationConfig:
     the largest constant gyroscope bias per axis [rad/s]. gyro_delay_s: the kit's
     gyroscopes lag its accelerometers by this [s] (a sample stamped t reads the rate of
     t − gyro_delay_s; the hardware's timing, ``docs/extensions/gyro-delay.md``);
-    declare_gyro_delay: the recording declares it (header ``gyro_delay_s``).
+    declare_gyro_delay: the recording declares it (header ``gyro_delay_s``). npose_s: how
+    long the N-pose is held from the start [s] (3.0: the shared recordings' timeline); the
+    T-pose, the exercise and its scoring come that much later (``calibration_offset``).
     """
 
     exercise: str = "elbow_flexion"
@@ -71,9 +73,11 @@ class SimulationConfig:
     pack_size: int = 1
     gyro_delay_s: float = 0.0
     declare_gyro_delay: bool = False
+    npose_s: float = NPOSE_S
 
     def __post_init__(self) -> None:
         check_gyro_delay(self.gyro_delay_s, "SimulationConfig.gyro_delay_s")
+        calibration_offset(self.npose_s)
         unknown = set(self.sensors) - set(SENSOR_NAMES)
         if unknown or not self.sensors:
             raise InvalidArgument(f"sensors must be some of {SENSOR_NAMES}, got {self.sensors}")
@@ -188,14 +192,16 @@ def simulate(config: SimulationConfig = SimulationConfig(), motion: Motion | Non
     if motion is None:
         motion = exercise_motion(config.exercise, repetitions_count=config.repetitions,
                                  amplitude_deg=config.amplitude_deg,
-                                 calibration=config.calibration)
+                                 calibration=config.calibration, npose_s=config.npose_s)
         if config.trunk_sway is not None:
             amplitude, frequency = config.trunk_sway
             motion = replace(motion, trunk={
                 "trunk_flexion": Profile(sines=(Sine(np.deg2rad(amplitude), frequency),)),
                 "trunk_lateral": Profile(sines=(Sine(np.deg2rad(0.5 * amplitude),
                                                      0.7 * frequency, 1.0),))})
-    duration = max(motion.end_time(), 10.0 if config.calibration else 0.0) + config.tail_s
+    offset = calibration_offset(config.npose_s) if config.calibration else 0.0
+    duration = max(motion.end_time(), 10.0 + offset if config.calibration else 0.0) \
+        + config.tail_s
     stance = Stance(heading=np.deg2rad(config.heading_deg))
     environment = MagneticEnvironment()
     if config.magnet_near_hand and config.nine_axis:
@@ -207,7 +213,7 @@ def simulate(config: SimulationConfig = SimulationConfig(), motion: Motion | Non
                                                          else 1.0])
         environment = replace(environment, disturbances=(Dipole(
             position_m=tuple(hand + 0.12 * outward), strength_ut=150.0, axis=(0.0, 1.0, 0.3),
-            start_s=10.5 if config.calibration else 0.0),))
+            start_s=10.5 + offset if config.calibration else 0.0),))
 
     if config.start_disturbance_s is not None and config.nine_axis:
         environment = replace(environment, disturbances=(
@@ -249,7 +255,8 @@ def simulate(config: SimulationConfig = SimulationConfig(), motion: Motion | Non
 
     calibration = ()
     if config.calibration:
-        calibration = (Pose("npose", *NPOSE_WINDOW_S), Pose("tpose", *TPOSE_WINDOW_S))
+        npose, tpose = pose_windows(config.npose_s)
+        calibration = (Pose("npose", *npose), Pose("tpose", *tpose))
     points, points_frame = {}, None
     if config.wrist_points is not None:
         points, points_frame = wrist_points(

@@ -68,6 +68,9 @@ class AdminPatientOut(BaseModel):
     id: int
     name: str
     therapist_id: int
+    discharged_at: datetime | None = Field(
+        None, description="when the therapist discharged the patient, null while in care "
+        "(docs/extensions/discharge.md)")
 
 
 def _therapist(db: DbSession, therapist_id: int) -> models.Therapist:
@@ -166,13 +169,23 @@ def issue_reset(therapist_id: Id, db: Db, admin: Admin,
 
 @router.get("/patients", response_model=list[AdminPatientOut])
 def list_all_patients(db: Db, admin: Admin, page: Annotated[Page, Depends()],
-                      therapist_id: QueryId = None) -> list[AdminPatientOut]:
-    """Every patient's id, name and therapist (to reassign them); no clinical data."""
+                      therapist_id: QueryId = None,
+                      discharged: bool | None = None) -> list[AdminPatientOut]:
+    """Every patient's id, name, therapist (to reassign them) and discharge date; no
+    clinical data. ``discharged=false`` keeps the patients in care, ``true`` the
+    discharged ones, as ``GET /api/patients`` (docs/extensions/discharge.md)."""
     query = select(models.Patient)
     if therapist_id is not None:
         query = query.where(models.Patient.therapist_id == therapist_id)
+    if discharged is not None:
+        query = query.where(models.Patient.discharged_is(discharged))
     rows = db.scalars(query.order_by(models.Patient.id).limit(page.limit).offset(page.offset))
-    return [AdminPatientOut(id=p.id, name=p.name, therapist_id=p.therapist_id) for p in rows]
+    return [_admin_patient(p) for p in rows]
+
+
+def _admin_patient(p: models.Patient) -> AdminPatientOut:
+    return AdminPatientOut(id=p.id, name=p.name, therapist_id=p.therapist_id,
+                           discharged_at=p.discharged_at)
 
 
 @router.post("/patients/{patient_id}/reassign", response_model=AdminPatientOut)
@@ -195,8 +208,7 @@ async def reassign_patient(patient_id: Id, body: Reassign, admin: Admin,
         patient.therapist_id = target.id
         db.commit()
         audit.note(patient_id=patient.id)
-        return AdminPatientOut(id=patient.id, name=patient.name,
-                               therapist_id=patient.therapist_id)
+        return _admin_patient(patient)
 
     out = await svc.run_db(work)
     await svc.access.recheck()

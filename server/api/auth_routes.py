@@ -64,35 +64,51 @@ def _client(request: Request) -> str | None:
 @router.post("/token", response_model=TokenOut, responses={
     401: {"description": WRONG}, 403: {"description": "the account is disabled"},
     429: {"description": "too many failed sign-ins (see Retry-After)"}})
-def sign_in(db: Db, form: Annotated[OAuth2PasswordRequestForm, Depends()],
-            svc: Annotated[Services, Depends(services)], request: Request) -> TokenOut:
+async def sign_in(form: Annotated[OAuth2PasswordRequestForm, Depends()],
+                  svc: Annotated[Services, Depends(services)], request: Request) -> TokenOut:
     """A bearer token for a therapist's user name and password."""
     keys = login_keys(form.username, _client(request))
     limits = limiter(request)
-    if (wait := limits.retry_after(keys)) is not None:
+    if (wait := limits.reserve(keys)) is not None:
         raise _too_many(wait)
-    therapist = db.scalar(select(models.Therapist)
-                          .where(models.Therapist.username == form.username))
-    if therapist is not None and therapist.username == DEMO_USER and not svc.settings.demo_mode:
-        therapist = None  # the demo's account exists for `armtrack demo` only
-    if not verify_password(form.password, therapist.password_hash if therapist else None):
-        limits.failed(keys)
+    succeeded = False
+    try:
+        therapist = await svc.run_db(_account, form.username, svc.settings.demo_mode)
+        # argon2id (64 MiB, ~0.1 s) on the CPU pool: a few at once, however many are sent
+        succeeded = await svc.run_cpu(
+            verify_password, form.password, therapist.password_hash if therapist else None)
+    finally:
+        limits.settle(keys, succeeded)
+    if not succeeded:
         raise HTTPException(status.HTTP_401_UNAUTHORIZED, WRONG,
                             headers={"WWW-Authenticate": "Bearer"})
     assert therapist is not None
     if therapist.disabled_at is not None:
         raise HTTPException(status.HTTP_403_FORBIDDEN,
                             "this account is disabled: ask your clinic's admin")
-    limits.succeeded(keys[0])
-    now = datetime.now(UTC)
     lifetime = timedelta(hours=svc.settings.access_token_hours)
     token, digest = new_token("at_")
-    db.execute(delete(models.AccessToken).where(models.AccessToken.therapist_id == therapist.id,
-                                                models.AccessToken.expires_at < now))
-    db.add(models.AccessToken(therapist_id=therapist.id, token_hash=digest,
-                              expires_at=now + lifetime))
-    db.commit()
+
+    def store(db: DbSession) -> None:
+        now = datetime.now(UTC)
+        db.execute(delete(models.AccessToken).where(
+            models.AccessToken.therapist_id == therapist.id, models.AccessToken.expires_at < now))
+        db.add(models.AccessToken(therapist_id=therapist.id, token_hash=digest,
+                                  expires_at=now + lifetime))
+        db.commit()
+
+    await svc.run_db(store)
     return TokenOut(access_token=token, expires_in=int(lifetime.total_seconds()))
+
+
+def _account(db: DbSession, username: str, demo_mode: bool) -> models.Therapist | None:
+    """The account of a user name (the demo's only in demo mode: it exists for `armtrack
+    demo`), detached from ``db``."""
+    therapist = db.scalar(select(models.Therapist).where(models.Therapist.username == username))
+    if therapist is None or (therapist.username == DEMO_USER and not demo_mode):
+        return None
+    db.expunge(therapist)
+    return therapist
 
 
 @router.post("/password", status_code=status.HTTP_204_NO_CONTENT, responses={
@@ -105,15 +121,20 @@ async def change_password(body: PasswordChange, therapist: Therapist, request: R
     other sign-ins end, with their live feeds and 3D views; this one stays."""
     keys = login_keys(therapist.username, _client(request))
     limits = limiter(request)
-    if (wait := limits.retry_after(keys)) is not None:
+    if (wait := limits.reserve(keys)) is not None:
         raise _too_many(wait)
+    right = False
+    try:
+        right = await svc.run_cpu(verify_password, body.old_password, therapist.password_hash)
+    finally:
+        limits.settle(keys, right)
+    if not right:
+        raise HTTPException(status.HTTP_400_BAD_REQUEST, "the old password is wrong")
+    password_hash = await svc.run_cpu(hash_password, body.new_password)
 
     def work(db: DbSession) -> None:
-        if not verify_password(body.old_password, therapist.password_hash):
-            limits.failed(keys)
-            raise HTTPException(status.HTTP_400_BAD_REQUEST, "the old password is wrong")
         db.execute(update(models.Therapist).where(models.Therapist.id == therapist.id)
-                   .values(password_hash=hash_password(body.new_password)))
+                   .values(password_hash=password_hash))
         db.execute(delete(models.AccessToken).where(
             models.AccessToken.therapist_id == therapist.id,
             models.AccessToken.token_hash != hash_token(token or "")))
@@ -144,8 +165,9 @@ async def reset_password(body: PasswordReset,
     """Set a new password with the one-time reset token a clinic admin issued, given as
     the bearer token (``Authorization: Bearer rt_…``). Every sign-in of the account ends,
     with its live feeds and 3D views."""
+    password_hash = await svc.run_cpu(hash_password, body.new_password)  # before the take
+
     def work(db: DbSession) -> None:
-        password_hash = hash_password(body.new_password)  # slow: before the code is taken
         account = db.get(models.Therapist, row.therapist_id)
         if account is None or account.disabled_at is not None:
             raise HTTPException(status.HTTP_403_FORBIDDEN,

@@ -60,8 +60,7 @@ def list_patients(db: Db, therapist: Therapist, page: Annotated[Page, Depends()]
     if q:
         query = query.where(models.Patient.name.icontains(q, autoescape=True))
     if discharged is not None:
-        column = models.Patient.discharged_at
-        query = query.where(column.is_not(None) if discharged else column.is_(None))
+        query = query.where(models.Patient.discharged_is(discharged))
     rows = db.execute(query.order_by(models.Patient.name, models.Patient.id)
                       .limit(page.limit).offset(page.offset)).all()
     return [PatientOut.model_validate(patient).model_copy(

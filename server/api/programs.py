@@ -158,7 +158,7 @@ def get_flags(db: Db, therapist: Therapist, settings: SettingsDep) -> list[Patie
     if therapist.is_admin:
         return []
     patients = list(db.scalars(select(models.Patient.id).where(
-        models.Patient.therapist_id == therapist.id, models.Patient.discharged_at.is_(None))
+        models.Patient.therapist_id == therapist.id, models.Patient.discharged_is(False))
         .order_by(models.Patient.id)))
     found = adherence.flags_by_patient(db, patients, settings)
     return [PatientFlags(patient_id=p, flags=found[p]) for p in patients if p in found]

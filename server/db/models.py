@@ -107,6 +107,12 @@ class Patient(Base):
     #: records stay, their kits start no new session; None while in care
     discharged_at: Mapped[datetime | None] = mapped_column(UtcDateTime)
 
+    @classmethod
+    def discharged_is(cls, discharged: bool):
+        """The SQL condition of the patients discharged (``True``) or in care (``False``):
+        the lists' ``discharged=`` query parameter."""
+        return cls.discharged_at.is_not(None) if discharged else cls.discharged_at.is_(None)
+
 
 class Device(Base):
     """A sensor kit of one patient; its token is stored as a SHA-256 only."""

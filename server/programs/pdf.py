@@ -17,7 +17,8 @@ from matplotlib.dates import AutoDateLocator, DateFormatter, DayLocator
 from matplotlib.figure import Figure
 
 from ..db import models
-from ..reports.pdf import A4, DISCLAIMER, LABELS
+from ..reports.pdf import A4, DISCLAIMER
+from ..reports.words import ANGLE_WORDS
 from .adherence import ProgramProgress
 
 FLAG_WORDS = {"no_session": "No session", "range_falling": "Range falling",
@@ -93,7 +94,7 @@ def _program_page(fig: Figure, patient: models.Patient, p: ProgramProgress, toda
         # the target in force from each session on, drawn on to today's end
         ax.step([*xs, span[1]], [*low, low[-1]], where="post", color="#55A868",
                 linestyle="--", label="target arc")
-        ax.set_title(f"{e.title} — {LABELS.get(e.angle, e.angle)}: range per session [°]",
+        ax.set_title(f"{e.title} — {ANGLE_WORDS.get(e.angle, e.angle)}: range per session [°]",
                      fontsize=9, loc="left")
         ax.set_ylim(0, 1.15 * max([*low, *(pt.range_deg or 0 for pt in e.points), 10]))
         dates(ax)

@@ -11,6 +11,9 @@ from .catalogue import CATALOGUE
 
 #: Target angles can be set within this [deg] (as the patients' targets).
 LIMIT_DEG = 180.0
+#: A program starts at most this many years before the day it is written: its adherence
+#: lists every week from its start (a year typed 0001 for 2026 made 105,000 weeks).
+START_YEARS_BACK = 10
 
 
 class CatalogueOut(BaseModel):
@@ -73,6 +76,12 @@ class PrescriptionIn(BaseModel):
 
     @model_validator(mode="after")
     def _check(self) -> PrescriptionIn:
+        today = date.today()
+        earliest = today.replace(year=today.year - START_YEARS_BACK,  # 29 Feb: the 28th
+                                 day=min(today.day, 28) if today.month == 2 else today.day)
+        if self.start_date < earliest:
+            raise ValueError(f"start_date {self.start_date} is more than {START_YEARS_BACK} "
+                             f"years ago (the earliest is {earliest}): is the year right?")
         if self.end_date is not None and self.end_date < self.start_date:
             raise ValueError(f"end_date {self.end_date} is before start_date "
                              f"{self.start_date}")

@@ -29,7 +29,7 @@ from matplotlib.textpath import TextPath
 
 from .content import Exercise, SessionData, SessionReport
 from .pdf_summary import Letterhead, local, style_table, summary_page
-from .words import duration_words, exercise_words
+from .words import ANGLE_WORDS, duration_words, exercise_words
 
 # Names and notes are a user's text: "$…$" in a patient's name is no formula (mathtext made
 # such a name fail the whole PDF, issue 17). Set once for the process, not per call with
@@ -46,17 +46,20 @@ NAME_CHARS = 40
 #: Points drawn per curve at most.
 MAX_POINTS = 6000
 DISCLAIMER = "armtrack supports therapy; it is not a diagnostic device."
-LABELS = {
-    "clavicle_protraction": "Clavicle protraction", "clavicle_elevation": "Clavicle elevation",
-    "shoulder_flexion": "Shoulder flexion", "shoulder_abduction": "Shoulder abduction",
-    "shoulder_rotation": "Shoulder int. rotation", "elbow_flexion": "Elbow flexion",
-    "forearm_pronation": "Forearm pronation", "wrist_flexion": "Wrist flexion",
-    "wrist_deviation": "Wrist ulnar deviation", "shoulder_elevation": "Shoulder elevation",
-}
+#: Characters on a line of an angle's name where its cell or margin is narrow (page 2's
+#: bars, page 4's table): "Shoulder internal rotation" on two lines.
+ANGLE_CHARS = 18
 POSES = {"npose": "N-pose", "tpose": "T-pose"}
 SENSORS = {"trunk": "trunk", "clavicle": "clavicle", "upper_arm": "upper arm",
            "forearm": "forearm", "hand": "hand"}
 COLOURS = ["#4C72B0", "#DD8452", "#55A868", "#C44E52", "#8172B3", "#937860", "#DA8BC3"]
+
+
+def _angle(name: str, width: int | None = None) -> str:
+    """An angle's name in words as the pages write it (``words.ANGLE_WORDS``), wrapped on
+    lines of at most ``width`` characters when given."""
+    text = ANGLE_WORDS.get(name, name)
+    return "\n".join(textwrap.wrap(text, width)) if width else text
 
 
 def _fmt(x: float | None, spec: str = ".0f", suffix: str = "") -> str:
@@ -133,13 +136,13 @@ def _rom_table(fig: Figure, report: SessionReport, repetitions: dict[str, int]) 
         target = (f"{r.target_min:.0f} … {r.target_max:.0f}" if r.target_min is not None
                   else "–")
         reached = "" if r.target_reached is None else (" ✓" if r.target_reached else " ✗")
-        rows.append([LABELS.get(angle, angle), _fmt(r.min), _fmt(r.max), _fmt(r.range),
+        rows.append([_angle(angle), _fmt(r.min), _fmt(r.max), _fmt(r.range),
                      f"{r.normal_min:.0f} … {r.normal_max:.0f}" if r.normal_min is not None
                      else "–", _fmt(r.percent_of_normal, ".0f", "%"), target,
                      _fmt(r.percent_of_target, ".0f", "%") + reached,
                      str(repetitions.get(angle, 0))])
     table = ax.table(cellText=rows, colLabels=header, cellLoc="center",
-                     colWidths=[0.22, 0.07, 0.07, 0.08, 0.15, 0.1, 0.13, 0.11, 0.07],
+                     colWidths=[0.25, 0.07, 0.07, 0.08, 0.13, 0.1, 0.12, 0.11, 0.07],
                      bbox=(0, 0, 1, 1 - 0.03 / height))
     style_table(table)
     return TABLE_TOP - height
@@ -172,7 +175,7 @@ def _rom_bars(fig: Figure, report: SessionReport, top: float) -> None:
             target_labelled = True
         label = _fmt(r.percent_of_normal, ".0f", "% of normal")
         ax.text(max(r.max, r.normal_max or r.max) + 4, yi, label, va="center", fontsize=7)
-    ax.set_yticks(y, [LABELS.get(n, n) for n in names], fontsize=8)
+    ax.set_yticks(y, [_angle(n, ANGLE_CHARS) for n in names], fontsize=8)
     # room right of the farthest bar for its "…% of normal" (about 50° wide at 7 pt)
     ax.set_xlim(-110, max([245.0] + [max(r.max, r.normal_max or r.max) + 4 + 60
                                      for r in report.rom.values()]))
@@ -239,7 +242,7 @@ def _angles_page(fig: Figure, report: SessionReport, data: SessionData) -> None:
         if rom is not None and rom.target_min is not None:
             for v in (rom.target_min, rom.target_max):
                 ax.axhline(v, color="black", linestyle="--", linewidth=0.6)
-        ax.set_ylabel(f"{LABELS.get(angle, angle)}\n[deg]", fontsize=7)
+        ax.set_ylabel(f"{_angle(angle)}\n[deg]", fontsize=7)
         ax.tick_params(labelsize=7)
         ax.grid(color="#eee")
         if i < n - 1:
@@ -263,7 +266,7 @@ def _details_page(fig: Figure, report: SessionReport) -> None:
         name = "\n".join(textwrap.wrap(f"{k}. {exercise_words(exercise.name)}", NAME_CHARS))
         for a in exercise.angles:
             main = max(a.consistency, key=lambda c: c.repetitions, default=None)
-            rows.append([name, LABELS.get(a.angle, a.angle), str(a.repetitions),
+            rows.append([name, _angle(a.angle, ANGLE_CHARS), str(a.repetitions),
                          _fmt(a.mean_amplitude_deg, ".0f", "°"),
                          _fmt(a.mean_movement_time_s, ".2f", " s"),
                          _fmt(a.peak_velocity_deg_s, ".0f", "°/s"),
@@ -274,8 +277,8 @@ def _details_page(fig: Figure, report: SessionReport) -> None:
                               is not None else None, ".0f", "%")])
     note = ("Means over the repetitions; SPARC and LDLJ: medians (closer to 0 is smoother); "
             "CV: coefficient of variation of the direction with most repetitions.")
-    # a row holds two lines of the name; a longer name makes its row taller [rows]
-    tall = [max(1.0, (row[0].count("\n") + 1) / 2) for row in rows]
+    # a row holds two lines of the name or angle; a longer one makes its row taller [rows]
+    tall = [max(1.0, (max(row[0].count("\n"), row[1].count("\n")) + 1) / 2) for row in rows]
     shown = int(np.searchsorted(np.cumsum(tall), MAX_EXERCISE_ROWS, side="right"))
     if shown < len(rows):
         note = f"First {shown} of {len(rows)} rows (all in report.csv). " + note

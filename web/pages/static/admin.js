@@ -110,19 +110,25 @@ function patientRow(p) {
       await refreshAll();
     } catch (error) { showError(document.querySelector("#admin-patients").closest(".card"), error); }
   });
-  return el("tr", { dataset: { patient: p.id } },
-    el("td", {}, p.name),
+  return el("tr", { dataset: p.discharged_at ? { patient: p.id, discharged: "" } : { patient: p.id } },
+    el("td", {}, p.name, p.discharged_at ? [" ", el("span", { class: "badge s-discharged",
+      title: "Discharged on " + fmtDate(p.discharged_at, { dateOnly: true }) }, "Discharged")] : null),
     el("td", { class: "holder" }, current ? therapistLabel(current) : "#" + p.therapist_id,
       current && current.disabled_at ? el("span", { class: "status-disabled small" }, " (disabled)") : null),
     el("td", {}, el("div", { class: "reassign" }, select, button)));
 }
 
 async function loadPatients() {
-  const rows = await api(`/api/admin/patients?limit=${ADMIN_PATIENT_PAGE + 1}&offset=${adminState.patientOffset}`);
+  // as the therapist's list: the patients in care; "Show discharged" adds the rest, marked
+  const all = document.getElementById("admin-show-discharged").checked;
+  const rows = await api(`/api/admin/patients?limit=${ADMIN_PATIENT_PAGE + 1}&offset=${adminState.patientOffset}`
+    + (all ? "" : "&discharged=false"));
   const more = rows.length > ADMIN_PATIENT_PAGE;
   const shown = rows.slice(0, ADMIN_PATIENT_PAGE);
   clear(document.querySelector("#admin-patients tbody"), shown.map(patientRow));
-  document.getElementById("admin-patients-empty").hidden = shown.length > 0;
+  const empty = document.getElementById("admin-patients-empty");
+  empty.textContent = all ? "No patient yet." : "No patient in care. “Show discharged” lists the discharged ones.";
+  empty.hidden = shown.length > 0;
   document.getElementById("patients-prev").disabled = adminState.patientOffset === 0;
   document.getElementById("patients-next").disabled = !more;
   document.getElementById("patients-range").textContent = shown.length
@@ -134,6 +140,10 @@ async function refreshAll() {
   await loadPatients();
 }
 
+document.getElementById("admin-show-discharged").addEventListener("change", () => {
+  adminState.patientOffset = 0;
+  loadPatients().catch((error) => showError(document.querySelector("#admin-patients").closest(".card"), error));
+});
 document.getElementById("patients-next").addEventListener("click", () => {
   adminState.patientOffset += ADMIN_PATIENT_PAGE;
   loadPatients();

@@ -168,16 +168,34 @@ function clinicZone() {
   return { timeZone: zone, elsewhere: here !== zone };
 }
 
-// A moment from the API (always with its zone) in the clinic's local time.
+// A moment from the API (always with its zone; UTC if a text lacks one) as a Date.
+function parseMoment(iso) {
+  return new Date(/[zZ]|[+-]\d\d:?\d\d$/.test(iso) ? iso : iso + "Z");
+}
+
+// A moment from the API in the clinic's local time; ``seconds``: with its seconds.
 function fmtDate(iso, options = {}) {
   if (!iso) return "—";
-  const d = new Date(/[zZ]|[+-]\d\d:?\d\d$/.test(iso) ? iso : iso + "Z");
+  const d = parseMoment(iso);
   const { timeZone, elsewhere } = clinicZone();
   const parts = options.dateOnly ? { day: "numeric", month: "short", year: "numeric" }
     : { weekday: "short", day: "numeric", month: "short", year: "numeric", hour: "2-digit", minute: "2-digit" };
+  if (options.seconds && !options.dateOnly) parts.second = "2-digit";
   if (timeZone) parts.timeZone = timeZone;
   if (elsewhere && !options.dateOnly) parts.timeZoneName = "short";
   return d.toLocaleString(undefined, parts);
+}
+
+// Sessions' start times (``starts``: ISO moments) as a list writes them: to the minute,
+// and with the seconds where two or more share a minute, so that sessions started 35 s
+// apart (a kit restarted, a stream beside an upload) read apart; seconds on every row
+// would be noise a therapist reads past. (Zones are whole minutes: a minute is the same
+// in UTC and in the clinic's time.)
+function fmtSessionTimes(starts) {
+  const minute = (iso) => Math.floor(parseMoment(iso).getTime() / 60000);
+  const count = new Map();
+  for (const iso of starts) if (iso) count.set(minute(iso), (count.get(minute(iso)) || 0) + 1);
+  return starts.map((iso) => fmtDate(iso, { seconds: !!iso && count.get(minute(iso)) > 1 }));
 }
 
 // A calendar date ("2026-11-16": a birth date, a program's start) as the pages write dates

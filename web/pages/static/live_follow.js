@@ -78,12 +78,13 @@ const LiveFollow = (() => {
       const main = document.querySelector("main");
       main.insertBefore(card, document.getElementById("calibration"));
     }
+    const times = fmtSessionTimes(today.map((s) => s.started_at));
     clear(card, el("h2", {}, "Today's sessions"),
-      el("div", { class: "row", style: "gap:8px;flex-wrap:wrap" }, today.map((s) => el(
+      el("div", { class: "row", style: "gap:8px;flex-wrap:wrap" }, today.map((s, k) => el(
         s.id === current.id ? "span" : "a",
         { class: "chip day-session" + (s.id === current.id ? " current" : ""),
           href: s.id === current.id ? null : "/sessions/" + s.id, dataset: { session: s.id } },
-        fmtDate(s.started_at).replace(/^.*?(\d{1,2}:\d{2}.*)$/, "$1"), " · ",
+        times[k].replace(/^.*?(\d{1,2}:\d{2}.*)$/, "$1"), " · ",
         s.status === "live" ? "live now" : s.status === "interrupted" ? "interrupted"
           : (s.exercises.length ? s.exercises.map(exerciseChipText).join(", ") : fmtDuration(s.duration_s))))));
   }

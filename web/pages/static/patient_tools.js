@@ -197,10 +197,11 @@ const PatientTools = (() => {
     const open = sessions.filter((s) => s.status === "interrupted");
     const box = document.getElementById("interrupted-card");
     if (!open.length) { if (box) box.remove(); return; }
+    const times = fmtSessionTimes(open.map((s) => s.started_at));
     card("interrupted-card", "Interrupted sessions",
       el("p", { class: "muted small" }, "The kit lost its connection and has not resumed. Close a session to estimate what was recorded."),
-      open.map((s) => el("div", { class: "row", style: "align-items:center", dataset: { session: s.id } },
-        el("a", { href: "/sessions/" + s.id }, `Session ${s.id} · ${fmtDate(s.started_at)}`),
+      open.map((s, k) => el("div", { class: "row", style: "align-items:center", dataset: { session: s.id } },
+        el("a", { href: "/sessions/" + s.id }, `Session ${s.id} · ${times[k]}`),
         s.stopped_by_server ? el("span", { class: "badge s-interrupted", title: s.stopped_by_server.message },
           `stopped by the server ${fmtDate(s.stopped_by_server.at)}`) : null,
         el("button", { class: "secondary close-session", onclick: async (event) => {

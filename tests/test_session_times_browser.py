@@ -1,0 +1,53 @@
+"""Sessions started within the same minute are told apart in the patient's session list, in
+Debian's headless chromium at 390 and 1280 px against a real server.
+
+Before, two sessions 35 s apart both read "…, 01:42 PM" (a kit restarted, or a stream and
+an upload of the same morning): the therapist could not tell which row was which without
+opening both. Now a row whose minute another row shares shows its seconds ("01:42:05 PM",
+"01:42:40 PM"); a session alone in its minute reads as before, to the minute (the seconds
+of every row would be noise a therapist reads past). Skips with the reason when chromium
+or Playwright is absent."""
+
+from __future__ import annotations
+
+import re
+from datetime import UTC, datetime
+
+import pytest
+from armtrack.estimator.recording import format_recording
+from armtrack.estimator.simulation import SimulationConfig, simulate
+from browser_helpers import need_browser, page_at, sign_in_as
+from test_sessions_paging_browser import dated
+
+sync_api = need_browser()
+
+pytestmark = pytest.mark.slow
+
+STARTS = [datetime(2026, 11, 20, 13, 42, 5, tzinfo=UTC),
+          datetime(2026, 11, 20, 13, 42, 40, tzinfo=UTC),  # 35 s later, the same minute
+          datetime(2026, 11, 19, 9, 15, 30, tzinfo=UTC)]
+
+
+@pytest.mark.parametrize("width", [390, 1280])
+def test_sessions_of_the_same_minute_are_told_apart(module_server, width, tmp_path):
+    api = module_server.client("alice")
+    patient = api.patient(f"Same Minute {width}")
+    text = format_recording(simulate(SimulationConfig(rate_hz=25.0, repetitions=1,
+                                                      seed=5)).recording)
+    for k, start in enumerate(STARTS):
+        answer = api.http.post("/api/recordings", data={"patient_id": patient["id"]},
+                               files={"file": (f"s{k}.csv", dated(text, start))})
+        assert answer.status_code == 201, answer.text
+    with page_at(width) as page:
+        sign_in_as(page, module_server.url, "alice")
+        page.goto(f"{module_server.url}/patients/{patient['id']}")
+        rows = page.locator("#sessions tbody tr")
+        sync_api.expect(rows).to_have_count(3)
+        dates = [d.strip() for d in rows.locator("td:first-child a").all_inner_texts()]
+        page.screenshot(path=str(tmp_path / f"sessions-{width}.png"), full_page=True)
+        print(f"\n{width} px: {dates} ({tmp_path})")
+    # newest first: 13:42:40, 13:42:05, then the day before at 09:15 (UTC, the clinic's zone)
+    assert re.search(r"\b0?1:42:40\b|\b13:42:40\b", dates[0]), dates
+    assert re.search(r"\b0?1:42:05\b|\b13:42:05\b", dates[1]), dates
+    assert dates[0] != dates[1]
+    assert re.search(r"\b0?9:15\b", dates[2]) and ":30" not in dates[2], dates
