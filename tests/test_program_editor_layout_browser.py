@@ -2,8 +2,9 @@
 against a real server: its fields pair up, none left alone on a line of the grid.
 
 Before, at 390 px (two columns) "to (°)" sat alone on its own line, apart from "Target
-from (°)", and the move and remove buttons wrapped into one column (at 1280 px too). Now the target's two
-ends share a line, and every line holds a field spanning the row or two fields or more.
+from (°)", and the move and remove buttons wrapped into one column (at 1280 px too). Now
+the target's two ends share a line, and every line holds a field spanning the row or two
+fields or more.
 Skips with the reason when chromium or Playwright is absent."""
 
 from __future__ import annotations
@@ -33,8 +34,10 @@ def test_the_exercise_rows_fields_pair_up(module_server, width, tmp_path):
             return { text: (c.innerText || "").split("\\n")[0].trim(), top: box.top,
                      bottom: box.bottom, left: box.left, right: box.right };
         })""")
-        inner = row.evaluate("""(row) => { const s = getComputedStyle(row), b = row.getBoundingClientRect();
-            return [b.left + parseFloat(s.paddingLeft), b.right - parseFloat(s.paddingRight)]; }""")
+        inner = row.evaluate("""(row) => {
+            const s = getComputedStyle(row), b = row.getBoundingClientRect();
+            return [b.left + parseFloat(s.paddingLeft), b.right - parseFloat(s.paddingRight)];
+        }""")
         page.locator("#programs").screenshot(path=str(tmp_path / f"editor-{width}.png"))
         # a line of the grid: the items whose boxes overlap in height (aligned at their
         # bottoms, a select and an input differ by a few px)
