@@ -24,8 +24,9 @@ HELP = "play a recording to the server as a sensor kit (docs/spec/ingest.md)"
 DESCRIPTION = ("Connects to the ingest WebSocket with a device token and streams a recording "
                "(or a simulated exercise) paced by its clock, resuming after a lost "
                "connection and waiting while the server refuses the kit for now (up to "
-               "--busy-retry seconds); prints progress to standard error and a summary at "
-               "the end.")
+               "--busy-retry seconds); a session the server says is full "
+               "(ARMTRACK_MAX_SESSION_SAMPLES) is closed and the rest goes on in a new "
+               "session. Prints progress to standard error and a summary at the end.")
 
 #: Exit code when the server refuses the kit or cannot be reached (2 is bad input).
 EXIT_REFUSED = 1
@@ -104,10 +105,15 @@ async def _stream(kit: KitEmulator, quiet: bool) -> KitStats:
 
 def _summary(kit: KitEmulator, what: str, url: str) -> str:
     s = kit.stats
-    lines = [f"streamed {what} to {url}: stream {s.stream}, session {s.session}",
-             f"  {s.acked} of {s.total} messages acked ({s.rows_acked} rows) in "
-             f"{s.elapsed_s or 0.0:.1f} s; resent {s.resent}, refused {s.refused}, "
-             f"reconnects {s.reconnects}"]
+    if len(s.sessions) > 1:  # the server's session-size cap: went on in new sessions
+        lines = [f"streamed {what} to {url}: sessions {', '.join(map(str, s.sessions))}; "
+                 "each time a session was full, it was closed and the rest went on in a new "
+                 f"session (the server: {s.session_full[0]})"]
+    else:
+        lines = [f"streamed {what} to {url}: stream {s.stream}, session {s.session}"]
+    lines.append(f"  {s.acked} of {s.total} messages acked ({s.rows_acked} rows) in "
+                 f"{s.elapsed_s or 0.0:.1f} s; resent {s.resent}, refused {s.refused}, "
+                 f"reconnects {s.reconnects}")
     latency = s.latency_percentiles()
     if latency:
         lines.append("  ack latency " + ", ".join(

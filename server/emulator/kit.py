@@ -5,12 +5,16 @@ recording's ``samples`` and ``mark`` messages paced by the recording's clock (``
 times real time), keeping every unacked message until an ``ack`` or ``error`` covers it.
 A lost connection is resumed (``hello`` with ``resume`` = the stream id) with backoff,
 and what the server's ``next_seq`` shows missing is sent again. When everything is
-acked it says ``bye`` and closes with 1000.
+acked it says ``bye`` and closes with 1000. A message refused because its session is
+full (``ARMTRACK_MAX_SESSION_SAMPLES``) is not lost: once the rest of that session is
+acked the kit says ``bye`` and goes on in a new session (``hello`` with ``resume`` null),
+starting with what was refused, numbered from 0 again.
 """
 
 from __future__ import annotations
 
 import asyncio
+import bisect
 import contextlib
 import inspect
 import json
@@ -28,7 +32,7 @@ from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidStatus, InvalidURI
 from websockets.uri import parse_uri
 
-from ..ingest.protocol import SHORT_CLOSE_REASON, SHORT_CLOSE_REASONS
+from ..ingest.protocol import SESSION_FULL, SHORT_CLOSE_REASON, SHORT_CLOSE_REASONS
 from .messages import MessagePlan, encode, hello_message
 from .outbox import KitError, KitRefused, KitStats, Outbox
 
@@ -60,6 +64,10 @@ class _Resync(Exception):
 
 class _Dropped(Exception):
     """The connection was dropped on purpose (``drop_after_seqs``)."""
+
+
+class _NextSession(Exception):
+    """The session is full and closed (``bye``): go on in a new one."""
 
 
 #: Close reasons that say "the error message sent just before this close says why"
@@ -143,6 +151,12 @@ class KitEmulator:
         self.on_busy = on_busy
         self.stats = KitStats(total=len(self.plan))
         self.outbox = Outbox(self.stats)
+        #: the plan's message of each seq sent in this session (wire seq → plan seq)
+        self._wire: list[int] = []
+        self._plan_next = 0  # the plan's first message never sent
+        #: plan seqs refused because their session was full, to send first in the next
+        self._carry: list[int] = []
+        self._full = False  # this session is full: send nothing new, bye once acked
         self._t0 = self.plan.start_time  # the recording-clock time [s] of _wall0
         self._wall0: float | None = None  # monotonic time [s] of the first ready
         self._all_acked = asyncio.Event()
@@ -158,7 +172,14 @@ class KitEmulator:
     @property
     def done(self) -> bool:
         """True when every message has been sent and acked or refused."""
-        return self.outbox.next_seq == len(self.plan) and not self.outbox.pending
+        return self._next_message() is None and not self._full and not self.outbox.pending
+
+    def _next_message(self) -> int | None:
+        """The plan seq to send next in this session: what a full session refused first,
+        then the plan's next; None when all is sent."""
+        if self._carry:
+            return self._carry[0]
+        return self._plan_next if self._plan_next < len(self.plan) else None
 
     def due(self, seq: int) -> float:
         """The monotonic time [s] when message ``seq`` is due (``-inf`` unpaced)."""
@@ -180,6 +201,10 @@ class KitEmulator:
                 return self.stats
             except _Dropped:
                 continue  # reconnect at once
+            except _NextSession:
+                self._new_session()
+                failures, busy_since, busy_tries = 0, None, 0
+                continue
             except _Resync:
                 failures = 0 if self.stats.acked + self.stats.refused > handled else failures + 1
                 if failures > self.max_retries:
@@ -221,6 +246,15 @@ class KitEmulator:
                 first, longest = self.backoff_s
                 delay = min(longest, first * 2 ** max(failures - 1, 0))
                 await asyncio.sleep(delay * random.uniform(0.5, 1.0))
+
+    def _new_session(self) -> None:
+        """After a full session's ``bye``: the next ``hello`` starts a new session (no
+        resume), its seqs from 0, what was refused first."""
+        self.outbox = Outbox(self.stats)
+        self._wire = []
+        self._full = False
+        self.stats.stream = None
+        self._all_acked.clear()
 
     # one connection
 
@@ -274,6 +308,7 @@ class KitEmulator:
             if next_seq != 0:
                 raise KitError(f"a new stream must start at next_seq 0, got {next_seq}")
             self.stats.stream, self.stats.session = stream, message.get("session")
+            self.stats.sessions.append(self.stats.session)
         elif stream != self.stats.stream:
             raise KitError(f"asked to resume stream {self.stats.stream!r}, "
                            f"the server opened {stream!r}")
@@ -295,14 +330,20 @@ class KitEmulator:
                 await self._send_text(ws, outbox.pending[seq].text)
                 outbox.resent(seq, time.monotonic())
                 await asyncio.sleep(0)
-        while outbox.next_seq < len(self.plan):
-            seq = outbox.next_seq
+        while not self._full and (seq := self._next_message()) is not None:
             wait = self.due(seq) - time.monotonic()
             if wait > 0:
                 await asyncio.sleep(wait)
-            text = self.plan.encode(seq)
+                if self._full:  # refused meanwhile: nothing new goes to a full session
+                    break
+            text = self.plan.encode(seq, outbox.next_seq)
             await self._send_text(ws, text)
-            outbox.sent(seq, text, self.plan.rows(seq), time.monotonic())
+            if self._carry:
+                self._carry.pop(0)
+            else:
+                self._plan_next += 1
+            self._wire.append(seq)
+            outbox.sent(outbox.next_seq, text, self.plan.rows(seq), time.monotonic())
             if seq in self.drop_after_seqs:
                 self.drop_after_seqs.discard(seq)
                 self.stats.drops += 1
@@ -311,6 +352,10 @@ class KitEmulator:
             await asyncio.sleep(0)  # let acks in when sending unpaced
         self._check_done()
         await self._all_acked.wait()
+        if self._full:  # the rest of the full session is stored: close it, go on
+            await self._send_text(ws, encode({"type": "bye"}))
+            await ws.close(1000)
+            raise _NextSession
         for rid, rating in self.ratings.items():
             if rid not in self.ratings_stored:
                 await self._send_text(ws, encode(rating))
@@ -358,6 +403,15 @@ class KitEmulator:
                     raise _Resync
                 if reason.startswith("effort_pain:"):
                     raise KitError(f"the server refused a rating: {reason}")
+                if SESSION_FULL in reason and isinstance(seq, int) and seq in outbox.pending:
+                    # the session is full: the message goes again, in the next session
+                    outbox.take_back(seq)
+                    bisect.insort(self._carry, self._wire[seq])
+                    if not self._full:
+                        self._full = True
+                        self.stats.session_full.append(reason)
+                    self._check_done()
+                    continue
                 outbox.refuse(seq if isinstance(seq, int) else None, reason)
                 self._check_done()
             elif kind == "effort_pain_stored":
@@ -374,7 +428,9 @@ class KitEmulator:
         await ws.send(text)
 
     def _check_done(self) -> None:
-        if self.done:
+        """Wakes the sender once this session's messages are all acked or refused: all of
+        the plan, or (a full session) all it can hold."""
+        if not self.outbox.pending and (self._full or self._next_message() is None):
             self._all_acked.set()
 
     def _raise_if_fatal(self, exc: BaseException) -> None:

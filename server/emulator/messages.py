@@ -171,15 +171,17 @@ class MessagePlan:
             return 0
         return int(self._stop[seq] - self._start[seq])
 
-    def message(self, seq: int) -> dict[str, Any]:
-        """Message ``seq`` as a dict ready for :func:`encode`."""
+    def message(self, seq: int, wire_seq: int | None = None) -> dict[str, Any]:
+        """Message ``seq`` as a dict ready for :func:`encode`, numbered ``wire_seq`` on
+        the wire (default ``seq``; a session after the first starts again from 0)."""
+        number = seq if wire_seq is None else wire_seq
         if self._kind[seq] == _MARK:
             mark = self.marks[self._index[seq]]
-            return {"type": "mark", "seq": seq, "t": mark.t, "label": mark.label}
+            return {"type": "mark", "seq": number, "t": mark.t, "label": mark.label}
         k = int(self._index[seq])
         block = self._tables[k][self._start[seq]:self._stop[seq]]
         if k >= len(self.sensors):
-            return {"type": "points", "seq": seq, "point": self.points[k - len(self.sensors)],
+            return {"type": "points", "seq": number, "point": self.points[k - len(self.sensors)],
                     "rows": block.tolist()}
         if block.shape[1] == 10:
             rows = block.tolist()
@@ -188,8 +190,8 @@ class MessagePlan:
             full[:, :7] = block
             full[:, 7:] = None
             rows = full.tolist()
-        return {"type": "samples", "seq": seq, "sensor": self.sensors[k], "rows": rows}
+        return {"type": "samples", "seq": number, "sensor": self.sensors[k], "rows": rows}
 
-    def encode(self, seq: int) -> str:
-        """Message ``seq`` as JSON text."""
-        return encode(self.message(seq))
+    def encode(self, seq: int, wire_seq: int | None = None) -> str:
+        """Message ``seq`` as JSON text (numbered ``wire_seq``, default ``seq``)."""
+        return encode(self.message(seq, wire_seq))

@@ -47,8 +47,11 @@ class KitStats:
     drops: connections dropped on purpose (``drop_after_seqs``).
     latencies_s: per acked message, seconds from its last send to the ``ack`` covering
     it (messages acked by a resume's ``next_seq`` have none), in ack order.
-    stream / session: ids from ``ready``. started / finished: monotonic times [s] of the
-    first ``ready`` and of the final ``bye``.
+    stream / session: ids from ``ready`` (the current session's). sessions: every session
+    the recording went to, in order (more than one when the server's session-size cap
+    made the kit start a new one; session_full: the server's words each time).
+    started / finished: monotonic times [s] of the first ``ready`` and of the final
+    ``bye``.
     """
 
     total: int = 0
@@ -65,13 +68,15 @@ class KitStats:
     latencies_s: list[float] = field(default_factory=list)
     stream: str | None = None
     session: object = None
+    sessions: list = field(default_factory=list)
+    session_full: list[str] = field(default_factory=list)
     started: float | None = None
     finished: float | None = None
 
     @property
     def reconnects(self) -> int:
-        """Connections after the first."""
-        return max(self.connections - 1, 0)
+        """Connections after the first of each session."""
+        return max(self.connections - max(len(self.sessions), 1), 0)
 
     @property
     def elapsed_s(self) -> float | None:
@@ -149,6 +154,17 @@ class Outbox:
         self.stats.refused += 1
         self.handled_through = max(self.handled_through, seq)
         return True
+
+    def take_back(self, seq: int) -> Pending:
+        """Pending message ``seq`` was refused because its session is full: it leaves this
+        outbox neither acked nor refused, to be sent again in a new session (counted
+        there as sent, here as resent); returns it."""
+        entry = self.pending.pop(seq)
+        self.stats.sent -= 1
+        self.stats.rows_sent -= entry.rows
+        self.stats.resent += 1
+        self.handled_through = max(self.handled_through, seq)
+        return entry
 
     def resume(self, next_seq: int) -> list[int]:
         """A resumed ``ready`` says the server stored everything below ``next_seq``: drop

@@ -214,6 +214,8 @@ class IngestConnection:
         if error.close_code is not None:
             await self.close(error.close_code, error.reason)  # whole, or the short form
             return
+        if not error.counted:
+            return
         now = time.monotonic()
         self._refused.append(now)
         while self._refused and self._refused[0] < now - self.settings.refused_window_s:
@@ -612,9 +614,12 @@ class IngestConnection:
                                                            self.state.session_id)
         limit = self.settings.max_session_samples
         if self.samples_kept + rows > limit:
+            # not the kit's bad data: a kit streaming ahead has many messages in flight
+            # when the first refusal reaches it, each refused alike; it starts a new
+            # session with them, so they do not count toward ARMTRACK_REFUSED_LIMIT
             raise Refused(f"samples: this session holds {self.samples_kept} samples; "
                           f"{rows} more would pass {limit}, the most one session holds "
-                          "(ARMTRACK_MAX_SESSION_SAMPLES): start a new session", seq)
+                          + protocol.SESSION_FULL, seq, counted=False)
         self.samples_kept += rows
 
     def _count(self, sensor: str, n: int, now: float) -> None:

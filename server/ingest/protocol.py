@@ -77,18 +77,25 @@ def close_reason(reason: str, code: int) -> str:
     return SHORT_CLOSE_REASONS.get(code, SHORT_CLOSE_REASON)
 
 
+#: The words ending the ``error`` of a message refused because its session is full
+#: (``ARMTRACK_MAX_SESSION_SAMPLES``): the kit starts a new session with it and the rest.
+SESSION_FULL = "(ARMTRACK_MAX_SESSION_SAMPLES): start a new session"
+
+
 class Refused(Exception):
     """A message refused whole. ``seq`` when it carried a valid one; ``close_code`` when
-    the error ends the connection."""
+    the error ends the connection; ``counted``: whether it counts toward the kit's refused
+    messages (``ARMTRACK_REFUSED_LIMIT``: its own bad data)."""
 
     def __init__(self, reason: str, seq: int | None = None, close_code: int | None = None,
-                 extra: dict | None = None):
+                 extra: dict | None = None, counted: bool = True):
         super().__init__(reason)
         self.reason = reason
         self.seq = seq
         self.close_code = close_code
         #: more fields of the ``error`` message (``next_seq`` of a closed session's stream)
         self.extra = extra or {}
+        self.counted = counted
 
 
 @dataclass(frozen=True)

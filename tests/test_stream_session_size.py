@@ -1,0 +1,44 @@
+"""``armtrack stream`` at the server's session-size cap (``ARMTRACK_MAX_SESSION_SAMPLES``),
+on a real server with a small cap, streaming as fast as it can (``--speed 0``).
+
+The server refuses the message that would take a session past the cap with words telling
+the kit to start a new session. Before, the command took them as its own bad data: every
+message it had in flight was refused, the server stopped the stream for too many refused
+messages (close 4429, the session marked "stopped by the server") and the command exited
+1 with the rest never sent. Now it closes the full session (``bye``: it is estimated),
+starts a new one with what was refused and goes on: every row stored once, in sessions
+of at most the cap, all closed, none stopped."""
+
+from __future__ import annotations
+
+import json
+
+from server_support import armtrack, server_fixture
+
+CAP = 4000
+server = server_fixture("stream_session_size", "alice",
+                        env={"ARMTRACK_MAX_SESSION_SAMPLES": str(CAP)})
+
+
+def test_stream_goes_on_in_a_new_session_at_the_cap(server, tmp_path):
+    api = server.client("alice")
+    patient = api.patient("Long Session")
+    token = api.device(patient["id"])["token"]
+    recording = tmp_path / "long.csv"
+    made = armtrack("simulate", "--exercise", "shoulder_abduction", "-o",
+                           str(recording))
+    assert made.returncode == 0, made.stderr
+    checked = armtrack("check", str(recording), "--json")
+    rows = sum(s["samples"] for s in json.loads(checked.stdout)["sensors"].values())
+    done = armtrack("stream", str(recording), "--url", server.ws_url, "--token", token,
+                           "--speed", "0", "--quiet", timeout=300)
+    print(f"\nexit {done.returncode}\nstdout:\n{done.stdout}\nstderr:\n{done.stderr}")
+    assert done.returncode == 0
+    sessions = api.http.get(f"/api/patients/{patient['id']}/sessions").json()
+    sessions = [api.http.get(f"/api/sessions/{s['id']}").json() for s in sessions]
+    print(f"{rows} rows; sessions: "
+          + ", ".join(f"{s['id']} {s['status']} {s['samples']} rows" for s in sessions))
+    assert sum(s["samples"] for s in sessions) == rows
+    assert len(sessions) == -(-rows // CAP) and all(s["samples"] <= CAP for s in sessions)
+    assert all(s["status"] == "closed" and not s.get("stopped_by_server") for s in sessions)
+    assert "new session" in done.stdout
