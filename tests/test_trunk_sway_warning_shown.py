@@ -5,6 +5,7 @@ server."""
 
 from __future__ import annotations
 
+import re
 import shutil
 import subprocess
 
@@ -25,7 +26,9 @@ def test_a_swaying_trunk_is_in_the_sessions_warnings(module_server):
     summary = api.http.get(f"/api/sessions/{session['id']}/summary").json()
     shown = [w for w in summary["quality"]["calibration_warnings"] if "trunk swayed" in w]
     print("summary:", shown)
-    assert len(shown) == 1 and "±1.6°" in shown[0] and "back supported" in shown[0]
+    assert len(shown) == 1 and "back supported" in shown[0]
+    known = re.search(r"known only to ±(\d+\.\d)°", shown[0])
+    assert known and float(known.group(1)) > 1.0  # the 9-axis bar: 2σ over it
     report = api.http.get(f"/api/sessions/{session['id']}/report").json()
     assert shown[0] in report["quality"]["warnings"], report["quality"]["warnings"]
     if shutil.which("pdftotext") is None:

@@ -127,17 +127,16 @@ def trunk_sway_warning(side_sd_deg: float, forward_sd_deg: float, nine_axis: boo
                        ) -> CalibrationWarning | None:
     """A warning when the trunk swayed through the poses so that the thorax's upright, the
     sway's centre, is known only to more than ``LEAN_SD_MAX_DEG`` (one σ of its side lean
-    and forward lean [deg]; ``nine_axis``: the kit has magnetometers). A longer N-pose is
-    offered as a remedy only without magnetometers: there a 15-s N-pose brings the
-    simulated swaying kits within the bars; with them, the arm sensors' headings drift
-    through a long sway (tests/test_estimation_hard_cases.py)."""
+    and forward lean [deg]; ``nine_axis``: the kit has magnetometers). The remedies: a
+    still trunk, or a 15-s N-pose, which brings the simulated swaying kits within the
+    bars (tests/test_estimation_hard_cases.py)."""
     sd = max(side_sd_deg, forward_sd_deg)
     if sd <= LEAN_SD_MAX_DEG[nine_axis]:
         return None
     lean = "side lean" if side_sd_deg >= forward_sd_deg else "forward lean"
-    remedy = "" if nine_axis else ", or hold the arm-down pose (N-pose) for 15 s"
     return CalibrationWarning(
         "trunk-swayed", "trunk",
         f"the trunk swayed during the calibration poses: its upright is known only to "
         f"±{2 * sd:.1f}° ({lean}), and the arm's angles may be off by as much. Repeat the "
-        f"poses with the trunk still (sitting with the back supported){remedy}")
+        f"poses with the trunk still (sitting with the back supported), or hold the "
+        f"arm-down pose (N-pose) for 15 s")

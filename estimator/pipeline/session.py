@@ -238,9 +238,12 @@ class Pipeline:
             # seed 2 −0.5 → −4.3 mrad/s at 20 s). A 9-axis trunk too: its first heading
             # windows take the tilt warm-up's turn of the field for a vertical bias (4.9–6.3
             # mrad/s off at 10.5 s on random sway seeds 4/7/8), which the poses' prior
-            # holds off. An arm sensor whose magnetometer holds its heading, or that
-            # stillness taught its bias by the poses' end, keeps its filter (restarting the
-            # 9-axis arm too failed irregular sway seed 1: 0.76 → 1.06°).
+            # holds off. A 9-axis arm sensor too: its heading windows take the sway for a
+            # vertical bias alike, and the thorax's turn about its long axis comes from the
+            # arm's heading over the N-pose (a 15-s N-pose: upper arm −4.1° off at 14 s,
+            # random sway seed 15; the 3-s kits' held-out 22 → 25 of 30 within the bars).
+            # An arm sensor that stillness taught its bias by the poses' end keeps its
+            # filter.
             found = biases_from_poses(present, plan, {
                 name: _old_prior(track) for name, track in present.items()})
             if found is not None:
@@ -253,8 +256,7 @@ class Pipeline:
                 trunk.restart_filter(_triple(prior), _bounded(covariance, spread))
                 for sensor, (bias, covariance) in found.arm.items():
                     track = present[sensor]
-                    if not (track.nine_axis and not track.magnetometer_dropped) and \
-                            not track.still_taught(final_time):
+                    if not track.still_taught(final_time):
                         track.restart_filter(_triple(bias), _bounded(covariance, spread))
         self.calibration = calibrate(present, plan, self.config.side, final_time)
         for track in self._tracks.values():
