@@ -162,6 +162,25 @@ def test_a_therapist_gets_no_admin_screen(srv, page, shots):  # noqa: F811
     page.screenshot(path=str(shots / "admin-refused-1366.png"))
 
 
+@pytest.mark.parametrize("width", [390, 1366])
+def test_an_admins_patients_page_says_where_to_go(srv, page, shots, width):  # noqa: F811
+    """A clinic admin lands on the patients page after signing in. It said "No patients
+    yet. Add your first one below" above an "Add a patient" form, which the server then
+    refused ("a clinic admin holds no patients"): a dead end for the clinic's IT person.
+    Now it says an admin holds no patients and links to Clinic accounts; no form."""
+    page.set_viewport_size({"width": width, "height": 900})
+    sign_in(page, srv.url, "root")
+    notice = page.locator("#empty")
+    expect(notice).to_contain_text("A clinic admin holds no patients")
+    expect(notice.get_by_role("link", name="Clinic accounts")).to_have_attribute(
+        "href", "/admin")
+    expect(page.locator("#add")).to_be_hidden()
+    expect(page.locator("#search")).to_be_hidden()
+    expect(page.get_by_label("Show discharged")).to_be_hidden()
+    print(f"\n{width} px: {notice.inner_text()}")
+    page.screenshot(path=str(shots / f"admin-patients-{width}.png"), full_page=True)
+
+
 def test_audit_page_filters_and_pages(srv, page, shots):  # noqa: F811
     base = srv.url
     bob = srv.client("bob")
