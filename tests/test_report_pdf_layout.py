@@ -260,3 +260,32 @@ def test_angles_are_named_in_full_as_on_the_pages():
         print(f"page {page}: {sorted(flat)}")
         assert {ANGLE_WORDS[a] for a in ANGLES[:3]} <= flat, (page, flat)
         assert not any("." in n for n in flat), (page, flat)
+
+
+def test_an_uploaded_sessions_date_says_so_within_the_frame():
+    """An uploaded file without its recording time is dated by its upload: page 1 said
+    "(uploaded; recording time unknown)" on a line that ran past the frame's right edge
+    (with the kit's words after it), and page 2 gave the same date as the session's,
+    unqualified. Now both say it, inside the frame."""
+    import dataclasses
+
+    report, data, letterhead, previous = worst_pages()
+    letterhead = dataclasses.replace(letterhead, dated="uploaded")
+    figures = report_pages(report, data, letterhead, previous)
+    problems, dates = [], {}
+    for page, fig in enumerate(figures[:2], 1):
+        canvas = FigureCanvasAgg(fig)
+        fig.set_dpi(100)
+        canvas.draw()
+        renderer = canvas.get_renderer()
+        left, right = frame(fig, renderer)
+        for t in fig.texts:
+            box = t.get_window_extent(renderer)
+            if t.get_text() and (box.x0 < left - 0.5 or box.x1 > right + 0.5):
+                problems.append(f"page {page}: {t.get_text()!r} {box.x0:.0f}…{box.x1:.0f} px "
+                                f"(frame {left:.0f}…{right:.0f})")
+        dates[page] = " ".join(t.get_text() for t in fig.texts if "Dec 2026" in t.get_text())
+    print(dates, problems, sep="\n")
+    assert not problems
+    for page in (1, 2):
+        assert "uploaded; recording time unknown" in dates[page], (page, dates[page])

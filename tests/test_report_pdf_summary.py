@@ -78,7 +78,7 @@ def test_the_first_page_is_a_summary_a_doctor_reads(clinic, recordings_dir, tmp_
     seconds = round(alice.http.get(f"/api/sessions/{latest['id']}/summary").json()["duration_s"])
     duration = f"{seconds // 60} min {seconds % 60:02d} s" if seconds >= 60 else f"{seconds} s"
     print(f"duration: {duration}")
-    assert f"(recorded) · {duration} · right arm" in flat, duration
+    assert f"(recorded) · {duration} Arm and kit right arm" in flat, duration
     appendix = subprocess.run(["pdftotext", "-f", "4", "-l", "4", str(pdf), "-"],
                               capture_output=True, text=True, check=True).stdout
     assert "Appendix" in appendix and "Estimator" in appendix

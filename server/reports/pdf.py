@@ -28,7 +28,7 @@ from matplotlib.figure import Figure
 from matplotlib.textpath import TextPath
 
 from .content import Exercise, SessionData, SessionReport
-from .pdf_summary import Letterhead, local, style_table, summary_page
+from .pdf_summary import DATED_WORDS, Letterhead, local, style_table, summary_page
 from .words import ANGLE_WORDS, duration_words, exercise_words
 
 # Names and notes are a user's text: "$…$" in a patient's name is no formula (mathtext made
@@ -97,7 +97,8 @@ def _header(fig: Figure, report: SessionReport, letterhead: Letterhead) -> None:
                       for p in cal.poses) or "none"
     lines = [
         ("Patient", s.patient_name + (f", height {s.height_m:.2f} m" if s.height_m else "")),
-        ("Date", local(started, letterhead.zone) + f", {duration_words(s.duration_s)}"),
+        ("Date", local(started, letterhead.zone) + DATED_WORDS.get(letterhead.dated, "")
+                 + f", {duration_words(s.duration_s)}"),
         ("Side", f"{s.side} arm"),
         ("Kit", f"{s.kit or '(uploaded file)'} · sensors: "
                 + ", ".join(SENSORS.get(n, n) for n in s.sensors)

@@ -27,6 +27,11 @@ DONE_CHARS = 105
 DONE_LINES = 8
 
 
+#: Words after a session's date by what its start is (``Letterhead.dated``).
+DATED_WORDS = {"recorded": " (recorded)", "uploaded": " (uploaded; recording time unknown)",
+               "streamed": ""}
+
+
 @dataclass(frozen=True)
 class Letterhead:
     """Who files the report, about whom, and the clinic's time zone."""
@@ -148,15 +153,15 @@ def summary_page(fig: Figure, report: SessionReport, letterhead: Letterhead,
     y -= 0.05
     started = s.started_at
     when = local(started, lh.zone)
-    dated = {"recorded": " (recorded)", "uploaded": " (uploaded; recording time unknown)",
-             "streamed": ""}.get(lh.dated, "")
+    dated = DATED_WORDS.get(lh.dated, "")
     rows = [
         ("Patient", s.patient_name),
         ("Clinic no.", lh.clinic_number or "–"),
         ("Date of birth", f"{lh.date_of_birth.day} {lh.date_of_birth:%b %Y}"
          if lh.date_of_birth else "–"),
-        ("Session", f"{when}{dated} · {duration_words(s.duration_s)} · {s.side} arm"
-                    + (f" · kit {s.kit}" if s.kit else " · uploaded file")),
+        # two lines: with "(uploaded; recording time unknown)" one ran past the frame
+        ("Session", f"{when}{dated} · {duration_words(s.duration_s)}"),
+        ("Arm and kit", f"{s.side} arm · " + (f"kit {s.kit}" if s.kit else "uploaded file")),
     ]
     for key, value in rows:
         fig.text(0.06, y, key, fontsize=9, weight="bold")
