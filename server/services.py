@@ -37,6 +37,8 @@ LIVE_PARK_S = 120.0
 MAX_PARKED_LIVE = 64
 #: Threads for the async side's CPU work (``Services.run_cpu``).
 CPU_THREADS = 2
+#: Password checks and hashes at once (``Services.run_password``).
+PASSWORD_THREADS = 2
 
 
 @dataclass
@@ -67,6 +69,11 @@ class Services:
         #: CPU work of the async side (the kits' feedback recounts): off the event loop,
         #: two at a time
         self.cpu_pool = ThreadPoolExecutor(CPU_THREADS, thread_name_prefix="armtrack-cpu")
+        #: password hashing (argon2id: 64 MiB, ~0.1 s each), two at a time however many
+        #: sign-ins arrive, in a pool of its own: a flood of sign-ins queues behind itself,
+        #: not ahead of the kits' feedback
+        self.password_pool = ThreadPoolExecutor(PASSWORD_THREADS,
+                                                thread_name_prefix="armtrack-password")
         #: estimation of closed sessions (batch), in the processing process
         self.processing = SessionProcessing(
             settings.resolved_database_url(), settings.processing_processes,
@@ -136,6 +143,7 @@ class Services:
         await asyncio.get_running_loop().run_in_executor(None, self.processing.stop)
         self.db_pool.shutdown(wait=True)
         self.cpu_pool.shutdown(wait=True)
+        self.password_pool.shutdown(wait=True)
         self.engine.dispose()
 
     def kit_budget(self, device_id: int) -> KitBudget:
@@ -213,6 +221,10 @@ class Services:
         context = contextvars.copy_context()
         return await asyncio.get_running_loop().run_in_executor(self.db_pool, context.run,
                                                                 call)
+
+    async def run_password(self, fn: Callable[..., T], *args: Any) -> T:
+        """``fn(*args)`` (a password check or hash) on the password pool."""
+        return await asyncio.get_running_loop().run_in_executor(self.password_pool, fn, *args)
 
     async def run_cpu(self, fn: Callable[..., T], *args: Any) -> T:
         """``fn(*args)`` on the CPU thread pool: CPU work never blocks the event loop."""

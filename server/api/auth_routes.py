@@ -74,8 +74,8 @@ async def sign_in(form: Annotated[OAuth2PasswordRequestForm, Depends()],
     succeeded = False
     try:
         therapist = await svc.run_db(_account, form.username, svc.settings.demo_mode)
-        # argon2id (64 MiB, ~0.1 s) on the CPU pool: a few at once, however many are sent
-        succeeded = await svc.run_cpu(
+        # argon2id (64 MiB, ~0.1 s) on the password pool: two at once, however many are sent
+        succeeded = await svc.run_password(
             verify_password, form.password, therapist.password_hash if therapist else None)
     finally:
         limits.settle(keys, succeeded)
@@ -125,12 +125,12 @@ async def change_password(body: PasswordChange, therapist: Therapist, request: R
         raise _too_many(wait)
     right = False
     try:
-        right = await svc.run_cpu(verify_password, body.old_password, therapist.password_hash)
+        right = await svc.run_password(verify_password, body.old_password, therapist.password_hash)
     finally:
         limits.settle(keys, right)
     if not right:
         raise HTTPException(status.HTTP_400_BAD_REQUEST, "the old password is wrong")
-    password_hash = await svc.run_cpu(hash_password, body.new_password)
+    password_hash = await svc.run_password(hash_password, body.new_password)
 
     def work(db: DbSession) -> None:
         db.execute(update(models.Therapist).where(models.Therapist.id == therapist.id)
@@ -165,7 +165,7 @@ async def reset_password(body: PasswordReset,
     """Set a new password with the one-time reset token a clinic admin issued, given as
     the bearer token (``Authorization: Bearer rt_…``). Every sign-in of the account ends,
     with its live feeds and 3D views."""
-    password_hash = await svc.run_cpu(hash_password, body.new_password)  # before the take
+    password_hash = await svc.run_password(hash_password, body.new_password)  # before the take
 
     def work(db: DbSession) -> None:
         account = db.get(models.Therapist, row.therapist_id)
