@@ -93,6 +93,9 @@ class Services:
         #: device id → how fast its messages are read (ingest/budget.py), kept while it
         #: has a socket open or a debt to pay
         self.kit_budgets: dict[int, KitBudget] = {}
+        #: device id → sample rows its sessions of the last day hold, while it has a
+        #: socket open (kit/daily_samples.py; counted from the database at its first)
+        self.kit_samples: dict[int, int] = {}
         #: sessions the therapist is closing: a resume or continuation of one is refused as
         #: closed (a kit reconnecting between its stream's end and the close's commit)
         self.closing: set[int] = set()

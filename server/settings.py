@@ -93,6 +93,12 @@ class Settings(BaseSettings):
         "one session holds, streamed or uploaded: a closed session's estimation holds them "
         "all in memory (about 0.6 kB a row); a stream's message that would pass it is "
         "refused (error naming it, the stream stays open), an upload over it is 413")
+    max_kit_samples_per_day: int = Field(
+        10_000_000, ge=1, description="most samples (rows, all sensors and points "
+        "together) one kit token stores in its sessions of the last 24 hours, streamed and "
+        "uploaded (~5.5 h of five sensors at 100 Hz): a stream's message that would pass it "
+        "is refused (error naming it, the stream stays open), an upload over it is 429; "
+        "nothing stored in part")
     max_live_feeds_per_user: int = Field(
         20, ge=1, description="most live feeds one therapist account holds open at once, "
         "all its sign-ins together, in one server instance: /ws/live feeds, open 3D views "

@@ -19,7 +19,7 @@ from .. import audit
 from ..auth import hash_token
 from ..commands.output import write_angles_csv
 from ..db import models
-from ..kit import discharge, new_sessions
+from ..kit import daily_samples, discharge, new_sessions
 from ..services import Services
 from ..store.background import ProcessingFailed
 from ..store.coverage import plain_metadata, session_coverage
@@ -257,6 +257,12 @@ def _count_and_store(db, svc: Services, patient: models.Patient, device_id: int 
                             f"{name}: the recording holds {held} samples, more than one "
                             f"session holds ({svc.settings.max_session_samples}, "
                             "ARMTRACK_MAX_SESSION_SAMPLES): split it into shorter sessions")
+    if device_id is not None:  # the kit's day (its upload turn is held: one at a time)
+        why = daily_samples.refusal(daily_samples.stored(db, device_id), held,
+                                    svc.settings.max_kit_samples_per_day)
+        if why is not None:
+            name = (file.filename if file is not None else None) or "the files"
+            raise HTTPException(status.HTTP_429_TOO_MANY_REQUESTS, f"{name}: {why}")
     blocks = upload_blocks(recording)  # packed before the database's write lock is taken
     if device_id is not None:
         new_sessions.count_turn(db, device_id)  # a hello of the kit counts before or after

@@ -40,7 +40,7 @@ from starlette.websockets import WebSocketDisconnect, WebSocketState
 from .. import clock
 from ..auth import hash_token
 from ..db import models
-from ..kit import discharge, new_sessions
+from ..kit import daily_samples, discharge, new_sessions
 from ..live.worker import LiveWorker
 from ..programs import stream as program_stream
 from ..programs.today import exercise_bands
@@ -123,6 +123,7 @@ async def ingest(websocket: WebSocket) -> None:
             del services.kit_sockets[device_id]
             if services.kit_budgets[device_id].full():  # else kept: a reconnect pays on
                 del services.kit_budgets[device_id]
+            services.kit_samples.pop(device_id, None)  # counted again at its next stream
 
 
 class IngestConnection:
@@ -606,12 +607,18 @@ class IngestConnection:
 
     async def _room_for(self, rows: int, seq: int) -> None:
         """Refuse message ``seq`` when its ``rows`` would take the session past
-        ``ARMTRACK_MAX_SESSION_SAMPLES`` (its closed estimation holds every row in memory);
-        else count them in."""
+        ``ARMTRACK_MAX_SESSION_SAMPLES`` (its closed estimation holds every row in memory)
+        or the kit past ``ARMTRACK_MAX_KIT_SAMPLES_PER_DAY`` (``kit.daily_samples``: its
+        day's rows counted from the database at its first open stream, then by its
+        streams); else count them in."""
         assert self.state is not None
         if self.samples_kept is None:
             self.samples_kept = await self.services.run_db(_samples_in_session,
                                                            self.state.session_id)
+        kits = self.services.kit_samples
+        if self.device_id not in kits:
+            day = await self.services.run_db(daily_samples.stored, self.device_id)
+            kits.setdefault(self.device_id, day)  # (another stream of the kit's, meanwhile)
         limit = self.settings.max_session_samples
         if self.samples_kept + rows > limit:
             # not the kit's bad data: a kit streaming ahead has many messages in flight
@@ -620,7 +627,12 @@ class IngestConnection:
             raise Refused(f"samples: this session holds {self.samples_kept} samples; "
                           f"{rows} more would pass {limit}, the most one session holds "
                           + protocol.SESSION_FULL, seq, counted=False)
+        why = daily_samples.refusal(kits[self.device_id], rows,
+                                    self.settings.max_kit_samples_per_day)
+        if why is not None:  # counted: a kit past its day gets nothing more in, and
+            raise Refused(f"samples: {why}", seq)  # is stopped (4429) if it goes on
         self.samples_kept += rows
+        kits[self.device_id] += rows
 
     def _count(self, sensor: str, n: int, now: float) -> None:
         stats = self.sensor_stats.setdefault(sensor, {"samples": 0, "first": now})

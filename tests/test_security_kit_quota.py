@@ -1,0 +1,102 @@
+"""Security review (Low): one kit token could fill the disk. A session holds at most
+``ARMTRACK_MAX_SESSION_SAMPLES`` rows and a kit starts at most
+``ARMTRACK_MAX_NEW_SESSIONS_PER_KIT_HOUR`` sessions an hour: 2 M rows x 20 an hour, ~40 M
+rows (~3 GB of random values) an hour from one token. Now a kit stores at most
+``ARMTRACK_MAX_KIT_SAMPLES_PER_DAY`` rows in its sessions of the last 24 hours, streamed
+and uploaded together: a stream's message past it is refused whole (the protocol's
+``error`` naming its ``seq`` and the setting, the stream open, what came before stored),
+an upload past it is ``429`` naming the setting, nothing stored. Other kits are not
+limited; sessions older than a day no longer count. Real server, real WebSocket client,
+real database file."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+
+import httpx
+import pytest
+from server_support import ServerProcess
+from test_security_session_flood import hello
+from test_security_upload_burst import still_recording
+
+LIMIT = 3000
+SETTING = "ARMTRACK_MAX_KIT_SAMPLES_PER_DAY"
+
+
+@pytest.fixture(scope="module")
+def srv(tmp_path_factory):
+    server = ServerProcess(tmp_path_factory.mktemp("kit_quota"),
+                           env={SETTING: str(LIMIT)})
+    server.create_user("alice")
+    server.start()
+    yield server
+    server.stop()
+
+
+def samples(seq: int, t0: float, rows: int) -> str:
+    return json.dumps({"type": "samples", "seq": seq, "sensor": "forearm",
+                       "rows": [[t0 + i / 50, 0.0, 0.0, 9.81, 0.0, 0.0, 0.0, None, None,
+                                 None] for i in range(rows)]})
+
+
+async def session(srv, token: str, sizes: list[int]) -> tuple[int, dict[int, str]]:
+    """A new session sending messages of ``sizes`` rows, then ``bye``: (its id, the
+    ``error`` reason of each refused seq)."""
+    ws, ready = await hello(srv, token)
+    assert ready["type"] == "ready", ready
+    refused: dict[int, str] = {}
+    t = 0.0
+    for seq, rows in enumerate(sizes):
+        await ws.send(samples(seq, t, rows))
+        t += rows / 50
+    await ws.send(json.dumps({"type": "bye"}))
+    async for raw in ws:
+        message = json.loads(raw)
+        if message["type"] == "error":
+            refused[message["seq"]] = message["reason"]
+    return ready["session"], refused
+
+
+def stored(srv, session_id: int) -> int:
+    return srv.sql("SELECT samples FROM sessions WHERE id = :s", s=session_id)[0][0]
+
+
+def test_a_kit_stores_a_bounded_number_of_samples_a_day(srv):
+    alice = srv.client("alice")
+    patient = alice.patient("Quota")
+    token = alice.device(patient["id"], "kit")["token"]
+    other = alice.device(alice.patient("Other")["id"], "other kit")["token"]
+
+    first, refused = asyncio.run(session(srv, token, [100] * 20))
+    assert not refused and stored(srv, first) == 2000
+    # 900 more fit; 200 would pass 3000 (refused whole); 100 fit exactly; 1 more does not
+    second, refused = asyncio.run(session(srv, token, [100] * 9 + [200, 100, 1]))
+    print(f"\nrefused: {refused}")
+    assert sorted(refused) == [9, 11]
+    for reason in refused.values():
+        assert SETTING in reason and str(LIMIT) in reason
+    assert stored(srv, second) == 1000  # what came before and after the refusal
+
+    # an upload of the kit past it: 429 naming the setting, nothing stored
+    sessions = srv.sql("SELECT count(*) FROM sessions")[0][0]
+    answer = httpx.post(f"{srv.url}/api/recordings", headers={
+        "Authorization": f"Bearer {token}"}, data={"wait": "false"},
+        files={"file": ("one.csv", still_recording(1))}, timeout=60)
+    print(f"upload: {answer.status_code} {answer.json()['detail']}")
+    assert answer.status_code == 429 and SETTING in answer.json()["detail"]
+    assert srv.sql("SELECT count(*) FROM sessions")[0][0] == sessions
+
+    # another kit is not limited by this one's rows
+    elsewhere, refused = asyncio.run(session(srv, other, [100] * 25))
+    assert not refused and stored(srv, elsewhere) == 2500
+
+    # a day later the kit's earlier sessions no longer count
+    srv.sql("UPDATE sessions SET created_at = :at WHERE id IN (:a, :b)",
+            at="2000-01-01 00:00:00.000000", a=first, b=second)
+    third, refused = asyncio.run(session(srv, token, [100] * 30))
+    assert not refused and stored(srv, third) == 3000
+    answer = httpx.post(f"{srv.url}/api/recordings", headers={
+        "Authorization": f"Bearer {token}"}, data={"wait": "false"},
+        files={"file": ("one.csv", still_recording(1))}, timeout=60)
+    assert answer.status_code == 429, answer.text
