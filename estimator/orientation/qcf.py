@@ -369,6 +369,15 @@ class QuaternionComplementaryFilter:
                               age_s=float(v[12] - v[83]) if learnt else float("nan"),
                               prior=self.gyr_bias_prior is not None)
 
+    def bias_covariance(self) -> np.ndarray | None:
+        """The covariance of the gyroscope bias after the last sample [rad²/s²] (3 × 3,
+        sensor frame), as the filter weighs it; None before the first sample."""
+        v = self.state.vector
+        if not v[13]:
+            return None
+        p00, p11, p22, p01, p02, p12 = v[54:60]
+        return np.array([[p00, p01, p02], [p01, p11, p12], [p02, p12, p22]])
+
     def append_rows(self, rows: np.ndarray, nine_axis: bool, t_out: np.ndarray,
                     acc_out: np.ndarray, gyr_out: np.ndarray, q_out: np.ndarray,
                     end: int) -> bool:

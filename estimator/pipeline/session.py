@@ -243,7 +243,11 @@ class Pipeline:
             # arm's heading over the N-pose (a 15-s N-pose: upper arm −4.1° off at 14 s,
             # random sway seed 15; the 3-s kits' held-out 22 → 25 of 30 within the bars).
             # An arm sensor that stillness taught its bias by the poses' end keeps its
-            # filter.
+            # filter, unless the poses contradict that bias beyond chance
+            # (``stillness_contradicted``): then the stillness was a slow turn (a sway
+            # from the first sample that qcf's still start took for stillness over half
+            # a second: random sway seed 13 with a 15-s N-pose, upper arm 42 mrad/s off,
+            # elbow flexion 7.20°).
             found = biases_from_poses(present, plan, {
                 name: _old_prior(track) for name, track in present.items()})
             if found is not None:
@@ -256,7 +260,8 @@ class Pipeline:
                 trunk.restart_filter(_triple(prior), _bounded(covariance, spread))
                 for sensor, (bias, covariance) in found.arm.items():
                     track = present[sensor]
-                    if not track.still_taught(final_time):
+                    if stillness_contradicted(track.stillness_bias(final_time), bias,
+                                              covariance):
                         track.restart_filter(_triple(bias), _bounded(covariance, spread))
         self.calibration = calibrate(present, plan, self.config.side, final_time)
         for track in self._tracks.values():
@@ -415,6 +420,22 @@ class Pipeline:
                       MEAN_HEADING_FLOOR_RAD)
 
 
+def stillness_contradicted(taught: tuple[np.ndarray, np.ndarray] | None, bias: np.ndarray,
+                           covariance: np.ndarray) -> bool:
+    """Whether a filter's bias is not one stillness taught (``taught`` None), or one the
+    held poses' ``bias`` [rad/s] with its ``covariance`` [rad²/s²] contradicts: their
+    difference's squared Mahalanobis norm under both covariances beyond
+    ``STILLNESS_CONTRADICTED``. A stillness from the first sample is judged over half a
+    second, where a slow turn (a sway at 0.04 rad/s) tilts the accelerometer by less than
+    its noise; the poses see seconds of it."""
+    if taught is None:
+        return True
+    learnt, learnt_covariance = taught
+    difference = learnt - bias
+    total = covariance + learnt_covariance
+    return float(difference @ np.linalg.solve(total, difference)) > STILLNESS_CONTRADICTED
+
+
 def _old_prior(track: SensorTrack) -> np.ndarray:
     """The gyroscope bias a track's filter started from [rad/s] (zeros: none)."""
     return np.zeros(3) if track.gyr_bias_prior is None else \
@@ -454,6 +475,12 @@ _SENSOR_OF_SEGMENT = {_SEGMENT_INDEX[segment]: sensor
 #: holds it and learns the bias), so its drift is taken to grow with the angle it has
 #: turned, and its weight is 1 / (this + that angle) [rad].
 MEAN_HEADING_FLOOR_RAD = 1.0
+#: The squared Mahalanobis norm beyond which the held poses contradict a bias stillness
+#: taught (``stillness_contradicted``): chi-square's 99.9 % point on 3 degrees of freedom.
+#: Measured: a rest's bias against the poses' on still-trunk kits (seeds 1–20, 6- and
+#: 9-axis, every arm sensor) 0.0–1.8; the slow turn random sway seed 13's still start
+#: took, tens of thousands.
+STILLNESS_CONTRADICTED = 16.27
 #: A forearm-only kit's elbow hinge against the virtual upper arm: the largest residual
 #: (the sine of the forearm's turn out of the hinge's plane) a sample may show and count.
 #: A 6-axis heading drift shows a few degrees at most; an arm raised shows tens.

@@ -293,18 +293,27 @@ class SensorTrack:
 
     def still_taught(self, until: float) -> bool:
         """Whether stillness (a rest, or a still start) had taught this sensor's filter its
-        gyroscope bias by ``until`` [s]: a fresh filter run over the samples kept up to
-        then (at calibration all are kept), so a batch and a stream answer alike. False
-        for a filter that learns no bias from stillness."""
+        gyroscope bias by ``until`` [s] (``stillness_bias``)."""
+        return self.stillness_bias(until) is not None
+
+    def stillness_bias(self, until: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """The gyroscope bias [rad/s] (sensor frame) and its covariance [rad²/s²] (3 × 3,
+        the filter's own) of this sensor's filter at ``until`` [s], where stillness (a
+        rest, or a still start) had taught it by then: a fresh filter run over the samples
+        kept up to then (at calibration all are kept), so a batch and a stream answer
+        alike. None where no stillness had, or for a filter that learns no bias from
+        stillness."""
         t, acc, gyr, _ = self.arrays()
         n = int(t.searchsorted(until, "right"))
         fresh = self._new_filter()
         learnt_bias = getattr(fresh, "learnt_bias", None)
         if n == 0 or learnt_bias is None:
-            return False
+            return None
         fresh.update(t[:n], acc[:n], gyr[:n], None)
         learnt = learnt_bias()
-        return learnt is not None and learnt.learnt != LEARNT_NONE
+        if learnt is None or learnt.learnt == LEARNT_NONE:
+            return None
+        return np.array(learnt.bias), fresh.bias_covariance()
 
     def _grow(self, n: int) -> None:
         kept = slice(self._start, self._end)
