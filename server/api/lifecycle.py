@@ -7,9 +7,7 @@ from __future__ import annotations
 import csv
 import io
 import json
-import tempfile
 import zipfile
-from collections.abc import Iterator
 from datetime import UTC, date, datetime, time, timedelta
 from typing import Annotated, BinaryIO, Literal
 
@@ -32,6 +30,7 @@ from ..store.recordings import session_recording
 from .deps import Db, Page, Therapist, own_patient, services
 from .schemas import DeviceOut, Id, PatientOut, QueryId
 from .sessions import ANGLE_COLUMNS_END, session_out
+from .spool import spooled
 
 router = APIRouter(prefix="/api", tags=["lifecycle"], responses={
     401: {"description": "not signed in: a valid bearer token is required"}})
@@ -51,11 +50,6 @@ class AuditOut(BaseModel):
     actor: str | None = Field(None, description="who, in words: the therapist's full name "
                               "and user name, or the kit's name (null: erased since)")
 
-
-#: An export's zip is kept in memory up to this size, then in a temporary file [B].
-EXPORT_SPOOL_BYTES = 1 << 20
-#: An export is sent this many bytes at a time [B].
-EXPORT_CHUNK_BYTES = 1 << 20
 
 #: The CSV's columns: the log's own (ids only, no names).
 AUDIT_FIELDS = [name for name in AuditOut.model_fields if name != "actor"]
@@ -121,32 +115,19 @@ def patient_archive(db: DbSession, patient: models.Patient, out: BinaryIO) -> No
 @router.get("/patients/{patient_id}/export", response_class=Response, responses={
     200: {"content": {"application/zip": {}}, "description": "a zip archive"},
     404: {"description": "no such patient of this therapist's"}})
-def export_patient(patient_id: Id, db: Db, therapist: Therapist,
-                   svc: Annotated[Services, Depends(services)]) -> StreamingResponse:
+async def export_patient(patient_id: Id, therapist: Therapist,
+                         svc: Annotated[Services, Depends(services)]) -> StreamingResponse:
     """Everything held about the patient, as one zip archive: the patient, their kits
     (without tokens), targets and sessions as JSON, each session's raw data
     (``recording.csv``), angles (``angles.csv``) and report (``report.json``), and the
     audit log's entries about them."""
-    patient = own_patient(db, therapist, patient_id)
-    # the zip goes to a temporary file in the data folder (unnamed: gone with the answer,
-    # or a crash) past EXPORT_SPOOL_BYTES, then streams from it: the server's memory holds
-    # one session's data at a time, whatever the patient's number of sessions
-    spool = tempfile.SpooledTemporaryFile(EXPORT_SPOOL_BYTES, dir=svc.settings.data_dir)
-    try:
-        patient_archive(db, patient, spool)
-        spool.seek(0)
-    except BaseException:
-        spool.close()
-        raise
-    return StreamingResponse(_chunks(spool), media_type="application/zip", headers={
-        "Content-Disposition": f'attachment; filename="patient-{patient_id}.zip"'})
-
-
-def _chunks(spool: BinaryIO) -> Iterator[bytes]:
-    """The file's bytes, EXPORT_CHUNK_BYTES at a time; closes it at the end."""
-    with spool:
-        while chunk := spool.read(EXPORT_CHUNK_BYTES):
-            yield chunk
+    def work(db: DbSession) -> StreamingResponse:
+        patient = own_patient(db, therapist, patient_id)
+        # the zip goes to a temporary file (spool): the server's memory holds one
+        # session's data at a time, whatever the patient's number of sessions
+        return spooled(lambda out: patient_archive(db, patient, out), svc.settings.data_dir,
+                       "application/zip", f"patient-{patient_id}.zip")
+    return await svc.run_export(work)
 
 
 def _audit_query(db: DbSession, therapist: models.Therapist, patient_id: int | None,

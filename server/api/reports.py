@@ -28,8 +28,10 @@ from ..reports.targets import (
     target_history,
 )
 from ..services import Services
+from ..settings import Settings
 from ..store.recordings import dated_by
 from .deps import Db, Therapist, own_patient, own_session, services
+from .spool import as_text, spooled
 
 router = APIRouter(prefix="/api", tags=["reports"], responses={
     400: {"description": "the body is not JSON"},
@@ -88,12 +90,17 @@ def get_report_csv(session_id: Id, db: Db, therapist: Therapist) -> Response:
 @router.get("/sessions/{session_id}/report.pdf", response_class=Response,
             responses={200: {"content": {"application/pdf": {}}, "description": "PDF"},
                        **CONFLICT})
-def get_report_pdf(session_id: Id, db: Db, therapist: Therapist,
-                   svc: Annotated[Services, Depends(services)]) -> Response:
+async def get_report_pdf(session_id: Id, therapist: Therapist,
+                         svc: Annotated[Services, Depends(services)]) -> Response:
     """The report as a PDF a clinic files or sends: a one-page summary (clinic,
     therapist, patient identifiers, local date and time, what was done, range against
     normal, the target then, the previous sessions and the change, a plain sentence),
     then the details and a technical appendix (four pages)."""
+    return await svc.run_export(_report_pdf, therapist, session_id, svc.settings)
+
+
+def _report_pdf(db: DbSession, therapist: models.Therapist, session_id: int,
+                settings: Settings) -> Response:
     session = own_session(db, therapist, session_id)
     try:
         data = content.load_session(db, session)
@@ -101,7 +108,6 @@ def get_report_pdf(session_id: Id, db: Db, therapist: Therapist,
         raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from None
     report = content.session_report(db, session, data=data)
     patient = data.patient
-    settings = svc.settings
     letterhead = Letterhead(
         clinic_name=settings.clinic_name, clinic_address=settings.clinic_address,
         zone=settings.clinic_zone(), therapist=therapist.full_name or therapist.username,
@@ -137,22 +143,30 @@ def _previous(db: DbSession, session: models.Session, count: int
 
 @router.get("/sessions/{session_id}/report.mot", response_class=Response,
             responses={**TEXT, **CONFLICT})
-def get_report_mot(session_id: Id, db: Db, therapist: Therapist) -> Response:
+async def get_report_mot(session_id: Id, therapist: Therapist,
+                         svc: Annotated[Services, Depends(services)]) -> Response:
     """Joint angles as an OpenSim motion file with the Rajagopal model's coordinates
     (``arm_flex_r``, ``arm_add_r`` positive in adduction, ``arm_rot_r``,
     ``elbow_flex_r``, ``pro_sup_r``, ``wrist_flex_r``, ``wrist_dev_r``; ``_l`` on the
     left), in degrees."""
-    data = _data(db, therapist, session_id)
-    return _attachment(opensim.mot(data, f"armtrack session {session_id}"), "text/plain",
-                       f"session-{session_id}.mot")
+    def work(db: DbSession) -> Response:
+        data = _data(db, therapist, session_id)
+        return spooled(as_text(lambda out: opensim.write_mot(
+            out, data, f"armtrack session {session_id}")), svc.settings.data_dir,
+            "text/plain", f"session-{session_id}.mot")
+    return await svc.run_export(work)
 
 
 @router.get("/sessions/{session_id}/report.sto", response_class=Response,
             responses={**TEXT, **CONFLICT})
-def get_report_sto(session_id: Id, db: Db, therapist: Therapist) -> Response:
+async def get_report_sto(session_id: Id, therapist: Therapist,
+                         svc: Annotated[Services, Depends(services)]) -> Response:
     """Segment orientations as an OpenSense quaternion table (``<body>_imu`` columns)."""
-    data = _data(db, therapist, session_id)
-    return _attachment(opensim.sto(data), "text/plain", f"session-{session_id}.sto")
+    def work(db: DbSession) -> Response:
+        data = _data(db, therapist, session_id)
+        return spooled(as_text(lambda out: opensim.write_sto(out, data)),
+                       svc.settings.data_dir, "text/plain", f"session-{session_id}.sto")
+    return await svc.run_export(work)
 
 
 @router.get("/sessions/{session_id}/report.fhir.json", response_class=JSONResponse,

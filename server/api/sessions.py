@@ -4,15 +4,16 @@ the raw data (a recording file) and the estimates (``armtrack estimate``'s CSV).
 from __future__ import annotations
 
 import contextlib
-import io
+from pathlib import Path
 from typing import Annotated, Literal
 
 from armtrack.estimator.errors import EstimatorError, InvalidArgument
 from armtrack.estimator.orientation import DEFAULT_FILTER
-from armtrack.estimator.recording import format_recording, parse_recording
+from armtrack.estimator.recording import parse_recording, write_recording_to
 from fastapi import APIRouter, Depends, Form, HTTPException, Request, UploadFile, status
 from fastapi.responses import Response
 from sqlalchemy import select
+from sqlalchemy.orm import Session as DbSession
 from sqlalchemy.orm import object_session
 
 from .. import audit
@@ -33,6 +34,7 @@ from .deps import Db, Page, Therapist, current_therapist, oauth2, own_patient, o
 from .deps import services as get_services
 from .erase import erase_session
 from .schemas import MAX_ID, Id, SessionOut
+from .spool import as_text, spooled
 
 router = APIRouter(prefix="/api", tags=["sessions"])
 
@@ -281,21 +283,32 @@ def _count_and_store(db, svc: Services, patient: models.Patient, device_id: int 
 
 @router.get("/sessions/{session_id}/recording.csv", response_class=Response,
             responses={200: {"content": {"text/csv": {}}}})
-def export_recording(session_id: Id, db: Db, therapist: Therapist) -> Response:
+async def export_recording(session_id: Id, therapist: Therapist,
+                           svc: Annotated[Services, Depends(get_services)]) -> Response:
     """The session's raw data as a recording file; it reads back to the stored numbers."""
+    return await svc.run_export(_recording_file, therapist, session_id, svc.settings.data_dir)
+
+
+def _recording_file(db: DbSession, therapist: models.Therapist, session_id: int,
+                    data_dir: Path) -> Response:
     session = own_session(db, therapist, session_id)
     recording = session_recording(db, session)
     if not recording.sensors:  # a recording file needs samples (was a 500)
         raise HTTPException(status.HTTP_409_CONFLICT, f"session {session_id} has no samples")
-    data = format_recording(recording)
-    return Response(data, media_type="text/csv", headers={
-        "Content-Disposition": f'attachment; filename="session-{session_id}.csv"'})
+    return spooled(lambda out: write_recording_to(recording, out), data_dir, "text/csv",
+                   f"session-{session_id}.csv")
 
 
 @router.get("/sessions/{session_id}/angles.csv", response_class=Response,
             responses={200: {"content": {"text/csv": {}}}})
-def export_angles(session_id: Id, db: Db, therapist: Therapist) -> Response:
+async def export_angles(session_id: Id, therapist: Therapist,
+                        svc: Annotated[Services, Depends(get_services)]) -> Response:
     """Per-sample joint angles [deg] and positions [m], as ``armtrack estimate`` writes."""
+    return await svc.run_export(_angles_file, therapist, session_id, svc.settings.data_dir)
+
+
+def _angles_file(db: DbSession, therapist: models.Therapist, session_id: int,
+                 data_dir: Path) -> Response:
     session = own_session(db, therapist, session_id)
     columns, values = stored_estimates(db, session)
     if not columns:
@@ -304,7 +317,6 @@ def export_angles(session_id: Id, db: Db, therapist: Therapist) -> Response:
                             + (f": {session.processing_error}" if session.processing_error
                                else " (it is live or being processed)"))
     width = columns.index(ANGLE_COLUMNS_END) + 1
-    out = io.StringIO()
-    write_angles_csv(out, columns[:width], values[:, :width])
-    return Response(out.getvalue(), media_type="text/csv", headers={
-        "Content-Disposition": f'attachment; filename="session-{session_id}-angles.csv"'})
+    return spooled(as_text(lambda out: write_angles_csv(out, columns[:width],
+                                                        values[:, :width])),
+                   data_dir, "text/csv", f"session-{session_id}-angles.csv")

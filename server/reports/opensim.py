@@ -33,7 +33,7 @@ y-up ground.
 
 from __future__ import annotations
 
-import io
+from typing import TextIO
 
 import numpy as np
 from armtrack.estimator.sampling import sample_interval_s
@@ -67,8 +67,9 @@ def _number(x: float) -> str:
     return f"{x:.6f}"
 
 
-def mot(data: SessionData, name: str) -> str:
-    """The joint angles as an OpenSim motion file (text)."""
+def write_mot(out: TextIO, data: SessionData, name: str) -> None:
+    """The joint angles as an OpenSim motion file (text), written to ``out`` line by
+    line."""
     s = _suffix(data.session.side)
     columns = ["time", *(f"{stem}_{s}" for stem, _, _ in MOT_COORDINATES)]
     # a kit that measures some angles only (docs/extensions/measured-angles.md): the
@@ -77,17 +78,16 @@ def mot(data: SessionData, name: str) -> str:
     values = np.column_stack([data.t, *(sign * data.angles.get(angle, zero)
                                         for _, angle, sign in MOT_COORDINATES)])
     values = values[np.all(np.isfinite(values), axis=1)]
-    out = io.StringIO()
     out.write(f"{name}\nversion=1\nnRows={len(values)}\nnColumns={len(columns)}\n"
               "inDegrees=yes\nendheader\n")
     out.write("\t".join(columns) + "\n")
     for row in values:
         out.write("\t".join(_number(x) for x in row) + "\n")
-    return out.getvalue()
 
 
-def sto(data: SessionData) -> str:
-    """The segments' orientations as an OpenSense quaternion ``.sto`` file (text)."""
+def write_sto(out: TextIO, data: SessionData) -> None:
+    """The segments' orientations as an OpenSense quaternion ``.sto`` file (text), written
+    to ``out`` line by line."""
     s = _suffix(data.session.side)
     chosen = [(segment, f"{body}_{s}_imu" if sided else f"{body}_imu")
               for segment, sensor, body, sided in STO_BODIES
@@ -99,7 +99,6 @@ def sto(data: SessionData) -> str:
     t = data.t[ok]
     step = sample_interval_s(t)
     rate = 1.0 / step if step > 0 else 0.0
-    out = io.StringIO()
     out.write(f"DataRate={rate:.6f}\nDataType=Quaternion\nversion=3\nOpenSimVersion=4.4\n"
               "endheader\n")
     out.write("\t".join(["time", *(column for _, column in chosen)]) + "\n")
@@ -107,4 +106,3 @@ def sto(data: SessionData) -> str:
     for i in range(t.size):
         cells = [_number(t[i])] + [",".join(_number(x) for x in q[i]) for q in parts]
         out.write("\t".join(cells) + "\n")
-    return out.getvalue()
