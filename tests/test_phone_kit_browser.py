@@ -471,3 +471,26 @@ def test_a_new_link_opened_in_the_same_tab_is_taken(kit_server, phone, shots):
     sync_api.expect(phone.locator("#start")).to_be_visible(timeout=10_000)
     assert "token" not in phone.url
     phone.screenshot(path=str(shots / "d-new-link-same-tab.png"))
+
+
+def test_a_phone_without_motion_readings_starts_no_session(kit_server, phone, shots):
+    """The link opened where no motion readings come (a computer, a browser that gives
+    none): "I'm ready" started a session anyway; the page then waited on "Get into
+    position…" for ever, and the therapist's page showed an empty "interrupted" session
+    (0 samples) to close. Now "I'm ready" waits a few seconds for a reading; none came,
+    the page says the phone's motion sensors gave nothing and what to do, and no session
+    is made."""
+    api = kit_server.client("alice")
+    patient = api.patient("No Motion Patient")
+    device = api.device(patient["id"], "laptop")
+    _start_kit(phone, kit_server.url, device["token"], shots, "nm")
+    phone.click("#ready")
+    sync_api.expect(phone.locator("h1")).to_have_text("The phone's motion sensors",
+                                                      timeout=20_000)
+    said = phone.locator("#screen").inner_text()
+    print("\n" + said)
+    assert "No motion readings" in said
+    sync_api.expect(phone.get_by_role("button", name="Try again")).to_be_visible()
+    phone.screenshot(path=str(shots / "nm-no-motion.png"))
+    sessions = api.http.get(f"/api/patients/{patient['id']}/sessions").json()
+    assert sessions == [], sessions

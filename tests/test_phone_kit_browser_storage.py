@@ -217,7 +217,13 @@ def test_a_clock_gone_back_across_a_reload_does_not_stamp_readings_alike(server,
     device = api.device(api.patient("Clock Patient")["id"], "phone")
     events = motion_events(phone_simulation(seed=8))
     _start_kit(phone, server.url, device["token"], shots, "c")
+    # a first reading before "I'm ready" (the strap check's), which starts no session
+    # without one: then every reading from the session's start on is stored
+    phone.evaluate(FEEDER, events[:1])
+    _wait(lambda: phone.evaluate("kit.motionSeen"), 10, "the strap check's reading")
     phone.click("#ready")
+    _wait(lambda: phone.evaluate("kit.stream && kit.stream.state !== null"), 10,
+          "the session started")
     phone.evaluate(FEEDER, events[:300])
     _wait(lambda: phone.evaluate("window.__feed.i >= 300 && kit.stream.unsent === 0 "
                                  "&& kit.stream._unsaved.size === 0"), 60, "5 s streamed")

@@ -18,6 +18,8 @@ const G = 9.81;
 /** Stillness: over the last STILL_S, gyroscope under STILL_GYRO [rad/s] and |a| within
  * STILL_ACC [m/s²] of g. A calibration pose is held HOLD_S once still. */
 const STILL_S = 0.5, STILL_GYRO = 0.25, STILL_ACC = 0.8, HOLD_S = 2.5;
+/** How long "I'm ready" waits for a first motion reading before saying there is none [ms]. */
+const MOTION_WAIT_MS = 8000;
 /** After a set's last repetition the set ends once the angle is back within
  * RETURN_FRACTION of the band from its start and SETTLE_MS has passed (the report counts a
  * repetition from rest and back to rest, so the marked set must hold the return), or after
@@ -281,8 +283,28 @@ function newStream(program) {
   });
 }
 
+/** Whether a motion reading comes within ``ms`` [ms] (at once when one came already). */
+function motionWithin(ms) {
+  return new Promise((resolve) => {
+    const started = Date.now();
+    const id = setInterval(() => {
+      if (kit.motionSeen || Date.now() - started > ms) { clearInterval(id); resolve(kit.motionSeen); }
+    }, 100);
+    if (kit.motionSeen) { clearInterval(id); resolve(true); }
+  });
+}
+
 async function beginSession() {
-  kit.stream = newStream(kit.today.program ? kit.today.program.id : null);
+  // no session without readings: one would stay empty ("interrupted", 0 samples) on the
+  // therapist's page while this page waited for ever
+  const ready = document.getElementById("ready");
+  if (ready) { ready.disabled = true; ready.textContent = "Waiting for the phone's motion sensors…"; }
+  kit.stream = newStream(kit.today.program ? kit.today.program.id : null);  // not started yet
+  if (!await motionWithin(MOTION_WAIT_MS)) {
+    kit.stream = null;
+    return sensorProblem("No motion readings came from this device, so no session was started. "
+      + "armtrack needs a phone's motion sensors: this page on a computer cannot measure the arm.");
+  }
   await kit.stream.start();
   await keepAwake();
   saveStep("npose", 0);
