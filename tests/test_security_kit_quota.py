@@ -100,3 +100,36 @@ def test_a_kit_stores_a_bounded_number_of_samples_a_day(srv):
         "Authorization": f"Bearer {token}"}, data={"wait": "false"},
         files={"file": ("one.csv", still_recording(1))}, timeout=60)
     assert answer.status_code == 429, answer.text
+
+
+def test_an_uploads_wrist_points_count_toward_the_kits_day_as_a_streams_do(srv):
+    """A stream's ``points`` rows count in ``sessions.samples`` (the writer adds them, as
+    ARMTRACK_MAX_SESSION_SAMPLES counts "all sensors and points together"); an upload's
+    must too, or a kit uploading points-heavy recordings stores past its day (each upload
+    counted by its IMU rows only)."""
+    from armtrack.estimator.recording import format_recording
+    from armtrack.estimator.simulation import SimulationConfig, simulate
+
+    recording = simulate(SimulationConfig(
+        exercise="elbow_flexion", repetitions=1, seed=8, rate_hz=50, sensors=("upper_arm",),
+        nine_axis=False, wrist_points="robot")).recording
+    imu = sum(len(s) for s in recording.sensors.values())
+    points = sum(len(p) for p in recording.points.values())
+    assert points > 0 and imu + points <= LIMIT < 2 * (imu + points)
+    alice = srv.client("alice")
+    token = alice.device(alice.patient("Points")["id"], "robot kit")["token"]
+    data = format_recording(recording)
+
+    def upload() -> httpx.Response:
+        return httpx.post(f"{srv.url}/api/recordings", headers={
+            "Authorization": f"Bearer {token}"}, data={"wait": "false"},
+            files={"file": ("robot.csv", data)}, timeout=60)
+
+    first = upload()
+    assert first.status_code == 202, first.text  # stored; estimated later (wait false)
+    print(f"\nupload: {imu} IMU rows + {points} point rows; stored as "
+          f"{stored(srv, first.json()['id'])} samples")
+    assert stored(srv, first.json()["id"]) == imu + points
+    second = upload()  # 2 x (imu + points) would pass the kit's day
+    print(f"second upload: {second.status_code} {second.json().get('detail', '')}")
+    assert second.status_code == 429 and SETTING in second.json()["detail"]

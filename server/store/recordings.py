@@ -116,7 +116,10 @@ def add_recording(db: DbSession, patient: models.Patient, recording: Recording,
         sensors={n: {"nine_axis": s.nine_axis} for n, s in recording.sensors.items()},
         meta={**{k: v for k, v in recording.metadata.items() if k != GYRO_DELAY_KEY},
               **coverage(recording.sensors)},
-        samples=sum(len(s) for s in recording.sensors.values()),
+        # rows of all sensors and points together, as a stream's writer counts them
+        # (ARMTRACK_MAX_SESSION_SAMPLES, the kit's day: kit/daily_samples.py)
+        samples=sum(len(s) for s in recording.sensors.values())
+        + sum(len(p) for p in recording.points.values()),
         created_at=clock.now(),
         # a kit's own upload (recorded offline) starts from the kit's memory too
         gyro_bias_prior=session_prior(db, device_id),
