@@ -46,6 +46,12 @@ def test_sessions_of_the_same_minute_are_told_apart(module_server, width, tmp_pa
         dates = [d.strip() for d in rows.locator("td:first-child a").all_inner_texts()]
         page.screenshot(path=str(tmp_path / f"sessions-{width}.png"), full_page=True)
         print(f"\n{width} px: {dates} ({tmp_path})")
+        # the session's own page names the same moment as its row, seconds and all
+        rows.first.locator("td:first-child a").click()
+        facts = page.locator("#facts")
+        sync_api.expect(facts).to_contain_text("recorded")
+        print(f"{width} px, the session's page: {facts.inner_text()}")
+        assert dates[0] in facts.inner_text()
     # newest first: 13:42:40, 13:42:05, then the day before at 09:15 (UTC, the clinic's zone)
     assert re.search(r"\b0?1:42:40\b|\b13:42:40\b", dates[0]), dates
     assert re.search(r"\b0?1:42:05\b|\b13:42:05\b", dates[1]), dates

@@ -454,9 +454,11 @@ function targetLines(report) {
 
 async function showReplay() {
   const summary = await api(`/api/sessions/${session.id}/summary`);
+  // to the second: the page of one session names it as its row does among others of the minute
+  const started = fmtDate(summary.started_at, { seconds: true });
   document.getElementById("facts").replaceChildren(
-    session.dated === "uploaded" ? "uploaded " + fmtDate(summary.started_at) + " (recording time unknown)"
-      : (session.dated === "recorded" ? "recorded " : "") + fmtDate(summary.started_at),
+    session.dated === "uploaded" ? "uploaded " + started + " (recording time unknown)"
+      : (session.dated === "recorded" ? "recorded " : "") + started,
     " · ", fmtDuration(summary.duration_s), " · ",
     session.source === "upload" ? "uploaded recording" : "streamed by " + streamedBy(session),
     " · ", qualityBadge(summary.quality));
@@ -554,7 +556,7 @@ async function start() {
     LiveFollow.watch();
   } else {
     document.getElementById("facts").textContent =
-      `started ${fmtDate(session.started_at)} · ${session.sensors.length} sensors · ${patient.side} arm`;
+      `started ${fmtDate(session.started_at, { seconds: true })} · ${session.sensors.length} sensors · ${patient.side} arm`;
     liveAnglesCard();
     openViewer("live");
     connectLive();
