@@ -20,7 +20,7 @@ import pytest
 from server_support import server_fixture
 from test_security_limits import rss_mb
 
-server = server_fixture("report_cost", "alice")
+server = server_fixture("report_cost", "alice", "carol")
 
 
 def tiled(source: Path, copies: int, out: Path) -> Path:
@@ -118,3 +118,36 @@ def test_exports_of_a_long_session_at_once_take_turns(server, long_sessions, exp
     print(f"\n{export} of {long_sessions[8]['samples']} samples: two at once +{two:.0f} MB, "
           f"six at once +{six:.0f} MB ({six / max(two, 1):.1f}x)")
     assert six < 1.5 * two + 60, f"six at once +{six:.0f} MB, two at once +{two:.0f} MB"
+
+
+def test_an_export_that_waited_its_turn_is_read_with_the_rights_of_then(server,
+                                                                         long_sessions):
+    # an export waits for its turn (two at once): an account disabled meanwhile must get
+    # no data, as every route of a disabled account answers (the close route's rule)
+    server.create_admin("admin2")
+    admin = server.client("admin2")
+    alice, carol = server.client("alice"), server.client("carol")
+    mine = carol.patient(name="Carol's")
+    long_id = long_sessions[8]["id"]
+    carol_id = next(t["id"] for t in admin.http.get("/api/admin/therapists").json()
+                    if t["username"] == "carol")
+
+    async def run() -> int:
+        async with httpx.AsyncClient(base_url=server.url, timeout=900) as http:
+            def get(api, path):
+                return http.get(path, headers={"Authorization": f"Bearer {api.token}"})
+            busy = [asyncio.ensure_future(get(alice, f"/api/sessions/{long_id}/angles.csv"))
+                    for _ in range(2)]
+            await asyncio.sleep(0.5)  # both building: carol's waits its turn
+            waiting = asyncio.ensure_future(
+                get(carol, f"/api/patients/{mine['id']}/export"))
+            await asyncio.sleep(0.5)
+            disabled = await asyncio.to_thread(
+                admin.http.post, f"/api/admin/therapists/{carol_id}/disable")
+            assert disabled.status_code == 200, disabled.text
+            statuses = [b.status_code for b in await asyncio.gather(*busy)]
+            assert statuses == [200, 200]
+            return (await waiting).status_code
+    status = asyncio.run(run())
+    print(f"\nthe export carol asked for before she was disabled: {status}")
+    assert status == 401, f"{status}: the disabled account's export was sent"

@@ -7,9 +7,9 @@ as to another therapist; they cannot add patients, nor be given one."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from datetime import UTC, datetime
-from typing import Annotated
+from typing import Annotated, Any, TypeVar
 
 from fastapi import Depends, HTTPException, Query, Request, status
 from fastapi.security import OAuth2PasswordBearer
@@ -21,6 +21,8 @@ from ..auth import DEMO_USER, hash_token
 from ..db import models
 from ..live.access import holds
 from ..services import Services
+
+T = TypeVar("T")
 
 oauth2 = OAuth2PasswordBearer(tokenUrl="/api/auth/token", auto_error=False)
 
@@ -69,6 +71,19 @@ def current_therapist(db: Db, token: Annotated[str | None, Depends(oauth2)],
         raise unauthorized("the token is unknown or has expired: sign in again")
     audit.note(therapist_id=therapist.id)
     return therapist
+
+
+async def in_export_turn(request: Request, fn: Callable[..., T], *args: Any) -> T:
+    """``fn(db, therapist, *args)``, an export, in its turn (``Services.run_export``),
+    with the therapist of the request's token as it is then: a sign-in that ended or an
+    account disabled while the export waited is 401, and the ownership ``fn`` checks is
+    read then too."""
+    token = await oauth2(request)
+    services = request.app.state.services
+
+    def work(db: DbSession) -> T:
+        return fn(db, current_therapist(db, token, request), *args)
+    return await services.run_export(work)
 
 
 def aware_utc(moment: datetime) -> datetime:

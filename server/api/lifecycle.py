@@ -12,7 +12,7 @@ from datetime import UTC, date, datetime, time, timedelta
 from typing import Annotated, BinaryIO, Literal
 
 from armtrack.estimator.recording import write_recording_to
-from fastapi import APIRouter, Depends, Query
+from fastapi import APIRouter, Depends, Query, Request
 from fastapi.responses import Response, StreamingResponse
 from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy import Select, or_, select
@@ -27,7 +27,7 @@ from ..reports.targets import current_targets, target_history
 from ..services import Services
 from ..store.processing import stored_estimates
 from ..store.recordings import session_recording
-from .deps import Db, Page, Therapist, own_patient, services
+from .deps import Db, Page, Therapist, in_export_turn, own_patient, services
 from .schemas import DeviceOut, Id, PatientOut, QueryId
 from .sessions import ANGLE_COLUMNS_END, session_out
 from .spool import spooled
@@ -115,19 +115,19 @@ def patient_archive(db: DbSession, patient: models.Patient, out: BinaryIO) -> No
 @router.get("/patients/{patient_id}/export", response_class=Response, responses={
     200: {"content": {"application/zip": {}}, "description": "a zip archive"},
     404: {"description": "no such patient of this therapist's"}})
-async def export_patient(patient_id: Id, therapist: Therapist,
+async def export_patient(patient_id: Id, therapist: Therapist, request: Request,
                          svc: Annotated[Services, Depends(services)]) -> StreamingResponse:
     """Everything held about the patient, as one zip archive: the patient, their kits
     (without tokens), targets and sessions as JSON, each session's raw data
     (``recording.csv``), angles (``angles.csv``) and report (``report.json``), and the
     audit log's entries about them."""
-    def work(db: DbSession) -> StreamingResponse:
+    def work(db: DbSession, therapist: models.Therapist) -> StreamingResponse:
         patient = own_patient(db, therapist, patient_id)
         # the zip goes to a temporary file (spool): the server's memory holds one
         # session's data at a time, whatever the patient's number of sessions
         return spooled(lambda out: patient_archive(db, patient, out), svc.settings.data_dir,
                        "application/zip", f"patient-{patient_id}.zip")
-    return await svc.run_export(work)
+    return await in_export_turn(request, work)
 
 
 def _audit_query(db: DbSession, therapist: models.Therapist, patient_id: int | None,

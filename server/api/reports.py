@@ -7,7 +7,7 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Annotated
 
-from fastapi import APIRouter, Depends, HTTPException, Path, status
+from fastapi import APIRouter, Depends, HTTPException, Path, Request, status
 from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel, Field
 from sqlalchemy import select
@@ -30,7 +30,7 @@ from ..reports.targets import (
 from ..services import Services
 from ..settings import Settings
 from ..store.recordings import dated_by
-from .deps import Db, Therapist, own_patient, own_session, services
+from .deps import Db, Therapist, in_export_turn, own_patient, own_session, services
 from .spool import as_text, spooled
 
 router = APIRouter(prefix="/api", tags=["reports"], responses={
@@ -90,13 +90,13 @@ def get_report_csv(session_id: Id, db: Db, therapist: Therapist) -> Response:
 @router.get("/sessions/{session_id}/report.pdf", response_class=Response,
             responses={200: {"content": {"application/pdf": {}}, "description": "PDF"},
                        **CONFLICT})
-async def get_report_pdf(session_id: Id, therapist: Therapist,
+async def get_report_pdf(session_id: Id, therapist: Therapist, request: Request,
                          svc: Annotated[Services, Depends(services)]) -> Response:
     """The report as a PDF a clinic files or sends: a one-page summary (clinic,
     therapist, patient identifiers, local date and time, what was done, range against
     normal, the target then, the previous sessions and the change, a plain sentence),
     then the details and a technical appendix (four pages)."""
-    return await svc.run_export(_report_pdf, therapist, session_id, svc.settings)
+    return await in_export_turn(request, _report_pdf, session_id, svc.settings)
 
 
 def _report_pdf(db: DbSession, therapist: models.Therapist, session_id: int,
@@ -143,30 +143,30 @@ def _previous(db: DbSession, session: models.Session, count: int
 
 @router.get("/sessions/{session_id}/report.mot", response_class=Response,
             responses={**TEXT, **CONFLICT})
-async def get_report_mot(session_id: Id, therapist: Therapist,
+async def get_report_mot(session_id: Id, therapist: Therapist, request: Request,
                          svc: Annotated[Services, Depends(services)]) -> Response:
     """Joint angles as an OpenSim motion file with the Rajagopal model's coordinates
     (``arm_flex_r``, ``arm_add_r`` positive in adduction, ``arm_rot_r``,
     ``elbow_flex_r``, ``pro_sup_r``, ``wrist_flex_r``, ``wrist_dev_r``; ``_l`` on the
     left), in degrees."""
-    def work(db: DbSession) -> Response:
+    def work(db: DbSession, therapist: models.Therapist) -> Response:
         data = _data(db, therapist, session_id)
         return spooled(as_text(lambda out: opensim.write_mot(
             out, data, f"armtrack session {session_id}")), svc.settings.data_dir,
             "text/plain", f"session-{session_id}.mot")
-    return await svc.run_export(work)
+    return await in_export_turn(request, work)
 
 
 @router.get("/sessions/{session_id}/report.sto", response_class=Response,
             responses={**TEXT, **CONFLICT})
-async def get_report_sto(session_id: Id, therapist: Therapist,
+async def get_report_sto(session_id: Id, therapist: Therapist, request: Request,
                          svc: Annotated[Services, Depends(services)]) -> Response:
     """Segment orientations as an OpenSense quaternion table (``<body>_imu`` columns)."""
-    def work(db: DbSession) -> Response:
+    def work(db: DbSession, therapist: models.Therapist) -> Response:
         data = _data(db, therapist, session_id)
         return spooled(as_text(lambda out: opensim.write_sto(out, data)),
                        svc.settings.data_dir, "text/plain", f"session-{session_id}.sto")
-    return await svc.run_export(work)
+    return await in_export_turn(request, work)
 
 
 @router.get("/sessions/{session_id}/report.fhir.json", response_class=JSONResponse,

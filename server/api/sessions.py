@@ -30,7 +30,16 @@ from ..store.processing import (
 )
 from ..store.recordings import add_recording, dated_by, session_recording, upload_blocks
 from ..store.stopped import stopped_by_server
-from .deps import Db, Page, Therapist, current_therapist, oauth2, own_patient, own_session
+from .deps import (
+    Db,
+    Page,
+    Therapist,
+    current_therapist,
+    in_export_turn,
+    oauth2,
+    own_patient,
+    own_session,
+)
 from .deps import services as get_services
 from .erase import erase_session
 from .schemas import MAX_ID, Id, SessionOut
@@ -283,10 +292,10 @@ def _count_and_store(db, svc: Services, patient: models.Patient, device_id: int 
 
 @router.get("/sessions/{session_id}/recording.csv", response_class=Response,
             responses={200: {"content": {"text/csv": {}}}})
-async def export_recording(session_id: Id, therapist: Therapist,
+async def export_recording(session_id: Id, therapist: Therapist, request: Request,
                            svc: Annotated[Services, Depends(get_services)]) -> Response:
     """The session's raw data as a recording file; it reads back to the stored numbers."""
-    return await svc.run_export(_recording_file, therapist, session_id, svc.settings.data_dir)
+    return await in_export_turn(request, _recording_file, session_id, svc.settings.data_dir)
 
 
 def _recording_file(db: DbSession, therapist: models.Therapist, session_id: int,
@@ -301,10 +310,10 @@ def _recording_file(db: DbSession, therapist: models.Therapist, session_id: int,
 
 @router.get("/sessions/{session_id}/angles.csv", response_class=Response,
             responses={200: {"content": {"text/csv": {}}}})
-async def export_angles(session_id: Id, therapist: Therapist,
+async def export_angles(session_id: Id, therapist: Therapist, request: Request,
                         svc: Annotated[Services, Depends(get_services)]) -> Response:
     """Per-sample joint angles [deg] and positions [m], as ``armtrack estimate`` writes."""
-    return await svc.run_export(_angles_file, therapist, session_id, svc.settings.data_dir)
+    return await in_export_turn(request, _angles_file, session_id, svc.settings.data_dir)
 
 
 def _angles_file(db: DbSession, therapist: models.Therapist, session_id: int,
