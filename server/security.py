@@ -313,9 +313,9 @@ class LoginLimiter:
                 self._pending[key] = self._pending.get(key, 0) + 1
         return wait
 
-    def settle(self, keys: list[str], succeeded: bool) -> None:
+    def settle(self, keys: list[str], succeeded: bool | None) -> None:
         """The reserved attempt's outcome: a failure is counted, a success clears the user
-        name's failures (``keys[0]``)."""
+        name's failures (``keys[0]``); None (no password was checked) counts nothing."""
         for key in keys:
             left = self._pending.get(key, 0) - 1
             if left > 0:
@@ -324,7 +324,7 @@ class LoginLimiter:
                 self._pending.pop(key, None)
         if succeeded:
             self.succeeded(keys[0])
-        else:
+        elif succeeded is not None:
             self.failed(keys)
 
     def failed(self, keys: list[str]) -> None:

@@ -40,8 +40,15 @@ MAX_PARKED_LIVE = 64
 CPU_THREADS = 2
 #: Password checks and hashes at once (``Services.run_password``).
 PASSWORD_THREADS = 2
+#: Password checks and hashes waiting or under way at once (``Services.run_password``):
+#: ~6 s of argon2id on two threads; past it a sign-in is answered at once (``PasswordsBusy``)
+PASSWORD_WAITING_MAX = 128
 #: Session exports that hold a whole session in memory, at once (``Services.run_export``).
 EXPORTS_AT_ONCE = 2
+
+
+class PasswordsBusy(Exception):
+    """``PASSWORD_WAITING_MAX`` password checks are waiting already: try again shortly."""
 
 
 @dataclass
@@ -79,6 +86,7 @@ class Services:
         #: not ahead of the kits' feedback
         self.password_pool = ThreadPoolExecutor(PASSWORD_THREADS,
                                                 thread_name_prefix="armtrack-password")
+        self._passwords_waiting = 0  # run_password's calls not yet answered
         #: estimation of closed sessions (batch), in the processing process
         self.processing = SessionProcessing(
             settings.resolved_database_url(), settings.processing_processes,
@@ -244,8 +252,18 @@ class Services:
             return await run_in_threadpool(context.run, call)
 
     async def run_password(self, fn: Callable[..., T], *args: Any) -> T:
-        """``fn(*args)`` (a password check or hash) on the password pool."""
-        return await asyncio.get_running_loop().run_in_executor(self.password_pool, fn, *args)
+        """``fn(*args)`` (a password check or hash) on the password pool; raises
+        ``PasswordsBusy`` at once when ``PASSWORD_WAITING_MAX`` are waiting or under way
+        (each new name and address passes the sign-in limiter: without a bound, a burst of
+        them queued minutes of hashing ahead of every sign-in). Event loop only."""
+        if self._passwords_waiting >= PASSWORD_WAITING_MAX:
+            raise PasswordsBusy
+        self._passwords_waiting += 1
+        try:
+            return await asyncio.get_running_loop().run_in_executor(self.password_pool, fn,
+                                                                    *args)
+        finally:
+            self._passwords_waiting -= 1
 
     async def run_cpu(self, fn: Callable[..., T], *args: Any) -> T:
         """``fn(*args)`` on the CPU thread pool: CPU work never blocks the event loop."""

@@ -277,3 +277,31 @@ def test_sign_ins_at_once_from_many_addresses_hash_a_few_at_a_time(tmp_path):
         assert grown < 250, f"+{grown:.0f} MB for 100 password checks at once"
     finally:
         server.stop()
+
+
+def test_sign_ins_past_what_the_server_can_check_soon_are_answered_at_once(tmp_path):
+    # each new (name, address) passes the limiter, and every one let through waited for
+    # the 2-thread password pool however many there were: 300 at once from 300 addresses
+    # queued ~30 s of argon2 (a proxy's clients, or one IPv6 host's addresses), and a
+    # therapist signing in then waited behind all of them. Past PASSWORD_WAITING_MAX
+    # waiting, a sign-in is answered 503 at once (Retry-After), not counted as a failure
+    from armtrack.server.services import PASSWORD_WAITING_MAX
+
+    server = start(tmp_path, "burst-queue", ARMTRACK_TRUSTED_PROXIES="127.0.0.1")
+    try:
+        sign_in(server.url, "warm-up", "wrong", headers={"X-Forwarded-For": "198.51.100.1"})
+        sent = 2 * PASSWORD_WAITING_MAX + 40
+        began = time.monotonic()
+        statuses = _burst(server.url, [(f"user{i}", {"X-Forwarded-For": f"10.7.{i // 250}."
+                                                                      f"{i % 250 + 1}"})
+                                       for i in range(sent)])
+        took = time.monotonic() - began
+        checked, busy = statuses.count(401), statuses.count(503)
+        print(f"\n{sent} sign-ins at once from {sent} addresses: {checked} checked, "
+              f"{busy} answered 503 at once; all answered in {took:.1f} s")
+        assert checked + busy == sent, statuses
+        assert busy > 0, f"all {sent} waited for a password check"
+        answer = sign_in(server.url, "alice", PASSWORD)  # the queue drained: signs in
+        assert answer.status_code == 200, answer.text
+    finally:
+        server.stop()

@@ -21,7 +21,7 @@ from ..auth import hash_password, hash_token, new_token, verify_password
 from ..db import models
 from ..plain_text import Secret
 from ..security import LoginLimiter, login_keys
-from ..services import Services
+from ..services import PasswordsBusy, Services
 from .deps import DEMO_USER, Db, Therapist, aware_utc, oauth2, services, unauthorized
 from .schemas import TokenOut
 
@@ -57,13 +57,32 @@ def _too_many(wait: int) -> HTTPException:
                          headers={"Retry-After": str(wait)})
 
 
+#: Seconds a caller answered ``_busy`` waits before trying again (Retry-After) [s].
+BUSY_RETRY_S = 5
+
+
+def _busy() -> HTTPException:
+    return HTTPException(status.HTTP_503_SERVICE_UNAVAILABLE,
+                         "the server is busy with many sign-ins at once: try again in "
+                         f"{BUSY_RETRY_S} s", headers={"Retry-After": str(BUSY_RETRY_S)})
+
+
+async def _new_hash(svc: Services, password: str) -> str:
+    """``password``'s argon2id hash, on the password pool (503 when it is full)."""
+    try:
+        return await svc.run_password(hash_password, password)
+    except PasswordsBusy:
+        raise _busy() from None
+
+
 def _client(request: Request) -> str | None:
     return request.client.host if request.client else None
 
 
 @router.post("/token", response_model=TokenOut, responses={
     401: {"description": WRONG}, 403: {"description": "the account is disabled"},
-    429: {"description": "too many failed sign-ins (see Retry-After)"}})
+    429: {"description": "too many failed sign-ins (see Retry-After)"},
+    503: {"description": "too many password checks under way (see Retry-After)"}})
 async def sign_in(form: Annotated[OAuth2PasswordRequestForm, Depends()],
                   svc: Annotated[Services, Depends(services)], request: Request) -> TokenOut:
     """A bearer token for a therapist's user name and password."""
@@ -71,12 +90,16 @@ async def sign_in(form: Annotated[OAuth2PasswordRequestForm, Depends()],
     limits = limiter(request)
     if (wait := limits.reserve(keys)) is not None:
         raise _too_many(wait)
-    succeeded = False
+    succeeded: bool | None = False
     try:
         therapist = await svc.run_db(_account, form.username, svc.settings.demo_mode)
         # argon2id (64 MiB, ~0.1 s) on the password pool: two at once, however many are sent
-        succeeded = await svc.run_password(
-            verify_password, form.password, therapist.password_hash if therapist else None)
+        try:
+            succeeded = await svc.run_password(
+                verify_password, form.password, therapist.password_hash if therapist else None)
+        except PasswordsBusy:
+            succeeded = None  # no password checked: no failure counted
+            raise _busy() from None
     finally:
         limits.settle(keys, succeeded)
     if not succeeded:
@@ -113,7 +136,8 @@ def _account(db: DbSession, username: str, demo_mode: bool) -> models.Therapist 
 
 @router.post("/password", status_code=status.HTTP_204_NO_CONTENT, responses={
     400: {"description": "the old password is wrong"},
-    429: {"description": "too many wrong old passwords"}})
+    429: {"description": "too many wrong old passwords"},
+    503: {"description": "too many password checks under way (see Retry-After)"}})
 async def change_password(body: PasswordChange, therapist: Therapist, request: Request,
                           token: Annotated[str | None, Depends(oauth2)],
                           svc: Annotated[Services, Depends(services)]) -> None:
@@ -123,14 +147,19 @@ async def change_password(body: PasswordChange, therapist: Therapist, request: R
     limits = limiter(request)
     if (wait := limits.reserve(keys)) is not None:
         raise _too_many(wait)
-    right = False
+    right: bool | None = False
     try:
-        right = await svc.run_password(verify_password, body.old_password, therapist.password_hash)
+        try:
+            right = await svc.run_password(verify_password, body.old_password,
+                                           therapist.password_hash)
+        except PasswordsBusy:
+            right = None  # no password checked: no failure counted
+            raise _busy() from None
     finally:
         limits.settle(keys, right)
     if not right:
         raise HTTPException(status.HTTP_400_BAD_REQUEST, "the old password is wrong")
-    password_hash = await svc.run_password(hash_password, body.new_password)
+    password_hash = await _new_hash(svc, body.new_password)
 
     def work(db: DbSession) -> None:
         db.execute(update(models.Therapist).where(models.Therapist.id == therapist.id)
@@ -157,7 +186,8 @@ def reset_grant(db: Db, token: Annotated[str | None, Depends(oauth2)]
 
 @router.post("/reset", status_code=status.HTTP_204_NO_CONTENT, responses={
     401: {"description": "the reset token is missing, unknown, used or expired"},
-    403: {"description": "the account is disabled"}})
+    403: {"description": "the account is disabled"},
+    503: {"description": "too many password checks under way (see Retry-After)"}})
 async def reset_password(body: PasswordReset,
                          row: Annotated[models.PasswordReset, Depends(reset_grant)],
                          svc: Annotated[Services, Depends(services)],
@@ -165,7 +195,7 @@ async def reset_password(body: PasswordReset,
     """Set a new password with the one-time reset token a clinic admin issued, given as
     the bearer token (``Authorization: Bearer rt_…``). Every sign-in of the account ends,
     with its live feeds and 3D views."""
-    password_hash = await svc.run_password(hash_password, body.new_password)  # before the take
+    password_hash = await _new_hash(svc, body.new_password)  # before the take
 
     def work(db: DbSession) -> None:
         account = db.get(models.Therapist, row.therapist_id)
