@@ -663,3 +663,44 @@ def test_the_phone_kit_stops_when_the_server_refuses_its_own_messages(refusing_s
     # nothing acked was lost: the session holds what the server took before the close
     session = api.session(phone.evaluate("kit.stream.state.session"))
     assert session["samples"] > 0
+
+
+CAP = 200
+
+
+@pytest.fixture(scope="module")
+def capped_server(tmp_path_factory):
+    from server_support import ServerProcess
+
+    process = ServerProcess(tmp_path_factory.mktemp("kit-capped"),
+                            {"ARMTRACK_MAX_SESSION_SAMPLES": str(CAP)})
+    process.create_user("alice")
+    process.start(timeout=180)
+    yield process
+    process.stop()
+
+
+def test_a_full_session_keeps_the_rest_on_the_phone(capped_server, phone, shots):
+    """At the server's session-size cap (``ARMTRACK_MAX_SESSION_SAMPLES``) each message is
+    refused with "start a new session", and such refusals no longer stop the stream (they
+    are not the kit's bad data): the phone dropped each refused message with the next ack,
+    losing every reading past the cap. Now it stops sending at the first such refusal and
+    keeps the rest in its outbox, saying so (the therapist closes the full session; the
+    phone then sends the rest as a new session, as after any close)."""
+    api = capped_server.client("alice")
+    device = api.device(api.patient("Full Session Patient")["id"], "phone")
+    events = motion_events(phone_simulation(seed=9))
+    _start_kit(phone, capped_server.url, device["token"], shots, "f")
+    phone.click("#ready")
+    phone.evaluate(FEEDER, events[:600])
+    _wait(lambda: phone.evaluate("window.__feed.i >= 600"), 60, "600 readings")
+    stopped = _wait(lambda: phone.evaluate("kit.stream.stopped"), 30, "the phone to stop")
+    session_id = phone.evaluate("kit.stream.state.session")
+    kept = phone.evaluate("KitStore.count()")
+    stored = api.session(session_id)["samples"]
+    print(f"\nstopped: {stopped}; stored {stored} (cap {CAP}); kept on the phone: {kept} "
+          f"messages")
+    phone.screenshot(path=str(shots / "f1-full.png"))
+    assert stored <= CAP
+    assert "start a new session" in (stopped["lastRefused"] or "")
+    assert kept > 0

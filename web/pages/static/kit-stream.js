@@ -370,6 +370,7 @@ class KitStream {
       // 4429 after ready: too many of this phone's own messages refused; sending them again
       // would be refused again (4429 in answer to hello is a busy server: tried again below)
       if (event.code === 4429 && ws.wasReady) { this._stopRefused(event.reason); return; }
+      if (this._fullFrom != null) { this._stopRefused(this._lastRefused); return; }
       if (!this.state.finished) {
         setTimeout(() => this.connect(), this._retry);
         this._retry = Math.min(this._retry * 2, 5000);
@@ -480,6 +481,8 @@ class KitStream {
         if (this.ended) this._byeWhenDone();
       }).catch((error) => { this.error = "could not read this phone's storage: " + error; });
     } else if (message.type === "ack") {
+      // past a full session's first refused message nothing is dropped: it is all kept
+      if (this._fullFrom != null && message.seq >= this._fullFrom) return;
       const seq = message.seq + (this.state.seqBase || 0);
       this.state.acked = Math.max(this.state.acked, seq);
       await this._saving;
@@ -490,6 +493,14 @@ class KitStream {
     } else if (message.type === "error") {
       this._lastError = message.reason;
       if (message.seq != null) this._lastRefused = message.reason;
+      // the session is full (ARMTRACK_MAX_SESSION_SAMPLES): what is refused from here on is
+      // not bad data and must not be dropped; the phone stops and keeps it (_stopRefused)
+      // until the therapist closes the session, then it goes as a new one (_carryOver)
+      if (message.seq != null && this._fullFrom == null
+          && /\(ARMTRACK_MAX_SESSION_SAMPLES\): start a new session/.test(message.reason || "")) {
+        this._fullFrom = message.seq;
+        ws.close(1000);
+      }
       if (message.seq == null && /resume|session/.test(message.reason || "")) {
         this.error = message.reason;
         this._helloRefused = true;  // a later ready clears it
