@@ -127,3 +127,29 @@ def test_a_start_date_centuries_back_is_refused_not_listed_week_by_week(alice):
     changed = alice.http.put(f"/api/programs/{kept.json()['id']}",
                              json={"start_date": "1926-12-01", "exercises": [ELBOW]})
     assert changed.status_code == 422 and "more than 10 years ago" in changed.text
+
+
+def test_the_start_dates_bound_reads_the_servers_clock(tmp_path):
+    # "today" is the server's clock (server/clock.py: a test runs the server on a
+    # simulated calendar); the ten-years-back bound read the machine's date instead, so on
+    # a calendar of 2012 a program starting in 2010 was refused as "more than 10 years ago"
+    from server_support import Zygote, ZygoteServerProcess
+
+    zygote = Zygote("import datetime as _dt, armtrack.server.clock as _clock\n"
+                    "_clock.now = lambda: _dt.datetime(2012, 6, 1, 9, 0, tzinfo=_dt.UTC)\n")
+    server = ZygoteServerProcess(tmp_path / "server", zygote)
+    try:
+        server.create_user("alice")
+        server.start()
+        alice = server.client("alice")
+        patient = alice.patient("On a 2012 calendar")
+        answers = {start: alice.http.post(f"/api/patients/{patient['id']}/programs", json={
+            "name": "p", "start_date": start, "exercises": [ELBOW]})
+            for start in ("2010-01-04", "2002-05-31")}
+        print({start: (a.status_code, a.text[:120]) for start, a in answers.items()})
+        assert answers["2010-01-04"].status_code == 201, answers["2010-01-04"].text
+        assert answers["2002-05-31"].status_code == 422
+        assert "the earliest is 2002-06-01" in answers["2002-05-31"].text
+    finally:
+        server.stop()
+        zygote.close()

@@ -6,6 +6,7 @@ from datetime import date, datetime
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from .. import clock
 from ..plain_text import Line, Note
 from .catalogue import CATALOGUE
 
@@ -76,7 +77,7 @@ class PrescriptionIn(BaseModel):
 
     @model_validator(mode="after")
     def _check(self) -> PrescriptionIn:
-        today = date.today()
+        today = clock.now().date()  # the server's clock: a test's simulated calendar too
         earliest = today.replace(year=today.year - START_YEARS_BACK,  # 29 Feb: the 28th
                                  day=min(today.day, 28) if today.month == 2 else today.day)
         if self.start_date < earliest:
