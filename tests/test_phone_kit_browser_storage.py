@@ -704,3 +704,44 @@ def test_a_full_session_keeps_the_rest_on_the_phone(capped_server, phone, shots)
     assert stored <= CAP
     assert "start a new session" in (stopped["lastRefused"] or "")
     assert kept > 0
+
+
+def test_a_full_sessions_rest_goes_as_a_new_session_once_it_is_closed(capped_server, phone,
+                                                                       shots):
+    """The phone stopped at the cap, what was refused kept (the test above); the therapist
+    closes the full session and the page is opened again: the rest goes as a new session,
+    every reading stored once. The closed session's ``next_seq`` counts the refused
+    numbers too (each used up), so the carry-over must not take them for stored."""
+    api = capped_server.client("alice")
+    device = api.device(api.patient("Full Session Rest Patient")["id"], "phone")
+    events = motion_events(phone_simulation(seed=10))
+    _start_kit(phone, capped_server.url, device["token"], shots, "g")
+    phone.click("#ready")
+    phone.evaluate(FEEDER, events[:600])
+    _wait(lambda: phone.evaluate("window.__feed.i >= 600"), 60, "600 readings")
+    _wait(lambda: phone.evaluate("kit.stream.stopped"), 30, "the phone to stop")
+    first = phone.evaluate("kit.stream.state.session")
+    taken = phone.evaluate("kit.stream.samples")  # no more are taken once stopped
+    _wait(lambda: api.session(first)["status"] == "interrupted", 30, "interrupted")
+    answer = api.http.post(f"/api/sessions/{first}/close", timeout=CLOSE_S)
+    assert answer.status_code == 200, answer.text
+    phone.reload()
+    phone.click("#continue")
+    _wait(lambda: phone.evaluate("kit.stream && kit.stream.carriedOver === 1 "
+                                 "&& kit.stream.state.session"), 60, "the rest carried over")
+    second = phone.evaluate("kit.stream.state.session")
+    _wait(lambda: phone.evaluate("kit.stream.unsent === 0"), 60, "the outbox sent")
+    phone.wait_for_timeout(2000)  # the last ack's commit
+    phone.screenshot(path=str(shots / "g1-carried-over.png"))
+    counts = [api.session(s)["samples"] for s in (first, second)]
+    print(f"\n{taken} readings taken: session {first} holds {counts[0]}, the rest's "
+          f"session {second} {counts[1]}")
+    assert second != first
+    assert sum(counts) == taken, "readings refused at the cap were lost at the carry-over"
+    acc = np.array(events)[:, 1:4]
+    key = {tuple(np.round(r, 9)): i for i, r in enumerate(acc)}
+    index = [key[tuple(np.round(r[1:4], 9))]
+             for session, n in zip((first, second), counts, strict=True)
+             if n for r in _stored_rows(capped_server, api, session)[:, :4]]
+    assert index == list(range(index[0], index[0] + taken)), \
+        "a reading was lost, reordered or stored twice"

@@ -63,7 +63,9 @@ def test_a_stream_stores_at_most_the_limit_of_samples_in_a_session(server):
     patient = api.patient("Flood")
     kit = api.device(patient["id"])
     url = f"{server.ws_url}?token={kit['token']}"
-    # 4999 rows fit; 1000 more would pass 5000 (refused); then 1 fits, and no more
+    # 4999 rows fit; 1000 more would pass 5000 (refused), and so is every later message
+    # of the stream, the 1 row that would fit too: the kit sends them all, from the first
+    # refused one on, as a new session (a row stored here too would be stored twice)
     messages = [{"type": "samples", "sensor": sensor, "rows": rows(t0, n)} for sensor, t0, n in (
         ("upper_arm", 0, 1000), ("forearm", 0, 1000), ("upper_arm", 10, 1000),
         ("forearm", 10, 1000), ("upper_arm", 20, 999), ("upper_arm", 30, 1000),
@@ -72,13 +74,14 @@ def test_a_stream_stores_at_most_the_limit_of_samples_in_a_session(server):
     stored = server.sql("SELECT samples FROM sessions WHERE id = :s", s=ready["session"])[0][0]
     print(f"sent 6001 rows, limit {LIMIT}: stored {stored}, errors "
           f"{[(e['seq'], e['reason'][:100]) for e in errors]}, close {code}")
-    assert [e["seq"] for e in errors] == [5, 7], errors
-    assert all("ARMTRACK_MAX_SESSION_SAMPLES" in e["reason"] for e in errors), errors
-    assert stored == 5000
+    assert [e["seq"] for e in errors] == [5, 6, 7], errors
+    assert all("(ARMTRACK_MAX_SESSION_SAMPLES): start a new session" in e["reason"]
+               for e in errors), errors
+    assert stored == 4999
     # a resume of the session is bound by what it holds already
     resumed = dict(HELLO, resume=ready["stream"])
     again, errors, code = asyncio.run(stream(url, [
-        {"type": "samples", "sensor": "forearm", "rows": rows(60, 1)}], resumed))
+        {"type": "samples", "sensor": "forearm", "rows": rows(60, 2)}], resumed))
     print("resumed:", again, [e["reason"][:60] for e in errors], code)
     assert again["session"] == ready["session"] and again["next_seq"] == len(messages)
     assert [e["seq"] for e in errors] == [again["next_seq"]], errors

@@ -151,6 +151,8 @@ class IngestConnection:
         self.marks_kept: int | None = None
         #: samples the session holds (counted from the database at this stream's first)
         self.samples_kept: int | None = None
+        #: the first message refused because the session is full (ARMTRACK_MAX_SESSION_SAMPLES)
+        self._full_from: int | None = None
         #: programs/1 (docs/extensions/programs-hello.md): the program hello named, and
         #: what ready says of it
         self.program_ref: int | str | None = None
@@ -546,6 +548,10 @@ class IngestConnection:
                     raise Refused(f"seq {seq} is ahead: expected {state.next_seq}", seq)
                 state.next_seq += 1
                 try:
+                    if self._full_from is not None:  # nothing more, in order (see _room_for)
+                        raise Refused(f"{kind}: this session is full since message "
+                                      f"{self._full_from} " + protocol.SESSION_FULL, seq,
+                                      counted=False)
                     if kind == "samples":
                         item = protocol.check_samples(message, seq, self.hello, state.last_t,
                                                      state.t_offset)
@@ -621,6 +627,10 @@ class IngestConnection:
             kits.setdefault(self.device_id, day)  # (another stream of the kit's, meanwhile)
         limit = self.settings.max_session_samples
         if self.samples_kept + rows > limit:
+            # and every later message of this stream, smaller ones and marks too: a kit
+            # sends all from the first refused one on as a new session (kit-stream.js keeps
+            # them all), so one stored here after it would be stored twice, out of order
+            self._full_from = seq
             # not the kit's bad data: a kit streaming ahead has many messages in flight
             # when the first refusal reaches it, each refused alike; it starts a new
             # session with them, so they do not count toward ARMTRACK_REFUSED_LIMIT

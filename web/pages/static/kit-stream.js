@@ -400,7 +400,11 @@ class KitStream {
   _carryOver(nextSeq) {
     this._closedNext = null;
     this._saving = this._saving.then(async () => {
-      const stored = nextSeq + (this.state.seqBase || 0);
+      // a full session stored nothing from its first refused message on (the server
+      // refuses every later one alike): that and the rest go
+      const full = this.state.fullFrom;
+      const stored = (full != null ? Math.min(nextSeq, full) : nextSeq) + (this.state.seqBase || 0);
+      this.state.fullFrom = null;
       if (stored > 0) await KitStore.dropThrough(stored - 1);
       this.state.seqBase = stored;
       this.state.acked = stored - 1;
@@ -499,6 +503,10 @@ class KitStream {
       if (message.seq != null && this._fullFrom == null
           && /\(ARMTRACK_MAX_SESSION_SAMPLES\): start a new session/.test(message.reason || "")) {
         this._fullFrom = message.seq;
+        // kept for the carry-over (a reload too): the closed session's next_seq counts
+        // the refused numbers as used up, but none of them is stored
+        this.state.fullFrom = message.seq;
+        this._saving = this._saving.then(() => KitStore.setState("stream", { ...this.state }));
         ws.close(1000);
       }
       if (message.seq == null && /resume|session/.test(message.reason || "")) {
