@@ -162,6 +162,13 @@ class Services:
         self.password_pool.shutdown(wait=True)
         self.engine.dispose()
 
+    def count_kit_samples(self, device_id: int, rows: int) -> None:
+        """``rows`` more stored by kit ``device_id`` outside its streams (an upload), in the
+        day its open streams count (``kit_samples``; without one, the next counts them
+        from the database). Event loop only."""
+        if device_id in self.kit_samples:
+            self.kit_samples[device_id] += rows
+
     def kit_budget(self, device_id: int) -> KitBudget:
         """The reading budget of kit ``device_id``, one for all its streams."""
         budget = self.kit_budgets.get(device_id)

@@ -133,3 +133,49 @@ def test_an_uploads_wrist_points_count_toward_the_kits_day_as_a_streams_do(srv):
     second = upload()  # 2 x (imu + points) would pass the kit's day
     print(f"second upload: {second.status_code} {second.json().get('detail', '')}")
     assert second.status_code == 429 and SETTING in second.json()["detail"]
+
+
+def test_an_upload_made_while_the_kit_streams_counts_toward_its_streams_day(srv):
+    """A stream counts its kit's day from the database when the kit's first stream opens,
+    then by its streams (``Services.kit_samples``); an upload of the same kit made while
+    that stream is open must count there too, or the stream stores a whole day on top."""
+    alice = srv.client("alice")
+    token = alice.device(alice.patient("Both ways")["id"], "kit")["token"]
+
+    async def scenario() -> tuple[int, dict[int, str], int]:
+        ws, ready = await hello(srv, token)
+        assert ready["type"] == "ready", ready
+        acked, refused = -1, {}
+
+        async def until_acked(seq: int) -> None:
+            nonlocal acked
+            while acked < seq and seq not in refused:
+                message = json.loads(await asyncio.wait_for(ws.recv(), 30))
+                if message["type"] == "ack":
+                    acked = message["seq"]
+                elif message["type"] == "error":
+                    refused[message["seq"]] = message["reason"]
+        for seq in range(10):  # 1000 rows stored, the kit's day counted from here on
+            await ws.send(samples(seq, seq * 2.0, 100))
+        await until_acked(9)
+        upload = await asyncio.to_thread(
+            httpx.post, f"{srv.url}/api/recordings",
+            headers={"Authorization": f"Bearer {token}"}, data={"wait": "false"},
+            files={"file": ("five.csv", still_recording(5))}, timeout=60)  # 1500 rows
+        for seq in range(10, 20):  # 1000 more: 3500 in the day, past 3000
+            await ws.send(samples(seq, seq * 2.0, 100))
+        await until_acked(19)
+        await ws.send(json.dumps({"type": "bye"}))
+        async for raw in ws:
+            message = json.loads(raw)
+            if message["type"] == "error":
+                refused[message["seq"]] = message["reason"]
+        return ready["session"], refused, upload.status_code
+
+    session_id, refused, uploaded = asyncio.run(scenario())
+    print(f"\nupload {uploaded}; stream stored {stored(srv, session_id)}; refused "
+          f"{sorted(refused)}")
+    assert uploaded == 202
+    assert stored(srv, session_id) == 1500, "the stream stored a day on top of the upload"
+    assert sorted(refused) == list(range(15, 20))
+    assert all(SETTING in reason for reason in refused.values())

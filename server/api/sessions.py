@@ -7,6 +7,7 @@ import contextlib
 from pathlib import Path
 from typing import Annotated, Literal
 
+from anyio import from_thread
 from armtrack.estimator.errors import EstimatorError, InvalidArgument
 from armtrack.estimator.orientation import DEFAULT_FILTER
 from armtrack.estimator.recording import parse_recording, write_recording_to
@@ -215,6 +216,8 @@ def upload_recording(db: Db, who: Annotated[models.Therapist | models.Device,
         except BaseException:
             db.rollback()  # the kit's database turns go at once, whatever went wrong
             raise
+    if device_id is not None:  # a stream of the kit open meanwhile counts it in its day
+        from_thread.run_sync(svc.count_kit_samples, device_id, session.samples)
     audit.note(patient_id=patient.id, session_id=session.id)
     # estimated where closed sessions are (store.background)
     job = imports.start_processing(svc, session.id)
