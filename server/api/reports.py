@@ -189,14 +189,8 @@ def _progress(db: DbSession, therapist: models.Therapist, patient_id: int
     sessions = list(db.scalars(select(models.Session)
                                .where(models.Session.patient_id == patient_id)
                                .order_by(models.Session.started_at, models.Session.id)))
-    reports = {}
-    for session in sessions:
-        try:
-            # each session against the targets in force at its time; today's beside
-            reports[session.id] = content.session_report(db, session, current=targets)
-        except NoEstimates:
-            continue
-    return progress_mod.progress(patient, sessions, reports,
+    # each session against the targets in force at its time; today's beside
+    return progress_mod.progress(patient, [progress_mod.session_row(db, s) for s in sessions],
                                  [content.target_out(t) for t in targets.values()])
 
 

@@ -515,19 +515,24 @@ def build_report(data: SessionData, targets: Mapping[str, Target]
         quality=quality(data), targets=[target_out(t) for t in targets.values()])
 
 
+def rom_against(rom: Mapping[str, RomEntry], targets: Mapping[str, Target]
+                ) -> dict[str, RomEntry]:
+    """A range-of-motion table against ``targets`` (angle → target) instead of those it
+    was made with."""
+    cleared = {"target_min": None, "target_max": None, "percent_of_target": None,
+               "target_reached": None}
+    return {k: apply_target(v.model_copy(update=cleared), targets.get(k))
+            for k, v in rom.items()}
+
+
 def with_targets(report: SessionReport, targets: Mapping[str, Target],
                  current: Mapping[str, Target] | None = None) -> SessionReport:
     """The report against ``targets`` (angle → target: those in force at the session's
     time) instead of those it was made with; ``current``: today's, shown beside."""
-    def table(rom: Mapping[str, RomEntry]) -> dict[str, RomEntry]:
-        cleared = {"target_min": None, "target_max": None, "percent_of_target": None,
-                   "target_reached": None}
-        return {k: apply_target(v.model_copy(update=cleared), targets.get(k))
-                for k, v in rom.items()}
-
     return report.model_copy(update={
-        "rom": table(report.rom),
-        "exercises": [e.model_copy(update={"rom": table(e.rom)}) for e in report.exercises],
+        "rom": rom_against(report.rom, targets),
+        "exercises": [e.model_copy(update={"rom": rom_against(e.rom, targets)})
+                      for e in report.exercises],
         "targets": [target_out(t) for t in targets.values()],
         "current_targets": [target_out(t) for t in (current or {}).values()]})
 

@@ -1,8 +1,9 @@
 """Progress: the same metrics across a patient's sessions, oldest first, as a table and a
 trend per angle.
 
-Per session: the ``rom`` of its report (against the patient's current targets), the
-repetitions per angle, the median SPARC and the largest peak angular velocity per angle.
+Per session: the ``rom`` of its report (against the patient's targets in force when it
+started), the repetitions per angle, the median SPARC and the largest peak angular
+velocity per angle (kept per session once read: :func:`session_row`).
 Per angle, the trend over the sessions where it moved: first and last range, their
 difference, and the least-squares slope of the range against the session's start time in
 degrees per week (``None`` unless the sessions span at least a day: a slope over minutes
@@ -13,16 +14,31 @@ from __future__ import annotations
 
 import csv
 import io
-from collections.abc import Mapping, Sequence
+import threading
+from collections import OrderedDict
+from collections.abc import Sequence
 from datetime import datetime
 
 import numpy as np
 from pydantic import BaseModel, Field
+from sqlalchemy.orm import Session as DbSession
 
 from ..db import models
 from ..programs.adherence import ProgramProgress
-from .content import AngleName, RomEntry, SessionReport, TargetOut, finite, utc
+from .content import (
+    AngleName,
+    NoEstimates,
+    RomEntry,
+    SessionReport,
+    TargetOut,
+    finite,
+    report_key,
+    rom_against,
+    session_report,
+    utc,
+)
 from .csv import spreadsheet_text
+from .targets import targets_at
 
 SECONDS_PER_WEEK = 7 * 24 * 3600.0
 #: A slope needs sessions spread over at least this [s]: one day.
@@ -105,10 +121,44 @@ def trend(rows: Sequence[SessionProgress]) -> dict[str, Trend]:
     return out
 
 
-def progress(patient: models.Patient, sessions: Sequence[models.Session],
-             reports: Mapping[int, SessionReport], targets: Sequence[TargetOut]) -> Progress:
-    """``sessions`` oldest first; ``reports`` by session id (missing: no estimates)."""
-    rows = [session_progress(s, reports.get(s.id)) for s in sessions]
+#: Sessions' progress rows without targets, as JSON, by what identifies their estimates
+#: (the report cache's key: a new estimate, reprocessing, a resumed stream make a new
+#: key), so that a patient's progress needs no report built again once read, past the
+#: report cache's 64 sessions. A row with 10 angles: 3.7 kB of JSON (17 kB as objects),
+#: its key 0.6 kB; 10,000 rows ≈ 45 MB at most.
+_ROWS: OrderedDict[tuple, bytes] = OrderedDict()
+_ROWS_SIZE = 10_000
+_ROWS_LOCK = threading.Lock()
+
+
+def session_row(db: DbSession, session: models.Session) -> SessionProgress:
+    """The session's progress row, against the patient's targets in force when it
+    started (read now: only the row without targets is kept)."""
+    key = report_key(session)
+    with _ROWS_LOCK:
+        kept = _ROWS.get(key)
+        if kept is not None:
+            _ROWS.move_to_end(key)
+    if kept is not None:
+        row = SessionProgress.model_validate_json(kept)
+    else:
+        try:  # one pass over many sessions: the reports are not kept, their rows are
+            report = session_report(db, session, {}, current={}, keep=False)
+        except NoEstimates:  # nothing kept: its estimates may come at any moment
+            return session_progress(session, None)
+        row = session_progress(session, report)
+        with _ROWS_LOCK:
+            _ROWS[key] = row.model_dump_json().encode()
+            while len(_ROWS) > _ROWS_SIZE:
+                _ROWS.popitem(last=False)
+    targets = targets_at(db, session.patient_id, utc(session.started_at))
+    return row.model_copy(update={"rom": rom_against(row.rom, targets),
+                                  "processing_error": session.processing_error})
+
+
+def progress(patient: models.Patient, rows: Sequence[SessionProgress],
+             targets: Sequence[TargetOut]) -> Progress:
+    """``rows``: each session's (:func:`session_row`), oldest first."""
     return Progress(patient_id=patient.id, patient_name=patient.name, side=patient.side,
                     targets=list(targets), sessions=rows,
                     trend=trend([r for r in rows if r.processed]))
