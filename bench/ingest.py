@@ -288,8 +288,10 @@ def make_cached_plan(recording, rows_per_message: int):
             super().__init__(*args)
             self.texts = [super(CachedPlan, self).encode(seq) for seq in range(len(self))]
 
-        def encode(self, seq: int) -> str:
-            return self.texts[seq]
+        def encode(self, seq: int, wire_seq: int | None = None) -> str:
+            if wire_seq is None or wire_seq == seq:
+                return self.texts[seq]
+            return super().encode(seq, wire_seq)  # renumbered (a new session's)
 
     return CachedPlan(recording, rows_per_message)
 
