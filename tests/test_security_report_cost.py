@@ -11,6 +11,8 @@ process), on a sync route: a kit may upload 20 such sessions an hour."""
 from __future__ import annotations
 
 import asyncio
+import os
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -20,7 +22,44 @@ import pytest
 from server_support import server_fixture
 from test_security_limits import rss_mb
 
-server = server_fixture("report_cost", "alice", "carol")
+#: A test hook in the server (its ``sitecustomize``): while ``EXPORT_GATE/hold`` exists, a
+#: session's angles.csv, once it has its export turn, says so (``reached-*``) and waits for
+#: ``EXPORT_GATE/go`` — so a test holds both turns for certain, however fast the machine.
+EXPORT_GATE = Path(tempfile.mkdtemp(prefix="armtrack-export-gate-"))
+GATE_HOOK = """
+import os as _os, sys as _sys, threading as _threading, time as _time, uuid as _uuid
+from pathlib import Path as _Path
+
+
+def _install(gate):
+    while True:
+        module = _sys.modules.get("armtrack.server.api.sessions")
+        if module is not None and hasattr(module, "_angles_file"):
+            break
+        _time.sleep(0.1)
+    original = module._angles_file
+
+    def gated(*args, **kwargs):
+        if (gate / "hold").exists():
+            (gate / f"reached-{_uuid.uuid4().hex}").touch()
+            deadline = _time.monotonic() + 120
+            while not (gate / "go").exists() and _time.monotonic() < deadline:
+                _time.sleep(0.01)
+        return original(*args, **kwargs)
+    module._angles_file = gated
+
+
+if _os.environ.get("TEST_EXPORT_GATE"):
+    _threading.Thread(target=_install, args=(_Path(_os.environ["TEST_EXPORT_GATE"]),),
+                      daemon=True).start()
+"""
+(EXPORT_GATE / "hook").mkdir()
+(EXPORT_GATE / "hook" / "sitecustomize.py").write_text(GATE_HOOK)
+
+server = server_fixture("report_cost", "alice", "carol", env={
+    "TEST_EXPORT_GATE": str(EXPORT_GATE),
+    "PYTHONPATH": os.pathsep.join(filter(None, [str(EXPORT_GATE / "hook"),
+                                                os.environ.get("PYTHONPATH")]))})
 
 
 def tiled(source: Path, copies: int, out: Path) -> Path:
@@ -136,15 +175,23 @@ def test_an_export_that_waited_its_turn_is_read_with_the_rights_of_then(server,
         async with httpx.AsyncClient(base_url=server.url, timeout=900) as http:
             def get(api, path):
                 return http.get(path, headers={"Authorization": f"Bearer {api.token}"})
-            busy = [asyncio.ensure_future(get(alice, f"/api/sessions/{long_id}/angles.csv"))
-                    for _ in range(2)]
-            await asyncio.sleep(0.5)  # both building: carol's waits its turn
-            waiting = asyncio.ensure_future(
-                get(carol, f"/api/patients/{mine['id']}/export"))
-            await asyncio.sleep(0.5)
-            disabled = await asyncio.to_thread(
-                admin.http.post, f"/api/admin/therapists/{carol_id}/disable")
-            assert disabled.status_code == 200, disabled.text
+            (EXPORT_GATE / "hold").touch()
+            try:
+                busy = [asyncio.ensure_future(get(alice, f"/api/sessions/{long_id}/angles.csv"))
+                        for _ in range(2)]
+                deadline = time.monotonic() + 120
+                while len(list(EXPORT_GATE.glob("reached-*"))) < 2:  # both turns held
+                    assert time.monotonic() < deadline, "the exports never took their turns"
+                    await asyncio.sleep(0.05)
+                waiting = asyncio.ensure_future(
+                    get(carol, f"/api/patients/{mine['id']}/export"))
+                await asyncio.sleep(0.5)  # carol's export waits its turn
+                disabled = await asyncio.to_thread(
+                    admin.http.post, f"/api/admin/therapists/{carol_id}/disable")
+                assert disabled.status_code == 200, disabled.text
+            finally:
+                (EXPORT_GATE / "hold").unlink()
+                (EXPORT_GATE / "go").touch()
             statuses = [b.status_code for b in await asyncio.gather(*busy)]
             assert statuses == [200, 200]
             return (await waiting).status_code
