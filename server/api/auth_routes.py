@@ -7,6 +7,7 @@ admin-issued one-time reset token sets a new one."""
 
 from __future__ import annotations
 
+from collections.abc import Awaitable, Callable
 from datetime import UTC, datetime, timedelta
 from typing import Annotated
 
@@ -79,6 +80,29 @@ def _client(request: Request) -> str | None:
     return request.client.host if request.client else None
 
 
+async def _guess(request: Request, svc: Services, keys: list[str], password: str,
+                 stored_hash: Callable[[], Awaitable[str | None]]) -> bool:
+    """Whether ``password`` matches the hash ``stored_hash()`` gives (None: no such
+    account), as a guess the sign-in limiter counts (``keys``): 429 while they must wait,
+    the attempt counted as a failure until checked; 503 when the password pool is full
+    (nothing counted). argon2id (64 MiB, ~0.1 s) runs on the password pool: two at once,
+    however many are sent."""
+    limits = limiter(request)
+    if (wait := limits.reserve(keys)) is not None:
+        raise _too_many(wait)
+    right: bool | None = False
+    try:
+        found = await stored_hash()
+        try:
+            right = await svc.run_password(verify_password, password, found)
+        except PasswordsBusy:
+            right = None  # no password checked: no failure counted
+            raise _busy() from None
+    finally:
+        limits.settle(keys, right)
+    return bool(right)
+
+
 @router.post("/token", response_model=TokenOut, responses={
     401: {"description": WRONG}, 403: {"description": "the account is disabled"},
     429: {"description": "too many failed sign-ins (see Retry-After)"},
@@ -86,25 +110,17 @@ def _client(request: Request) -> str | None:
 async def sign_in(form: Annotated[OAuth2PasswordRequestForm, Depends()],
                   svc: Annotated[Services, Depends(services)], request: Request) -> TokenOut:
     """A bearer token for a therapist's user name and password."""
-    keys = login_keys(form.username, _client(request))
-    limits = limiter(request)
-    if (wait := limits.reserve(keys)) is not None:
-        raise _too_many(wait)
-    succeeded: bool | None = False
-    try:
-        therapist = await svc.run_db(_account, form.username, svc.settings.demo_mode)
-        # argon2id (64 MiB, ~0.1 s) on the password pool: two at once, however many are sent
-        try:
-            succeeded = await svc.run_password(
-                verify_password, form.password, therapist.password_hash if therapist else None)
-        except PasswordsBusy:
-            succeeded = None  # no password checked: no failure counted
-            raise _busy() from None
-    finally:
-        limits.settle(keys, succeeded)
-    if not succeeded:
+    account: models.Therapist | None = None
+
+    async def stored_hash() -> str | None:
+        nonlocal account
+        account = await svc.run_db(_account, form.username, svc.settings.demo_mode)
+        return account.password_hash if account else None
+    if not await _guess(request, svc, login_keys(form.username, _client(request)),
+                        form.password, stored_hash):
         raise HTTPException(status.HTTP_401_UNAUTHORIZED, WRONG,
                             headers={"WWW-Authenticate": "Bearer"})
+    therapist = account
     assert therapist is not None
     if therapist.disabled_at is not None:
         raise HTTPException(status.HTTP_403_FORBIDDEN,
@@ -143,20 +159,10 @@ async def change_password(body: PasswordChange, therapist: Therapist, request: R
                           svc: Annotated[Services, Depends(services)]) -> None:
     """Change your password (the old one, then the new one, at least 8 characters). Your
     other sign-ins end, with their live feeds and 3D views; this one stays."""
-    keys = login_keys(therapist.username, _client(request))
-    limits = limiter(request)
-    if (wait := limits.reserve(keys)) is not None:
-        raise _too_many(wait)
-    right: bool | None = False
-    try:
-        try:
-            right = await svc.run_password(verify_password, body.old_password,
-                                           therapist.password_hash)
-        except PasswordsBusy:
-            right = None  # no password checked: no failure counted
-            raise _busy() from None
-    finally:
-        limits.settle(keys, right)
+    async def stored_hash() -> str:
+        return therapist.password_hash
+    right = await _guess(request, svc, login_keys(therapist.username, _client(request)),
+                         body.old_password, stored_hash)
     if not right:
         raise HTTPException(status.HTTP_400_BAD_REQUEST, "the old password is wrong")
     password_hash = await _new_hash(svc, body.new_password)
