@@ -9,8 +9,6 @@ each marked period. Days are the clinic's (``calendar.py``).
 
 from __future__ import annotations
 
-import threading
-from collections import OrderedDict
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import date, datetime, timedelta
@@ -25,6 +23,7 @@ from sqlalchemy.orm import selectinload
 
 from .. import clock
 from ..db import models
+from ..lru import BoundedLru
 from ..reports import content
 from ..reports.content import NoEstimates
 from ..reports.targets import targets_at
@@ -236,27 +235,19 @@ def _fill(db: DbSession, items: Sequence[ProgramSession]) -> None:
 #: Exercise results of sessions, by what identifies their estimates (the report cache's
 #: key: a new estimate, reprocessing, a resumed stream make a new key): a few numbers a
 #: session, so that the flags of every patient need no report built again.
-_RESULTS: OrderedDict[tuple, dict[str, ExerciseResult]] = OrderedDict()
-_RESULTS_SIZE = 50_000
-_RESULTS_LOCK = threading.Lock()
+_RESULTS: BoundedLru[tuple, dict[str, ExerciseResult]] = BoundedLru(50_000)
 
 
 def session_results(db: DbSession, session: models.Session) -> dict[str, ExerciseResult]:
     """``exercise_results`` of the session's report ({} while it has no estimates)."""
     key = content.report_key(session)
-    with _RESULTS_LOCK:
-        found = _RESULTS.get(key)
-        if found is not None:
-            _RESULTS.move_to_end(key)
-            return found
+    if (found := _RESULTS.get(key)) is not None:
+        return found
     try:  # the results need no targets: none are looked up
         found = exercise_results(content.session_report(db, session, {}, current={}))
     except NoEstimates:
         found = {}
-    with _RESULTS_LOCK:
-        _RESULTS[key] = found
-        while len(_RESULTS) > _RESULTS_SIZE:
-            _RESULTS.popitem(last=False)
+    _RESULTS.put(key, found)
     return found
 
 

@@ -26,8 +26,6 @@ from __future__ import annotations
 
 import functools
 import json
-import threading
-from collections import OrderedDict
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -51,6 +49,7 @@ from pydantic import BaseModel, Field
 from sqlalchemy.orm import Session as DbSession
 
 from ..db import models
+from ..lru import BoundedLru
 from ..store.coverage import session_coverage
 from ..store.processing import stored_estimates
 from ..store.recordings import session_recording
@@ -538,9 +537,7 @@ def with_targets(report: SessionReport, targets: Mapping[str, Target],
 
 
 #: Reports of recent sessions without targets, by what identifies their estimates.
-_CACHE: OrderedDict[tuple, SessionReport] = OrderedDict()
-_CACHE_SIZE = 64
-_CACHE_LOCK = threading.Lock()
+_CACHE: BoundedLru[tuple, SessionReport] = BoundedLru(64)
 
 
 def report_key(session: models.Session) -> tuple:
@@ -568,16 +565,10 @@ def session_report(db: DbSession, session: models.Session,
     if current is None:
         current = current_targets(db, session.patient_id)
     key = report_key(session)
-    with _CACHE_LOCK:
-        base = _CACHE.get(key)
-        if base is not None:
-            _CACHE.move_to_end(key)
+    base = _CACHE.get(key)
     if base is None:
         base = build_report(data or load_session(db, session), {})
         if not keep:
             return with_targets(base, targets, current)
-        with _CACHE_LOCK:
-            _CACHE[key] = base
-            while len(_CACHE) > _CACHE_SIZE:
-                _CACHE.popitem(last=False)
+        _CACHE.put(key, base)
     return with_targets(base, targets, current)

@@ -14,8 +14,6 @@ from __future__ import annotations
 
 import csv
 import io
-import threading
-from collections import OrderedDict
 from collections.abc import Sequence
 from datetime import datetime
 
@@ -24,6 +22,7 @@ from pydantic import BaseModel, Field
 from sqlalchemy.orm import Session as DbSession
 
 from ..db import models
+from ..lru import BoundedLru
 from ..programs.adherence import ProgramProgress
 from .content import (
     AngleName,
@@ -126,19 +125,14 @@ def trend(rows: Sequence[SessionProgress]) -> dict[str, Trend]:
 #: key), so that a patient's progress needs no report built again once read, past the
 #: report cache's 64 sessions. A row with 10 angles: 3.7 kB of JSON (17 kB as objects),
 #: its key 0.6 kB; 10,000 rows ≈ 45 MB at most.
-_ROWS: OrderedDict[tuple, bytes] = OrderedDict()
-_ROWS_SIZE = 10_000
-_ROWS_LOCK = threading.Lock()
+_ROWS: BoundedLru[tuple, bytes] = BoundedLru(10_000)
 
 
 def session_row(db: DbSession, session: models.Session) -> SessionProgress:
     """The session's progress row, against the patient's targets in force when it
     started (read now: only the row without targets is kept)."""
     key = report_key(session)
-    with _ROWS_LOCK:
-        kept = _ROWS.get(key)
-        if kept is not None:
-            _ROWS.move_to_end(key)
+    kept = _ROWS.get(key)
     if kept is not None:
         row = SessionProgress.model_validate_json(kept)
     else:
@@ -147,10 +141,7 @@ def session_row(db: DbSession, session: models.Session) -> SessionProgress:
         except NoEstimates:  # nothing kept: its estimates may come at any moment
             return session_progress(session, None)
         row = session_progress(session, report)
-        with _ROWS_LOCK:
-            _ROWS[key] = row.model_dump_json().encode()
-            while len(_ROWS) > _ROWS_SIZE:
-                _ROWS.popitem(last=False)
+        _ROWS.put(key, row.model_dump_json().encode())
     targets = targets_at(db, session.patient_id, utc(session.started_at))
     return row.model_copy(update={"rom": rom_against(row.rom, targets),
                                   "processing_error": session.processing_error})
