@@ -5,7 +5,10 @@ A kit past its budget is not read for a while: its socket's messages wait in the
 TCP pushes back on the kit, which sends them later; nothing is refused, nothing acked is
 lost. Without it one kit token's four streams of valid messages took the event loop
 whole (``tests/test_security_ingest_flood.py``). A connection handling messages that one
-read brought in at once also lets the loop serve others every ``SLICE_S``."""
+read brought in at once also lets the loop serve others every ``SLICE_S``. A kit flooding
+small messages far past its budget fills the kernel's buffers with tens of seconds of
+them; its answers to the server's keepalive pings wait behind them, and after 20 s the
+server closes it (1011, keepalive ping timeout): a kit within its budget never meets it."""
 
 from __future__ import annotations
 
