@@ -10,6 +10,8 @@ Skips with the reason when chromium or Playwright is absent."""
 
 from __future__ import annotations
 
+import re
+
 import pytest
 from browser_helpers import dismissed_question, need_browser, page_at, sign_in_as
 
@@ -123,4 +125,34 @@ def test_the_admins_patient_list_shows_discharge_as_the_therapists_does(module_s
         print("\n" + page.locator("#admin-patients").inner_text())
         fits(page, tmp_path, "admin-discharged", width)
         page.screenshot(path=str(tmp_path / f"admin-{width}.png"), full_page=True)
+        print(f"screenshots at {width} px: {tmp_path}")
+
+
+@pytest.mark.parametrize("width", [390, 1280])
+def test_the_admins_therapist_counts_say_in_care_and_discharged(module_server, width,
+                                                                tmp_path):
+    """The clinic admin's therapists table counted a therapist's discharged patients as
+    theirs ("Patients 3" for 2 in care and 1 discharged): an admin sharing out the work
+    read a load that was not there. Now ``patients`` counts those in care and
+    ``discharged_patients`` the rest, and the table says both."""
+    admin, tess = f"boss{width}", f"tess{width}"
+    module_server.create_admin(admin)
+    module_server.create_user(tess)
+    api = module_server.client(tess)
+    made = [api.patient(f"{name} {width}") for name in ("Ann", "Ben", "Cid")]
+    assert api.http.post(f"/api/patients/{made[0]['id']}/discharge").status_code == 200
+    boss = module_server.client(admin)
+    rows = {t["username"]: t for t in boss.http.get("/api/admin/therapists").json()}
+    print(f"\n{tess}: {rows[tess]}")
+    assert rows[tess]["patients"] == 2 and rows[tess]["discharged_patients"] == 1
+    assert rows[admin]["patients"] == 0 and rows[admin]["discharged_patients"] == 0
+    with page_at(width) as page:
+        sign_in_as(page, module_server.url, admin)
+        page.goto(f"{module_server.url}/admin")
+        cell = page.locator(f"#therapists tbody tr[data-username='{tess}'] td.num")
+        sync_api.expect(cell).to_have_text(re.compile(r"^\s*2\s*in care\s*1\s*discharged\s*$"))
+        print(f"{width} px: {cell.inner_text()!r}; header "
+              f"{page.locator('#therapists thead th.num').inner_text()!r}")
+        fits(page, tmp_path, "admin-counts", width)
+        page.screenshot(path=str(tmp_path / f"admin-counts-{width}.png"), full_page=True)
         print(f"screenshots at {width} px: {tmp_path}")

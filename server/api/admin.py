@@ -35,7 +35,9 @@ class TherapistOut(BaseModel):
     is_admin: bool
     disabled_at: datetime | None
     created_at: datetime
-    patients: int = 0
+    patients: int = Field(0, description="their patients in care (not discharged)")
+    discharged_patients: int = Field(0, description="their discharged patients (care ended, "
+                                     "records kept; docs/extensions/discharge.md)")
 
 
 class TherapistIn(BaseModel):
@@ -80,19 +82,32 @@ def _therapist(db: DbSession, therapist_id: int) -> models.Therapist:
     return therapist
 
 
-def _out(db: DbSession, therapist: models.Therapist) -> TherapistOut:
-    count = db.scalar(select(func.count()).select_from(models.Patient)
-                      .where(models.Patient.therapist_id == therapist.id)) or 0
-    return TherapistOut.model_validate(therapist).model_copy(update={"patients": count})
+def _counts(db: DbSession, ids: list[int]) -> dict[tuple[int, bool], int]:
+    """(therapist id, discharged?) → their number of patients, for ``ids``."""
+    discharged = models.Patient.discharged_at.is_not(None)
+    rows = db.execute(select(models.Patient.therapist_id, discharged, func.count())
+                      .where(models.Patient.therapist_id.in_(ids))
+                      .group_by(models.Patient.therapist_id, discharged))
+    return {(tid, bool(gone)): n for tid, gone, n in rows}
+
+
+def _out(db: DbSession, therapist: models.Therapist,
+         counts: dict[tuple[int, bool], int] | None = None) -> TherapistOut:
+    counts = _counts(db, [therapist.id]) if counts is None else counts
+    return TherapistOut.model_validate(therapist).model_copy(update={
+        "patients": counts.get((therapist.id, False), 0),
+        "discharged_patients": counts.get((therapist.id, True), 0)})
 
 
 @router.get("/therapists", response_model=list[TherapistOut])
 def list_therapists(db: Db, admin: Admin, page: Annotated[Page, Depends()]
                     ) -> list[TherapistOut]:
-    """Every therapist and admin of the clinic, with their number of patients."""
-    rows = db.scalars(select(models.Therapist).order_by(models.Therapist.username)
-                      .limit(page.limit).offset(page.offset))
-    return [_out(db, t) for t in rows]
+    """Every therapist and admin of the clinic, with their numbers of patients in care and
+    discharged."""
+    rows = list(db.scalars(select(models.Therapist).order_by(models.Therapist.username)
+                           .limit(page.limit).offset(page.offset)))
+    counts = _counts(db, [t.id for t in rows])
+    return [_out(db, t, counts) for t in rows]
 
 
 @router.post("/therapists", response_model=TherapistOut, status_code=status.HTTP_201_CREATED)

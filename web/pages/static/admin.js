@@ -12,6 +12,12 @@ function therapistLabel(t) {
   return t.full_name ? `${t.full_name} (${t.username})` : t.username;
 }
 
+// in care, the load a hand-over shares out; the discharged ones (records kept) beside it
+function patientCounts(t) {
+  return [el("span", { class: "nowrap" }, `${t.patients} in care`),
+    el("br"), el("span", { class: "muted small nowrap" }, `${t.discharged_patients} discharged`)];
+}
+
 function therapistRow(t) {
   const me = window.ME && window.ME.id === t.id;
   const status = t.disabled_at
@@ -29,7 +35,7 @@ function therapistRow(t) {
     el("td", { class: "nowrap" }, t.username, me ? el("span", { class: "muted small" }, " (you)") : null),
     el("td", {}, t.full_name || el("span", { class: "muted" }, "—")),
     el("td", {}, t.is_admin ? "Clinic admin" : "Therapist"),
-    el("td", { class: "num" }, t.is_admin ? el("span", { class: "muted" }, "—") : String(t.patients)),
+    el("td", { class: "num" }, t.is_admin ? el("span", { class: "muted" }, "—") : patientCounts(t)),
     el("td", { class: "status" }, status),
     el("td", {}, actions));
 }
