@@ -10,7 +10,32 @@ import secrets
 from pathlib import Path
 
 import pytest
-from recording_sets import (
+
+
+def _checkout_hidden() -> str | None:
+    """Words for an environment whose ``armtrack`` packages are not this checkout's, or
+    None. ``pip install .`` then ``pip install -e`` in one venv (README's "Run it", then
+    "Test it") leaves site-packages' ``armtrack/…`` folders holding the demo's numba cache
+    files; those folders hide the editable install and every import of a module inside them
+    fails."""
+    import importlib.util
+
+    root = Path(__file__).resolve().parents[1]
+    for package, folder in (("armtrack.server", "server"), ("armtrack.estimator", "estimator")):
+        spec = importlib.util.find_spec(package)
+        found = Path(spec.origin).parent if spec and spec.origin else None
+        if found != root / folder:
+            where = ", ".join(spec.submodule_search_locations or []) if spec else "nowhere"
+            return (f"{package} is imported from {found or where}, not from this checkout "
+                    f"({root / folder}): an earlier `pip install .` left it (numba's cache "
+                    "files stay behind when pip replaces the package). Make the environment "
+                    "afresh: python3 -m venv --clear .venv && .venv/bin/pip install -e '.[test]'")
+    return None
+
+
+if (_hidden := _checkout_hidden()) is not None:
+    pytest.exit(_hidden, returncode=4)
+from recording_sets import (  # noqa: E402 (after the check: it imports armtrack)
     SHARED_DIR,
     SHARED_FACTS,
     SHARED_RECORDINGS,

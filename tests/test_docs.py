@@ -209,3 +209,29 @@ def test_every_setting_is_in_the_operators_guide():
     missing = [f"ARMTRACK_{name.upper()}" for name in Settings.model_fields
                if not re.search(rf"^\|[^\n]*`ARMTRACK_{name.upper()}`", guide, re.M)]
     assert not missing, f"not in docs/operator.md's tables: {', '.join(missing)}"
+
+
+def test_tests_run_after_the_readmes_run_command_or_say_how_to_make_the_env_afresh(tmp_path):
+    """README: "Run it" (``pip install .``, then the demo) before "Test it" (``pip install
+    -e``) in the same ``.venv``. The demo's numba cache files (``__pycache__/*.nbi``) lie in
+    site-packages' ``armtrack/…`` folders, which ``pip`` does not remove on the editable
+    install: those folders then hide the checkout's packages and every test failed to import
+    (``No module named 'armtrack.server.ingest.protocol'``; seen on a fresh clone). The same
+    leftovers here, ahead of the checkout on the path: the tests stop at once and say how to
+    make the environment afresh, the command README's "Test it" gives."""
+    for folder, cached in (("server/ingest", "protocol._plausible_loop-425.py311.nbi"),
+                           ("estimator/pipeline", "tracks._not_increasing_python-18.py311.nbi")):
+        cache = tmp_path / "armtrack" / folder / "__pycache__"
+        cache.mkdir(parents=True)
+        (cache / cached).write_bytes(b"")
+    run = subprocess.run(
+        [sys.executable, "-m", "pytest", "--collect-only", "-q", "-p", "no:cacheprovider",
+         str(ROOT / "tests" / "test_emulator.py")],
+        cwd=ROOT, env={**os.environ, "PYTHONPATH": str(tmp_path)},
+        capture_output=True, text=True, timeout=120)
+    said = run.stdout + run.stderr
+    print(said[-1500:])
+    afresh = "python3 -m venv --clear .venv && .venv/bin/pip install -e '.[test]'"
+    assert run.returncode != 0
+    assert str(tmp_path / "armtrack") in said and afresh in said, said[-1500:]
+    assert afresh in (ROOT / "README.md").read_text("utf-8")
