@@ -93,12 +93,13 @@ function letSleep() {
 }
 
 // -- sensors -------------------------------------------------------------------------------
-async function askMotionPermission() {
+/** Whether the page may read the motion sensors: asks where the phone asks first (iOS,
+ * only from a tap); false when refused (iOS keeps a "Don't allow" for the site) or when
+ * asking failed. */
+async function motionAllowed() {
   const D = window.DeviceMotionEvent;
-  if (D && typeof D.requestPermission === "function") {
-    const answer = await D.requestPermission();  // iOS: only from a tap
-    if (answer !== "granted") throw new Error("motion sensors were not allowed");
-  }
+  if (!D || typeof D.requestPermission !== "function") return true;
+  try { return await D.requestPermission() === "granted"; } catch (_) { return false; }
 }
 
 function onMotion(event) {
@@ -215,7 +216,7 @@ function welcome() {
 function chooseSegment() {
   kit.phase = "segment";
   const choose = (segment) => async () => {
-    try { await askMotionPermission(); } catch (error) { return sensorProblem(String(error.message || error)); }
+    if (!await motionAllowed()) return motionRefused();
     listen();
     kit.sensor = segment;
     localStorage.setItem(SEGMENT_KEY, segment);
@@ -230,11 +231,21 @@ function chooseSegment() {
         el("span", {}, "On my " + SEGMENT_WORDS[segment])))));
 }
 
-function sensorProblem(reason) {
+function sensorProblem(reason, advice = el("p", {}, "Open this page in Chrome or Safari, from the https link, and allow motion sensors when asked.")) {
   screen(el("h1", {}, "The phone's motion sensors"),
     el("p", { class: "lead" }, reason),
-    el("p", {}, "Open this page in Chrome or Safari, from the https link, and allow motion sensors when asked."),
+    advice,
     big("Try again", { onclick: chooseSegment }));
+}
+
+/** The phone refused the motion sensors: what to tap, and what to do when it does not
+ * ask again. */
+function motionRefused() {
+  sensorProblem("The phone did not let this page use its motion sensors: they are what "
+      + "measures your arm, so the exercises cannot start.",
+    el("ol", { class: "steps", id: "allow-motion" },
+      el("li", {}, "Tap Try again, then Allow when the phone asks."),
+      el("li", {}, "If it does not ask: close the browser (swipe it away), open your link again, and tap Allow.")));
 }
 
 function strap() {
@@ -598,7 +609,7 @@ async function resume(kept) {
   kit.stream = newStream(kept.program);
   await kit.stream.start({ resume: true });
   const go = async () => {
-    try { await askMotionPermission(); } catch (error) { return sensorProblem(String(error.message || error)); }
+    if (!await motionAllowed()) return motionRefused();
     listen();
     await keepAwake();
     if (kit.stream.ended || step.phase === "finished") return finished();

@@ -1,0 +1,66 @@
+"""What the patient's phone kit says when it cannot go on, at 390 px on a real server:
+the phone refused the page its motion sensors (iOS asks once: a "Don't allow" is kept),
+and a link cut short in the message that carried it. Each screen says what happened in
+the patient's words and what to do; no session is made. Screenshots go to a folder
+(printed; ``ARMTRACK_SCREENSHOTS``)."""
+
+from __future__ import annotations
+
+import pytest
+from browser_helpers import ARGS, chromium, first_page, need_browser, screenshots_folder
+from server_support import server_fixture
+
+sync_api = need_browser()
+
+server = server_fixture("kit-errors-server", "alice")
+
+#: iOS Safari's answer after the patient tapped "Don't allow" (kept for the site: the
+#: phone does not ask again at the next tap).
+REFUSING_PHONE = """
+window.DeviceMotionEvent
+  && (DeviceMotionEvent.requestPermission = async () => "denied");
+"""
+
+
+@pytest.fixture(scope="module")
+def shots(tmp_path_factory):
+    return screenshots_folder(tmp_path_factory, "kit-error-shots")
+
+
+@pytest.fixture
+def phone():
+    """A phone-sized chromium (390 × 844, touch) with its own profile."""
+    with (sync_api.sync_playwright() as playwright,
+          chromium(playwright, 390, 844, phone=True, device_scale_factor=1,
+                   args=ARGS) as context):
+        yield first_page(context)
+
+
+def fits(page) -> None:
+    width = page.evaluate("document.documentElement.scrollWidth")
+    assert width <= 390, f"the screen is {width} px wide at 390"
+
+
+def test_motion_sensors_refused_says_how_to_allow_them(server, phone, shots):
+    """Found: the screen said "motion sensors were not allowed" (the code's words, lower
+    case) and "Open this page in Chrome or Safari, from the https link, and allow motion
+    sensors when asked" to a patient who was there already, and whose phone does not ask
+    again."""
+    api = server.client("alice")
+    patient = api.patient("Refusing Phone")
+    device = api.device(patient["id"], "phone")
+    phone.add_init_script(REFUSING_PHONE)
+    phone.goto(f"{server.url}/kit#token={device['token']}")
+    phone.click("#start")
+    phone.click("#segment-forearm")
+    sync_api.expect(phone.locator("h1")).to_have_text("The phone's motion sensors")
+    said = phone.locator("#screen").inner_text()
+    print("\n" + said)
+    phone.screenshot(path=str(shots / "refused-motion.png"))
+    assert "motion sensors were not allowed" not in said
+    assert "did not let this page use its motion sensors" in said
+    assert "Allow" in said  # what to tap when the phone asks again
+    assert "close the browser" in said  # what to do when it does not
+    fits(phone)
+    sync_api.expect(phone.get_by_role("button", name="Try again")).to_be_visible()
+    assert api.http.get(f"/api/patients/{patient['id']}/sessions").json() == []
