@@ -5,7 +5,8 @@
 // programs/1 (the session follows the therapist's program the kit names), effort-pain/1
 // (effort and pain after each exercise, kept on the phone until the server stored them),
 // closed-session/1 (a session closed while offline: the rest goes as a new session; one
-// the therapist closed while it streamed ends here too: the rest goes, nothing more).
+// the therapist closed while it streamed ends here too: the rest goes, nothing more; one
+// full at the server's cap ends with bye and the phone goes on in a new session).
 //
 // Axes (docs/phone-kit.md): the phone is strapped screen out (away from the skin), its top
 // toward the joint above (the elbow for the forearm, the shoulder for the upper arm), on
@@ -330,6 +331,8 @@ class KitStream {
     try {
       // a session carried over (_carryOver) numbers its messages on the wire from 0
       const base = this.state.seqBase || 0;
+      // nothing goes to a full session from its first refused message on (_fullGoesOn)
+      if (this.state.fullFrom != null && seq - base >= this.state.fullFrom) return;
       if (base) { const message = JSON.parse(text); message.seq = seq - base; text = JSON.stringify(message); }
       this.ws.send(text);
       this._sent = seq;
@@ -370,7 +373,8 @@ class KitStream {
       // 4429 after ready: too many of this phone's own messages refused; sending them again
       // would be refused again (4429 in answer to hello is a busy server: tried again below)
       if (event.code === 4429 && ws.wasReady) { this._stopRefused(event.reason); return; }
-      if (this._fullFrom != null) { this._stopRefused(this._lastRefused); return; }
+      // the full session's bye is said: the rest goes on as a new session
+      if (ws.fullBye) { this._carryOver(this.state.fullFrom); return; }
       if (!this.state.finished) {
         setTimeout(() => this.connect(), this._retry);
         this._retry = Math.min(this._retry * 2, 5000);
@@ -472,8 +476,12 @@ class KitStream {
       this._saving = this._saving.then(async () => {
         await KitStore.setState("stream", { ...this.state });
         // everything below next_seq is stored: drop it; send the rest again, in order
-        const next = message.next_seq + (this.state.seqBase || 0);  // in the outbox's numbers
+        // (a full session's next_seq counts its refused numbers as used up: none is stored)
+        const full = this.state.fullFrom;
+        const next = (full != null ? Math.min(message.next_seq, full) : message.next_seq)
+          + (this.state.seqBase || 0);  // in the outbox's numbers
         if (next > 0) await KitStore.dropThrough(next - 1);
+        this.state.acked = Math.max(this.state.acked, next - 1);
         const pending = await KitStore.pending(next);
         if (this.ws !== ws) return;
         this.unsent = pending.length;
@@ -482,32 +490,41 @@ class KitStream {
         for (const [seq, text] of pending) this._send(seq, text);
         this._sendRatings();
         this.onChange(this);
+        this._fullGoesOn(ws);
         if (this.ended) this._byeWhenDone();
       }).catch((error) => { this.error = "could not read this phone's storage: " + error; });
     } else if (message.type === "ack") {
-      // past a full session's first refused message nothing is dropped: it is all kept
-      if (this._fullFrom != null && message.seq >= this._fullFrom) return;
-      const seq = message.seq + (this.state.seqBase || 0);
+      // past a full session's first refused message nothing is dropped: it goes on in the
+      // next session (_fullGoesOn); an ack past it says all before it is handled
+      const full = this.state.fullFrom;
+      const seq = (full != null ? Math.min(message.seq, full - 1) : message.seq)
+        + (this.state.seqBase || 0);
       this.state.acked = Math.max(this.state.acked, seq);
       await this._saving;
       await KitStore.dropThrough(seq);
       this.unsent = await KitStore.count();
       this.onChange(this);
+      this._fullGoesOn(ws);
       if (this.ended) this._byeWhenDone();
     } else if (message.type === "error") {
       this._lastError = message.reason;
       if (message.seq != null) this._lastRefused = message.reason;
       // the session is full (ARMTRACK_MAX_SESSION_SAMPLES): what is refused from here on is
-      // not bad data and must not be dropped; the phone stops and keeps it (_stopRefused)
-      // until the therapist closes the session, then it goes as a new one (_carryOver)
-      if (message.seq != null && this._fullFrom == null
+      // not bad data and must not be dropped; nothing more goes to this session, and once
+      // the rest of it is acked the phone says bye and goes on in a new one (_fullGoesOn)
+      if (message.seq != null && this.state.fullFrom == null
           && /\(ARMTRACK_MAX_SESSION_SAMPLES\): start a new session/.test(message.reason || "")) {
-        this._fullFrom = message.seq;
+        if (message.seq === 0) {
+          // not even its first message fits a new session: a new one would refuse it too
+          ws.close(1000);
+          this._stopRefused(message.reason);
+          return;
+        }
         // kept for the carry-over (a reload too): the closed session's next_seq counts
         // the refused numbers as used up, but none of them is stored
         this.state.fullFrom = message.seq;
-        this._saving = this._saving.then(() => KitStore.setState("stream", { ...this.state }));
-        ws.close(1000);
+        this._saving = this._saving.then(() => KitStore.setState("stream", { ...this.state }))
+          .then(() => this._fullGoesOn(ws));
       }
       if (message.seq == null && /resume|session/.test(message.reason || "")) {
         this.error = message.reason;
@@ -534,6 +551,20 @@ class KitStream {
       this.onChange(this);
       if (this.ended) this._byeWhenDone();
     }
+  }
+
+  /** A full session (state.fullFrom: its first refused message, on the wire's numbers):
+   * once everything before that is acked, bye ends it (the server closes and estimates
+   * it) and the close handler sends the rest as a new session (_carryOver), numbered from
+   * 0, as `armtrack stream` does. The phone takes readings all along: nothing waits for
+   * the therapist. */
+  _fullGoesOn(ws) {
+    const full = this.state.fullFrom;
+    if (full == null || ws.fullBye || this.ws !== ws || !this.connected
+        || ws.readyState !== 1 || this.state.acked - (this.state.seqBase || 0) < full - 1) return;
+    ws.fullBye = true;
+    ws.send(JSON.stringify({ type: "bye" }));
+    ws.close(1000);
   }
 
   /** The end of the session: everything is sent, then bye (now or once back online). */
