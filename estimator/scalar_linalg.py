@@ -4,6 +4,8 @@ the drift take-back's Kalman step (``pipeline.drift``) invert a symmetric 3×3 m
 
 from __future__ import annotations
 
+from .jit import compiler
+
 
 def _sym3_adjugate(s00, s11, s22, s01, s02, s12):
     """The cofactors and determinant of the symmetric 3×3 matrix ``S`` given by its upper
@@ -21,11 +23,8 @@ def _sym3_adjugate(s00, s11, s22, s01, s02, s12):
 
 
 def _compile():
-    try:
-        import numba
-    except ImportError:
-        return _sym3_adjugate
-    return numba.njit(cache=True, inline="always")(_sym3_adjugate)
+    jit = compiler(inline="always")
+    return jit(_sym3_adjugate) if jit else _sym3_adjugate
 
 
 sym3_adjugate = _compile()

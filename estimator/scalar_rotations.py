@@ -3,6 +3,8 @@ numba they are plain Python). The array versions live in ``rotations.py``."""
 
 from __future__ import annotations
 
+from .jit import compiler
+
 
 def _quat_to_rows(w, x, y, z):
     """The rotation matrix of a unit quaternion (wxyz) as nine floats, row by row."""
@@ -41,11 +43,8 @@ def quat_from_rows(m00, m01, m02, m10, m11, m12, m20, m21, m22):
 
 
 def _compile():
-    try:
-        import numba
-    except ImportError:
-        return _quat_to_rows
-    return numba.njit(cache=True, inline="always")(_quat_to_rows)
+    jit = compiler(inline="always")
+    return jit(_quat_to_rows) if jit else _quat_to_rows
 
 
 def __getattr__(name: str):

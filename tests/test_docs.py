@@ -218,7 +218,8 @@ def test_tests_run_after_the_readmes_run_command_or_say_how_to_make_the_env_afre
     install: those folders then hide the checkout's packages and every test failed to import
     (``No module named 'armtrack.server.ingest.protocol'``; seen on a fresh clone). The same
     leftovers here, ahead of the checkout on the path: the tests stop at once and say how to
-    make the environment afresh, the command README's "Test it" gives."""
+    make the environment afresh, as README says beside "Test it". (An installed copy no
+    longer leaves them: the next test.)"""
     for folder, cached in (("server/ingest", "protocol._plausible_loop-425.py311.nbi"),
                            ("estimator/pipeline", "tracks._not_increasing_python-18.py311.nbi")):
         cache = tmp_path / "armtrack" / folder / "__pycache__"
@@ -235,3 +236,33 @@ def test_tests_run_after_the_readmes_run_command_or_say_how_to_make_the_env_afre
     assert run.returncode != 0
     assert str(tmp_path / "armtrack") in said and afresh in said, said[-1500:]
     assert afresh in (ROOT / "README.md").read_text("utf-8")
+
+
+def test_an_installed_copy_caches_its_kernels_outside_site_packages(tmp_path):
+    """The cause of the leftovers above: numba cached the kernels of an installed copy
+    (``pip install .``) beside its sources in site-packages, where pip's next install
+    leaves them. An installed copy now caches under the user's cache folder, so README's
+    "Run it" then "Test it" in one ``.venv`` leaves nothing behind."""
+    target = tmp_path / "lib" / "site-packages"
+    pip = subprocess.run(
+        [sys.executable, "-m", "pip", "install", "-q", "--no-deps",
+         "--target", str(target), str(ROOT)], capture_output=True, text=True, timeout=300)
+    assert pip.returncode == 0, pip.stderr[-2000:]
+    cache = tmp_path / "cache"
+    compile_one = ("import numpy as np\n"
+                   "import armtrack.estimator.pipeline.tracks as tracks\n"
+                   "print(tracks.__file__)\n"
+                   "print(tracks._not_increasing(np.array([0.0, 1.0, 1.0]), -1.0))\n")
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    run = subprocess.run([sys.executable, "-c", compile_one], cwd=tmp_path,
+                         env={**env, "PYTHONPATH": str(target), "XDG_CACHE_HOME": str(cache)},
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    imported_from, answer = run.stdout.split()
+    assert Path(imported_from).is_relative_to(target) and answer == "True"
+    in_site_packages = sorted(p.name for p in target.rglob("*.nb[ic]"))
+    in_user_cache = sorted(p.name for p in (cache / "armtrack" / "numba").rglob("*.nb[ic]"))
+    print(f"numba cache files: {len(in_site_packages)} in site-packages, "
+          f"{len(in_user_cache)} in the user's cache folder")
+    assert not in_site_packages
+    assert any(name.startswith("tracks._not_increasing_python") for name in in_user_cache)

@@ -21,6 +21,8 @@ import math
 
 import numpy as np
 
+from ..jit import compiler
+
 STATE_SIZE = 13
 #: Samples per block of a chunk's relative rotations (``_chunk_python``).
 _BLOCK = 1024
@@ -250,11 +252,9 @@ def _chunk_python(Rw, present, side_sign, lengths, zone_sin, normal, state, rel,
 
 
 def _compile():
-    try:
-        import numba
-    except ImportError:  # the pure-Python fallback: same numbers, slower
+    jit = compiler(nogil=True)
+    if jit is None:  # the pure-Python fallback: same numbers, slower
         return _kernel_python, _relative_python, _to_world_python, _chunk_python, False
-    jit = numba.njit(cache=True, nogil=True)
     global _tait_bryan, _wrap, _continue, _beyond, _turn_by_elemental, _forward
     _tait_bryan, _wrap, _continue, _beyond = (jit(_tait_bryan), jit(_wrap), jit(_continue),
                                               jit(_beyond))

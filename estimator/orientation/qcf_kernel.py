@@ -77,6 +77,7 @@ import math
 
 import numpy as np
 
+from ..jit import compiler
 from ..scalar_linalg import sym3_adjugate
 from ..scalar_rotations import quat_to_rows
 
@@ -196,11 +197,9 @@ def _heading_update(bx, by, bz, p00, p11, p22, p01, p02, p12, hx, hy, hz, y, whi
 
 
 def _compile_helper():
-    try:
-        import numba
-    except ImportError:
+    jit = compiler(inline="always")
+    if jit is None:
         return _field_turn_update, _heading_update
-    jit = numba.njit(cache=True, inline="always")
     return jit(_field_turn_update), jit(_heading_update)
 
 
@@ -1040,11 +1039,9 @@ def append_rows_python(rows, has_mag, params, state, t_out, acc_out, gyr_out, q_
 
 
 def _compile():
-    try:
-        import numba
-    except ImportError:  # the pure-Python fallback: same numbers, slower
+    jit = compiler(nogil=True)
+    if jit is None:  # the pure-Python fallback: same numbers, slower
         return kernel_python, None, False
-    jit = numba.njit(cache=True, nogil=True)
     return jit(kernel_python), jit(append_rows_python), True
 
 

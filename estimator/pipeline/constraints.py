@@ -33,6 +33,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..jit import compiler
+
 
 def _line_python(numerator, denominator, moment, second, numerator1, prior, rate_prior):
     """``δ`` now of the weighted least-squares line (``_constrain``); the weighted mean
@@ -184,11 +186,8 @@ def _mean_turn_python(Rw, chain, offsets, turned, floor):
 
 
 def _compile(function):
-    try:
-        import numba
-    except ImportError:  # the pure-Python fallback: same numbers, slower
-        return function
-    return numba.njit(cache=True, nogil=True)(function)
+    jit = compiler(nogil=True)
+    return jit(function) if jit else function
 
 
 #: Length of ``_constrain``'s state.

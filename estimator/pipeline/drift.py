@@ -43,6 +43,7 @@ import math
 
 import numpy as np
 
+from ..jit import compiler
 from ..orientation.qcf import QcfParams
 from ..scalar_linalg import sym3_adjugate
 
@@ -385,11 +386,8 @@ def _drift_python(t, acc, gyr, q, state, prev, out):
 
 
 def _compile(function):
-    try:
-        import numba
-    except ImportError:  # the pure-Python fallback: same numbers, slower
-        return function
-    return numba.njit(cache=True, nogil=True)(function)
+    jit = compiler(nogil=True)
+    return jit(function) if jit else function
 
 
 def _taken_at_python(t, h, times, R, out):

@@ -10,6 +10,7 @@ import math
 
 import numpy as np
 
+from ..jit import compiler
 from ..scalar_rotations import quat_to_rows
 
 
@@ -59,11 +60,8 @@ def _segment_python(t, q, times, R_sensor_segment, heading, out):
 
 
 def _compile():
-    try:
-        import numba
-    except ImportError:  # the pure-Python fallback: same numbers, slower
-        return _segment_python
-    return numba.njit(cache=True, nogil=True)(_segment_python)
+    jit = compiler(nogil=True)
+    return jit(_segment_python) if jit else _segment_python
 
 
 _segment = _compile()

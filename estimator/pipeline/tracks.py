@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InvalidArgument
+from ..jit import compiler
 from ..orientation import OrientationFilter, make_filter
 from ..orientation.qcf import LEARNT_NONE
 from . import drift as drift_module
@@ -27,11 +28,8 @@ def _not_increasing_python(t, last):
 
 
 def _compile():
-    try:
-        import numba
-    except ImportError:  # the pure-Python fallback: the same answer, slower
-        return _not_increasing_python
-    return numba.njit(cache=True, nogil=True)(_not_increasing_python)
+    jit = compiler(nogil=True)
+    return jit(_not_increasing_python) if jit else _not_increasing_python
 
 
 _not_increasing = _compile()

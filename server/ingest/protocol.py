@@ -23,6 +23,7 @@ import msgspec
 import numpy as np
 import orjson
 from armtrack.estimator.body import SENSOR_NAMES
+from armtrack.estimator.jit import compiler
 from armtrack.estimator.orientation.qcf import GYRO_DELAY_MAX_S
 from armtrack.estimator.recording.model import LABEL_PATTERN
 from armtrack.estimator.recording.rules import (
@@ -443,11 +444,10 @@ def _plausible_loop(data: np.ndarray, nine_axis: bool, limits: np.ndarray) -> bo
 
 
 def _compile_plausible():
-    try:
-        import numba
-    except ImportError:  # pragma: no cover - numba is a dependency
+    jit = compiler(nogil=True)
+    if jit is None:  # pragma: no cover - numba is a dependency
         return plausible_numpy
-    kernel = numba.njit(cache=True, nogil=True)(_plausible_loop)
+    kernel = jit(_plausible_loop)
 
     def plausible_rows(data: np.ndarray, nine_axis: bool) -> bool:
         return bool(kernel(data, nine_axis, _NORM_LIMITS))

@@ -10,6 +10,7 @@ from collections.abc import Mapping
 import numpy as np
 from armtrack.estimator.arm.forward import POINTS
 from armtrack.estimator.arm.joints import REPORTED_ANGLES, SEGMENTS
+from armtrack.estimator.jit import compiler
 from armtrack.estimator.metrics.rom import CALIBRATION_TAIL_S
 from armtrack.estimator.pipeline import EstimateArrays, Pipeline, PipelineConfig
 from armtrack.estimator.recording import Mark
@@ -94,11 +95,8 @@ _DEG_PER_RAD = 180.0 / np.pi
 
 
 def _compile_extend_range():
-    try:
-        import numba
-    except ImportError:  # pragma: no cover - numba is a dependency
-        return _extend_range_loop
-    return numba.njit(cache=True, nogil=True)(_extend_range_loop)
+    jit = compiler(nogil=True)
+    return jit(_extend_range_loop) if jit else _extend_range_loop
 
 
 _extend_range = _compile_extend_range()
