@@ -64,3 +64,33 @@ def test_motion_sensors_refused_says_how_to_allow_them(server, phone, shots):
     fits(phone)
     sync_api.expect(phone.get_by_role("button", name="Try again")).to_be_visible()
     assert api.http.get(f"/api/patients/{patient['id']}/sessions").json() == []
+
+
+def test_a_link_cut_short_says_so_and_keeps_the_phones_kit(server, phone, shots):
+    """Found: a link cut short (a message app broke it, the patient copied part of it)
+    said "This link no longer works. Your therapist has replaced or removed it." — not
+    so — and took the place of the phone's working link, so the home-screen kit stopped
+    working too. Now it says the link is incomplete and what to do; the phone keeps its
+    kit; a revoked link still says it no longer works."""
+    api = server.client("alice")
+    patient = api.patient("Cut Link")
+    token = api.device(patient["id"], "phone")["token"]
+    phone.goto(f"{server.url}/kit#token={token}")
+    sync_api.expect(phone.locator("#start")).to_be_visible()
+
+    phone.goto(f"{server.url}/kit#token={token[:30]}")
+    sync_api.expect(phone.locator("h1")).to_have_text("This link is incomplete")
+    said = phone.locator("#screen").inner_text()
+    print("\n" + said)
+    phone.screenshot(path=str(shots / "cut-link.png"))
+    assert "replaced or removed" not in said
+    assert "whole link" in said and "QR code" in said
+    fits(phone)
+
+    phone.goto(f"{server.url}/kit")  # the home-screen icon: the phone's kit still works
+    sync_api.expect(phone.locator("#start")).to_be_visible()
+
+    revoked = api.device(patient["id"], "old phone")
+    assert api.http.delete(f"/api/devices/{revoked['id']}").status_code == 204
+    phone.goto(f"{server.url}/kit#token={revoked['token']}")
+    sync_api.expect(phone.locator("h1")).to_have_text("This link no longer works")

@@ -11,6 +11,9 @@ const TOKEN_KEY = "armtrack.kit.token";
 const TODAY_KEY = "armtrack.kit.today";
 const STEP_KEY = "armtrack.kit.step";
 const SEGMENT_KEY = "armtrack.kit.segment";
+/** A kit token as the server makes it (server/auth.py new_token("dev_"): 256 random bits,
+ * URL-safe base64): anything else in a link is the link cut short. */
+const TOKEN_SHAPE = /^dev_[A-Za-z0-9_-]{43}$/;
 /** hello's device: what the kit is (the session page names it by the therapist's name for
  * it); not the browser's platform string, which named no one's phone. */
 const PHONE_KIT = "phone kit";
@@ -198,6 +201,16 @@ function noLink() {
   noStatus();
   screen(el("h1", {}, "Open your link"),
     el("p", { class: "lead" }, "This page is your arm exercise kit. Open it from the link or QR code your therapist gave you."));
+}
+
+/** The link opened is not whole (a message app broke it, part of it was copied): the
+ * server would refuse it as it refuses a revoked one, but the therapist did nothing. */
+function cutLink() {
+  noStatus();
+  screen(el("h1", {}, "This link is incomplete"),
+    el("p", { class: "lead", id: "cut-link" }, "Part of the link is missing, so it cannot open your exercises."),
+    el("p", {}, "Open the whole link again from your therapist's message (tap it, do not copy part of it), "
+      + "or scan the QR code again. If it still does not work, ask your therapist for a new link."));
 }
 
 function welcome() {
@@ -632,8 +645,10 @@ async function resume(kept) {
 
 async function main() {
   const fragment = new URLSearchParams(location.hash.slice(1));
-  if (fragment.get("token")) {
-    localStorage.setItem(TOKEN_KEY, fragment.get("token"));
+  const given = fragment.get("token");
+  if (given) {
+    // a link cut short does not take the place of the phone's working one
+    if (TOKEN_SHAPE.test(given)) localStorage.setItem(TOKEN_KEY, given);
     history.replaceState(null, "", location.pathname);  // the token leaves the address bar
   }
   kit.token = localStorage.getItem(TOKEN_KEY);
@@ -642,6 +657,7 @@ async function main() {
   window.addEventListener("hashchange", () => {
     if (new URLSearchParams(location.hash.slice(1)).get("token")) location.reload();
   });
+  if (given && !TOKEN_SHAPE.test(given)) return cutLink();
   if ("serviceWorker" in navigator) {
     navigator.serviceWorker.register("/kit-sw.js", { scope: "/kit" }).catch(() => {});
   }
