@@ -324,6 +324,9 @@ def test_phone_kit_guides_streams_survives_a_cut_link_and_matches_truth(kit_serv
         finish_session(phone)
         sync_api.expect(phone.locator("#sent")).to_contain_text("All sent", timeout=60_000)
         phone.screenshot(path=str(shots / "a9-finished.png"))
+        # what the patient did, on the last screen: the repetitions the exercise showed
+        # and the range of the angles it showed, against the prescription
+        did = phone.locator("#did").inner_text()
         closes = phone.evaluate("kit.stream.closes")
         session_id = phone.evaluate("kit.stream.state.session")
     finally:
@@ -364,6 +367,18 @@ def test_phone_kit_guides_streams_survives_a_cut_link_and_matches_truth(kit_serv
           f"repetitions shown {reps_before_cut!r} before the cut, {reps_shown!r} at the end")
     assert closes >= 1 and unsent_offline > 0
     assert rmse < BAR_DEG
+
+    print(f"the finished screen says: {did!r}")
+    lines = did.splitlines()
+    elbow_line = next(line for line in lines if line.startswith("Bend the elbow"))
+    palm_line = next(line for line in lines if line.startswith("Turn the palm"))
+    assert f"{reps_shown.split()[0]} of {reps_shown.split()[-1]} repetitions" in elbow_line
+    low, high = (int(x) for x in re.search(r"from (-?\d+)° to (-?\d+)°", elbow_line).groups())
+    true_elbow = np.rad2deg(sim.truth.angles["elbow_flexion"][sim.truth.t >= 10.5])
+    print(f"elbow range shown {low}° to {high}°, truth {true_elbow.min():.0f}° to "
+          f"{true_elbow.max():.0f}°")
+    assert abs(high - true_elbow.max()) < 5 and abs(low - true_elbow.min()) < 5
+    assert "not done" in palm_line
 
 
 def test_a_reload_mid_session_loses_nothing(kit_server, phone, shots):

@@ -1,7 +1,7 @@
 // armtrack phone kit: the therapist's program in the guided session (docs/programs.md) —
 // the program's welcome (its name, version and exercises with their dose) and, after each
 // exercise, the effort (Borg CR10) and pain (numeric rating scale) screen sent as
-// effort-pain/1 (docs/extensions/effort-pain.md). Uses kit.js's `el` (loaded after this
+// effort-pain/1 (docs/extensions/effort-pain.md), and what was done, at the end. Uses kit.js's `el` (loaded after this
 // file; called only once the page runs). Every text is set as text, never as HTML.
 "use strict";
 
@@ -59,6 +59,21 @@ const KitProgram = {
         el("li", {}, el("span", { class: "title" }, ex.title),
           el("span", { class: "dose" }, `${KitProgram.dose(ex)} · ${KitProgram.where(ex)}`)))),
     ];
+  },
+
+  /** What the patient did, for the finished screen: per exercise of the session, the
+   * repetitions its screen counted (all sets) against the prescribed ones, and the range
+   * of the angles it showed [deg] beside the target; "not done" when it showed none.
+   * `did`: per exercise index, { reps: { set: count }, lo, hi } (kit.js's noteDone). */
+  done(exercises, did) {
+    return el("ul", { class: "did", id: "did" }, exercises.map((ex, i) => {
+      const d = did[i] || {};
+      const reps = Object.values(d.reps || {}).reduce((a, b) => a + b, 0);
+      if (!reps && d.lo == null) return el("li", {}, `${ex.title}: not done`);
+      const range = d.lo == null ? "" : ` · from ${Math.round(d.lo)}° to ${Math.round(d.hi)}°`
+        + ` (target ${Math.round(ex.target.min_deg)}° to ${Math.round(ex.target.max_deg)}°)`;
+      return el("li", {}, `${ex.title}: ${reps} of ${(ex.sets || 1) * ex.repetitions} repetitions${range}`);
+    }));
   },
 
   /** A 0–10 scale of large buttons; `onPick(value)` on a tap. */

@@ -11,6 +11,8 @@ const TOKEN_KEY = "armtrack.kit.token";
 const TODAY_KEY = "armtrack.kit.today";
 const STEP_KEY = "armtrack.kit.step";
 const SEGMENT_KEY = "armtrack.kit.segment";
+/** What this session did per exercise (the finished screen's list; kept over a reload). */
+const DID_KEY = "armtrack.kit.did";
 /** A kit token as the server makes it (server/auth.py new_token("dev_"): 256 random bits,
  * URL-safe base64): anything else in a link is the link cut short. */
 const TOKEN_SHAPE = /^dev_[A-Za-z0-9_-]{43}$/;
@@ -64,6 +66,7 @@ const kit = {
   lastReading: null, motionSeen: false, listening: false,
   feedback: null, feedbackAt: 0, phase: null, exerciseIndex: 0, timers: [],
   wakeLock: null, hiddenAt: null, gaps: [],
+  did: JSON.parse(localStorage.getItem(DID_KEY) || "{}"),  // see noteDone
 };
 
 // -- speech, vibration, wake lock ----------------------------------------------------------
@@ -330,6 +333,8 @@ async function beginSession() {
       + "armtrack needs a phone's motion sensors: this page on a computer cannot measure the arm.");
   }
   await kit.stream.start();
+  kit.did = {};
+  localStorage.removeItem(DID_KEY);
   await keepAwake();
   saveStep("npose", 0);
   calibrationPose("npose");
@@ -459,6 +464,20 @@ function rateExercise(index) {
   }));
 }
 
+/** Notes what exercise `index`'s screen showed: set `set`'s repetitions so far, and an
+ * angle [deg] (its range is kept); saved when it changed. */
+function noteDone(index, set, reps, angle) {
+  const d = kit.did[index] || (kit.did[index] = { reps: {}, lo: null, hi: null });
+  let changed = d.reps[set] !== reps;
+  d.reps[set] = reps;
+  if (angle != null && (d.lo == null || angle < d.lo || angle > d.hi)) {
+    d.lo = d.lo == null ? angle : Math.min(d.lo, angle);
+    d.hi = d.hi == null ? angle : Math.max(d.hi, angle);
+    changed = true;
+  }
+  if (changed) localStorage.setItem(DID_KEY, JSON.stringify(kit.did));
+}
+
 function exercise(index, set = 0, resumed = false) {
   const list = exercisesForKit();
   const ex = list[index];
@@ -519,6 +538,7 @@ function exercise(index, set = 0, resumed = false) {
       const n = Math.max(shown, base + f.repetitions);
       shown = n;
       reps.textContent = `${n} of ${ex.repetitions}`;
+      noteDone(index, set, n, f.angle_deg);
       if (n > spoken) {
         spoken = n;
         buzz(60);
@@ -566,7 +586,8 @@ async function finished() {
   const info = el("p", { class: "lead", id: "sent" }, "Sending your session…");
   screen(el("h1", { class: "welldone" }, byTherapist ? "Session ended" : "Session finished"),
     el("p", {}, byTherapist ? "Your therapist ended this session. Thank you — what you did is saved."
-      : "Thank you. Your therapist will see it."), info,
+      : "Thank you. Your therapist will see it."),
+    el("h2", { class: "question" }, "What you did"), KitProgram.done(exercisesForKit(), kit.did), info,
     // only once all is sent: a new session starts a new outbox
     big("Start another session", { id: "again", class: "big secondary", disabled: "",
       onclick: () => { localStorage.removeItem(STEP_KEY); welcome(); } }));
