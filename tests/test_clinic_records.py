@@ -85,6 +85,29 @@ def test_patient_identifiers_are_optional_edited_and_listed(clinic_server):
     assert last == datetime.fromisoformat(session["started_at"])
 
 
+def test_a_date_of_birth_after_today_or_before_1900_is_refused_in_words(clinic_server):
+    """Found on the add-patient form: a date of birth of 2030-01-01 (a typo for 1930, or
+    2058 for 1958) was stored and printed on the patient's page and reports."""
+    from datetime import date, timedelta
+
+    alice = clinic_server.client("alice")
+    tomorrow = (date.today() + timedelta(days=2)).isoformat()
+    for when in (tomorrow, "1899-12-31"):
+        bad = alice.http.post("/api/patients", json={
+            "name": "Typo", "side": "left", "height_m": 1.6, "date_of_birth": when})
+        print(bad.text)
+        assert bad.status_code == 422, bad.text
+        assert f"date of birth {when}" in bad.text and "Value error" not in bad.text
+    patient = alice.patient("Born Well")
+    edited = alice.http.patch(f"/api/patients/{patient['id']}",
+                              json={"date_of_birth": tomorrow})
+    assert edited.status_code == 422 and "after today" in edited.text
+    assert alice.http.patch(f"/api/patients/{patient['id']}",
+                            json={"date_of_birth": "1900-01-01"}).status_code == 200
+    names = [p["name"] for p in alice.http.get("/api/patients").json()]
+    assert "Typo" not in names
+
+
 def test_every_api_time_carries_its_time_zone(clinic_server):
     """SQLite keeps no zone: every datetime the API sends must still carry one."""
     alice = clinic_server.client("alice")

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-from datetime import date, datetime
+from datetime import date, datetime, timedelta, timezone
 from typing import Annotated, Any, Literal
 
 from armtrack.estimator.body import HEIGHT_RANGE_M
 from fastapi import Path, Query
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field
+from pydantic_core import PydanticCustomError
 
 from ..plain_text import Line
 
@@ -17,6 +18,25 @@ from ..plain_text import Line
 MAX_ID = 2**31 - 1
 Id = Annotated[int, Path(ge=1, le=MAX_ID)]
 QueryId = Annotated[int | None, Query(ge=1, le=MAX_ID)]
+
+
+#: The earliest date of birth taken: an earlier one is a typo (1026 for 1926).
+EARLIEST_BIRTH = date(1900, 1, 1)
+
+
+def _born(value: date) -> date:
+    """A date of birth from EARLIEST_BIRTH to today (today anywhere: UTC+14), else a 422 in
+    the form's words (a typed 2030 for 1930 was stored and printed on reports)."""
+    today = datetime.now(timezone(timedelta(hours=14))).date()
+    if value > today or value < EARLIEST_BIRTH:
+        raise PydanticCustomError(
+            "date_of_birth", "the date of birth {when} is {where}: give the patient's date of "
+            "birth (YYYY-MM-DD)", {"when": value.isoformat(), "where": "after today"
+                                   if value > today else f"before {EARLIEST_BIRTH.isoformat()}"})
+    return value
+
+
+DateOfBirth = Annotated[date, AfterValidator(_born)]
 
 
 class TokenOut(BaseModel):
@@ -33,7 +53,8 @@ class PatientIn(BaseModel):
                             description="body height [m], for segment lengths")
     clinic_number: Line | None = Field(None, max_length=64,
                                       description="the clinic's own patient number")
-    date_of_birth: date | None = Field(None, description="ISO date, YYYY-MM-DD")
+    date_of_birth: DateOfBirth | None = Field(
+        None, description="ISO date, YYYY-MM-DD, from 1900-01-01 to today")
 
 
 class PatientUpdate(BaseModel):
@@ -44,7 +65,7 @@ class PatientUpdate(BaseModel):
     side: Literal["right", "left"] | None = None
     height_m: float | None = Field(None, ge=HEIGHT_RANGE_M[0], le=HEIGHT_RANGE_M[1])
     clinic_number: Line | None = Field(None, max_length=64)
-    date_of_birth: date | None = None
+    date_of_birth: DateOfBirth | None = None
 
 
 class PatientOut(BaseModel):

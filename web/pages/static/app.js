@@ -204,6 +204,13 @@ function fmtDay(date) {
   return date ? fmtDate(date + "T12:00:00Z", { dateOnly: true }) : "—";
 }
 
+// Today's date on this computer, as a date field takes it ("2026-12-03"): the latest date
+// of birth the forms take (the server's bound: server/api/schemas.py EARLIEST_BIRTH, today).
+function todayIso() {
+  const d = new Date();
+  return `${d.getFullYear()}-${String(d.getMonth() + 1).padStart(2, "0")}-${String(d.getDate()).padStart(2, "0")}`;
+}
+
 function fmtDuration(seconds) {
   if (seconds === null || seconds === undefined) return "—";
   const s = Math.round(seconds);

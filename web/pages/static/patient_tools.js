@@ -135,7 +135,7 @@ const PatientTools = (() => {
         ["right", "left"].map((s) => el("option", { value: s, selected: s === patient.side }, s)))),
       field("Body height (m)", "height_m", { type: "number", step: "0.01", min: "1.0", max: "2.3", value: patient.height_m, required: true, style: "width:100px" }),
       field("Clinic number", "clinic_number", { value: patient.clinic_number || "", maxlength: "64", style: "width:130px" }),
-      field("Date of birth", "date_of_birth", { type: "date", value: patient.date_of_birth || "", style: "width:160px" }),
+      field("Date of birth", "date_of_birth", { type: "date", min: "1900-01-01", max: todayIso(), value: patient.date_of_birth || "", style: "width:160px" }),
       el("button", { type: "submit" }, "Save"));
     form.addEventListener("submit", async (event) => {
       event.preventDefault();
