@@ -466,8 +466,12 @@ def test_the_progress_pdf_says_what_the_api_says(world, tmp_path):
     assert "Elbow after the fracture" in text and "version 2" in text
     for f in world["adherence"]["flags"]:
         assert f["message"] in text.replace("\n", " ") or f["message"][:30] in text
-    for w in world["adherence"]["weeks"]:
-        assert w["week"] in text
+    from datetime import date
+
+    from armtrack.server.reports.words import day_words
+
+    for w in world["adherence"]["weeks"]:  # named by their Monday, as the pages name them
+        assert f'week of {day_words(date.fromisoformat(w["monday"]))}' in text
         assert f'{w["done"]["repetitions"]} / {w["prescribed"]["repetitions"]}' in text
     pages = subprocess.run(["pdfinfo", str(path)], capture_output=True, text=True).stdout
     import re

@@ -66,3 +66,39 @@ def test_dates_named_once_and_the_target_drawn(days):
         assert len(labels) <= 8, labels
     target = [ln for ln in charts[0].get_lines() if ln.get_label() == "target arc"]
     assert target and len(target[0].get_xdata()) >= 2, "the target line has no length"
+
+
+def _texts(fig) -> list[str]:
+    """Every text drawn on the page: the figure's lines and the tables' cells."""
+    from matplotlib.table import Table
+
+    texts = [t.get_text() for t in fig.texts]
+    for ax in fig.axes:
+        texts += [t.get_text() for t in ax.texts]
+        for child in ax.get_children():
+            if isinstance(child, Table):
+                texts += [cell.get_text().get_text() for cell in child.get_celld().values()]
+    return texts
+
+
+def test_weeks_and_days_are_named_as_dates_and_no_flag_claims_no_sessions():
+    """Found on a patient's progress PDF beside the pages: the adherence rows read
+    "2026-W49" and the header "as of 2026-12-03" where the page says "week of Nov 30, 2026"
+    (d296af1) and the session PDF "Thu 3 Dec 2026"; a program with no session yet said
+    "No flag: sessions regular, range and pain steady"."""
+    today = date(2026, 12, 3)
+    fig = Figure(figsize=(8.27, 11.69))
+    patient = SimpleNamespace(name="Ada", side="left")
+    p = progress(date(2026, 11, 25), today, [datetime(2026, 11, 25, 10, tzinfo=UTC)])
+    _program_page(fig, patient, p, today, "UTC", 1, 1)
+    texts = _texts(fig)
+    print("\n".join(texts))
+    assert "week of 23 Nov 2026" in texts and "week of 30 Nov 2026" in texts
+    assert not [t for t in texts if "-W4" in t], "an ISO week code is left"
+    assert any("as of Thu 3 Dec 2026 (UTC)" in t for t in texts)
+
+    empty = Figure(figsize=(8.27, 11.69))
+    _program_page(empty, patient, p.model_copy(update={"sessions": []}), today, "UTC", 1, 1)
+    flag_lines = [t for t in _texts(empty) if t.startswith("No flag")]
+    print(flag_lines)
+    assert flag_lines and "regular" not in flag_lines[0]

@@ -18,7 +18,7 @@ from matplotlib.figure import Figure
 
 from ..db import models
 from ..reports.pdf import A4, DISCLAIMER
-from ..reports.words import ANGLE_WORDS
+from ..reports.words import ANGLE_WORDS, day_words
 from .adherence import ProgramProgress
 
 FLAG_WORDS = {"no_session": "No session", "range_falling": "Range falling",
@@ -33,7 +33,7 @@ def _program_page(fig: Figure, patient: models.Patient, p: ProgramProgress, toda
     fig.text(0.06, 0.94, f"{p.name} — version {p.version}, "
              + ("in force" if p.active else "not in force")
              + f" · {len(p.sessions)} session{'' if len(p.sessions) == 1 else 's'}"
-             + f" · as of {today.isoformat()} ({zone})",
+             + f" · as of {day_words(today, weekday=True)} ({zone})",
              fontsize=10)
     fig.text(0.06, 0.02, DISCLAIMER, fontsize=7, color="#666")
     fig.text(0.94, 0.02, f"page {page} of {pages}", ha="right", fontsize=7, color="#666")
@@ -43,6 +43,8 @@ def _program_page(fig: Figure, patient: models.Patient, p: ProgramProgress, toda
         for f in p.flags:
             y -= 0.018
             fig.text(0.08, y, f"• {FLAG_WORDS.get(f.kind, f.kind)}: {f.message}", fontsize=9)
+    elif not p.sessions:  # nothing to be regular or steady yet
+        fig.text(0.06, y, "No flag: no session of this program yet.", fontsize=9)
     else:
         fig.text(0.06, y, "No flag: sessions regular, range and pain steady.", fontsize=9)
     y -= 0.03
@@ -51,15 +53,18 @@ def _program_page(fig: Figure, patient: models.Patient, p: ProgramProgress, toda
     ax = fig.add_axes((0.06, y - 0.03 - 0.022 * (len(weeks) + 1), 0.88,
                        0.022 * (len(weeks) + 1)))
     ax.axis("off")
-    rows = [[w.week, f"v{w.version}", f"{w.done.sessions} / {w.prescribed.sessions}",
+    rows = [[f"week of {day_words(w.monday)}", f"v{w.version}",
+             f"{w.done.sessions} / {w.prescribed.sessions}",
              f"{w.done.exercises} / {w.prescribed.exercises}",
              f"{w.done.repetitions} / {w.prescribed.repetitions}",
              "–" if w.adherence_percent is None else f"{w.adherence_percent:.0f} %"]
             for w in weeks]
     if rows:
-        table = ax.table(cellText=rows, colLabels=["ISO week", "version", "sessions",
+        table = ax.table(cellText=rows, colLabels=["week", "version", "sessions",
                                                    "exercise-days", "repetitions",
                                                    "adherence"],
+                         # the week's date is the longest cell ("week of 30 Nov 2026")
+                         colWidths=[0.22, 0.1, 0.17, 0.17, 0.17, 0.17],
                          loc="upper left", cellLoc="center")
         table.auto_set_font_size(False)
         table.set_fontsize(8)

@@ -15,7 +15,7 @@ from zoneinfo import ZoneInfo
 from matplotlib.figure import Figure
 
 from .content import RomEntry, SessionReport
-from .words import ANGLE_WORDS, duration_words, exercise_words
+from .words import ANGLE_WORDS, day_words, duration_words, exercise_words
 
 LABELS = ANGLE_WORDS
 #: A change of range smaller than this [deg] is "about the same" (within what one
@@ -64,7 +64,7 @@ def style_table(table, fontsize: float = 8, names_left: bool = True) -> None:
 def local(moment: datetime, zone: ZoneInfo, with_time: bool = True) -> str:
     """``Tue 1 Dec 2026, 09:41 CET`` in the clinic's zone."""
     at = moment.astimezone(zone)
-    text = f"{at:%a} {at.day} {at:%b %Y}"
+    text = day_words(at.date(), weekday=True)
     return text + (f", {at:%H:%M} {at.tzname()}" if with_time else "")
 
 

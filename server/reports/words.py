@@ -6,6 +6,7 @@ heavy import: the live page, the 3D view's replay and the PDF use them alike."""
 from __future__ import annotations
 
 import math
+from datetime import date
 
 #: Angles (``REPORTED_ANGLES``) in words.
 ANGLE_WORDS = {
@@ -47,3 +48,9 @@ def duration_words(seconds: float) -> str:
     (``Math.round``), not to even as Python's ``round``."""
     whole = math.floor(seconds + 0.5)
     return f"{whole // 60} min {whole % 60:02d} s" if whole >= 60 else f"{whole} s"
+
+
+def day_words(day: date, weekday: bool = False) -> str:
+    """A calendar day as the reports write it: "3 Dec 2026" ("Thu 3 Dec 2026" with
+    ``weekday``) — not "2026-12-03" nor an ISO week code ("2026-W49")."""
+    return (f"{day:%a} " if weekday else "") + f"{day.day} {day:%b %Y}"
