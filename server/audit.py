@@ -6,9 +6,10 @@ Routes need not write it themselves: ``AuditMiddleware`` gives each API request 
 actor, ``own_patient`` / ``own_session`` the patient and session reached — and writes one
 entry once the route has answered with success. A route that reached no patient's data
 writes nothing (sign-in, admin's therapist management); a refused request writes nothing.
-A repeated view of the same thing by the same actor within ``ARMTRACK_AUDIT_REPEAT_S`` is
-logged once (the dashboard polls its live status twice a second), a repeated opening of
-the same live feed too (``RepeatWindow``). Erasures by the retention task and views of
+A repeated view of the same patient's data (or of one session's) by the same actor within
+``ARMTRACK_AUDIT_REPEAT_S`` is logged once, whichever routes it took (a page asks many; the
+dashboard polls its live status twice a second), a repeated opening of the same live feed
+too (``RepeatWindow``). Erasures by the retention task and views of
 the live feed are written with ``record``."""
 
 from __future__ import annotations
@@ -155,10 +156,14 @@ class AuditMiddleware:
 
     def _first_recently(self, scope: dict, current: dict, action: str) -> bool:
         """Whether this view is the first of its kind within ``ARMTRACK_AUDIT_REPEAT_S``.
-        Its kind is what the entry would say — actor, action, method and path, not the
+        A view's kind is who read which patient's data, and which session's: actor,
+        patient, session — not the path, so that a page asking ten things of one patient
+        (the patient page: the patient, sessions, summaries, progress, targets, kits, …)
+        is one entry, its route the first request's. A list's kind is its path. Never the
         query string, which the entry leaves out (with it, each new query string made a
         new entry and was kept whole for the window: unbounded memory)."""
+        where = (current.get("patient_id"), current.get("session_id")) \
+            if action == "viewed" and "patient_id" in current else (scope["method"], scope["path"])
         return self._recent.first(
-            (current.get("therapist_id"), current.get("device_id"), action,
-             scope["method"], scope["path"]),
+            (current.get("therapist_id"), current.get("device_id"), action, *where),
             scope["app"].state.services.settings.audit_repeat_s)
