@@ -48,7 +48,7 @@ def test_a_page_view_is_one_entry_for_its_patient(srv, recordings_dir, tmp_path)
     other = alice.patient("Audited Ben")
     with open(recordings_dir / RECORDING, "rb") as f:
         made = alice.http.post("/api/recordings", data={"patient_id": patient["id"]},
-                               files={"file": (RECORDING, f)})
+                               files={"file": (RECORDING, f)}, timeout=120)
     assert made.status_code == 201, made.text
     session = made.json()
     alice.wait_processed(session["id"])
