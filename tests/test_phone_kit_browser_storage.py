@@ -590,6 +590,75 @@ def test_a_new_session_refused_at_the_kits_limit_is_kept_and_sent_later(limited_
         proxy.close()
 
 
+DAY = 300
+
+
+@pytest.fixture(scope="module")
+def day_server(tmp_path_factory):
+    """A server that lets a kit store 300 rows a day."""
+    from server_support import ServerProcess
+
+    process = ServerProcess(tmp_path_factory.mktemp("kit-day"),
+                            env={"ARMTRACK_MAX_KIT_SAMPLES_PER_DAY": str(DAY)})
+    process.create_user("alice")
+    process.start(timeout=180)
+    yield process
+    process.stop()
+
+
+def test_a_kit_whose_day_is_spent_keeps_its_session_and_sends_it_later(day_server, phone,
+                                                                       shots):
+    """The kit's day is spent (``ARMTRACK_MAX_KIT_SAMPLES_PER_DAY``): its hello is refused
+    (error naming the setting, close 4429) and no session is made. The page says so in
+    the patient's words, keeps the readings and tries again; once the day frees up (the
+    kit's sessions moved back a day in the database) everything goes, stored once."""
+    import asyncio
+    from concurrent.futures import ThreadPoolExecutor
+
+    from test_security_kit_quota import session as streamed
+
+    server = day_server
+    api = server.client("alice")
+    patient = api.patient("Day Patient")
+    device = api.device(patient["id"], "phone")
+    with ThreadPoolExecutor(1) as pool:  # (playwright's own loop runs in this thread)
+        spent, refused = pool.submit(asyncio.run, streamed(
+            server, device["token"], [100] * (DAY // 100))).result()
+    assert not refused
+    events = motion_events(phone_simulation(seed=12))
+    _start_kit(phone, server.url, device["token"], shots, "d")
+    phone.click("#ready")
+    phone.evaluate(FEEDER, events[:300])
+    _wait(lambda: phone.evaluate("window.__feed.i >= 300"), 60, "300 readings")
+    _wait(lambda: phone.evaluate("/in a day/.test(kit.stream.error || '')"), 30,
+          "the hello refused for the kit's day")
+    phone.wait_for_timeout(6000)  # a retry or two (every 5 s at most), refused again
+    shown = phone.locator("#status").inner_text()
+    kept = phone.evaluate("kit.stream.unsent")
+    phone.screenshot(path=str(shots / "d1-day-spent.png"))
+    print(f"\nday spent: {kept} messages kept on the phone; status {shown!r}")
+    assert kept > 0 and "saved on this phone" in shown, shown
+    assert phone.evaluate("kit.stream.connected") is False
+    assert server.sql("SELECT count(*) FROM sessions WHERE patient_id = :p",
+                      p=patient["id"])[0][0] == 1
+    server.sql("UPDATE sessions SET created_at = :t WHERE id = :s",
+               t="2000-01-01 00:00:00.000000", s=spent)
+    _wait(lambda: phone.evaluate("kit.stream.connected && kit.stream.unsent === 0 "
+                                 "&& kit.stream._unsaved.size === 0"), 60,
+          "let in once the day freed up, everything sent")
+    second = phone.evaluate("kit.stream.state.session")
+    taken = phone.evaluate("kit.stream.samples")
+    phone.wait_for_timeout(2000)  # the last ack's commit
+    phone.screenshot(path=str(shots / "d2-sent-later.png"))
+    stored = _stored_rows(server, api, second)
+    print(f"{taken} readings taken, {len(stored)} stored in session {second}")
+    assert phone.evaluate("kit.stream.error") is None
+    acc = np.array(events)[:, 1:4]
+    key = {tuple(np.round(r, 9)): i for i, r in enumerate(acc)}
+    index = [key[tuple(np.round(r[1:4], 9))] for r in stored[:, :4]]
+    assert index == list(range(index[0], index[0] + taken))
+
+
 @pytest.fixture(scope="module")
 def refusing_server(tmp_path_factory):
     """A server that closes a stream (4429) after more than 2 refused messages in 10 s."""

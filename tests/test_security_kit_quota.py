@@ -179,3 +179,53 @@ def test_an_upload_made_while_the_kit_streams_counts_toward_its_streams_day(srv)
     assert stored(srv, session_id) == 1500, "the stream stored a day on top of the upload"
     assert sorted(refused) == list(range(15, 20))
     assert all(SETTING in reason for reason in refused.values())
+
+
+def test_a_kit_whose_day_is_spent_is_refused_at_hello(srv):
+    """A kit past its day was let in (``ready``, a new session made) and then refused
+    message by message: an empty session for the therapist each time it tried again, and
+    its data refused one message at a time. Now a hello that would start a new session or
+    stream when the kit's day is already spent is refused before anything is stored, with
+    the setting's name and close ``4429``, as the other per-kit limits at hello; the kit
+    keeps its data and tries again later. A day that frees up lets it in again."""
+    from test_security_session_flood import closing_code
+
+    alice = srv.client("alice")
+    token = alice.device(alice.patient("Spent")["id"], "kit")["token"]
+
+    async def left_open(sizes: list[int]) -> int:
+        """A session whose connection is lost once all is acked, without bye."""
+        ws, ready = await hello(srv, token)
+        for seq, rows in enumerate(sizes):
+            await ws.send(samples(seq, seq * 2.0, rows))
+        while (message := json.loads(await asyncio.wait_for(ws.recv(), 30))).get(
+                "seq") != len(sizes) - 1 or message["type"] != "ack":
+            assert message["type"] != "error", message
+        await ws.close()
+        return ready["session"]
+
+    open_one = asyncio.run(left_open([100] * 29))
+    spent, refused = asyncio.run(session(srv, token, [100]))
+    assert not refused and stored(srv, open_one) + stored(srv, spent) == LIMIT
+    sessions = srv.sql("SELECT count(*) FROM sessions")[0][0]
+
+    async def try_hello(**fields) -> tuple[dict, int | None]:
+        ws, answer = await hello(srv, token, **fields)
+        if answer.get("type") == "error":
+            return answer, await closing_code(ws)
+        await ws.close()  # let in (ready): what the kit met before
+        return answer, answer.get("closed")
+
+    answer, code = asyncio.run(try_hello())
+    print(f"\nhello with the day spent: {answer}, close {code}")
+    assert answer.get("type") == "error" and SETTING in answer["reason"], answer
+    assert str(LIMIT) in answer["reason"] and code == 4429
+    answer, code = asyncio.run(try_hello(session=open_one))  # a new stream of a session
+    print(f"a new stream in session {open_one}: {answer}, close {code}")
+    assert answer.get("type") == "error" and SETTING in answer["reason"] and code == 4429
+    assert srv.sql("SELECT count(*) FROM sessions")[0][0] == sessions, "a session was made"
+
+    srv.sql("UPDATE sessions SET created_at = :at WHERE id IN (:a, :b)",
+            at="2000-01-01 00:00:00.000000", a=spent, b=open_one)
+    again, refused = asyncio.run(session(srv, token, [100]))
+    assert not refused and stored(srv, again) == 100

@@ -440,6 +440,7 @@ class IngestConnection:
                                    self.settings.max_new_sessions_per_kit_hour)
         if why is not None:
             raise Refused(f"hello: {why}", close_code=protocol.CLOSE_TOO_MANY_ERRORS)
+        self._day_left(db)
         session = models.Session(
             patient_id=patient.id, device_id=self.device_id, source="stream", status="live",
             side=hello.side, height_m=patient.height_m, rate_hz=hello.rate_hz,
@@ -459,6 +460,16 @@ class IngestConnection:
         db.commit()
         return session.id, patient.height_m
 
+    def _day_left(self, db: DbSession) -> None:
+        """Refuse a new session or stream (close 4429, before anything is stored) when the
+        kit's day is spent (``ARMTRACK_MAX_KIT_SAMPLES_PER_DAY``): it would be let in only
+        to have every message refused. Counted from the database, or by this instance's
+        streams when they are ahead (rows in flight)."""
+        kept = max(daily_samples.stored(db, self.device_id),
+                   self.services.kit_samples.get(self.device_id, 0))
+        if (why := daily_samples.spent(kept, self.settings.max_kit_samples_per_day)):
+            raise Refused(f"hello: {why}", close_code=protocol.CLOSE_TOO_MANY_ERRORS)
+
     def _continue_session(self, db: DbSession, hello: Hello, stream_id: str
                           ) -> tuple[int, float, dict[str, Any]]:
         """A new stream in session ``hello.session`` (the extension above): its last
@@ -470,6 +481,7 @@ class IngestConnection:
         if session.status == "closed" or session.id in self.services.closing:
             raise _continued_closed(session.id)
         _same_kit(hello, session, "a stream continuing a session")  # (checked again: a race)
+        self._day_left(db)
         blocks = models.SampleBlock
         ends = dict(db.execute(
             select(blocks.sensor, func.max(blocks.t_last))

@@ -35,3 +35,13 @@ def refusal(kept: int, more: int, limit: int) -> str | None:
     return (f"this kit stored {kept} samples in the last 24 hours; {more} more would pass "
             f"{limit}, the most one kit stores in a day ({SETTING}): not stored; the "
             "clinic can raise the limit")
+
+
+def spent(kept: int, limit: int) -> str | None:
+    """Why a kit holding ``kept`` rows of the last day may start no new session or stream
+    (its day is spent: not one row more fits; naming the setting), or None."""
+    if kept < limit:
+        return None
+    return (f"this kit stored {kept} samples in the last 24 hours, the most one kit stores "
+            f"in a day ({SETTING} = {limit}): keep the data and try again later; the clinic "
+            "can raise the limit")

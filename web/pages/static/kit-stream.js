@@ -535,6 +535,11 @@ class KitStream {
       if (message.seq == null && /new sessions in the last hour/.test(message.reason || "")) {
         this.error = "Many sessions were started on this kit in the last hour: this one is saved on this phone and will be sent later.";
       }
+      // the kit's day is spent (ARMTRACK_MAX_KIT_SAMPLES_PER_DAY, close 4429): the same
+      if (message.seq == null && /in the last 24 hours/.test(message.reason || "")) {
+        this.error = "This kit sent the most readings it may send in a day: this session is saved on this phone and will be sent later.";
+        this._helloRefused = true;  // a later ready clears it
+      }
       // the session was closed on the server (the therapist closed it while this phone
       // was offline): next_seq says what of it is stored; the rest goes as a new session
       if (message.seq == null && Number.isInteger(message.next_seq)
