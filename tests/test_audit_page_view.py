@@ -11,6 +11,8 @@ for that session; exports and changes are each their own entry as before."""
 
 from __future__ import annotations
 
+import time
+
 import pytest
 from browser_helpers import need_browser, page_at, sign_in_as
 from server_support import ServerProcess
@@ -92,5 +94,9 @@ def test_a_page_view_is_one_entry_for_its_patient(srv, recordings_dir, tmp_path)
     assert alice.http.get(f"/api/patients/{other['id']}").status_code == 200
     for _ in range(2):
         assert alice.http.get(f"/api/sessions/{session['id']}/recording.csv").status_code == 200
+    deadline = time.monotonic() + 10  # an entry is written just after its answer is sent
+    while len(_entries(srv, patient["id"], mark)) < 2 and time.monotonic() < deadline:
+        time.sleep(0.1)
+    time.sleep(0.5)  # more, were they written, would be there by now
     assert [e[1] for e in _entries(srv, other["id"], mark)] == ["viewed"]
     assert [e[1] for e in _entries(srv, patient["id"], mark)] == ["exported", "exported"]
