@@ -456,10 +456,17 @@ def test_a_slow_turn_at_the_start_is_not_stillness_the_poses_contradict():
 #: rotation), 0.67 cm while the trunk's filter restarted from the poses' vertical bias
 #: alone: its horizontal bias (11.9 mrad/s) was learnt again through the N-pose, whose
 #: trunk orientation the thorax's calibration takes (side lean −0.31° from the sway's
-#: centre, −0.55° as calibrated).
+#: centre, −0.55° as calibrated). Held-out irregular 14 missed at 1.24° (forearm pronation;
+#: 1.21° with every true sensor-to-segment rotation): the forearm's and hand's filters,
+#: restarted from the poses' biases (known to 0.2–0.4 mrad/s), took the arm hanging through
+#: a slow stretch of the sway at 10–13 s (16 mrad/s) for a rest and learnt its rate as
+#: their bias (tilt 2.4°, heading 2.8° off by 21 s); qcf now lets a rate through as a rest
+#: only within as many σ of a bias known that well as its loose limit allows an unknown
+#: one: 0.29°.
 @pytest.mark.parametrize("kind, seed", [
     ("random", 1), ("random", 9), ("sine", 1),
     ("random", 11), ("random", 15), ("random", 20), ("irregular", 11), ("sine", 10),
+    ("irregular", 14),
     ("sine", 15)])
 def test_a_longer_npose_on_a_nine_axis_swaying_kit(kind, seed):
     """The remedy on the 9-axis kit: with a 15-s N-pose the side lean is known (σ

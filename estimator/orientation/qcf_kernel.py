@@ -196,14 +196,31 @@ def _heading_update(bx, by, bz, p00, p11, p22, p01, p02, p12, hx, hy, hz, y, whi
     return bx, by, bz, p00, p11, p22, p01, p02, p12, scatter
 
 
+def _bias_distance(rx, ry, rz, p00, p11, p22, p01, p02, p12, noise):
+    """The squared Mahalanobis norm ``rᵀ (P + noise I)⁻¹ r`` of a rate ``r`` [rad/s]
+    against the bias's covariance ``P`` [rad²/s²] plus ``noise`` on each axis."""
+    a00, a11, a22 = p00 + noise, p11 + noise, p22 + noise
+    c00 = a11 * a22 - p12 * p12
+    c01 = p02 * p12 - p01 * a22
+    c02 = p01 * p12 - p02 * a11
+    det = a00 * c00 + p01 * c01 + p02 * c02
+    if not det > 0.0:
+        return 0.0
+    c11 = a00 * a22 - p02 * p02
+    c12 = p01 * p02 - a00 * p12
+    c22 = a00 * a11 - p01 * p01
+    return (rx * (c00 * rx + c01 * ry + c02 * rz) + ry * (c01 * rx + c11 * ry + c12 * rz)
+            + rz * (c02 * rx + c12 * ry + c22 * rz)) / det
+
+
 def _compile_helper():
     jit = compiler(inline="always")
     if jit is None:
-        return _field_turn_update, _heading_update
-    return jit(_field_turn_update), jit(_heading_update)
+        return _field_turn_update, _heading_update, _bias_distance
+    return jit(_field_turn_update), jit(_heading_update), jit(_bias_distance)
 
 
-field_turn_update, heading_update = _compile_helper()
+field_turn_update, heading_update, bias_distance = _compile_helper()
 
 
 def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out_rest,
@@ -433,6 +450,20 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
                     level2 = still_dev2 / still_time
                 gyr_limit = max(rest_gyr, rest_vibration * math.sqrt(level2))
             still = dev_g < gyr_limit and rate < rate_limit and dev_a < rest_acc
+            if still and bias_known == 0.0 and learnt_how == 0.0:
+                # The loose rest_rate is rest_rate / bias_sigma (5) σ of an unknown bias; a
+                # bias known better (a prior with its covariance: the held poses', or what
+                # the corrections in motion taught; not a still start's own provisional
+                # one, which its stillness goes on refining) lets a low-passed rate through
+                # only within as many of its own σ, plus the low-pass's noise (from the
+                # samples' deviation): a slow turn is no rest (a swaying arm hanging in
+                # the N-pose, 16 mrad/s, against a prior known to 0.4 mrad/s).
+                level2 = dev_g * dev_g  # (equal stamps: no time yet)
+                if still_time + dt > 0.0:
+                    level2 = (still_dev2 + dev_g * dev_g * dt) / (still_time + dt)
+                noise = level2 / 3.0 * k_lp / (2.0 - k_lp)
+                still = bias_distance(glx - bx, gly - by, glz - bz, p00, p11, p22, p01,
+                                      p02, p12, noise) < rest_rate * rest_rate / bias_var
             if still and bias_known == 0.0 and (
                     not from_start or still_time + dt >= rest_time_needed):
                 # Until a rest has taught the bias, the gyroscope cannot tell a slow turn
