@@ -195,6 +195,16 @@ def _snapshot(svc: Services, patient_id: int) -> dict[int, dict[str, Any]]:
     return out
 
 
+def _stored_last_seen(session: models.Session, totals: dict[str, dict[str, float]],
+                      name: str) -> float:
+    """When sensor ``name``'s last stored sample was taken [s, Unix time], from the store
+    alone: the session's start (the kit's hello) plus the stream's own time from its first
+    sample to that one. For a stream no page polled while it was open, or a server
+    restarted since (their arrival times are kept in memory only): "never" was wrong."""
+    first = min(t["t_first"] for t in totals.values())
+    return session.started_at.timestamp() + (totals[name]["t_last"] - first)
+
+
 def live_status(svc: Services, db: DbSession, patient_id: int,
                 streams: dict[int, dict[str, Any]],
                 motion: MotionWatch | None = None) -> dict[str, Any]:
@@ -214,6 +224,8 @@ def live_status(svc: Services, db: DbSession, patient_id: int,
     for name in session.sensors:
         arrivals = (open_stream or {}).get(name)
         last_seen = arrivals["last_seen"] if arrivals else _last_seen.get((session.id, name))
+        if last_seen is None and name in totals:
+            last_seen = _stored_last_seen(session, totals, name)
         sensor_status = status.get(name, {})
         sensors.append({
             "sensor": name,

@@ -1,0 +1,60 @@
+"""A kit whose stream broke off while no therapist watched: the patient page's sensor table
+said "Connection lost · Last seen never" for sensors that had streamed (their samples
+stored) — the time was only known to a page that had polled while the stream was open
+(and is forgotten by a restarted server). Now the sensors' last sample is placed by the
+session's start and the stream's own clock. A real server, ``armtrack stream`` killed
+mid-session, the patient page at 1280 px in Debian's chromium."""
+
+from __future__ import annotations
+
+import re
+import signal
+import subprocess
+import sys
+import time
+
+from browser_helpers import need_browser, page_at, sign_in_as
+from server_support import server_fixture
+
+sync_api = need_browser()
+
+server = server_fixture("last-seen", "alice")
+
+
+def test_a_broken_off_stream_says_when_its_sensors_were_last_seen(server):
+    api = server.client("alice")
+    patient = api.patient("Broken Off", side="left")
+    token = api.device(patient["id"], "kit")["token"]
+    kit = subprocess.Popen(
+        [sys.executable, "-m", "armtrack.server.cli", "stream", "--exercise", "elbow_flexion",
+         "--side", "left", "--url", server.ws_url, "--token", token, "--quiet"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            sessions = api.http.get(f"/api/patients/{patient['id']}/sessions").json()
+            if sessions and sessions[0]["samples"] > 1500:  # ~5 s of the three sensors
+                break
+            time.sleep(0.2)
+        else:
+            raise AssertionError("the kit streamed nothing")
+    finally:
+        kit.send_signal(signal.SIGKILL)  # the kit's power gone: no goodbye
+        kit.wait()
+        killed = time.monotonic()
+    time.sleep(3)
+    with page_at(1280) as page:
+        sign_in_as(page, server.url, "alice")
+        page.goto(f"{server.url}/patients/{patient['id']}")
+        sync_api.expect(page.locator("#sensor-table")).to_be_visible(timeout=30_000)
+        sync_api.expect(page.locator("#sensor-table tbody tr").first).to_contain_text(
+            "Connection lost", timeout=30_000)
+        seen = page.locator("#sensor-table td.seen").all_inner_texts()
+        elapsed = time.monotonic() - killed
+    print(f"\nlast seen {seen}, the kit was killed {elapsed:.1f} s before")
+    assert len(seen) == 3
+    for text in seen:
+        found = re.fullmatch(r"(\d+) s ago", text)
+        assert found, f"{text!r}: not a time"
+        # the stream's own pace lags the wall clock by its ack and batching delays
+        assert abs(int(found.group(1)) - elapsed) <= 5, (text, elapsed)
