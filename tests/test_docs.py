@@ -266,3 +266,42 @@ def test_an_installed_copy_caches_its_kernels_outside_site_packages(tmp_path):
           f"{len(in_user_cache)} in the user's cache folder")
     assert not in_site_packages
     assert any(name.startswith("tracks._not_increasing_python") for name in in_user_cache)
+
+
+def test_the_operators_install_steps_make_accounts_the_server_has(tmp_path):
+    """docs/operator.md's Install block, run as written from a scratch folder (its
+    ``/opt/armtrack/bin/`` is this environment's, ``/var/lib/armtrack`` a folder here; the
+    clone and install line is skipped). Found: its ``create-user`` lines gave no data
+    folder, so the accounts went to ./armtrack-data while the server, started on
+    /var/lib/armtrack, said "no therapist account yet"."""
+    guide = (DOCS / "operator.md").read_text("utf-8")
+    block = re.search(r"## Install\n.*?```text\n(.*?)```", guide, re.S).group(1)
+    lines = [line.split("  #")[0].strip() for line in block.splitlines()
+             if line.strip() and "git clone" not in line]
+    bin_dir = str(Path(sys.executable).parent) + "/"
+    env = {k: v for k, v in os.environ.items() if not k.startswith("ARMTRACK_")}
+    served = None
+    for line in lines:
+        line = line.replace("/opt/armtrack/bin/", bin_dir).replace(
+            "/var/lib/armtrack", str(tmp_path / "var-lib-armtrack"))
+        if line.startswith("export "):  # kept for the lines after it, as a shell does
+            name, value = line[len("export "):].split("=", 1)
+            env[name] = value
+            continue
+        if line.endswith("armtrack serve"):  # where this server would keep its database
+            inline = dict(re.findall(r"(ARMTRACK_\w+)=(\S+)", line))
+            served = Path({**env, **inline}.get("ARMTRACK_DATA_DIR", "armtrack-data"))
+            continue
+        done = subprocess.run(["bash", "-c", line], cwd=tmp_path, input="a long password\n",
+                              capture_output=True, text=True, timeout=120, env=env)
+        print(line, "→", done.returncode, done.stdout.strip(), done.stderr.strip()[-300:])
+        assert done.returncode == 0, done.stderr
+    assert served is not None, "the block starts no server"
+    served = served if served.is_absolute() else tmp_path / served
+    print("the server's data folder:", served, "; databases made:",
+          sorted(str(f.relative_to(tmp_path)) for f in tmp_path.rglob("armtrack.db")))
+    assert (served / "armtrack.db").exists(), \
+        "the accounts went elsewhere than the server's database"
+    accounts = ServerProcess(served).sql(
+        "SELECT username FROM therapists ORDER BY username")
+    assert [name for (name,) in accounts] == ["alice", "root"], accounts
