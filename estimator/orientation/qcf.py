@@ -70,7 +70,9 @@ class QcfParams:
     #: Rest: every rate sample within this of its low-pass [rad/s].
     rest_gyr: float = 0.05
     #: Rest: the low-passed rate minus the bias below this [rad/s] before any rest has
-    #: taught the bias (loose: a MEMS bias can be this large) …
+    #: taught the bias (loose: a MEMS bias can be this large, 5 ``bias_sigma``; a bias a
+    #: prior or the corrections in motion know better, to covariance P, only within as
+    #: many σ of P plus the low-pass's noise: a slow turn is no rest) …
     rest_rate: float = 0.05
     #: … and after (tight: slow movements are not rest).
     rest_rate_known: float = 0.02
