@@ -21,9 +21,10 @@ sync_api = need_browser()
 server = server_fixture("last-seen", "alice")
 
 
-def test_a_broken_off_stream_says_when_its_sensors_were_last_seen(server):
-    api = server.client("alice")
-    patient = api.patient("Broken Off", side="left")
+def broken_off(server, api, name: str) -> tuple[dict, float]:
+    """A patient whose kit (``armtrack stream``) streamed ~5 s and was then killed (its
+    power gone: no goodbye); the patient and the monotonic time of the kill."""
+    patient = api.patient(name, side="left")
     token = api.device(patient["id"], "kit")["token"]
     kit = subprocess.Popen(
         [sys.executable, "-m", "armtrack.server.cli", "stream", "--exercise", "elbow_flexion",
@@ -39,9 +40,14 @@ def test_a_broken_off_stream_says_when_its_sensors_were_last_seen(server):
         else:
             raise AssertionError("the kit streamed nothing")
     finally:
-        kit.send_signal(signal.SIGKILL)  # the kit's power gone: no goodbye
+        kit.send_signal(signal.SIGKILL)
         kit.wait()
-        killed = time.monotonic()
+    return patient, time.monotonic()
+
+
+def test_a_broken_off_stream_says_when_its_sensors_were_last_seen(server):
+    api = server.client("alice")
+    patient, killed = broken_off(server, api, "Broken Off")
     time.sleep(3)
     with page_at(1280) as page:
         sign_in_as(page, server.url, "alice")
@@ -58,3 +64,29 @@ def test_a_broken_off_stream_says_when_its_sensors_were_last_seen(server):
         assert found, f"{text!r}: not a time"
         # the stream's own pace lags the wall clock by its ack and batching delays
         assert abs(int(found.group(1)) - elapsed) <= 5, (text, elapsed)
+
+
+def test_an_interrupted_session_is_closed_from_its_own_page(server):
+    """Found: the patient page's banner "The stream was interrupted · Open the session →"
+    led to a page saying "The stream is interrupted. The kit may reconnect…" with no way to
+    close it; "Close and estimate" was only in a card further down the patient page. Now
+    the session's page has it too (a therapist's phone, 390 px)."""
+    api = server.client("alice")
+    patient, _ = broken_off(server, api, "Closed Here")
+    session_id = api.http.get(f"/api/patients/{patient['id']}/sessions").json()[0]["id"]
+    time.sleep(2)
+    with page_at(390) as page:
+        sign_in_as(page, server.url, "alice")
+        page.goto(f"{server.url}/sessions/{session_id}")
+        sync_api.expect(page.locator("#calibration-box")).to_contain_text(
+            "The stream is interrupted", timeout=30_000)
+        close = page.locator("#close-session")
+        sync_api.expect(close).to_be_visible()
+        close.click()
+        # closed, estimated, and the page turned to the finished session's replay
+        sync_api.expect(page.get_by_text("Finished", exact=True)).to_be_visible(timeout=120_000)
+        width = page.evaluate("document.documentElement.scrollWidth")
+    session = api.wait_processed(session_id, timeout=120)
+    print(f"\nsession {session_id}: {session['status']}, processed {session['processed']}")
+    assert session["status"] == "closed" and not session["processing_error"]
+    assert width <= 390

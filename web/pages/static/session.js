@@ -256,11 +256,13 @@ function calibrationState(live) {
   }
   if (session.status !== "live" && session.stopped_by_server) {
     return { phase: "stopped", kind: "warn", icon: "■", title: "The server stopped the kit's stream",
-      how: "The kit will not reconnect by itself: see why above; the data so far are stored.", poses: cal.poses, warnings };
+      how: "The kit will not reconnect by itself: see why above; the data so far are stored. "
+        + "Close the session to estimate what was recorded.", closable: true, poses: cal.poses, warnings };
   }
   if (session.status !== "live") {
     return { phase: "interrupted", kind: "warn", icon: "‖", title: "The stream is interrupted",
-      how: "The kit may reconnect and resume; the data so far are stored.", poses: cal.poses, warnings };
+      how: "The kit may reconnect and resume; the data so far are stored. If the patient has "
+        + "stopped, close the session to estimate what was recorded.", closable: true, poses: cal.poses, warnings };
   }
   if (estimating) {
     return { phase: "done", kind: warnings.length ? "warn" : "done", icon: warnings.length ? "!" : "✓",
@@ -285,14 +287,31 @@ function calibrationState(live) {
 
 let calibrationParts = null;
 
+/** An interrupted (or stopped) session closed from its own page, as from the patient page's
+ * "Interrupted sessions" card: estimated in the background; the page follows the close. */
+async function closeSession(event) {
+  const button = event.currentTarget;
+  button.disabled = true;
+  try {
+    await api(`/api/sessions/${session.id}/close?wait=false`, { method: "POST" });
+    finishLive();
+  } catch (error) {
+    button.disabled = false;
+    showError(document.getElementById("calibration"), error);
+  }
+}
+
 function calibrationShell() {
   const parts = {
     icon: el("div", { class: "icon" }), title: el("div", { class: "title" }),
     how: el("div", { class: "how" }), still: el("div", { class: "still" }),
     steps: el("div", { class: "steps" }), warnings: el("ul", { class: "warnings", id: "calibration-warnings" }),
+    close: el("button", { class: "secondary", id: "close-session", hidden: "", onclick: closeSession },
+      "Close and estimate"),
   };
   parts.box = el("div", { class: "calib", id: "calibration-box" }, parts.icon,
-    el("div", { class: "what" }, parts.title, parts.how, parts.still, parts.steps, parts.warnings),
+    el("div", { class: "what" }, parts.title, parts.how, parts.still, parts.steps, parts.warnings,
+      el("div", {}, parts.close)),
     el("div", { style: "display:flex;flex-direction:column;gap:6px" },
       el("button", { class: "secondary", id: "show-patient", onclick: () => openPatientView() }, "Show to patient"),
       el("label", { style: "flex-direction:row;align-items:center;gap:6px;font-size:13px" },
@@ -323,6 +342,7 @@ function renderCalibration(live) {
   }));
   clear(parts.warnings, s.warnings.map((w) => el("li", {}, w)));
   parts.warnings.hidden = !s.warnings.length;
+  parts.close.hidden = !s.closable;
   // the patient's large view
   document.getElementById("pv-title").textContent = s.patientTitle || s.title;
   document.getElementById("pv-how").textContent = s.patientHow || s.how || "";
