@@ -330,3 +330,28 @@ def test_a_therapist_changes_their_name_and_password(srv, page, shots):  # noqa:
     expect(page.locator("#full-name")).to_have_value("Dr Erin <i>Wu</i>")
     no_overflow(page)
     page.screenshot(path=str(shots / "account-390.png"), full_page=True)
+
+
+@pytest.mark.parametrize("width", [1366, 390])
+def test_no_reset_code_is_offered_for_an_admin(srv, page, shots, width):  # noqa: F811
+    """The server makes no reset code for a clinic admin (its holder would act in their
+    name; test_security_admin): the page offered "Reset password" on every admin's row,
+    the admin's own included, and then showed the refusal. Now admins' rows have none;
+    one's own row links to the account page, where one changes one's password."""
+    if width == 1366:
+        srv.create_admin("root2")
+    page.set_viewport_size({"width": width, "height": 900})
+    sign_in(page, srv.url, "root")
+    page.goto(srv.url + "/admin")
+    rows = page.locator("#therapists tbody tr")
+    expect(page.locator("#therapists tbody tr[data-username=root2]")).to_be_visible()
+    for admin in ("root", "root2"):
+        expect(page.locator(f"#therapists tbody tr[data-username={admin}] [data-act=reset]")
+               ).to_have_count(0)
+    expect(page.locator("#therapists tbody tr[data-username=root] [data-act=own-password]")
+           ).to_have_attribute("href", "/account")
+    expect(page.locator("#therapists tbody tr[data-username=alice] [data-act=reset]")
+           ).to_have_count(1)
+    print(f"\n{width} px:\n{rows.all_inner_texts()}")
+    no_overflow(page)
+    page.screenshot(path=str(shots / f"admin-no-admin-reset-{width}.png"), full_page=True)

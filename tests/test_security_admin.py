@@ -132,3 +132,29 @@ def test_the_flags_say_nothing_to_an_admin_the_database_gives_a_patient(clinic):
     answer = root.http.get("/api/flags")
     print(answer.status_code, answer.text[:300])
     assert answer.status_code == 200 and answer.json() == [], answer.text
+
+
+def test_an_admin_cannot_make_a_reset_code_for_an_admin(clinic):
+    """An admin could make a one-time reset code for another admin (or themself): whoever
+    holds it chooses that admin's password and acts in their name, so that the audit log
+    can no longer tell the two apart — and another admin gains no right by it that they
+    lack. Refused now (403) in words that say what to do instead; nothing made, the
+    other admin's password unchanged. A therapist's reset is as before."""
+    import httpx
+
+    root = clinic.client("root")
+    therapists = ids(root)
+    for admin in ("root2", "root"):
+        answer = root.http.post(f"/api/admin/therapists/{therapists[admin]}/reset")
+        print(f"\nreset code for {admin}: {answer.status_code} {answer.text}")
+        assert answer.status_code == 403, answer.text
+        detail = answer.json()["detail"]
+        assert "clinic admin" in detail and "account page" in detail
+        assert "armtrack create-user" in detail
+    made = clinic.sql("SELECT count(*) FROM password_resets WHERE therapist_id IN (:a, :b)",
+                      a=therapists["root"], b=therapists["root2"])[0][0]
+    assert made == 0
+    assert httpx.post(clinic.url + "/api/auth/token", data={
+        "username": "root2", "password": PASSWORD}).status_code == 200
+    answer = root.http.post(f"/api/admin/therapists/{therapists['alice']}/reset")
+    assert answer.status_code == 200 and answer.json()["reset_token"].startswith("rt_")

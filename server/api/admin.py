@@ -56,6 +56,14 @@ class TherapistIn(BaseModel):
         return name
 
 
+#: Why an admin makes no reset code for an admin, and what to do instead.
+ADMIN_RESET_REFUSED = (
+    "account {} is a clinic admin: no admin makes a reset code for an admin (its holder "
+    "would act in their name). An admin changes their password on their account page; "
+    "one who forgot it is given a new admin account on the server (armtrack create-user "
+    "NAME --admin), and this one is disabled")
+
+
 class ResetOut(BaseModel):
     reset_token: str = Field(description="one-time; give it to the therapist, it is shown once")
     expires_in: int = Field(description="seconds the token stays good [s]")
@@ -165,8 +173,11 @@ def issue_reset(therapist_id: Id, db: Db, admin: Admin,
                 svc: Annotated[Services, Depends(services)], request: Request) -> ResetOut:
     """A one-time reset token for a therapist who forgot their password (used with
     ``POST /api/auth/reset``; earlier unused ones stop working). One made for a disabled
-    account sets nothing until the account is enabled; disabling it ends the token."""
-    _therapist(db, therapist_id)
+    account sets nothing until the account is enabled; disabling it ends the token. Not
+    for a clinic admin, the caller included (403): the code's holder would act in that
+    admin's name, which the audit log could not tell apart (docs/security.md)."""
+    if _therapist(db, therapist_id).is_admin:
+        raise HTTPException(status.HTTP_403_FORBIDDEN, ADMIN_RESET_REFUSED.format(therapist_id))
     db.execute(delete(models.PasswordReset).where(
         models.PasswordReset.therapist_id == therapist_id,
         models.PasswordReset.used_at.is_(None)))

@@ -29,8 +29,13 @@ function therapistRow(t) {
       ? el("button", { type: "button", class: "secondary", dataset: { act: "enable" }, onclick: () => enableTherapist(t) }, "Enable")
       : el("button", { type: "button", class: "danger", dataset: { act: "disable" }, onclick: () => disableTherapist(t) }, "Disable"));
   }
-  actions.append(el("button", { type: "button", class: "secondary", dataset: { act: "reset" }, onclick: () => resetPassword(t) },
-    "Reset password"));
+  // no reset code for an admin, oneself included (its holder would act in their name)
+  if (!t.is_admin) {
+    actions.append(el("button", { type: "button", class: "secondary", dataset: { act: "reset" }, onclick: () => resetPassword(t) },
+      "Reset password"));
+  } else if (me) {
+    actions.append(el("a", { href: "/account", dataset: { act: "own-password" } }, "Change your password"));
+  }
   return el("tr", { dataset: { therapist: t.id, username: t.username } },
     el("td", { class: "nowrap" }, t.username, me ? el("span", { class: "muted small" }, " (you)") : null),
     el("td", {}, t.full_name || el("span", { class: "muted" }, "—")),
