@@ -94,3 +94,32 @@ def test_a_link_cut_short_says_so_and_keeps_the_phones_kit(server, phone, shots)
     assert api.http.delete(f"/api/devices/{revoked['id']}").status_code == 204
     phone.goto(f"{server.url}/kit#token={revoked['token']}")
     sync_api.expect(phone.locator("h1")).to_have_text("This link no longer works")
+
+
+def test_the_program_says_changed_by_your_therapist_not_a_version_number(server, phone, shots):
+    """Found (three new-user passes): under the program's name the patient read "Version 1"
+    — a number that says nothing to them. A first program says nothing of versions; a
+    changed one says the therapist changed it."""
+    from datetime import UTC, datetime
+
+    api = server.client("alice")
+    patient = api.patient("Program Words")
+    device = api.device(patient["id"], "phone")
+    today = datetime.now(UTC).date().isoformat()  # the server's clinic zone is UTC
+    body = {"name": "Elbow after the fracture", "start_date": today, "exercises": [
+        {"exercise": "elbow_flexion", "sets": 2, "repetitions": 10, "days_per_week": 5}]}
+    made = api.http.post(f"/api/patients/{patient['id']}/programs", json=body)
+    assert made.status_code == 201, made.text
+    phone.goto(f"{server.url}/kit#token={device['token']}")
+    sync_api.expect(phone.locator("#program-name")).to_have_text("Elbow after the fracture")
+    first = phone.locator("#screen").inner_text()
+    print("\n" + first)
+    assert "Version" not in first and phone.locator("#program-version").count() == 0
+
+    changed = api.http.put(f"/api/programs/{made.json()['id']}",
+                           json={k: v for k, v in body.items() if k != "name"})
+    assert changed.status_code == 200, changed.text
+    phone.reload()
+    sync_api.expect(phone.locator("#program-version")).to_have_text("Changed by your therapist")
+    phone.screenshot(path=str(shots / "program-changed.png"))
+    assert "Version" not in phone.locator("#screen").inner_text()

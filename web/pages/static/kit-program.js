@@ -1,8 +1,9 @@
 // armtrack phone kit: the therapist's program in the guided session (docs/programs.md) —
-// the program's welcome (its name, version and exercises with their dose) and, after each
-// exercise, the effort (Borg CR10) and pain (numeric rating scale) screen sent as
-// effort-pain/1 (docs/extensions/effort-pain.md), and what was done, at the end. Uses kit.js's `el` (loaded after this
-// file; called only once the page runs). Every text is set as text, never as HTML.
+// the program's welcome (its name, whether the therapist changed it, its exercises with
+// their dose), after each exercise the effort (Borg CR10) and pain (numeric rating scale)
+// screen sent as effort-pain/1 (docs/extensions/effort-pain.md), and what was done, at
+// the end. Uses kit.js's `el` (loaded after this file; called only once the page runs).
+// Every text is set as text, never as HTML.
 "use strict";
 
 /** Borg CR10's verbal anchors (Borg 1998, "Borg's perceived exertion and pain scales"). */
@@ -47,13 +48,15 @@ const KitProgram = {
         (ex.not_measured && ex.not_measured[segment]) || `${ex.title}: ${KitProgram.where(ex)}.`))));
   },
 
-  /** The welcome's part for a program: its name, version and today's exercises. */
+  /** The welcome's part for a program: its name, whether the therapist changed it, and
+   * today's exercises. */
   summary(today, exercises) {
     const program = today.program;
     return [
       el("p", { class: "kicker" }, "From your therapist"),
       el("h1", { id: "program-name" }, program.name),
-      el("p", { class: "note", id: "program-version" }, `Version ${program.version}`),
+      // a number says nothing to a patient: only that the therapist changed it
+      program.version > 1 ? el("p", { class: "note", id: "program-version" }, "Changed by your therapist") : null,
       program.note ? el("p", { class: "lead", id: "program-note" }, program.note) : null,
       el("ol", { class: "program", id: "program-list" }, exercises.map((ex) =>
         el("li", {}, el("span", { class: "title" }, ex.title),
