@@ -18,7 +18,7 @@ from starlette.concurrency import run_in_threadpool
 from .db import models
 from .db.engine import make_engine, make_sessionmaker
 from .db.migrate import upgrade
-from .ingest.budget import KitBudget
+from .ingest.budget import SHARED_BURST_S, KitBudget, follow_loop
 from .ingest.writer import GroupWriter, StreamState
 from .live.access import AccessWatch
 from .live.broker import make_hub
@@ -106,6 +106,9 @@ class Services:
         #: device id → how fast its messages are read (ingest/budget.py), kept while it
         #: has a socket open or a debt to pay
         self.kit_budgets: dict[int, KitBudget] = {}
+        #: how fast all kits' messages are read together, in turns (ingest/budget.py)
+        self.ingest_budget = KitBudget(settings.ingest_messages_per_s,
+                                       settings.ingest_rows_per_s, burst_s=SHARED_BURST_S)
         #: device id → sample rows its sessions of the last day hold, while it has a
         #: socket open (kit/daily_samples.py; counted from the database at its first)
         self.kit_samples: dict[int, int] = {}
@@ -122,6 +125,7 @@ class Services:
         #: each account's live feeds, 3D views and unused viewer grants (live/slots)
         self.feed_slots = FeedSlots(settings.max_live_feeds_per_user)
         self._access_task: asyncio.Task | None = None
+        self._budget_task: asyncio.Task | None = None
 
     def migrate(self) -> None:
         """Bring the schema to the newest version, and mark sessions left live by a
@@ -140,11 +144,19 @@ class Services:
         await self.viewer.start()
         self._access_task = asyncio.create_task(
             self.access.run(self.settings.access_check_s), name="armtrack-access-check")
+        # all kits together are read at least as fast as one kit may be: a lone kit is
+        # never slowed by the others' budget, however busy the loop
+        settings = self.settings
+        share_min = min(1.0, max(settings.kit_messages_per_s / settings.ingest_messages_per_s,
+                                 settings.kit_rows_per_s / settings.ingest_rows_per_s))
+        self._budget_task = asyncio.create_task(follow_loop(self.ingest_budget, share_min),
+                                                name="armtrack-ingest-budget")
 
     async def stop(self) -> None:
-        if self._access_task is not None:
-            self._access_task.cancel()
-            await asyncio.gather(self._access_task, return_exceptions=True)
+        for task in (self._access_task, self._budget_task):
+            if task is not None:
+                task.cancel()
+                await asyncio.gather(task, return_exceptions=True)
         await self.viewer.stop()
         for connection in list(self.connections.values()):
             await connection.close(1001, "server shutting down")

@@ -83,6 +83,15 @@ class Settings(BaseSettings):
         50000.0, gt=0, description="most sample rows the server reads from one kit token "
         "a second, all its streams and sensors together (100x real time of 5 sensors at "
         "100 Hz): past it the server reads the kit's sockets no faster")
+    ingest_messages_per_s: float = Field(
+        8000.0, gt=0, description="most ingest messages the server reads a second from all "
+        "kits together, each stream in turn (200 kits of 3 sensors at 100 Hz sending 10 "
+        "rows a message send 6,000): past it every stream is read one message at a time "
+        "in turn, no faster (TCP pushes back; nothing refused, nothing acked lost)")
+    ingest_rows_per_s: float = Field(
+        100000.0, gt=0, description="most sample rows the server reads a second from all "
+        "kits together (200 kits of 3 sensors at 100 Hz send 60,000): past it every "
+        "stream is read in turn, no faster")
     max_new_sessions_per_kit_hour: int = Field(
         20, ge=1, description="most new sessions one kit token starts in an hour (the "
         "next hello without resume or session: error naming the limit, close 4429; the kit "

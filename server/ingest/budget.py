@@ -1,5 +1,7 @@
 """How fast the server reads one kit's messages (``ARMTRACK_KIT_MESSAGES_PER_S``,
-``ARMTRACK_KIT_ROWS_PER_S``), all its streams together: back-pressure, never a refusal.
+``ARMTRACK_KIT_ROWS_PER_S``), all its streams together, and all kits' together
+(``ARMTRACK_INGEST_MESSAGES_PER_S``, ``ARMTRACK_INGEST_ROWS_PER_S``): back-pressure,
+never a refusal.
 
 A kit past its budget is not read for a while: its socket's messages wait in the kernel,
 TCP pushes back on the kit, which sends them later; nothing is refused, nothing acked is
@@ -8,41 +10,61 @@ whole (``tests/test_security_ingest_flood.py``). A connection handling messages 
 read brought in at once also lets the loop serve others every ``SLICE_S``. A kit flooding
 small messages far past its budget fills the kernel's buffers with tens of seconds of
 them; its answers to the server's keepalive pings wait behind them, and after 20 s the
-server closes it (1011, keepalive ping timeout): a kit within its budget never meets it."""
+server closes it (1011, keepalive ping timeout): a kit within its budget never meets it.
+
+The kits' budget is shared in turns: each connection takes the next message's turn
+(``turn_s``) before it reads it, and turns come in the order taken, so that many kits
+flooding at once (each within its own budget: eight took another therapist's page from
+8.5 to 2,300 ms) share the server's reading with every other stream, one message each in
+turn, instead of taking the event loop whole. Its rates are the most: a loaded machine's
+event loop keeps up with fewer messages (the same eight kits under the configured 8,000 a
+second: another page 1.3x in one run, 418x in the next), so the kits' budget follows the
+loop (``follow_loop``): while its timers fire late, kits are read more slowly."""
 
 from __future__ import annotations
 
+import asyncio
 import time
 
-#: Seconds of its rates a kit may send at once after a pause (the buckets' size) [s].
-BURST_S = 1.0
+#: Seconds of its rates a kit may send at once after a pause (the buckets' size) [s], and
+#: all kits together (theirs: a second's flood at once held the loop for half a second).
+BURST_S, SHARED_BURST_S = 1.0, 0.1
 #: Least pause worth a timer [s]: a smaller debt is carried to the next message.
 PAUSE_MIN_S = 0.005
 #: Longest a connection handles messages back to back before the loop serves others [s].
 SLICE_S = 0.005
+#: How often ``follow_loop`` looks at the event loop [s], and how late its timer may fire
+#: before kits are read more slowly [s].
+TICK_S, LATE_S = 0.02, 0.003
+#: The kits' budget's share of its rates: times this each late tick, times ``FASTER``
+#: each tick on time.
+SLOWER, FASTER = 0.7, 1.05
 
 
 class KitBudget:
     """Two token buckets, messages and sample rows, refilled at ``messages_per_s`` and
-    ``rows_per_s`` [1/s], each holding up to ``BURST_S`` of its rate. Spending may take
+    ``rows_per_s`` [1/s], each holding up to ``burst_s`` of its rate. Spending may take
     them below zero (a message is read whole); ``wait_s`` is how long until both are
-    back to zero."""
+    back to zero. ``share`` (0–1] of the rates is in force (``follow_loop``)."""
+
+    share = 1.0
 
     def __init__(self, messages_per_s: float, rows_per_s: float,
-                 clock=time.monotonic):
+                 clock=time.monotonic, burst_s: float = BURST_S):
         self.messages_per_s = float(messages_per_s)
         self.rows_per_s = float(rows_per_s)
+        self.burst_s = burst_s
         self._clock = clock
         self._at = clock()
-        self._messages = self.messages_per_s * BURST_S
-        self._rows = self.rows_per_s * BURST_S
+        self._messages = self.messages_per_s * burst_s
+        self._rows = self.rows_per_s * burst_s
 
     def _refill(self) -> None:
         now = self._clock()
         elapsed, self._at = now - self._at, now
-        self._messages = min(self.messages_per_s * BURST_S,
-                             self._messages + elapsed * self.messages_per_s)
-        self._rows = min(self.rows_per_s * BURST_S, self._rows + elapsed * self.rows_per_s)
+        messages, rows = self.messages_per_s * self.share, self.rows_per_s * self.share
+        self._messages = min(messages * self.burst_s, self._messages + elapsed * messages)
+        self._rows = min(rows * self.burst_s, self._rows + elapsed * rows)
 
     def spend(self, messages: int = 0, rows: int = 0) -> None:
         """Count ``messages`` messages and ``rows`` sample rows read."""
@@ -50,13 +72,44 @@ class KitBudget:
         self._messages -= messages
         self._rows -= rows
 
+    def turn_s(self) -> float:
+        """Take the next message's turn: seconds [s] until it comes (0: now). The message
+        is counted at once, so turns taken one after another come one after another."""
+        wait = self.wait_s()
+        self._messages -= 1
+        return wait
+
     def wait_s(self) -> float:
         """Seconds [s] before the kit's next message may be read (0: now)."""
         self._refill()
-        return max(0.0, -self._messages / self.messages_per_s, -self._rows / self.rows_per_s)
+        return max(0.0, -self._messages / (self.messages_per_s * self.share),
+                   -self._rows / (self.rows_per_s * self.share))
 
     def full(self) -> bool:
         """Nothing spent that is not refilled: a new budget would be the same."""
         self._refill()
-        return (self._messages >= self.messages_per_s * BURST_S
-                and self._rows >= self.rows_per_s * BURST_S)
+        return (self._messages >= self.messages_per_s * self.burst_s
+                and self._rows >= self.rows_per_s * self.burst_s)
+
+
+async def follow_loop(budget: KitBudget, share_min: float) -> None:
+    """Keep ``budget``'s share of its rates (all kits') at what the event loop keeps up
+    with: each second ``TICK_S`` in a row its timer fires over ``LATE_S`` late, the share
+    goes down (``SLOWER``), never below ``share_min``; each on time back up (``FASTER``).
+    Runs until cancelled."""
+    loop = asyncio.get_running_loop()
+    late_before = False
+    while True:
+        at = loop.time()
+        await asyncio.sleep(TICK_S)
+        late = loop.time() - at - TICK_S > LATE_S
+        budget.share = next_share(budget.share, late, late_before, share_min)
+        late_before = late
+
+
+def next_share(share: float, late: bool, late_before: bool, share_min: float) -> float:
+    """The share after a tick: down when this tick and the one before were late (one
+    late tick alone: the process was not scheduled), up when on time."""
+    if late and late_before:
+        return max(share_min, share * SLOWER)
+    return share if late else min(1.0, share * FASTER)

@@ -277,16 +277,25 @@ class IngestConnection:
 
     async def _pace(self) -> None:
         """Before the next message: wait while the kit is past its budget (its socket
-        unread: back-pressure), and let the loop serve others after ``SLICE_S`` of
-        messages handled back to back (one read may bring in hundreds)."""
-        wait = self.budget.wait_s()
-        if wait >= budget.PAUSE_MIN_S:
+        unread: back-pressure), then for its turn in all kits' budget, and let the loop
+        serve others after ``SLICE_S`` of messages handled back to back (one read may
+        bring in hundreds)."""
+        paused = False
+        if (wait := self.budget.wait_s()) >= budget.PAUSE_MIN_S:
             await asyncio.sleep(wait)
-        elif time.perf_counter() - self._slice_from >= budget.SLICE_S:
-            await asyncio.sleep(0)
-        else:
+            paused = True
+        if (wait := self.services.ingest_budget.turn_s()) >= budget.PAUSE_MIN_S:
+            await asyncio.sleep(wait)  # all kits' turns, in the order taken
+        elif not paused and time.perf_counter() - self._slice_from < budget.SLICE_S:
             return
+        elif not paused:
+            await asyncio.sleep(0)
         self._slice_from = time.perf_counter()
+
+    def _spend_rows(self, rows: int) -> None:
+        """Count ``rows`` sample rows read, in the kit's budget and all kits'."""
+        self.budget.spend(rows=rows)
+        self.services.ingest_budget.spend(rows=rows)
 
     async def _start(self) -> bool:
         text = await self.receive()
@@ -567,7 +576,7 @@ class IngestConnection:
                     if kind == "samples":
                         item = protocol.check_samples(message, seq, self.hello, state.last_t,
                                                      state.t_offset)
-                        self.budget.spend(rows=len(item.rows))
+                        self._spend_rows(len(item.rows))
                         await self._room_for(len(item.rows), seq)
                         state.last_t[item.sensor] = float(item.rows[-1, 0])
                         self.received += len(item.rows)
@@ -576,7 +585,7 @@ class IngestConnection:
                     elif kind == "points":  # docs/extensions/points.md
                         item = protocol.check_points(message, seq, self.hello, state.last_t,
                                                     state.t_offset)
-                        self.budget.spend(rows=len(item.rows))
+                        self._spend_rows(len(item.rows))
                         await self._room_for(len(item.rows), seq)
                         state.last_t[item.sensor] = float(item.rows[-1, 0])
                         self.services.writer.submit(Write(state, seq, samples=item))
