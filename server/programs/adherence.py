@@ -110,6 +110,10 @@ class ProgramProgress(BaseModel):
     exercises: list[ExerciseProgress]
     pain: list[PainPoint]
     flags: list[Flag]
+    uncounted_sessions: int = Field(
+        0, description="closed sessions of the patient from the program's first day (to its "
+        "end) that count toward no program: their kit neither named a program in hello nor "
+        "marked an exercise of one (docs/programs.md)")
 
 
 # --- gathering the sessions -----------------------------------------------------------
@@ -165,14 +169,22 @@ def _marked_exercises(db: DbSession, session_ids: Sequence[int]) -> dict[int, se
     return out
 
 
+def patient_sessions(db: DbSession, patient_id: int) -> list[models.Session]:
+    """The patient's sessions, oldest first."""
+    return list(db.scalars(select(models.Session)
+                           .where(models.Session.patient_id == patient_id)
+                           .order_by(models.Session.started_at, models.Session.id)))
+
+
 def program_sessions(db: DbSession, patient_id: int, programs: Sequence[models.Program],
-                     zone: ZoneInfo) -> dict[int, list[ProgramSession]]:
+                     zone: ZoneInfo, sessions: Sequence[models.Session] | None = None
+                     ) -> dict[int, list[ProgramSession]]:
     """Program id → its sessions, oldest first: those whose kit named it in ``hello``,
     and those attributed to it (no program named, a marked exercise of the version in
-    force at the start; the most recently created such program)."""
-    sessions = list(db.scalars(select(models.Session)
-                               .where(models.Session.patient_id == patient_id)
-                               .order_by(models.Session.started_at, models.Session.id)))
+    force at the start; the most recently created such program). ``sessions``: the
+    patient's (``patient_sessions``) when already read."""
+    if sessions is None:
+        sessions = patient_sessions(db, patient_id)
     links, marked = _links_and_marks(db, sessions)
     return _attributed(sessions, programs, links, marked, zone)
 
@@ -480,7 +492,10 @@ def patient_programs_progress(db: DbSession, patient: models.Patient, settings: 
     programs = [p for p in store.patient_programs(db, patient.id) if p.versions]
     if not programs:
         return []
-    by_program = program_sessions(db, patient.id, programs, zone)
+    sessions = patient_sessions(db, patient.id)
+    by_program = program_sessions(db, patient.id, programs, zone, sessions)
+    counted = {i.session.id for items in by_program.values() for i in items}
+    loose = [s for s in sessions if s.status == "closed" and s.id not in counted]
     _fill(db, [i for items in by_program.values() for i in items])
     missed = no_session_flag(db, patient.id, programs, today, zone, settings)
     out = []
@@ -501,5 +516,15 @@ def patient_programs_progress(db: DbSession, patient: models.Patient, settings: 
             pain=[PainPoint(session_id=i.session.id, day=i.day, started_at=i.started_at,
                             pain=i.pain, effort=i.effort)
                   for i in items if i.pain is not None or i.effort is not None],
-            flags=flags))
+            flags=flags, uncounted_sessions=_uncounted(p, loose, zone)))
     return out
+
+
+def _uncounted(program: models.Program, loose: Sequence[models.Session],
+               zone: ZoneInfo) -> int:
+    """How many of the sessions no program counts (``loose``) started while ``program``
+    ran: from its first version's first day (the clinic's) until it was ended."""
+    first = program.versions[0].start_date
+    return sum(1 for s in loose if local_day(s.started_at, zone) >= first
+               and (program.ended_at is None
+                    or aware(s.started_at) <= aware(program.ended_at)))

@@ -86,8 +86,19 @@ async function programCard(patientId, p, box) {
           el("td", {}, last ? [deg(last.range_deg), " ", rangeChart(points)] : el("span", { class: "muted" }, "not done yet")),
           el("td", { class: "small" }, e.note || ""));
       })))),
+    uncountedNote(adherence.uncounted_sessions),
     weeksTable(adherence.weeks),
     painLine(adherence.pain));
+}
+
+/** Sessions of the patient this program does not count (their kit did not follow it):
+ * said, so that "not done yet" beside a list of sessions is not a puzzle. */
+function uncountedNote(n) {
+  if (!n) return null;
+  return el("p", { class: "small muted uncounted" },
+    `${n} session${n === 1 ? "" : "s"} of this patient during this program ${n === 1 ? "is" : "are"} not counted here: `
+    + "the kit did not follow this program (it neither named it nor marked its exercises). "
+    + "The phone kit follows it; for a sensor kit, see docs/programs.md.");
 }
 
 function download(path, filename) {
