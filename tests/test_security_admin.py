@@ -158,3 +158,43 @@ def test_an_admin_cannot_make_a_reset_code_for_an_admin(clinic):
         "username": "root2", "password": PASSWORD}).status_code == 200
     answer = root.http.post(f"/api/admin/therapists/{therapists['alice']}/reset")
     assert answer.status_code == 200 and answer.json()["reset_token"].startswith("rt_")
+
+
+def test_a_reset_code_made_for_an_admin_before_the_rule_sets_nothing(clinic):
+    """The rule above is kept where the code is used too: a code made for an admin before
+    it (an upgrade within the code's lifetime, ``ARMTRACK_RESET_TOKEN_HOURS``) would still
+    let its holder choose that admin's password. ``POST /api/auth/reset`` with it is 403
+    in words, the code stays unused, the admin's password and sign-ins unchanged."""
+    from datetime import UTC, datetime, timedelta
+
+    import httpx
+    from armtrack.server.auth import new_token
+    from armtrack.server.db import models
+    from sqlalchemy import create_engine
+    from sqlalchemy.orm import Session
+
+    root = clinic.client("root")
+    therapists = ids(root)
+    token, digest = new_token("rt_")
+    engine = create_engine(clinic.database_url)
+    try:
+        with Session(engine) as db:  # as the old server made it
+            db.add(models.PasswordReset(therapist_id=therapists["root2"], token_hash=digest,
+                                        issued_by=therapists["root"],
+                                        expires_at=datetime.now(UTC) + timedelta(hours=24)))
+            db.commit()
+    finally:
+        engine.dispose()
+    signed_in = clinic.client("root2")
+    answer = httpx.post(clinic.url + "/api/auth/reset", json={"new_password": "chosen-by-holder"},
+                        headers={"Authorization": f"Bearer {token}"})
+    print(f"\nreset with a code made for an admin: {answer.status_code} {answer.text}")
+    assert answer.status_code == 403, answer.text
+    assert "clinic admin" in answer.json()["detail"]
+    used = clinic.sql("SELECT used_at FROM password_resets WHERE token_hash = :h", h=digest)
+    assert used == [(None,)]
+    assert httpx.post(clinic.url + "/api/auth/token", data={
+        "username": "root2", "password": "chosen-by-holder"}).status_code == 401
+    assert httpx.post(clinic.url + "/api/auth/token", data={
+        "username": "root2", "password": PASSWORD}).status_code == 200
+    assert signed_in.http.get("/api/admin/therapists").status_code == 200

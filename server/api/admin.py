@@ -18,7 +18,7 @@ from ..auth import DEMO_USER, hash_password, new_token
 from ..db import models
 from ..plain_text import Line, Secret
 from ..services import Services
-from .auth_routes import MIN_PASSWORD
+from .auth_routes import ADMIN_RESET_REFUSED, MIN_PASSWORD
 from .deps import Admin, Db, Page, services
 from .schemas import MAX_ID, Id, QueryId
 
@@ -54,14 +54,6 @@ class TherapistIn(BaseModel):
             raise ValueError(f"the name {DEMO_USER!r} is kept for `armtrack demo`'s account: "
                              "choose another")
         return name
-
-
-#: Why an admin makes no reset code for an admin, and what to do instead.
-ADMIN_RESET_REFUSED = (
-    "account {} is a clinic admin: no admin makes a reset code for an admin (its holder "
-    "would act in their name). An admin changes their password on their account page; "
-    "one who forgot it is given a new admin account on the server (armtrack create-user "
-    "NAME --admin), and this one is disabled")
 
 
 class ResetOut(BaseModel):

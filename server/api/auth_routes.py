@@ -38,6 +38,15 @@ class PasswordChange(BaseModel):
     new_password: Secret = Field(min_length=MIN_PASSWORD, max_length=1000)
 
 
+#: Why no reset code is made for an admin (``POST /api/admin/therapists/{id}/reset``), nor
+#: used on one (a code made before that rule), and what to do instead.
+ADMIN_RESET_REFUSED = (
+    "account {} is a clinic admin: no admin makes a reset code for an admin (its holder "
+    "would act in their name). An admin changes their password on their account page; "
+    "one who forgot it is given a new admin account on the server (armtrack create-user "
+    "NAME --admin), and this one is disabled")
+
+
 class PasswordReset(BaseModel):
     model_config = ConfigDict(extra="forbid")
     new_password: Secret = Field(min_length=MIN_PASSWORD, max_length=1000)
@@ -192,7 +201,8 @@ def reset_grant(db: Db, token: Annotated[str | None, Depends(oauth2)]
 
 @router.post("/reset", status_code=status.HTTP_204_NO_CONTENT, responses={
     401: {"description": "the reset token is missing, unknown, used or expired"},
-    403: {"description": "the account is disabled"},
+    403: {"description": "the account is disabled, or a clinic admin's (a code made before "
+                        "no admin could make one for an admin sets nothing)"},
     503: {"description": "too many password checks under way (see Retry-After)"}})
 async def reset_password(body: PasswordReset,
                          row: Annotated[models.PasswordReset, Depends(reset_grant)],
@@ -208,6 +218,9 @@ async def reset_password(body: PasswordReset,
         if account is None or account.disabled_at is not None:
             raise HTTPException(status.HTTP_403_FORBIDDEN,
                                 "this account is disabled: ask your clinic's admin")
+        if account.is_admin:  # a code made before no admin could make one for an admin
+            raise HTTPException(status.HTTP_403_FORBIDDEN,
+                                ADMIN_RESET_REFUSED.format(account.id))
         # taken by one request only: the row is marked used where it still is unused, so
         # of requests sent at once (or to two servers) one sets the password
         taken = db.execute(update(models.PasswordReset).where(
