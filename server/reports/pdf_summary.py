@@ -157,8 +157,7 @@ def summary_page(fig: Figure, report: SessionReport, letterhead: Letterhead,
     rows = [
         ("Patient", s.patient_name),
         ("Clinic no.", lh.clinic_number or "–"),
-        ("Date of birth", f"{lh.date_of_birth.day} {lh.date_of_birth:%b %Y}"
-         if lh.date_of_birth else "–"),
+        ("Date of birth", day_words(lh.date_of_birth) if lh.date_of_birth else "–"),
         # two lines: with "(uploaded; recording time unknown)" one ran past the frame
         ("Session", f"{when}{dated} · {duration_words(s.duration_s)}"),
         ("Arm and kit", f"{s.side} arm · " + (f"kit {s.kit}" if s.kit else "uploaded file")),
