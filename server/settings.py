@@ -22,14 +22,15 @@ class Settings(BaseSettings):
                            description="folder for the SQLite file and other server files")
     database_url: str | None = Field(
         None, description="SQLAlchemy URL; default sqlite:///<data_dir>/armtrack.db")
-    host: str = "127.0.0.1"
-    port: int = Field(8000, ge=0, le=65535)
+    host: str = Field("127.0.0.1", description="address to listen on (0.0.0.0: every "
+                      "interface; needs TLS or ARMTRACK_BEHIND_PROXY)")
+    port: int = Field(8000, ge=0, le=65535, description="port to listen on")
     access_token_hours: float = Field(12.0, gt=0, description="lifetime of a sign-in [h]")
     max_message_bytes: int = Field(1 << 20, gt=0, description="largest ingest message [B]")
     ack_interval_s: float = Field(0.1, gt=0, le=1.0,
                                   description="longest wait to group commits before acking [s]")
     refused_limit: int = Field(50, gt=0, description="refused messages per window before 4429")
-    refused_window_s: float = Field(10.0, gt=0)
+    refused_window_s: float = Field(10.0, gt=0, description="window of ARMTRACK_REFUSED_LIMIT [s]")
     processing_threads: int = Field(2, ge=1, description="threads for estimation work "
                                     "done in the server process")
     processing_processes: int = Field(1, ge=0, le=1, description="processes estimating "

@@ -25,7 +25,8 @@ def redact(text: str) -> str:
 HELP = "run the server (REST API, ingest WebSocket, dashboard)"
 DESCRIPTION = ("Runs armtrack under uvicorn. Settings come from the environment "
                "(ARMTRACK_DATABASE_URL, ARMTRACK_DATA_DIR, ARMTRACK_HOST, ARMTRACK_PORT, ...) "
-               "and these flags; the database is migrated on start.")
+               "and these flags; the database is migrated on start. Every setting, with the "
+               "value this server would run with: armtrack serve --settings.")
 
 
 class RedactTokens(logging.Filter):
@@ -43,6 +44,28 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--host", help="address to listen on (ARMTRACK_HOST, default 127.0.0.1)")
     parser.add_argument("--port", type=int, help="port (ARMTRACK_PORT, default 8000)")
     add_database_arguments(parser)
+    parser.add_argument("--settings", action="store_true",
+                        help="print every ARMTRACK_ setting with the value this server would "
+                        "run with (the environment and these flags) and what it does; start "
+                        "nothing")
+
+
+def settings_text(settings) -> str:
+    """Every setting as ``ARMTRACK_NAME=value  # what it does`` (shell-quoted values; a
+    database URL's password as ``***``), in the order of ``Settings``."""
+    import shlex
+
+    from sqlalchemy.engine import make_url
+
+    lines = []
+    for name, field in type(settings).model_fields.items():
+        value = getattr(settings, name)
+        if name == "database_url" and value:
+            value = make_url(value).render_as_string(hide_password=True)
+        shown = "" if value is None else shlex.quote(str(value))
+        lines.append(f"ARMTRACK_{name.upper()}={shown}"
+                     + (f"  # {field.description}" if field.description else ""))
+    return "\n".join(lines)
 
 
 def add_database_arguments(parser: argparse.ArgumentParser) -> None:
@@ -90,6 +113,9 @@ def run(args: argparse.Namespace) -> int:
     from armtrack.server.security import trusted_proxies, unsafe_settings
 
     settings = settings_from(args)
+    if args.settings:
+        print(settings_text(settings))
+        return 0
     problems = unsafe_settings(settings, demo_account=not settings.demo_mode
                                and demo_account_present(settings))
     if problems:
