@@ -131,3 +131,26 @@ def test_an_existing_world_readable_database_is_narrowed(tmp_path):
                     str(data))
     assert done.returncode == 0, done.stderr
     assert stat.S_IMODE(db.stat().st_mode) == 0o600
+
+
+def test_the_serving_line_keeps_the_database_password_out_of_the_log(tmp_path, postgres_url):
+    """Found by the clinic IT walk (`armtrack serve --settings` hides it): the start line
+    "armtrack: serving on … (database postgresql+psycopg://armtrack:PASSWORD@…)" put the
+    database password in the service's log (journald, docker logs). PostgreSQL here trusts
+    local connections, so any password connects."""
+    from conftest import fresh_postgres_database
+    from sqlalchemy.engine import make_url
+
+    url = make_url(fresh_postgres_database(postgres_url)).set(password="s3cret-pw")
+    server = ServerProcess(tmp_path / "data", {
+        "ARMTRACK_DATABASE_URL": url.render_as_string(hide_password=False)})
+    server.create_user("ada")
+    server.start(timeout=120)
+    try:
+        log = server.log.read_text()
+    finally:
+        server.stop()
+    line = next(x for x in log.splitlines() if x.startswith("armtrack: serving on"))
+    print("\n" + line)
+    assert "s3cret-pw" not in log
+    assert ":***@" in line

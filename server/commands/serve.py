@@ -50,18 +50,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "nothing")
 
 
+def shown_url(url: str) -> str:
+    """A database URL fit for a log or a screen: its password as ``***``."""
+    from sqlalchemy.engine import make_url
+
+    return make_url(url).render_as_string(hide_password=True)
+
+
 def settings_text(settings) -> str:
     """Every setting as ``ARMTRACK_NAME=value  # what it does`` (shell-quoted values; a
     database URL's password as ``***``), in the order of ``Settings``."""
     import shlex
 
-    from sqlalchemy.engine import make_url
-
     lines = []
     for name, field in type(settings).model_fields.items():
         value = getattr(settings, name)
         if name == "database_url" and value:
-            value = make_url(value).render_as_string(hide_password=True)
+            value = shown_url(value)
         shown = "" if value is None else shlex.quote(str(value))
         lines.append(f"ARMTRACK_{name.upper()}={shown}"
                      + (f"  # {field.description}" if field.description else ""))
@@ -133,7 +138,7 @@ def run(args: argparse.Namespace) -> int:
     scheme = "https" if settings.tls_cert else "http"
     port = sock.getsockname()[1]
     print(f"armtrack: serving on {scheme}://{settings.host}:{port} "
-          f"(database {settings.resolved_database_url()})", flush=True)
+          f"(database {shown_url(settings.resolved_database_url())})", flush=True)
     tls = ({"ssl_certfile": str(settings.tls_cert), "ssl_keyfile": str(settings.tls_key)}
            if settings.tls_cert else {})
     # X-Forwarded-For is believed from the configured proxies only (uvicorn's default
