@@ -20,7 +20,7 @@ from .. import audit
 from ..auth import DEMO_USER, hash_token
 from ..db import models
 from ..live.access import holds
-from ..services import Services
+from ..services import ExportUnwanted, Services
 
 T = TypeVar("T")
 
@@ -77,13 +77,26 @@ async def in_export_turn(request: Request, fn: Callable[..., T], *args: Any) -> 
     """``fn(db, therapist, *args)``, an export, in its turn (``Services.run_export``),
     with the therapist of the request's token as it is then: a sign-in that ended or an
     account disabled while the export waited is 401, and the ownership ``fn`` checks is
-    read then too."""
+    read then too. A request whose client goes away while it waits is not built."""
     token = await oauth2(request)
     services = request.app.state.services
 
     def work(db: DbSession) -> T:
         return fn(db, current_therapist(db, token, request), *args)
-    return await services.run_export(work)
+    try:
+        return await services.run_export(work, gone=_disconnected(request))
+    except ExportUnwanted:  # nobody is there to answer
+        raise HTTPException(CLIENT_GONE, "the client went away before its turn") from None
+
+
+#: Status logged for an export nobody waited for (nginx's "client closed request").
+CLIENT_GONE = 499
+
+
+async def _disconnected(request: Request) -> None:
+    """Returns once the client of ``request`` (a GET: no body to read) has gone."""
+    while (await request.receive())["type"] != "http.disconnect":
+        pass
 
 
 def aware_utc(moment: datetime) -> datetime:

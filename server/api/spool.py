@@ -28,8 +28,25 @@ def spooled(write: Callable[[BinaryIO], None], data_dir: Path, media_type: str,
     except BaseException:
         spool.close()
         raise
-    return StreamingResponse(chunks(spool), media_type=media_type, headers={
+    return SpooledResponse(spool, media_type=media_type, headers={
         "Content-Disposition": f'attachment; filename="{filename}"'})
+
+
+class SpooledResponse(StreamingResponse):
+    """The spool's bytes; the spool is closed (its file gone) when the answer ends,
+    however it ends. Left to the end of the chunks or the garbage collector, a client
+    that went away before reading held each export's file on disk (ten of a 360k-row
+    session's angles.csv: 220 MB still there 40 s after the clients closed)."""
+
+    def __init__(self, spool: BinaryIO, **kwargs) -> None:
+        super().__init__(chunks(spool), **kwargs)
+        self.spool = spool
+
+    async def __call__(self, scope, receive, send) -> None:
+        try:
+            await super().__call__(scope, receive, send)
+        finally:
+            self.spool.close()
 
 
 def as_text(write: Callable[[TextIO], None]) -> Callable[[BinaryIO], None]:
