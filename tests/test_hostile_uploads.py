@@ -223,3 +223,27 @@ def test_a_malformed_options_or_sensor_map_is_a_422_naming_the_field(module_serv
     print(field, value[:40], answer.status_code, answer.text[:200])
     assert answer.status_code == 422, answer.text
     assert field in answer.text
+
+
+@pytest.mark.parametrize("extra", ["one_long_value", "many_keys"])
+def test_a_recordings_header_holds_a_bounded_metadata(module_server, alice, recordings_dir,
+                                                      extra):
+    # a header's lines were kept whole as the session's metadata, and every listing of the
+    # patient's sessions carries it: a kit's six uploads with a 50 MB value (or 100,000
+    # keys) made GET /api/patients/{id}/sessions 161 MB and 8.2 s, on each patient page
+    patient = alice.patient(f"Header {extra}")
+    kit = alice.device(patient["id"])["token"]
+    lines = (recordings_dir / "elbow_flexion.csv").read_bytes().split(b"\n")
+    added = ([b"# note: " + b"x" * 1_000_000] if extra == "one_long_value"
+             else [b"# k%d: v" % i for i in range(20_000)])
+    data = b"\n".join(lines[:2] + added + lines[2:])
+    answer = httpx.post(module_server.url + "/api/recordings", timeout=300,
+                        headers={"Authorization": f"Bearer {kit}"},
+                        files={"file": ("big-header.csv", data, "text/csv")})
+    listing = alice.http.get(f"/api/patients/{patient['id']}/sessions")
+    print(f"\n{extra}: {answer.status_code} {answer.text[:200]}; the sessions' listing "
+          f"{len(listing.content):,} bytes")
+    assert answer.status_code == 422, answer.status_code
+    assert "header" in answer.json()["detail"], answer.text
+    assert module_server.sql("SELECT COUNT(*) FROM sessions WHERE patient_id = :p",
+                             p=patient["id"])[0][0] == 0

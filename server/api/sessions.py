@@ -29,7 +29,13 @@ from ..store.processing import (
     mark_closed,
     stored_estimates,
 )
-from ..store.recordings import add_recording, dated_by, session_recording, upload_blocks
+from ..store.recordings import (
+    add_recording,
+    dated_by,
+    metadata_problem,
+    session_recording,
+    upload_blocks,
+)
 from ..store.stopped import stopped_by_server
 from .deps import (
     Db,
@@ -263,6 +269,9 @@ def _count_and_store(db, svc: Services, patient: models.Patient, device_id: int 
         recording = imports.import_upload(files, sensors, patient, format, calibration,
                                           side, height_m, options,
                                           svc.settings.max_upload_bytes)
+    if (why := metadata_problem(recording)) is not None:  # nothing read further
+        name = (file.filename if file is not None else None) or "the files"
+        raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"{name}: {why}")
     held = sum(len(s) for s in recording.sensors.values()) \
         + sum(len(p) for p in recording.points.values())
     if held > svc.settings.max_session_samples:  # its estimation would hold every row
