@@ -328,6 +328,11 @@ def test_phone_kit_guides_streams_survives_a_cut_link_and_matches_truth(kit_serv
         # and the range of the angles it showed, against the prescription
         did = phone.locator("#did").inner_text()
         closes = phone.evaluate("kit.stream.closes")
+        # the next time the page opens, the welcome says what was done last time
+        phone.click("#again")
+        sync_api.expect(phone.locator("#start")).to_be_visible()
+        last_time = phone.locator("#last-session").inner_text()
+        phone.screenshot(path=str(shots / "a10-welcome-again.png"))
         session_id = phone.evaluate("kit.stream.state.session")
     finally:
         proxy.close()
@@ -379,6 +384,8 @@ def test_phone_kit_guides_streams_survives_a_cut_link_and_matches_truth(kit_serv
           f"{true_elbow.max():.0f}°")
     assert abs(high - true_elbow.max()) < 5 and abs(low - true_elbow.min()) < 5
     assert "not done" in palm_line
+    print(f"the welcome after it: {last_time!r}")
+    assert last_time.startswith("Last time, today") and elbow_line in last_time
 
 
 def test_a_reload_mid_session_loses_nothing(kit_server, phone, shots):

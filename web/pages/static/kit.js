@@ -13,6 +13,8 @@ const STEP_KEY = "armtrack.kit.step";
 const SEGMENT_KEY = "armtrack.kit.segment";
 /** What this session did per exercise (the finished screen's list; kept over a reload). */
 const DID_KEY = "armtrack.kit.did";
+/** The last finished session's list of what was done, with when (the welcome shows it). */
+const LAST_KEY = "armtrack.kit.last";
 /** A kit token as the server makes it (server/auth.py new_token("dev_"): 256 random bits,
  * URL-safe base64): anything else in a link is the link cut short. */
 const TOKEN_SHAPE = /^dev_[A-Za-z0-9_-]{43}$/;
@@ -223,10 +225,23 @@ function welcome() {
     ? KitProgram.summary(kit.today, kit.today.exercises)
     : [el("h1", {}, "Your arm exercises"),
       el("p", { class: "lead" }, `Today: ${count ? [...new Set(kit.today.exercises.map((e) => e.title))].join(", ") : "your exercises"}.`)];
-  screen(...intro,
+  screen(...intro, lastTime(),
     el("p", {}, "Your phone measures your arm. You need a strap or a sports armband for the phone."),
     kit.today.offline ? el("p", { class: "note" }, "Offline: using the exercises saved on this phone.") : null,
     big("Start", { id: "start", onclick: chooseSegment }));
+}
+
+/** What the last session on this phone did ("Last time, today" and its list), or null. */
+function lastTime() {
+  const last = JSON.parse(localStorage.getItem(LAST_KEY) || "null");
+  if (!last || !last.lines || !last.lines.length) return null;
+  const at = new Date(last.at);
+  const days = Math.round((new Date().setHours(0, 0, 0, 0) - new Date(last.at).setHours(0, 0, 0, 0)) / 86400000);
+  const when = days === 0 ? "today" : days === 1 ? "yesterday"
+    : at.toLocaleDateString(undefined, { weekday: "long", month: "short", day: "numeric" });
+  return el("div", { class: "last", id: "last-session" },
+    el("p", { class: "kicker" }, `Last time, ${when}`),
+    el("ul", { class: "did" }, last.lines.map((line) => el("li", {}, line))));
 }
 
 function chooseSegment() {
@@ -583,11 +598,14 @@ function wellDone(index) {
 async function finished() {
   const byTherapist = Boolean(kit.stream.state && kit.stream.state.closedByTherapist);
   saveStep("finished", 0);
+  const done = KitProgram.done(exercisesForKit(), kit.did);
+  localStorage.setItem(LAST_KEY, JSON.stringify({ at: Date.now(),
+    lines: [...done.children].map((li) => li.textContent) }));
   const info = el("p", { class: "lead", id: "sent" }, "Sending your session…");
   screen(el("h1", { class: "welldone" }, byTherapist ? "Session ended" : "Session finished"),
     el("p", {}, byTherapist ? "Your therapist ended this session. Thank you — what you did is saved."
       : "Thank you. Your therapist will see it."),
-    el("h2", { class: "question" }, "What you did"), KitProgram.done(exercisesForKit(), kit.did), info,
+    el("h2", { class: "question" }, "What you did"), done, info,
     // only once all is sent: a new session starts a new outbox
     big("Start another session", { id: "again", class: "big secondary", disabled: "",
       onclick: () => { localStorage.removeItem(STEP_KEY); welcome(); } }));
