@@ -316,3 +316,21 @@ def test_serve_settings_lists_every_setting_with_its_value(tmp_path):
     assert "ARMTRACK_CLINIC_NAME='Physio Rhein'" in done.stdout
     assert "s3cret-pw" not in done.stdout and "armtrack:***@db" in done.stdout
     assert not (tmp_path / "d").exists()  # nothing started, nothing made
+
+
+def test_serve_settings_keeps_the_brokers_password_out(tmp_path):
+    """`armtrack serve --settings` hid the database URL's password but printed the live
+    broker's (``ARMTRACK_BROKER_URL=redis://:PASSWORD@host``, Redis AUTH, README "Scaling
+    out") as it is: the output an operator pastes into a ticket carried it."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("ARMTRACK_")}
+    env.update(ARMTRACK_BROKER_URL="redis://armtrack:br0ker-pw@cache:6379/0")
+    done = subprocess.run([sys.executable, "-m", "armtrack.server.cli", "serve", "--settings",
+                           "--data-dir", str(tmp_path / "d")],
+                          capture_output=True, text=True, env=env, timeout=120)
+    shown = [line for line in done.stdout.splitlines()
+             if line.startswith("ARMTRACK_BROKER_URL=")]
+    print(shown)
+    assert done.returncode == 0, done.stderr
+    assert "br0ker-pw" not in done.stdout
+    assert shown and shown[0].startswith(  # shell-quoted: the * stays a *
+        "ARMTRACK_BROKER_URL='redis://armtrack:***@cache:6379/0'")

@@ -50,22 +50,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "nothing")
 
 
-def shown_url(url: str) -> str:
-    """A database URL fit for a log or a screen: its password as ``***``."""
-    from sqlalchemy.engine import make_url
+#: Settings whose value is a URL that may hold a password (``user:password@host``).
+URL_SETTINGS = ("database_url", "broker_url")
 
-    return make_url(url).render_as_string(hide_password=True)
+
+def shown_url(url: str) -> str:
+    """A database (or broker) URL fit for a log or a screen: its password as ``***``; one
+    that is no URL at all is not shown."""
+    from sqlalchemy.engine import make_url
+    from sqlalchemy.exc import ArgumentError
+
+    try:
+        return make_url(url).render_as_string(hide_password=True)
+    except ArgumentError:
+        return "*** (not a URL)"
 
 
 def settings_text(settings) -> str:
-    """Every setting as ``ARMTRACK_NAME=value  # what it does`` (shell-quoted values; a
-    database URL's password as ``***``), in the order of ``Settings``."""
+    """Every setting as ``ARMTRACK_NAME=value  # what it does`` (shell-quoted values; the
+    password of a URL in ``URL_SETTINGS`` as ``***``), in the order of ``Settings``."""
     import shlex
 
     lines = []
     for name, field in type(settings).model_fields.items():
         value = getattr(settings, name)
-        if name == "database_url" and value:
+        if name in URL_SETTINGS and value:
             value = shown_url(value)
         shown = "" if value is None else shlex.quote(str(value))
         lines.append(f"ARMTRACK_{name.upper()}={shown}"
