@@ -40,3 +40,29 @@ def test_a_date_of_birth_after_today_is_refused_on_the_forms(server):
         print(f"record form, born {later}: {said!r}")
         assert api.http.get(f"/api/patients/{patient['id']}").json()["date_of_birth"] is None
         assert said
+
+
+def test_the_sensor_kits_read_on_a_phone(server):
+    """Found at 390 px: the Sensor kits table squeezed four columns into the width, "Thu,
+    Dec 3, 2026, 10:39 PM" on 4 lines and "active (shown only when the kit was added)" on
+    5. Now each kit is a block: its name and Revoke, when it was added, its token's state."""
+    api = server.client("alice")
+    patient = api.patient("Kit Reader")
+    for name in ("Maria's phone", "Sensor kit A"):
+        api.device(patient["id"], name)
+    with page_at(390) as page:
+        sign_in_as(page, server.url, "alice")
+        page.goto(f"{server.url}/patients/{patient['id']}")
+        sync_api.expect(page.locator("#devices tbody tr")).to_have_count(2)
+        lines = page.evaluate("""() => [...document.querySelectorAll('#devices tbody tr')]
+          .map((tr) => [...tr.cells].slice(1, 3).map((td) => {
+            const range = document.createRange(); range.selectNodeContents(td);
+            // one rectangle per line box the text takes
+            return new Set([...range.getClientRects()].map((r) => Math.round(r.top))).size;
+          }))""")
+        width = page.evaluate("document.documentElement.scrollWidth")
+        page.locator("#devices").screenshot(path="/tmp/nu12-kits-390.png")
+    print(f"\nlines of (added, token) per kit at 390 px: {lines}")
+    for added, state in lines:
+        assert added == 1 and state <= 2, lines
+    assert width <= 390
