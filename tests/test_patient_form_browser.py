@@ -42,7 +42,7 @@ def test_a_date_of_birth_after_today_is_refused_on_the_forms(server):
         assert said
 
 
-def test_the_sensor_kits_read_on_a_phone(server):
+def test_the_sensor_kits_read_on_a_phone(server, tmp_path):
     """Found at 390 px: the Sensor kits table squeezed four columns into the width, "Thu,
     Dec 3, 2026, 10:39 PM" on 4 lines and "active (shown only when the kit was added)" on
     5. Now each kit is a block: its name and Revoke, when it was added, its token's state."""
@@ -61,7 +61,7 @@ def test_the_sensor_kits_read_on_a_phone(server):
             return new Set([...range.getClientRects()].map((r) => Math.round(r.top))).size;
           }))""")
         width = page.evaluate("document.documentElement.scrollWidth")
-        page.locator("#devices").screenshot(path="/tmp/nu12-kits-390.png")
+        page.locator("#devices").screenshot(path=str(tmp_path / "kits-390.png"))
     print(f"\nlines of (added, token) per kit at 390 px: {lines}")
     for added, state in lines:
         assert added == 1 and state <= 2, lines
