@@ -123,3 +123,27 @@ def test_the_program_says_changed_by_your_therapist_not_a_version_number(server,
     sync_api.expect(phone.locator("#program-version")).to_have_text("Changed by your therapist")
     phone.screenshot(path=str(shots / "program-changed.png"))
     assert "Version" not in phone.locator("#screen").inner_text()
+
+
+def test_another_patients_link_does_not_show_the_last_patients_session(server, phone, shots):
+    """The welcome's "Last time" list (c7c5b31) is kept on the phone, not with its kit: a
+    phone opened with another patient's link (a clinic's phone lent in turn, a family's
+    shared one) showed the last patient's exercises, repetitions and ranges to the next.
+    A link of another kit now starts with none; the same kit's keeps it."""
+    api = server.client("alice")
+    first = api.device(api.patient("Lent First")["id"], "clinic phone")["token"]
+    second = api.device(api.patient("Lent Second")["id"], "clinic phone")["token"]
+    phone.goto(f"{server.url}/kit#token={first}")
+    sync_api.expect(phone.locator("#start")).to_be_visible()
+    # what the finished screen keeps (kit.js finished(): LAST_KEY)
+    phone.evaluate("""localStorage.setItem("armtrack.kit.last", JSON.stringify({at: Date.now(),
+        lines: ["Bend the elbow: 7 of 10 repetitions · from 0° to 120° (target 0° to 120°)"]}))""")
+    phone.goto(f"{server.url}/kit#token={first}")  # the same kit's link again
+    sync_api.expect(phone.locator("#last-session")).to_contain_text("7 of 10 repetitions")
+
+    phone.goto(f"{server.url}/kit#token={second}")
+    sync_api.expect(phone.locator("#start")).to_be_visible()
+    said = phone.locator("#screen").inner_text()
+    print("\n" + said)
+    phone.screenshot(path=str(shots / "lent-phone.png"))
+    assert "7 of 10" not in said and phone.locator("#last-session").count() == 0

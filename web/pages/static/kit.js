@@ -13,7 +13,8 @@ const STEP_KEY = "armtrack.kit.step";
 const SEGMENT_KEY = "armtrack.kit.segment";
 /** What this session did per exercise (the finished screen's list; kept over a reload). */
 const DID_KEY = "armtrack.kit.did";
-/** The last finished session's list of what was done, with when (the welcome shows it). */
+/** The last finished session's list of what was done, with when (the welcome shows it); forgotten
+ * when another kit's link is opened (main). */
 const LAST_KEY = "armtrack.kit.last";
 /** A kit token as the server makes it (server/auth.py new_token("dev_"): 256 random bits,
  * URL-safe base64): anything else in a link is the link cut short. */
@@ -686,8 +687,13 @@ async function main() {
   const fragment = new URLSearchParams(location.hash.slice(1));
   const given = fragment.get("token");
   if (given) {
-    // a link cut short does not take the place of the phone's working one
-    if (TOKEN_SHAPE.test(given)) localStorage.setItem(TOKEN_KEY, given);
+    // a link cut short does not take the place of the phone's working one; another kit's
+    // link (another patient's, on a phone lent in turn) starts without the last
+    // session's list: it was that kit's patient's
+    if (TOKEN_SHAPE.test(given)) {
+      if (given !== localStorage.getItem(TOKEN_KEY)) localStorage.removeItem(LAST_KEY);
+      localStorage.setItem(TOKEN_KEY, given);
+    }
     history.replaceState(null, "", location.pathname);  // the token leaves the address bar
   }
   kit.token = localStorage.getItem(TOKEN_KEY);
