@@ -18,6 +18,7 @@ from starlette.concurrency import run_in_threadpool
 from .db import models
 from .db.engine import make_engine, make_sessionmaker
 from .db.migrate import upgrade
+from .export_turns import FairTurns
 from .ingest.budget import SHARED_BURST_S, KitBudget, follow_loop
 from .ingest.writer import GroupWriter, StreamState
 from .live.access import AccessWatch
@@ -84,7 +85,7 @@ class Services:
         #: two at a time
         self.cpu_pool = ThreadPoolExecutor(CPU_THREADS, thread_name_prefix="armtrack-cpu")
         #: exports holding a whole session in memory (CSV, OpenSim, PDF): a few at once
-        self.exports = asyncio.Semaphore(EXPORTS_AT_ONCE)
+        self.exports = FairTurns(EXPORTS_AT_ONCE)
         #: password hashing (argon2id: 64 MiB, ~0.1 s each), two at a time however many
         #: sign-ins arrive, in a pool of its own: a flood of sign-ins queues behind itself,
         #: not ahead of the kits' feedback
@@ -261,34 +262,35 @@ class Services:
         return await asyncio.get_running_loop().run_in_executor(self.db_pool, context.run,
                                                                 call)
 
-    async def run_export(self, fn: Callable[..., T], *args: Any,
+    async def run_export(self, fn: Callable[..., T], *args: Any, owner: int = 0,
                          gone: Awaitable[Any] | None = None) -> T:
         """``fn(db, *args)``, a session's export, with a database session on a worker
         thread, at most ``EXPORTS_AT_ONCE`` at once in this process; the others wait their
         turn holding no thread. Each holds the whole session in memory, several times over:
         angles.csv of a 1.89 M-row session took the server +595 MB, six at once +2978 MB,
-        and the thread pool lets 40 run at once. ``gone``: done once nobody wants the
-        export any more; while it waits, raises ``ExportUnwanted`` then."""
+        and the thread pool lets 40 run at once. Turns are shared fairly among ``owner``s
+        (therapists' ids: ``FairTurns``). ``gone``: done once nobody wants the export any
+        more; while it waits, raises ``ExportUnwanted`` then."""
         def call() -> T:
             with self.db() as db:
                 return fn(db, *args)
         context = contextvars.copy_context()  # what fn notes for the audit log
-        if not await self._export_turn(gone):
+        if not await self._export_turn(owner, gone):
             raise ExportUnwanted
         try:
             return await run_in_threadpool(context.run, call)
         finally:
-            self.exports.release()
+            self.exports.release(owner)
 
-    async def _export_turn(self, gone: Awaitable[Any] | None) -> bool:
+    async def _export_turn(self, owner: int, gone: Awaitable[Any] | None) -> bool:
         """Take an export's turn (``exports``); False, holding none, once ``gone`` is done
         first (the one who asked is gone: twelve requests dropped at once were each
         built in turn all the same, another therapist's export waiting 10.5 s instead of
         0.03 s behind them)."""
         if gone is None:
-            await self.exports.acquire()
+            await self.exports.acquire(owner)
             return True
-        turn = asyncio.ensure_future(self.exports.acquire())
+        turn = asyncio.ensure_future(self.exports.acquire(owner))
         watch = asyncio.ensure_future(gone)
         try:
             await asyncio.wait((turn, watch), return_when=asyncio.FIRST_COMPLETED)
@@ -300,7 +302,7 @@ class Services:
         if turn.cancelled():
             return False
         if watch.done() and not watch.cancelled():
-            self.exports.release()
+            self.exports.release(owner)
             return False
         return True
 

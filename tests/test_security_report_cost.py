@@ -290,3 +290,82 @@ def test_an_export_whose_client_left_before_reading_leaves_no_file(server, long_
     print(f"\nexport files still open after the clients left: {left[-1]} "
           f"({time.monotonic() - closed_at:.1f} s after)")
     assert left[-1] == 0, left
+
+
+def test_one_therapists_many_exports_wait_behind_their_own_not_ahead_of_anothers(
+        server, long_sessions, recordings_dir):
+    # the export turns were first come, first served: one account's queue of exports (from
+    # however many sign-ins) went ahead of everyone else's
+    server.create_user("dora")  # carol may be disabled by the test before
+    alice, alice2, carol = (server.client("alice"), server.client("alice"),
+                            server.client("dora"))
+    mine = carol.patient(name="Carol's own")
+    with (recordings_dir / "elbow_flexion.csv").open("rb") as f:
+        small = carol.http.post("/api/recordings", data={"patient_id": mine["id"]},
+                                files={"file": ("s.csv", f, "text/csv")}, timeout=600)
+    assert small.status_code == 201, small.text[:300]
+    long_path = f"/api/sessions/{long_sessions[8]['id']}/angles.csv"
+    for old in [*EXPORT_GATE.glob("reached-*"), EXPORT_GATE / "go"]:
+        old.unlink(missing_ok=True)
+    done: dict[str, float] = {}
+
+    async def run() -> None:
+        async with httpx.AsyncClient(base_url=server.url, timeout=900) as http:
+            async def get(name: str, api, path: str) -> None:
+                answer = await http.get(path, headers={"Authorization": f"Bearer {api.token}"})
+                assert answer.status_code == 200, (name, answer.status_code)
+                done[name] = time.monotonic()
+            (EXPORT_GATE / "hold").touch()
+            try:
+                busy = [asyncio.ensure_future(get(f"alice busy {k}", alice, long_path))
+                        for k in range(2)]
+                deadline = time.monotonic() + 120
+                while len(list(EXPORT_GATE.glob("reached-*"))) < 2:  # both turns held
+                    assert time.monotonic() < deadline, "the exports never took their turns"
+                    await asyncio.sleep(0.05)
+                queued = [asyncio.ensure_future(get(f"alice queued {k}", api, long_path))
+                          for k, api in enumerate([alice, alice2] * 2)]
+                await asyncio.sleep(1.0)  # alice's four wait, then carol's one
+                theirs = asyncio.ensure_future(
+                    get("carol", carol, f"/api/sessions/{small.json()['id']}/angles.csv"))
+                await asyncio.sleep(0.5)
+            finally:
+                (EXPORT_GATE / "go").touch()
+            await asyncio.gather(*busy, *queued, theirs)
+    try:
+        asyncio.run(run())
+    finally:
+        (EXPORT_GATE / "hold").unlink(missing_ok=True)
+        (EXPORT_GATE / "go").unlink(missing_ok=True)
+    order = sorted(done, key=done.get)
+    print(f"\nexports done in the order: {order}")
+    ahead = [name for name in order[:order.index("carol")] if name.startswith("alice queued")]
+    assert not ahead, f"alice's later exports went ahead of carol's: {ahead}"
+
+
+def test_fair_turns_go_to_the_owner_holding_fewest_and_a_cancelled_wait_holds_none():
+    from armtrack.server.export_turns import FairTurns
+
+    async def run() -> list:
+        turns, order = FairTurns(1), []
+        await turns.acquire(1)
+
+        async def wait(owner: int, name: str) -> None:
+            await turns.acquire(owner)
+            order.append(name)
+        waiting = [asyncio.ensure_future(wait(1, "1a")), asyncio.ensure_future(wait(1, "1b")),
+                   asyncio.ensure_future(wait(2, "2a")), asyncio.ensure_future(wait(3, "3a"))]
+        await asyncio.sleep(0)
+        waiting[3].cancel()  # gone while waiting: never given a turn
+        await asyncio.sleep(0)
+        holder = {"1a": 1, "1b": 1, "2a": 2}
+        for _ in range(3):
+            turns.release(holder[order[-1]] if order else 1)
+            await asyncio.sleep(0)
+        turns.release(holder[order[-1]])
+        await asyncio.sleep(0)
+        return order, turns._free, turns._waiting
+    order, free, waiting = asyncio.run(run())
+    # owners at a tie take turns, each its own in order; 3 went away and got none
+    assert order == ["1a", "2a", "1b"], order
+    assert free == 1 and not waiting

@@ -73,18 +73,20 @@ def current_therapist(db: Db, token: Annotated[str | None, Depends(oauth2)],
     return therapist
 
 
-async def in_export_turn(request: Request, fn: Callable[..., T], *args: Any) -> T:
+async def in_export_turn(request: Request, asker: models.Therapist,
+                         fn: Callable[..., T], *args: Any) -> T:
     """``fn(db, therapist, *args)``, an export, in its turn (``Services.run_export``),
     with the therapist of the request's token as it is then: a sign-in that ended or an
     account disabled while the export waited is 401, and the ownership ``fn`` checks is
-    read then too. A request whose client goes away while it waits is not built."""
+    read then too. A request whose client goes away while it waits is not built. Turns
+    are shared fairly among the therapists asking (``asker``: as read when it came)."""
     token = await oauth2(request)
     services = request.app.state.services
 
     def work(db: DbSession) -> T:
         return fn(db, current_therapist(db, token, request), *args)
     try:
-        return await services.run_export(work, gone=_disconnected(request))
+        return await services.run_export(work, owner=asker.id, gone=_disconnected(request))
     except ExportUnwanted:  # nobody is there to answer
         raise HTTPException(CLIENT_GONE, "the client went away before its turn") from None
 

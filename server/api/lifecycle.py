@@ -127,7 +127,7 @@ async def export_patient(patient_id: Id, therapist: Therapist, request: Request,
         # session's data at a time, whatever the patient's number of sessions
         return spooled(lambda out: patient_archive(db, patient, out), svc.settings.data_dir,
                        "application/zip", f"patient-{patient_id}.zip")
-    return await in_export_turn(request, work)
+    return await in_export_turn(request, therapist, work)
 
 
 def _audit_query(db: DbSession, therapist: models.Therapist, patient_id: int | None,

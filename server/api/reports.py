@@ -96,7 +96,7 @@ async def get_report_pdf(session_id: Id, therapist: Therapist, request: Request,
     therapist, patient identifiers, local date and time, what was done, range against
     normal, the target then, the previous sessions and the change, a plain sentence),
     then the details and a technical appendix (four pages)."""
-    return await in_export_turn(request, _report_pdf, session_id, svc.settings)
+    return await in_export_turn(request, therapist, _report_pdf, session_id, svc.settings)
 
 
 def _report_pdf(db: DbSession, therapist: models.Therapist, session_id: int,
@@ -154,7 +154,7 @@ async def get_report_mot(session_id: Id, therapist: Therapist, request: Request,
         return spooled(as_text(lambda out: opensim.write_mot(
             out, data, f"armtrack session {session_id}")), svc.settings.data_dir,
             "text/plain", f"session-{session_id}.mot")
-    return await in_export_turn(request, work)
+    return await in_export_turn(request, therapist, work)
 
 
 @router.get("/sessions/{session_id}/report.sto", response_class=Response,
@@ -166,7 +166,7 @@ async def get_report_sto(session_id: Id, therapist: Therapist, request: Request,
         data = _data(db, therapist, session_id)
         return spooled(as_text(lambda out: opensim.write_sto(out, data)),
                        svc.settings.data_dir, "text/plain", f"session-{session_id}.sto")
-    return await in_export_turn(request, work)
+    return await in_export_turn(request, therapist, work)
 
 
 @router.get("/sessions/{session_id}/report.fhir.json", response_class=JSONResponse,

@@ -307,7 +307,8 @@ def _count_and_store(db, svc: Services, patient: models.Patient, device_id: int 
 async def export_recording(session_id: Id, therapist: Therapist, request: Request,
                            svc: Annotated[Services, Depends(get_services)]) -> Response:
     """The session's raw data as a recording file; it reads back to the stored numbers."""
-    return await in_export_turn(request, _recording_file, session_id, svc.settings.data_dir)
+    return await in_export_turn(request, therapist, _recording_file, session_id,
+                                svc.settings.data_dir)
 
 
 def _recording_file(db: DbSession, therapist: models.Therapist, session_id: int,
@@ -325,7 +326,7 @@ def _recording_file(db: DbSession, therapist: models.Therapist, session_id: int,
 async def export_angles(session_id: Id, therapist: Therapist, request: Request,
                         svc: Annotated[Services, Depends(get_services)]) -> Response:
     """Per-sample joint angles [deg] and positions [m], as ``armtrack estimate`` writes."""
-    return await in_export_turn(request, _angles_file, session_id, svc.settings.data_dir)
+    return await in_export_turn(request, therapist, _angles_file, session_id, svc.settings.data_dir)
 
 
 def _angles_file(db: DbSession, therapist: models.Therapist, session_id: int,
