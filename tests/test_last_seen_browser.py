@@ -21,20 +21,23 @@ sync_api = need_browser()
 server = server_fixture("last-seen", "alice")
 
 
-def broken_off(server, api, name: str) -> tuple[dict, float]:
-    """A patient whose kit (``armtrack stream``) streamed ~5 s and was then killed (its
-    power gone: no goodbye); the patient and the monotonic time of the kill."""
+def broken_off(server, api, name: str, *, speed: str = "1", rows_per_message: str = "10",
+               samples: int = 1500) -> tuple[dict, float]:
+    """A patient whose kit (``armtrack stream`` at ``speed`` times real time) streamed
+    ``samples`` samples (1500: ~5 s of the three sensors) and was then killed (its power
+    gone: no goodbye); the patient and the monotonic time of the kill."""
     patient = api.patient(name, side="left")
     token = api.device(patient["id"], "kit")["token"]
     kit = subprocess.Popen(
         [sys.executable, "-m", "armtrack.server.cli", "stream", "--exercise", "elbow_flexion",
-         "--side", "left", "--url", server.ws_url, "--token", token, "--quiet"],
+         "--side", "left", "--url", server.ws_url, "--token", token, "--quiet",
+         "--speed", speed, "--rows-per-message", rows_per_message],
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline:
             sessions = api.http.get(f"/api/patients/{patient['id']}/sessions").json()
-            if sessions and sessions[0]["samples"] > 1500:  # ~5 s of the three sensors
+            if sessions and sessions[0]["samples"] > samples:
                 break
             time.sleep(0.2)
         else:
@@ -90,3 +93,23 @@ def test_an_interrupted_session_is_closed_from_its_own_page(server):
     print(f"\nsession {session_id}: {session['status']}, processed {session['processed']}")
     assert session["status"] == "closed" and not session["processing_error"]
     assert width <= 390
+
+
+def test_a_stream_sent_faster_than_real_time_was_not_seen_in_the_future(server):
+    """A backlog sent at once (``armtrack stream --speed 0``: as fast as it can) and cut
+    off: its last sample's stream time lies far past the session's start plus the wall
+    time since, and "last seen" was placed after now ("0 s ago" on the page, a time to
+    come in the API). The last sample cannot have arrived after now."""
+    api = server.client("alice")
+    # one row a message: read at the kit's budget, ~10 times real time, killed ~2 s in
+    patient, _ = broken_off(server, api, "Sent At Once", speed="0", rows_per_message="1",
+                            samples=6000)
+    deadline = time.monotonic() + 60  # the server has read the rest and seen the socket go
+    while api.http.get(f"/api/patients/{patient['id']}/sessions").json()[0]["status"] == "live":
+        assert time.monotonic() < deadline, "the session never turned interrupted"
+        time.sleep(0.2)
+    live = api.http.get(f"/api/patients/{patient['id']}/live").json()
+    seen = [s["last_seen"] for s in live["sensors"] if s["samples"]]
+    print(f"\nlast seen {[round(t - live['server_time'], 1) for t in seen]} s from the "
+          "server's now")
+    assert seen and all(t <= live["server_time"] for t in seen)

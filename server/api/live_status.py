@@ -196,13 +196,14 @@ def _snapshot(svc: Services, patient_id: int) -> dict[int, dict[str, Any]]:
 
 
 def _stored_last_seen(session: models.Session, totals: dict[str, dict[str, float]],
-                      name: str) -> float:
+                      name: str, now_wall: float) -> float:
     """When sensor ``name``'s last stored sample was taken [s, Unix time], from the store
     alone: the session's start (the kit's hello) plus the stream's own time from its first
-    sample to that one. For a stream no page polled while it was open, or a server
+    sample to that one, and never after ``now_wall`` [s, Unix time] (a backlog sent faster
+    than real time). For a stream no page polled while it was open, or a server
     restarted since (their arrival times are kept in memory only): "never" was wrong."""
     first = min(t["t_first"] for t in totals.values())
-    return session.started_at.timestamp() + (totals[name]["t_last"] - first)
+    return min(now_wall, session.started_at.timestamp() + (totals[name]["t_last"] - first))
 
 
 def live_status(svc: Services, db: DbSession, patient_id: int,
@@ -225,7 +226,7 @@ def live_status(svc: Services, db: DbSession, patient_id: int,
         arrivals = (open_stream or {}).get(name)
         last_seen = arrivals["last_seen"] if arrivals else _last_seen.get((session.id, name))
         if last_seen is None and name in totals:
-            last_seen = _stored_last_seen(session, totals, name)
+            last_seen = _stored_last_seen(session, totals, name, now_wall)
         sensor_status = status.get(name, {})
         sensors.append({
             "sensor": name,
