@@ -831,3 +831,104 @@ def test_a_full_session_reloaded_before_its_bye_goes_on_once(capped_server, phon
              if n for r in _stored_rows(capped_server, api, session)[:, :4]]
     assert index == list(range(index[0], index[0] + taken)), \
         "a reading was lost, reordered or stored twice"
+
+
+
+def _recorded_offline(phone, api, url, proxy, token, shots, seed: int) -> tuple:
+    """Through ``proxy`` the kit streams 2 s, the link is cut and the rest of 10 s is
+    recorded offline (kept unsent in the outbox); the page is then closed and a new one
+    opened in the same context (the phone's storage). Returns (session id, readings taken,
+    the new page)."""
+    events = motion_events(phone_simulation(seed=seed))
+    _start_kit(phone, url, token, shots, f"lent{seed}")
+    phone.click("#ready")
+    phone.evaluate(FEEDER, events[:600])
+    _wait(lambda: phone.evaluate("kit.stream.connected && kit.stream.samples > 120 "
+                                 "&& kit.stream.unsent === 0"), 30, "2 s streamed")
+    session = phone.evaluate("kit.stream.state.session")
+    proxy.cut()  # the rest is recorded offline: kept on the phone, unsent
+    _wait(lambda: api.session(session)["status"] == "interrupted", 30, "interrupted")
+    _wait(lambda: _dispatched(phone) >= 600, 60, "the readings dispatched offline")
+    phone.evaluate("kit.stream.flush()")  # the last readings saved, not in memory
+    taken = phone.evaluate("kit.stream.samples")
+    kept = phone.evaluate("KitStore.count()")
+    stored_before = api.session(session)["samples"]
+    print(f"\nA: {taken} readings taken, {stored_before} stored, {kept} messages kept unsent")
+    assert kept > 0 and stored_before < taken
+    proxy.restore()
+    context = phone.context
+    phone.close()
+    return session, taken, context.new_page()
+
+
+def test_a_lent_phone_sends_the_last_patients_readings_with_their_own_link(server, phone,
+                                                                          shots):
+    """A phone lent between patients (review12, found by reading): patient A's session was
+    cut off with readings kept unsent on the phone, then B's link was opened on it. The
+    resume went with B's token, the server refused it ("no stream … to resume for this
+    device's patient") and the page deleted A's readings, saying "erased by your
+    therapist". The outbox now keeps the link it was recorded under: A's readings reach
+    A's session, nothing of them lands in B's, and B's welcome follows."""
+    from test_phone_kit_browser import CuttableProxy
+
+    api = server.client("alice")
+    first_patient = api.patient("Lent Phone First")["id"]
+    second_patient = api.patient("Lent Phone Second")["id"]
+    first = api.device(first_patient, "clinic phone")["token"]
+    second = api.device(second_patient, "clinic phone")["token"]
+    proxy = CuttableProxy(server.port)
+    url = f"http://127.0.0.1:{proxy.port}"
+    try:
+        session, taken, phone = _recorded_offline(phone, api, url, proxy, first, shots, 12)
+        phone.goto(f"{url}/kit#token={second}")  # B's link on the same phone
+        _wait(lambda: phone.evaluate("KitStore.count()") == 0, 60, "the phone's outbox emptied")
+        stored = api.session(session)["samples"]
+        said = phone.locator("#screen").inner_text()
+        print(f"A's session {session}: {stored} of {taken} stored; the page says {said!r}")
+        phone.screenshot(path=str(shots / "lent-1-sent.png"))
+        assert stored == taken, "the first patient's readings were lost"
+        assert "erased" not in said
+        assert api.http.get(f"/api/patients/{second_patient}/sessions").json() == []
+        sync_api.expect(phone.locator("#start")).to_be_visible(timeout=20_000)  # B's welcome
+        phone.screenshot(path=str(shots / "lent-2-welcome.png"))
+    finally:
+        proxy.close()
+
+
+@pytest.mark.parametrize("whose", ["same", "other"])
+def test_a_kept_session_whose_link_was_revoked(server, phone, shots, whose):
+    """The kept session's own link was revoked before it was sent. The same patient's new
+    link opened on the phone sends it (the server resumes a stream for its own patient);
+    another patient's link cannot (refused, nothing stored): the page says the link was
+    replaced or removed, not "erased", and "Continue" leads to that patient's welcome."""
+    from test_phone_kit_browser import CuttableProxy
+
+    api = server.client("alice")
+    first_patient = api.patient(f"Revoked First {whose}")["id"]
+    old = api.device(first_patient, "clinic phone")
+    other_patient = api.patient(f"Revoked Other {whose}")["id"]
+    opened_for = first_patient if whose == "same" else other_patient
+    opened = api.device(opened_for, "clinic phone")["token"]
+    proxy = CuttableProxy(server.port)
+    url = f"http://127.0.0.1:{proxy.port}"
+    try:
+        session, taken, phone = _recorded_offline(phone, api, url, proxy, old["token"], shots,
+                                                   13)
+        assert api.http.delete(f"/api/devices/{old['id']}").status_code == 204
+        phone.goto(f"{url}/kit#token={opened}")
+        if whose == "same":
+            _wait(lambda: phone.evaluate("KitStore.count()") == 0, 60, "the outbox emptied")
+            stored = api.session(session)["samples"]
+            print(f"the same patient's new link: {stored} of {taken} stored")
+            assert stored == taken, "the readings were lost"
+        else:
+            sync_api.expect(phone.locator("#continue")).to_be_visible(timeout=60_000)
+            said = phone.locator("#screen").inner_text()
+            print(f"another patient's link: the page says {said!r}")
+            phone.screenshot(path=str(shots / "lent-revoked.png"))
+            assert "replaced or removed" in said and "erased" not in said
+            phone.click("#continue")
+        sync_api.expect(phone.locator("#start")).to_be_visible(timeout=20_000)
+        assert api.http.get(f"/api/patients/{other_patient}/sessions").json() == []
+    finally:
+        proxy.close()

@@ -131,8 +131,9 @@ class KitStream {
     this.onEndedByTherapist = onEndedByTherapist || (() => {});
     this.onStopped = onStopped || (() => {});
     this.stopped = null;   // {reason, lastRefused}: the server stopped this kit (_stopRefused)
-    // {stream, session, nextSeq, startEpoch, lastT, sensor, side, acked, program, ratings}
-    // ratings: effort_pain messages not yet stored by the server (effort-pain/1)
+    // {stream, session, nextSeq, startEpoch, lastT, sensor, side, acked, program, ratings,
+    // token}; ratings: effort_pain messages not yet stored by the server (effort-pain/1);
+    // token: the kit link the session was recorded under (its outbox goes with that one)
     this.state = null;
     this.extensions = [];  // those the server's ready listed
     this.rows = [];        // readings not yet in a message
@@ -179,11 +180,14 @@ class KitStream {
     }
   }
 
-  /** Start a new session, or continue the one kept on the phone. */
+  /** Start a new session, or continue the one kept on the phone: under the link it was
+   * recorded with (state.token), whichever link opened the page (a phone lent in turn). */
   async start({ resume = false } = {}) {
     const kept = await KitStore.getState("stream");
     if (resume && kept && !kept.finished) {
       this.state = kept;
+      if (kept.token) this.token = kept.token;
+      else this.state.token = this.token;  // kept before the token was: the link open now
       this.sensor = kept.sensor;
       this.side = kept.side;
       this.program = kept.program == null ? null : kept.program;
@@ -206,7 +210,7 @@ class KitStream {
       this.state = { stream: null, session: null, nextSeq: 0, acked: -1,
                      startEpoch: (performance.timeOrigin + performance.now()) / 1000,
                      savedThrough: -1, lastT: 0, sensor: this.sensor, side: this.side, finished: false,
-                     program: this.program, ratings: [] };
+                     program: this.program, ratings: [], token: this.token };
       await KitStore.setState("stream", this.state);
     }
     this.unsent = await KitStore.count();

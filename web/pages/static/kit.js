@@ -683,6 +683,66 @@ async function resume(kept) {
   }
 }
 
+/** The session kept on this phone was recorded under another kit's link (a phone lent in
+ * turn: state.token, kit-stream.js): it goes with that link, to that patient's session,
+ * never with the link open now, and ends there. Resolves once all of it is sent; this
+ * link's welcome follows. Offline, it waits on the phone and goes when online. Its own
+ * link revoked, a resume is tried with the link open now (the same patient's new link
+ * takes it; the server refuses another patient's, storing nothing); refused that way too,
+ * or erased on the server, the screen says so and "Continue" drops it from the phone. */
+function sendTheLastPatients(kept) {
+  noStatus();  // the bar would show the other link's state as this one's
+  const info = el("p", { class: "lead", id: "handover" }, "Sending…");
+  screen(el("h1", {}, "Sending the last session on this phone"),
+    el("p", {}, "This phone keeps readings of a session recorded with another link (another "
+      + "patient's, or an older one). They go to that session first; then yours can start."), info);
+  kit.stream = new KitStream({ token: kept.token, sensor: kept.sensor, side: kept.side,
+    device: PHONE_KIT, program: kept.program });
+  return new Promise((resolve, reject) => {
+    const done = () => {
+      clearInterval(id);
+      kit.stream = null;
+      kit.did = {};
+      localStorage.removeItem(DID_KEY);
+      localStorage.removeItem(STEP_KEY);
+      document.getElementById("status").hidden = false;
+      resolve();
+    };
+    let viaThisLink = false;  // its own link revoked: resumed with this one (see below)
+    const id = setInterval(() => {
+      const s = kit.stream;
+      if (s.state && s.state.finished && !s.error) return done();
+      if (/revoked/.test(s.error || "") && !viaThisLink && s.state && s.state.stream) {
+        // its link was replaced: the link open now may be the same patient's new one. The
+        // server resumes a stream for its own patient only and refuses it (nothing
+        // stored) for another's, so a resume cannot land in another patient's session
+        viaThisLink = true;
+        s.token = kit.token;
+        s.error = null;
+        s.connect();
+        return;
+      }
+      if ((s.state && s.state.finished) || /revoked/.test(s.error || "")) {
+        clearInterval(id);
+        info.textContent = viaThisLink || /revoked/.test(s.error || "")
+          ? "The other patient's link was replaced or removed, so what was left of their session "
+            + "on this phone cannot be sent. Their therapist has everything sent before."
+          : "The other patient's therapist erased that session, so what was left of it on this phone is not sent.";
+        info.after(big("Continue", { id: "continue", onclick: async () => {
+          if (!s.state.finished) {  // revoked, kept until now: it goes from this phone
+            s._abandon();
+            await s._saving;
+          }
+          done();
+        } }));
+        return;
+      }
+      info.textContent = s.connected ? `Sending… ${s.unsent} to go` : "Saved on this phone, will send when online.";
+    }, 300);
+    kit.stream.start({ resume: true }).then(() => kit.stream.finish()).catch(reject);
+  });
+}
+
 async function main() {
   const fragment = new URLSearchParams(location.hash.slice(1));
   const given = fragment.get("token");
@@ -726,7 +786,11 @@ async function main() {
   status();
   await holdTheKit();
   if (!kit.token) return noLink();
-  const kept = await KitStore.getState("stream");
+  let kept = await KitStore.getState("stream");
+  if (kept && !kept.finished && kept.stream !== undefined && kept.token && kept.token !== kit.token) {
+    await sendTheLastPatients(kept);
+    kept = null;
+  }
   kit.today = await loadToday();
   if (kit.today.revoked) {
     noStatus();
