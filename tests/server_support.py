@@ -194,7 +194,11 @@ class Api:
     """A therapist's REST client (signed in)."""
 
     def __init__(self, base: str, name: str, password: str):
-        self.http = httpx.Client(base_url=base, timeout=60)
+        # an idle connection is dropped here after 2 s, before uvicorn closes it (5 s):
+        # with both at 5 s a request sent after a 5-s pause met the server's close
+        # ("Connection reset by peer", test_phone_kit_browser_storage in a targeted run)
+        self.http = httpx.Client(base_url=base, timeout=60,
+                                 limits=httpx.Limits(keepalive_expiry=2.0))
         answer = self.http.post("/api/auth/token", data={"username": name, "password": password})
         answer.raise_for_status()
         self.token = answer.json()["access_token"]
