@@ -334,3 +334,33 @@ def test_serve_settings_keeps_the_brokers_password_out(tmp_path):
     assert "br0ker-pw" not in done.stdout
     assert shown and shown[0].startswith(  # shell-quoted: the * stays a *
         "ARMTRACK_BROKER_URL='redis://armtrack:***@cache:6379/0'")
+
+
+def test_serve_settings_keeps_a_password_given_in_the_query_out(tmp_path):
+    """attack13: a password may also be given in a URL's query, which libpq
+    (``postgresql://armtrack@db/armtrack?password=…``) and redis-py (``redis://cache?password=…``)
+    both take; ``armtrack serve --settings`` (and the serve start line, the same
+    ``shown_url``) printed it as it was, while hiding one written ``user:password@``."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("ARMTRACK_")}
+    env.update(ARMTRACK_DATABASE_URL="postgresql+psycopg://armtrack@db/armtrack"
+               "?sslmode=require&password=q-db-pw",
+               ARMTRACK_BROKER_URL="redis://cache:6379/0?password=q-br0ker-pw")
+    done = subprocess.run([sys.executable, "-m", "armtrack.server.cli", "serve", "--settings",
+                           "--data-dir", str(tmp_path / "d")],
+                          capture_output=True, text=True, env=env, timeout=120)
+    shown = [line for line in done.stdout.splitlines() if "_URL=" in line]
+    print("\n".join(shown))
+    assert done.returncode == 0, done.stderr
+    assert "q-db-pw" not in done.stdout and "q-br0ker-pw" not in done.stdout
+    assert "sslmode=require" in done.stdout  # the rest of the query is kept
+
+
+def test_a_broker_url_of_another_scheme_is_refused_without_its_password():
+    """attack13: the refusal of a broker URL that is not redis's echoed it whole, password
+    and all, into the start's traceback (the service's log)."""
+    from armtrack.server.live.broker import make_hub
+
+    with pytest.raises(ValueError) as refused:
+        make_hub("https://armtrack:br0ker-pw@cache:6379/0")
+    print(refused.value)
+    assert "br0ker-pw" not in str(refused.value) and "https://" in str(refused.value)

@@ -54,16 +54,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 URL_SETTINGS = ("database_url", "broker_url")
 
 
+#: A URL's query keys (any case) whose values are secrets: libpq and redis-py take a
+#: password there too (``?password=…``; libpq's ``sslpassword`` unlocks the client key).
+SECRET_QUERY_KEYS = ("pass", "secret", "token")
+
+
 def shown_url(url: str) -> str:
-    """A database (or broker) URL fit for a log or a screen: its password as ``***``; one
-    that is no URL at all is not shown."""
+    """A database (or broker) URL fit for a log or a screen: its password as ``***``,
+    written ``user:password@`` or in the query (``?password=``); one that is no URL at
+    all is not shown."""
     from sqlalchemy.engine import make_url
     from sqlalchemy.exc import ArgumentError
 
     try:
-        return make_url(url).render_as_string(hide_password=True)
+        parsed = make_url(url)
     except ArgumentError:
         return "*** (not a URL)"
+    hidden = {key: "***" for key in parsed.query
+              if any(word in key.lower() for word in SECRET_QUERY_KEYS)}
+    return parsed.update_query_dict(hidden).render_as_string(hide_password=True)
 
 
 def settings_text(settings) -> str:

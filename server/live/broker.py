@@ -211,5 +211,8 @@ def make_hub(broker_url: str | None) -> LiveHub:
     if not broker_url:
         return LiveHub()
     if not broker_url.startswith(("redis://", "rediss://", "unix://")):
-        raise ValueError(f"ARMTRACK_BROKER_URL: a redis:// URL is needed, not {broker_url!r}")
+        scheme = broker_url.partition("://")[0] + "://" if "://" in broker_url else "no scheme"
+        # the URL is not echoed: it may hold a password
+        raise ValueError(f"ARMTRACK_BROKER_URL: a redis://, rediss:// or unix:// URL is "
+                         f"needed, not one of {scheme[:20]!r}")
     return RedisHub(broker_url)
