@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.integrate import cumulative_trapezoid
 from scipy.spatial.transform import Rotation
+from scipy.special import sici
 
 from ..body import Side
 from ..calibration import (
@@ -513,6 +514,14 @@ def biases_from_poses(tracks: Mapping[str, SensorTrack], plan: CalibrationPlan,
 #: The band a trunk's sway is taken to fill [Hz], flat: slower than 20 s is a posture, not
 #: a sway; faster than 2 s the accelerometer's own noise and the sway's accelerations.
 SWAY_BAND_HZ = (0.05, 0.5)
+#: The sway's spectrum the centre's error covariance is told under, ∝ f^−SWAY_ERROR_SLOPE on
+#: ``SWAY_BAND_HZ`` (the weights stay the flat band's): a body's sway is red, its power
+#: below 0.1 Hz under ¾ of a cycle in 7.5 s, which the blocks' scatter barely shows, so
+#: the flat band under-told it (random sway, 9-axis, 3-s N-pose, side lean's mean
+#: normalised squared error 2.87 on seeds 1–10 and 21–60, 3.58 held out on 11–20); pink
+#: (1) 1.03 / 1.28 (bench/README.md). A sway that is one or a few sines at 0.1–0.2 Hz is
+#: over-told by it (0.1–0.5).
+SWAY_ERROR_SLOPE = 1.0
 #: The blocks the trunk's up direction is averaged over before the fit [s], and the noise
 #: left in a block's mean, as a fraction of the sway's σ.
 SWAY_BLOCK_S = 0.25
@@ -547,20 +556,36 @@ def _sway_centre(t: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     lo, hi = SWAY_BAND_HZ
     tau = times[:, None] - times[None, :]
     safe = np.where(tau == 0.0, 1.0, tau)
+    noise = SWAY_NOISE**2 * np.diag(count[kept].max() / count[kept])
     covariance = np.where(tau == 0.0, 1.0, (np.sin(2 * np.pi * hi * safe)
                                             - np.sin(2 * np.pi * lo * safe))
-                          / (2 * np.pi * (hi - lo) * safe))
-    covariance += SWAY_NOISE**2 * np.diag(count[kept].max() / count[kept])
+                          / (2 * np.pi * (hi - lo) * safe)) + noise
     weights = np.linalg.solve(covariance, np.ones(len(times)))
     weights /= weights.sum()
     centre = weights @ means
     residual = means - centre
     spread = np.eye(len(times)) - weights[None, :]  # residual = spread @ means
-    expected = float(np.trace(spread @ covariance @ spread.T))
+    told = _band_covariance(np.abs(tau), lo, hi, SWAY_ERROR_SLOPE) + noise
+    expected = float(np.trace(spread @ told @ spread.T))
     scatter = residual.T @ residual / max(expected, 1e-300)  # the sway's (3, 3) [rad²]
-    error = scatter * float(weights @ covariance @ weights)
+    error = scatter * float(weights @ told @ weights)
     norm = np.linalg.norm(centre)
     return centre / norm, error / norm**2
+
+
+def _band_covariance(tau: np.ndarray, lo: float, hi: float, slope: float) -> np.ndarray:
+    """The correlation at lags ``tau`` [s] (≥ 0) of a process whose spectrum is ∝ f^−slope
+    on ``lo…hi`` [Hz] (slope 0 or 1), 1 at lag 0."""
+    w_lo, w_hi = 2 * np.pi * lo * tau, 2 * np.pi * hi * tau
+    if slope == 0.0:
+        safe = np.where(tau == 0.0, 1.0, tau)
+        return np.where(tau == 0.0, 1.0, (np.sin(w_hi) - np.sin(w_lo))
+                        / (2 * np.pi * (hi - lo) * safe))
+    if slope != 1.0:
+        raise ValueError(f"slope must be 0 or 1, got {slope}")
+    # ∫ cos(2πfτ) / f df = Ci(2π hi τ) − Ci(2π lo τ); at τ = 0 the band's log width
+    ci = sici(np.where(tau == 0.0, 1.0, w_hi))[1] - sici(np.where(tau == 0.0, 1.0, w_lo))[1]
+    return np.where(tau == 0.0, 1.0, ci / np.log(hi / lo))
 
 
 def _sway_range(trunk: SensorTrack, start: float, end: float, axis: np.ndarray) -> float:
