@@ -7,6 +7,7 @@ The defaults need nothing: an SQLite file ``armtrack.db`` in the data folder.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Literal
 from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
 from pydantic import Field, field_validator
@@ -143,6 +144,9 @@ class Settings(BaseSettings):
                                 "printed on reports (lines separated by ', ' or '\\n')")
     clinic_timezone: str = Field("UTC", description="the clinic's IANA time zone "
                                  "(Europe/Paris): pages and reports show local times in it")
+    clinic_clock: Literal["24h", "12h"] = Field(
+        "24h", description="the clinic's clock: 24h (22:39) or 12h (10:39 PM), for the "
+        "times on pages and in reports alike")
 
     @field_validator("clinic_timezone")
     @classmethod

@@ -30,7 +30,7 @@ def test_clinic_settings_and_the_therapists_full_name(clinic_server):
     alice = clinic_server.client("alice")
     assert alice.http.get("/api/clinic").json() == {
         "name": "Rehab Clinic Nord", "address": "12 Quai des Chartrons, 33000 Bordeaux",
-        "time_zone": "Europe/Paris"}
+        "time_zone": "Europe/Paris", "clock": "24h"}
     me = alice.http.get("/api/me").json()
     assert me["username"] == "alice" and me["full_name"] is None
     changed = alice.http.patch("/api/me", json={"full_name": "Dr Alice Martin"})

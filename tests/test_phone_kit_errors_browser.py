@@ -120,7 +120,8 @@ def test_the_program_says_changed_by_your_therapist_not_a_version_number(server,
                            json={k: v for k, v in body.items() if k != "name"})
     assert changed.status_code == 200, changed.text
     phone.reload()
-    sync_api.expect(phone.locator("#program-version")).to_have_text("Changed by your therapist")
+    sync_api.expect(phone.locator("#program-version")).to_have_text(
+        "Changed by your therapist today")
     phone.screenshot(path=str(shots / "program-changed.png"))
     assert "Version" not in phone.locator("#screen").inner_text()
 

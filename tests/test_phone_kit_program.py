@@ -115,7 +115,7 @@ def test_the_patient_follows_the_program_on_the_phone(kit_server, phone, shots):
         phone.goto(f"{url}/kit#token={device['token']}")
         sync_api.expect(phone.locator("#program-name")).to_have_text("After the fracture")
         sync_api.expect(phone.locator("#program-version")).to_have_text(
-            "Changed by your therapist")  # version 2
+            "Changed by your therapist today")  # version 2, saved just now
         items = phone.locator("#program-list li").all_inner_texts()
         assert [i.split("\n")[0] for i in items] == ["Bend the elbow", "Turn the palm"]
         assert ("2 sets of 3 · hold 1 second · rest 5 seconds between sets" in items[0]

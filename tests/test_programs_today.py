@@ -38,6 +38,8 @@ def test_the_program_in_force_today_is_what_the_kit_guides(db):
     assert stream.device_today(db, patient, date(2026, 11, 30)) is None  # not yet
     today = stream.device_today(db, patient, date(2026, 12, 2))
     assert today["source"] == "program"
+    changed_at = today["program"].pop("changed_at")  # when version 1 was saved
+    assert changed_at == program.versions[-1].created_at.replace(tzinfo=changed_at.tzinfo)
     assert today["program"] == {"id": program.id, "name": "Morning", "version": 1,
                                 "note": None}
     assert [e["name"] for e in today["exercises"]] == ["elbow_flexion", "pronation"]

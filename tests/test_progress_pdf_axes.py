@@ -95,7 +95,7 @@ def test_weeks_and_days_are_named_as_dates_and_no_flag_claims_no_sessions():
     print("\n".join(texts))
     assert "week of 23 Nov 2026" in texts and "week of 30 Nov 2026" in texts
     assert not [t for t in texts if "-W4" in t], "an ISO week code is left"
-    assert any("as of Thu 3 Dec 2026 (UTC)" in t for t in texts)
+    assert any("as of Thu 3 Dec 2026, the clinic's day (UTC)" in t for t in texts)
 
     empty = Figure(figsize=(8.27, 11.69))
     _program_page(empty, patient, p.model_copy(update={"sessions": []}), today, "UTC", 1, 1)

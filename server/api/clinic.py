@@ -4,7 +4,7 @@ full name on the account)."""
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Literal
 
 from fastapi import APIRouter, Depends
 from pydantic import BaseModel, ConfigDict, Field
@@ -22,6 +22,9 @@ class ClinicOut(BaseModel):
     address: str = Field(description="ARMTRACK_CLINIC_ADDRESS; empty when unset")
     time_zone: str = Field(description="IANA time zone pages and reports show times in "
                            "(ARMTRACK_CLINIC_TIMEZONE, default UTC)")
+    clock: Literal["24h", "12h"] = Field(description="the clinic's clock pages and reports "
+                                         "write times in: 24h (22:39) or 12h (10:39 PM) "
+                                         "(ARMTRACK_CLINIC_CLOCK, default 24h)")
 
 
 class MeOut(BaseModel):
@@ -43,7 +46,8 @@ def get_clinic(therapist: Therapist, svc: Annotated[Services, Depends(services)]
                ) -> ClinicOut:
     """The clinic's name, address and time zone."""
     s = svc.settings
-    return ClinicOut(name=s.clinic_name, address=s.clinic_address, time_zone=s.clinic_timezone)
+    return ClinicOut(name=s.clinic_name, address=s.clinic_address, time_zone=s.clinic_timezone,
+                     clock=s.clinic_clock)
 
 
 @router.get("/me", response_model=MeOut)

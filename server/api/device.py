@@ -14,6 +14,7 @@ from .. import audit
 from ..auth import hash_token
 from ..db import models
 from ..programs.calendar import today as clinic_today
+from ..programs.recent import recent_sessions
 from ..programs.today import todays_exercises
 from .deps import Db, oauth2, unauthorized
 
@@ -46,9 +47,11 @@ def today(request: Request, db: Db, device: Device) -> dict[str, Any]:
     on either segment (each exercise names its ``sensor``): the program in force today
     (the clinic's day) with its dose and version, else the default session; ``discharged``:
     the therapist discharged the patient, the kit starts no new session
-    (docs/extensions/discharge.md)."""
+    (docs/extensions/discharge.md); ``recent``: what the patient did in their own latest
+    sessions (``programs/recent.py``)."""
     patient = db.get(models.Patient, device.patient_id)
     assert patient is not None  # a device goes with its patient (cascade)
     day = clinic_today(request.app.state.services.settings.clinic_zone())
     return {"device": device.name, **todays_exercises(db, patient, day),
-            "discharged": patient.discharged_at is not None}
+            "discharged": patient.discharged_at is not None,
+            "recent": recent_sessions(db, patient.id)}

@@ -15,6 +15,7 @@ from sqlalchemy.orm import Session as DbSession
 
 from ..db import models
 from ..programs.adherence import patient_programs_progress
+from ..programs.stream import followed_version
 from ..reports import content, fhir, opensim, pdf
 from ..reports import csv as report_csv
 from ..reports import progress as progress_mod
@@ -112,10 +113,16 @@ def _report_pdf(db: DbSession, therapist: models.Therapist, session_id: int,
         clinic_name=settings.clinic_name, clinic_address=settings.clinic_address,
         zone=settings.clinic_zone(), therapist=therapist.full_name or therapist.username,
         clinic_number=patient.clinic_number, date_of_birth=patient.date_of_birth,
-        dated=dated_by(session))
+        dated=dated_by(session), clock=settings.clinic_clock,
+        program=program_words(followed_version(db, session.id)))
     return _attachment(pdf.report_pdf(report, data, letterhead,
                                       _previous(db, session, PREVIOUS_IN_PDF)),
                        "application/pdf", f"session-{session_id}-report.pdf")
+
+
+def program_words(version: models.ProgramVersion | None) -> str | None:
+    """"Elbow at home, version 2": the program a session followed, as the PDF names it."""
+    return None if version is None else f"{version.program.name}, version {version.number}"
 
 
 #: Earlier sessions the PDF's summary compares with.

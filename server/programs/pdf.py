@@ -33,7 +33,7 @@ def _program_page(fig: Figure, patient: models.Patient, p: ProgramProgress, toda
     fig.text(0.06, 0.94, f"{p.name} — version {p.version}, "
              + ("in force" if p.active else "not in force")
              + f" · {len(p.sessions)} session{'' if len(p.sessions) == 1 else 's'}"
-             + f" · as of {day_words(today, weekday=True)} ({zone})",
+             + f" · as of {day_words(today, weekday=True)}, the clinic's day ({zone})",
              fontsize=10)
     fig.text(0.06, 0.02, DISCLAIMER, fontsize=7, color="#666")
     fig.text(0.94, 0.02, f"page {page} of {pages}", ha="right", fontsize=7, color="#666")

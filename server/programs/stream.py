@@ -26,6 +26,7 @@ from ..ingest.protocol import CLOSE_BAD_PROTOCOL, MARK_LABEL_MAX, Hello, Refused
 from ..plain_text import text_problem
 from ..reports.targets import patient_targets
 from . import catalogue, store
+from .calendar import aware
 
 PROGRAMS_EXTENSION = "programs/1"
 EFFORT_PAIN_EXTENSION = "effort-pain/1"
@@ -91,13 +92,18 @@ def follow_program(db: DbSession, patient_id: int, session_id: int, ref: int | s
     return ready_program(db, version), None
 
 
+def followed_version(db: DbSession, session_id: int) -> models.ProgramVersion | None:
+    """The program version a session follows since it started (its kit named the program
+    in ``hello``), or None."""
+    link = db.get(models.SessionProgram, session_id)
+    return None if link is None else db.get(models.ProgramVersion, link.version_id)
+
+
 def followed_program(db: DbSession, session_id: int) -> dict[str, Any] | None:
     """``ready``'s ``program`` for a session continued or resumed: the version it follows
     since it started (never a newer one)."""
-    link = db.get(models.SessionProgram, session_id)
-    if link is None:
-        return None
-    return ready_program(db, db.get(models.ProgramVersion, link.version_id))
+    version = followed_version(db, session_id)
+    return None if version is None else ready_program(db, version)
 
 
 @dataclass(frozen=True)
@@ -202,5 +208,6 @@ def device_today(db: DbSession, patient: models.Patient, today: date) -> dict[st
         exercises.append({**entry.as_dict(), **e, **catalogue.phone_fields(entry)})
     return {"source": "program", "side": patient.side,
             "program": {"id": program.id, "name": program.name,
-                        "version": ready["version"], "note": ready["note"]},
+                        "version": ready["version"], "note": ready["note"],
+                        "changed_at": aware(program.versions[-1].created_at)},
             "exercises": exercises}

@@ -97,8 +97,8 @@ def _header(fig: Figure, report: SessionReport, letterhead: Letterhead) -> None:
                       for p in cal.poses) or "none"
     lines = [
         ("Patient", s.patient_name + (f", height {s.height_m:.2f} m" if s.height_m else "")),
-        ("Date", local(started, letterhead.zone) + DATED_WORDS.get(letterhead.dated, "")
-                 + f", {duration_words(s.duration_s)}"),
+        ("Date", local(started, letterhead.zone, clock=letterhead.clock)
+                 + DATED_WORDS.get(letterhead.dated, "") + f", {duration_words(s.duration_s)}"),
         ("Side", f"{s.side} arm"),
         ("Kit", f"{s.kit or '(uploaded file)'} · sensors: "
                 + ", ".join(SENSORS.get(n, n) for n in s.sensors)

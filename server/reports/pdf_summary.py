@@ -39,6 +39,10 @@ class Letterhead:
     clinic_name: str = ""
     clinic_address: str = ""
     zone: ZoneInfo = field(default_factory=lambda: ZoneInfo("UTC"))
+    #: the clinic's clock, ``24h`` or ``12h`` (``ARMTRACK_CLINIC_CLOCK``)
+    clock: str = "24h"
+    #: the program the session followed (its kit named it in hello), in words, if any
+    program: str | None = None
     therapist: str = ""
     clinic_number: str | None = None
     date_of_birth: date | None = None
@@ -61,11 +65,14 @@ def style_table(table, fontsize: float = 8, names_left: bool = True) -> None:
             cell.set_text_props(ha="left")
 
 
-def local(moment: datetime, zone: ZoneInfo, with_time: bool = True) -> str:
-    """``Tue 1 Dec 2026, 09:41 CET`` in the clinic's zone."""
+def local(moment: datetime, zone: ZoneInfo, with_time: bool = True,
+          clock: str = "24h") -> str:
+    """``Tue 1 Dec 2026, 09:41 CET`` in the clinic's zone, on its ``clock`` (``12h``:
+    ``09:41 AM``, two-digit hours as the pages write them)."""
     at = moment.astimezone(zone)
     text = day_words(at.date(), weekday=True)
-    return text + (f", {at:%H:%M} {at.tzname()}" if with_time else "")
+    time_of_day = f"{at:%I:%M %p}" if clock == "12h" else f"{at:%H:%M}"
+    return text + (f", {time_of_day} {at.tzname()}" if with_time else "")
 
 
 words = exercise_words
@@ -152,7 +159,7 @@ def summary_page(fig: Figure, report: SessionReport, letterhead: Letterhead,
     fig.text(0.94, y, f"Therapist: {lh.therapist or '–'}", ha="right", fontsize=9)
     y -= 0.05
     started = s.started_at
-    when = local(started, lh.zone)
+    when = local(started, lh.zone, clock=lh.clock)
     dated = DATED_WORDS.get(lh.dated, "")
     rows = [
         ("Patient", s.patient_name),
@@ -162,6 +169,8 @@ def summary_page(fig: Figure, report: SessionReport, letterhead: Letterhead,
         ("Session", f"{when}{dated} · {duration_words(s.duration_s)}"),
         ("Arm and kit", f"{s.side} arm · " + (f"kit {s.kit}" if s.kit else "uploaded file")),
     ]
+    if lh.program:
+        rows.append(("Program", lh.program))
     for key, value in rows:
         fig.text(0.06, y, key, fontsize=9, weight="bold")
         fig.text(0.22, y, value, fontsize=9)

@@ -173,7 +173,7 @@ function parseMoment(iso) {
   return new Date(/[zZ]|[+-]\d\d:?\d\d$/.test(iso) ? iso : iso + "Z");
 }
 
-// A moment from the API in the clinic's local time; ``seconds``: with its seconds.
+// A moment from the API in the clinic's local time and clock; ``seconds``: with its seconds.
 function fmtDate(iso, options = {}) {
   if (!iso) return "—";
   const d = parseMoment(iso);
@@ -181,6 +181,8 @@ function fmtDate(iso, options = {}) {
   const parts = options.dateOnly ? { day: "numeric", month: "short", year: "numeric" }
     : { weekday: "short", day: "numeric", month: "short", year: "numeric", hour: "2-digit", minute: "2-digit" };
   if (options.seconds && !options.dateOnly) parts.second = "2-digit";
+  // the clinic's clock (ARMTRACK_CLINIC_CLOCK), as its reports write times: not the browser's
+  if (!options.dateOnly && CLINIC && CLINIC.clock) parts.hourCycle = CLINIC.clock === "12h" ? "h12" : "h23";
   if (timeZone) parts.timeZone = timeZone;
   if (elsewhere && !options.dateOnly) parts.timeZoneName = "short";
   return d.toLocaleString(undefined, parts);

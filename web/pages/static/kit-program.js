@@ -56,7 +56,8 @@ const KitProgram = {
       el("p", { class: "kicker" }, "From your therapist"),
       el("h1", { id: "program-name" }, program.name),
       // a number says nothing to a patient: only that the therapist changed it
-      program.version > 1 ? el("p", { class: "note", id: "program-version" }, "Changed by your therapist") : null,
+      program.version > 1 ? el("p", { class: "note", id: "program-version" },
+        "Changed by your therapist" + (program.changed_at ? " " + dayWords(new Date(program.changed_at), "on ") : "")) : null,
       program.note ? el("p", { class: "lead", id: "program-note" }, program.note) : null,
       el("ol", { class: "program", id: "program-list" }, exercises.map((ex) =>
         el("li", {}, el("span", { class: "title" }, ex.title),
@@ -72,11 +73,34 @@ const KitProgram = {
     return el("ul", { class: "did", id: "did" }, exercises.map((ex, i) => {
       const d = did[i] || {};
       const reps = Object.values(d.reps || {}).reduce((a, b) => a + b, 0);
-      if (!reps && d.lo == null) return el("li", {}, `${ex.title}: not done`);
-      const range = d.lo == null ? "" : ` · from ${Math.round(d.lo)}° to ${Math.round(d.hi)}°`
-        + ` (target ${Math.round(ex.target.min_deg)}° to ${Math.round(ex.target.max_deg)}°)`;
-      return el("li", {}, `${ex.title}: ${reps} of ${(ex.sets || 1) * ex.repetitions} repetitions${range}`);
+      return el("li", {}, KitProgram.didLine(ex.title, reps, (ex.sets || 1) * ex.repetitions,
+        d.lo, d.hi, ex.target));
     }));
+  },
+
+  /** One line of what was done: "Bend the elbow: 8 of 10 repetitions · from 3° to 112°
+   * (target 0° to 120°)", or "…: not done" with no repetition and no range; `lo`, `hi`
+   * [deg] the range reached (null: none shown), `target` { min_deg, max_deg }. */
+  didLine(title, reps, prescribed, lo, hi, target) {
+    if (!reps && lo == null) return `${title}: not done`;
+    const range = lo == null ? "" : ` · from ${Math.round(lo)}° to ${Math.round(hi)}°`
+      + ` (target ${Math.round(target.min_deg)}° to ${Math.round(target.max_deg)}°)`;
+    return `${title}: ${reps} of ${prescribed} repetitions${range}`;
+  },
+
+  /** The patient's recent sessions (device-today's `recent`, the server's count of each)
+   * with the last one kept on this phone (`last`: { at, lines, session }), newest first:
+   * [{ at: Date, lines }]. The phone's own words stand for the session it did. */
+  recent(served, last) {
+    const sessions = (served || []).map((r) => ({ at: new Date(r.started_at), session: r.session_id,
+      lines: r.exercises.map((e) => KitProgram.didLine(e.title, e.repetitions, e.prescribed,
+        e.min_deg, e.max_deg, e.target)) }));
+    if (last && last.lines && last.lines.length) {
+      const same = sessions.find((r) => last.session != null && r.session === last.session);
+      if (same) same.lines = last.lines;
+      else sessions.push({ at: new Date(last.at), lines: last.lines });
+    }
+    return sessions.filter((r) => r.lines.length).sort((a, b) => b.at - a.at).slice(0, 3);
   },
 
   /** A 0–10 scale of large buttons; `onPick(value)` on a tap. */

@@ -232,17 +232,26 @@ function welcome() {
     big("Start", { id: "start", onclick: chooseSegment }));
 }
 
-/** What the last session on this phone did ("Last time, today" and its list), or null. */
+/** A day in the patient's words: "today", "yesterday", else `before` + "Tuesday, Dec 1". */
+function dayWords(at, before = "") {
+  const days = Math.round((new Date().setHours(0, 0, 0, 0) - new Date(at).setHours(0, 0, 0, 0)) / 86400000);
+  return days === 0 ? "today" : days === 1 ? "yesterday"
+    : before + at.toLocaleDateString(undefined, { weekday: "long", month: "short", day: "numeric" });
+}
+
+/** What the patient did in their recent sessions ("Last time, today" and its list, then
+ * the ones before): the server's (device-today's `recent`, any phone of theirs) with the
+ * last one kept on this phone; null when there is none. */
 function lastTime() {
   const last = JSON.parse(localStorage.getItem(LAST_KEY) || "null");
-  if (!last || !last.lines || !last.lines.length) return null;
-  const at = new Date(last.at);
-  const days = Math.round((new Date().setHours(0, 0, 0, 0) - new Date(last.at).setHours(0, 0, 0, 0)) / 86400000);
-  const when = days === 0 ? "today" : days === 1 ? "yesterday"
-    : at.toLocaleDateString(undefined, { weekday: "long", month: "short", day: "numeric" });
-  return el("div", { class: "last", id: "last-session" },
-    el("p", { class: "kicker" }, `Last time, ${when}`),
-    el("ul", { class: "did" }, last.lines.map((line) => el("li", {}, line))));
+  const sessions = KitProgram.recent(kit.today.recent, last);
+  if (!sessions.length) return null;
+  return el("div", { id: "recent" }, sessions.map((r, i) => {
+    const when = dayWords(r.at);
+    return el("div", i === 0 ? { class: "last", id: "last-session" } : { class: "last" },
+      el("p", { class: "kicker" }, i === 0 ? `Last time, ${when}` : when[0].toUpperCase() + when.slice(1)),
+      el("ul", { class: "did" }, r.lines.map((line) => el("li", {}, line))));
+  }));
 }
 
 function chooseSegment() {
@@ -601,7 +610,8 @@ async function finished() {
   saveStep("finished", 0);
   const done = KitProgram.done(exercisesForKit(), kit.did);
   localStorage.setItem(LAST_KEY, JSON.stringify({ at: Date.now(),
-    lines: [...done.children].map((li) => li.textContent) }));
+    lines: [...done.children].map((li) => li.textContent),
+    session: (kit.stream.state && kit.stream.state.session) || null }));
   const info = el("p", { class: "lead", id: "sent" }, "Sending your session…");
   screen(el("h1", { class: "welldone" }, byTherapist ? "Session ended" : "Session finished"),
     el("p", {}, byTherapist ? "Your therapist ended this session. Thank you — what you did is saved."
@@ -751,7 +761,10 @@ async function main() {
     // link (another patient's, on a phone lent in turn) starts without the last
     // session's list: it was that kit's patient's
     if (TOKEN_SHAPE.test(given)) {
-      if (given !== localStorage.getItem(TOKEN_KEY)) localStorage.removeItem(LAST_KEY);
+      if (given !== localStorage.getItem(TOKEN_KEY)) {
+        localStorage.removeItem(LAST_KEY);
+        localStorage.removeItem(TODAY_KEY);  // its recent sessions were that patient's
+      }
       localStorage.setItem(TOKEN_KEY, given);
     }
     history.replaceState(null, "", location.pathname);  // the token leaves the address bar
