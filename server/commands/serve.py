@@ -109,7 +109,9 @@ def settings_from(args: argparse.Namespace):
 
 
 def demo_account_present(settings) -> bool:
-    """Whether the database holds an enabled demo account (``armtrack demo``'s)."""
+    """Whether the database holds an enabled demo account (``armtrack demo``'s). The
+    database is migrated first; an upgrade of an existing one is said on standard output
+    (the service's log)."""
     from armtrack.server.api.deps import DEMO_USER
     from armtrack.server.db import models
     from armtrack.server.db.engine import make_engine, make_sessionmaker
@@ -119,7 +121,9 @@ def demo_account_present(settings) -> bool:
     settings.data_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
     engine = make_engine(settings.resolved_database_url())
     try:
-        upgrade(engine)
+        before, after = upgrade(engine)
+        if before is not None and before != after:
+            print(f"armtrack: database migrated from schema {before} to {after}", flush=True)
         with make_sessionmaker(engine)() as db:
             return db.scalar(select(models.Therapist.id).where(
                 models.Therapist.username == DEMO_USER,

@@ -1,7 +1,12 @@
 """Alembic migrations, run from code: the server brings its database to the newest
 schema on start (``upgrade``). alembic is imported only when a migration runs:
 ``ensure_current`` (``armtrack create-user``) first checks the database's revision
-against the newest migration file, which costs a query, not alembic's ~0.2 s import."""
+against the newest migration file, which costs a query, not alembic's ~0.2 s import.
+
+An upgrade is all or nothing (migrations/env.py). A database this armtrack cannot bring to
+its schema — one a newer armtrack migrated (going back after an upgrade), or an upgrade
+that failed (a full disk) — raises :class:`SchemaError` in words the operator can act on;
+the command line prints it (exit code 2)."""
 
 from __future__ import annotations
 
@@ -10,6 +15,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from sqlalchemy import Engine, inspect, text
+from sqlalchemy.exc import OperationalError
+
+from .errors import SchemaError
 
 if TYPE_CHECKING:
     from alembic.config import Config
@@ -27,26 +35,57 @@ def alembic_config(engine: Engine) -> Config:
     return config
 
 
-def upgrade(engine: Engine, revision: str = "head") -> None:
-    """Migrate the database behind ``engine`` to ``revision`` (default: the newest)."""
+def upgrade(engine: Engine, revision: str = "head") -> tuple[str | None, str | None]:
+    """Migrate the database behind ``engine`` to ``revision`` (default: the newest);
+    returns its revision before and after (None: a new database). :class:`SchemaError` if
+    it is of a newer armtrack or the upgrade fails (then nothing of it is stored)."""
     from alembic import command
 
-    command.upgrade(alembic_config(engine), revision)
+    at = current_revision(engine)
+    known = _revisions()
+    if at is not None and known is not None and at not in known:
+        raise SchemaError(
+            f"the database is at schema {at}, which a newer armtrack made: this armtrack's "
+            f"is {head_revision()} and it cannot read it. Run the armtrack that upgraded it, "
+            f"or restore the backup taken before the upgrade (docs/operator.md, Upgrading)")
+    try:
+        command.upgrade(alembic_config(engine), revision)
+    except OperationalError as exc:
+        raise SchemaError(
+            f"the database could not be migrated from schema {at or 'none'} to "
+            f"{head_revision()}: {exc.orig}. Nothing of the upgrade was stored (it is still "
+            f"at schema {at or 'none'}); mend that (a full disk: make room) and start again"
+        ) from exc
+    return at, current_revision(engine)
 
 
 def head_revision() -> str | None:
     """The newest migration's id: the one no other names as its ``down_revision`` (the
     chain is linear), read from the files' ``revision = "…"`` lines; None if that reading
     is ambiguous (then ``ensure_current`` lets alembic decide)."""
-    revisions, parents = set(), set()
+    chain = _chain()
+    if chain is None:
+        return None
+    heads = set(chain) - set(chain.values())
+    return heads.pop() if len(heads) == 1 else None
+
+
+def _chain() -> dict[str, str | None] | None:
+    """Each migration's id → its ``down_revision``, from the files; None if a file's
+    ``revision = "…"`` line cannot be read."""
+    chain = {}
     for path in (MIGRATIONS / "versions").glob("[0-9]*.py"):
         found = dict((k, v or None) for k, v in _REVISION.findall(path.read_text("utf-8")))
         if "revision" not in found:
             return None
-        revisions.add(found["revision"])
-        parents.add(found.get("down_revision"))
-    heads = revisions - parents
-    return heads.pop() if len(heads) == 1 else None
+        chain[found["revision"]] = found.get("down_revision")
+    return chain
+
+
+def _revisions() -> set[str] | None:
+    """The ids of this armtrack's migrations (None: unreadable, alembic decides)."""
+    chain = _chain()
+    return None if chain is None else set(chain)
 
 
 def current_revision(engine: Engine) -> str | None:
