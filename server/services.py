@@ -9,6 +9,7 @@ import contextvars
 from collections.abc import Awaitable, Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from datetime import datetime
 from typing import Any, TypeVar
 
 from armtrack.web.viewer.host import ViewerHost
@@ -21,6 +22,7 @@ from .db.migrate import upgrade
 from .export_turns import FairTurns
 from .ingest.budget import SHARED_BURST_S, KitBudget, follow_loop
 from .ingest.writer import GroupWriter, StreamState
+from .kit.daily_samples import KitDay
 from .live.access import AccessWatch
 from .live.broker import make_hub
 from .live.estimation import make_estimation
@@ -114,9 +116,9 @@ class Services:
         #: how fast all kits' messages are read together, in turns (ingest/budget.py)
         self.ingest_budget = KitBudget(settings.ingest_messages_per_s,
                                        settings.ingest_rows_per_s, burst_s=SHARED_BURST_S)
-        #: device id → sample rows its sessions of the last day hold, while it has a
-        #: socket open (kit/daily_samples.py; counted from the database at its first)
-        self.kit_samples: dict[int, int] = {}
+        #: device id → sample rows its sessions of the last day hold, per session, while
+        #: it has a socket open (kit/daily_samples.py; from the database at its first)
+        self.kit_samples: dict[int, KitDay] = {}
         #: sessions the therapist is closing: a resume or continuation of one is refused as
         #: closed (a kit reconnecting between its stream's end and the close's commit)
         self.closing: set[int] = set()
@@ -179,12 +181,14 @@ class Services:
         self.password_pool.shutdown(wait=True)
         self.engine.dispose()
 
-    def count_kit_samples(self, device_id: int, rows: int) -> None:
-        """``rows`` more stored by kit ``device_id`` outside its streams (an upload), in the
-        day its open streams count (``kit_samples``; without one, the next counts them
-        from the database). Event loop only."""
+    def count_kit_samples(self, device_id: int, session_id: int, created_at: datetime,
+                          rows: int) -> None:
+        """``rows`` more stored by kit ``device_id`` outside its streams (an upload: session
+        ``session_id``, created at ``created_at``), in the day its open streams count
+        (``kit_samples``; without one, the next counts them from the database). Event
+        loop only."""
         if device_id in self.kit_samples:
-            self.kit_samples[device_id] += rows
+            self.kit_samples[device_id].add(session_id, created_at, rows)
 
     def kit_budget(self, device_id: int) -> KitBudget:
         """The reading budget of kit ``device_id``, one for all its streams."""

@@ -223,7 +223,8 @@ def upload_recording(db: Db, who: Annotated[models.Therapist | models.Device,
             db.rollback()  # the kit's database turns go at once, whatever went wrong
             raise
     if device_id is not None:  # a stream of the kit open meanwhile counts it in its day
-        from_thread.run_sync(svc.count_kit_samples, device_id, session.samples)
+        from_thread.run_sync(svc.count_kit_samples, device_id, session.id,
+                             session.created_at, session.samples)
     audit.note(patient_id=patient.id, session_id=session.id)
     # estimated where closed sessions are (store.background)
     job = imports.start_processing(svc, session.id)

@@ -25,6 +25,7 @@ import logging
 import secrets
 import time
 from collections import deque
+from datetime import datetime
 from typing import Any
 
 from armtrack.estimator.arm.coverage import coverage, measured_angles
@@ -151,6 +152,8 @@ class IngestConnection:
         self.marks_kept: int | None = None
         #: samples the session holds (counted from the database at this stream's first)
         self.samples_kept: int | None = None
+        #: when this stream's session was created (its kit's day counts its rows by it)
+        self.session_created_at: datetime | None = None
         #: the first message refused because the session is full (ARMTRACK_MAX_SESSION_SAMPLES)
         self._full_from: int | None = None
         #: programs/1 (docs/extensions/programs-hello.md): the program hello named, and
@@ -474,8 +477,9 @@ class IngestConnection:
         kit's day is spent (``ARMTRACK_MAX_KIT_SAMPLES_PER_DAY``): it would be let in only
         to have every message refused. Counted from the database, or by this instance's
         streams when they are ahead (rows in flight)."""
+        counted = self.services.kit_samples.get(self.device_id)
         kept = max(daily_samples.stored(db, self.device_id),
-                   self.services.kit_samples.get(self.device_id, 0))
+                   0 if counted is None else counted.total())
         if (why := daily_samples.spent(kept, self.settings.max_kit_samples_per_day)):
             raise Refused(f"hello: {why}", close_code=protocol.CLOSE_TOO_MANY_ERRORS)
 
@@ -640,11 +644,11 @@ class IngestConnection:
         streams); else count them in."""
         assert self.state is not None
         if self.samples_kept is None:
-            self.samples_kept = await self.services.run_db(_samples_in_session,
-                                                           self.state.session_id)
+            self.samples_kept, self.session_created_at = await self.services.run_db(
+                _session_size_and_birth, self.state.session_id)
         kits = self.services.kit_samples
         if self.device_id not in kits:
-            day = await self.services.run_db(daily_samples.stored, self.device_id)
+            day = await self.services.run_db(daily_samples.day_of, self.device_id)
             kits.setdefault(self.device_id, day)  # (another stream of the kit's, meanwhile)
         limit = self.settings.max_session_samples
         if self.samples_kept + rows > limit:
@@ -658,12 +662,12 @@ class IngestConnection:
             raise Refused(f"samples: this session holds {self.samples_kept} samples; "
                           f"{rows} more would pass {limit}, the most one session holds "
                           + protocol.SESSION_FULL, seq, counted=False)
-        why = daily_samples.refusal(kits[self.device_id], rows,
-                                    self.settings.max_kit_samples_per_day)
+        day = kits[self.device_id]
+        why = daily_samples.refusal(day.total(), rows, self.settings.max_kit_samples_per_day)
         if why is not None:  # counted: a kit past its day gets nothing more in, and
             raise Refused(f"samples: {why}", seq)  # is stopped (4429) if it goes on
         self.samples_kept += rows
-        kits[self.device_id] += rows
+        day.add(self.state.session_id, self.session_created_at, rows)
 
     def _count(self, sensor: str, n: int, now: float) -> None:
         stats = self.sensor_stats.setdefault(sensor, {"samples": 0, "first": now})
@@ -777,9 +781,12 @@ def _same_kit(hello: Hello, session: models.Session, what: str) -> None:
                       "declares another")
 
 
-def _samples_in_session(db: DbSession, session_id: int) -> int:
-    return db.scalar(select(models.Session.samples)
-                     .where(models.Session.id == session_id)) or 0
+def _session_size_and_birth(db: DbSession, session_id: int) -> tuple[int, datetime]:
+    """A session's sample rows and when it was created (its kit's day counts it by it)."""
+    samples, created_at = db.execute(select(models.Session.samples,
+                                            models.Session.created_at)
+                                     .where(models.Session.id == session_id)).one()
+    return samples or 0, created_at
 
 
 def _marks_in_session(db: DbSession, session_id: int) -> int:

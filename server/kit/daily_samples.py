@@ -7,7 +7,8 @@ session holds at most ``ARMTRACK_MAX_SESSION_SAMPLES`` and a kit starts at most
 
 from __future__ import annotations
 
-from datetime import timedelta
+import heapq
+from datetime import UTC, datetime, timedelta
 
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session as DbSession
@@ -45,3 +46,54 @@ def spent(kept: int, limit: int) -> str | None:
     return (f"this kit stored {kept} samples in the last 24 hours, the most one kit stores "
             f"in a day ({SETTING} = {limit}): keep the data and try again later; the clinic "
             "can raise the limit")
+
+
+def _aware(moment: datetime) -> datetime:
+    return moment if moment.tzinfo else moment.replace(tzinfo=UTC)  # SQLite: naive UTC
+
+
+class KitDay:
+    """One kit's rows of the last day as this instance counts them while the kit has a
+    stream open (``Services.kit_samples``): per session its creation time and rows, read
+    from the database at the kit's first stream (``day_of``), then what its streams and
+    uploads add. A session leaves the count ``WINDOW`` after it was created, as it leaves
+    ``stored``'s: a socket open for more than a day no longer holds its first sessions'
+    rows against the kit. Event loop only; O(log n) a call."""
+
+    def __init__(self, sessions: dict[int, tuple[datetime, int]] | None = None):
+        self._rows: dict[int, int] = {}
+        self._born: list[tuple[datetime, int]] = []  # (created_at [UTC], session id), a heap
+        self._total = 0
+        for session_id, (created_at, rows) in (sessions or {}).items():
+            self.add(session_id, created_at, rows)
+
+    def total(self) -> int:
+        """Rows of the kit's sessions created in the last ``WINDOW`` (by ``clock.now``)."""
+        since = clock.now() - WINDOW
+        while self._born and self._born[0][0] <= since:
+            _, session_id = heapq.heappop(self._born)
+            self._total -= self._rows.pop(session_id)
+        return self._total
+
+    def add(self, session_id: int, created_at: datetime, rows: int) -> None:
+        """``rows`` more stored in session ``session_id`` (created at ``created_at``);
+        nothing for a session already out of the window."""
+        if session_id not in self._rows:
+            created_at = _aware(created_at)
+            if created_at <= clock.now() - WINDOW:
+                return
+            self._rows[session_id] = 0
+            heapq.heappush(self._born, (created_at, session_id))
+        self._rows[session_id] += rows
+        self._total += rows
+
+
+def day_of(db: DbSession, device_id: int) -> KitDay:
+    """The kit's day as the database holds it: its sessions created in the last
+    ``WINDOW`` with their rows."""
+    rows = db.execute(select(models.Session.id, models.Session.created_at,
+                             models.Session.samples).where(
+        models.Session.device_id == device_id,
+        models.Session.created_at > clock.now() - WINDOW))
+    return KitDay({session_id: (created_at, samples or 0)
+                   for session_id, created_at, samples in rows})

@@ -1,0 +1,100 @@
+"""A kit's day (``ARMTRACK_MAX_KIT_SAMPLES_PER_DAY``: rows of its sessions created in the
+last 24 hours) ages while one of its sockets stays open for more than a day.
+
+The server counts a kit's day from the database when its first stream opens, then in
+memory as its streams store rows (5e51af9). That count never aged: a kit whose socket
+stayed open past a day still held the first day's rows against itself, and its new
+sessions were refused as if the day were spent. Real server on a clock the test moves
+(``server/clock.py`` replaced in the server process, as test_programs_followed does),
+real WebSocket clients, real database file; no 24-h wait."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from datetime import UTC, datetime, timedelta
+
+import pytest
+from server_support import Zygote, ZygoteServerProcess
+from test_programs_followed import PREAMBLE
+from test_security_kit_quota import samples, stored
+from test_security_session_flood import hello
+
+LIMIT = 3000
+SETTING = "ARMTRACK_MAX_KIT_SAMPLES_PER_DAY"
+
+
+@pytest.fixture(scope="module")
+def world(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("kit-day")
+    now_file = folder / "now.txt"
+    zygote = Zygote(PREAMBLE.format(path=str(now_file)))
+    server = ZygoteServerProcess(folder / "server", zygote, env={SETTING: str(LIMIT)})
+    server.create_user("alice")
+    server.start()
+    try:
+        yield server, now_file
+    finally:
+        server.stop()
+        zygote.close()
+
+
+async def send_all(ws, sizes: list[int], first_seq: int = 0, t0: float = 0.0
+                   ) -> dict[int, str]:
+    """Send messages of ``sizes`` rows; wait for an answer to each: seq → the reason of
+    each refused one."""
+    refused: dict[int, str] = {}
+    t = t0
+    for k, rows in enumerate(sizes):
+        await ws.send(samples(first_seq + k, t, rows))
+        t += rows / 50
+    last = first_seq + len(sizes) - 1
+    answered: set[int] = set()
+    while last not in answered:
+        message = json.loads(await asyncio.wait_for(ws.recv(), 30))
+        if message["type"] == "error":
+            refused[message["seq"]] = message["reason"]
+            answered.add(message["seq"])
+        elif message["type"] == "ack":
+            answered.update(range(first_seq, message["seq"] + 1))
+    return refused
+
+
+def test_a_socket_open_past_a_day_does_not_hold_the_first_days_rows(world):
+    server, now_file = world
+    alice = server.client("alice")
+    token = alice.device(alice.patient("Long Socket")["id"], "kit")["token"]
+    start = datetime.now(UTC)
+    now_file.write_text(start.isoformat())
+
+    async def run() -> dict:
+        # day 1: session A stores 2,000 rows; its socket stays open
+        ws_a, ready_a = await hello(server, token)
+        assert ready_a["type"] == "ready", ready_a
+        refused_a1 = await send_all(ws_a, [100] * 20)
+        # 25 h later, on the same open socket and a new one
+        now_file.write_text((start + timedelta(hours=25)).isoformat())
+        ws_b, ready_b = await hello(server, token)
+        assert ready_b["type"] == "ready", ready_b
+        refused_b = await send_all(ws_b, [100] * 15)          # 1,500 rows of day 2
+        refused_a2 = await send_all(ws_a, [100] * 5, 20, 40.0)  # 500 more into A
+        # day 2 still has its limit: 1,500 + 1,600 would pass 3,000
+        refused_b2 = await send_all(ws_b, [800, 800], 15, 30.0)
+        for ws in (ws_a, ws_b):
+            await ws.send(json.dumps({"type": "bye"}))
+            async for _ in ws:
+                pass
+        return {"a": ready_a["session"], "a1": refused_a1,
+                "b": refused_b, "a2": refused_a2, "b2": refused_b2,
+                "session_b": ready_b["session"]}
+
+    got = asyncio.run(run())
+    print(f"\nrefused on day 1: {got['a1']}; day 2, new session: {got['b']}; "
+          f"day 2, the open socket's session: {got['a2']}; day 2 past its limit: {got['b2']}")
+    print(f"stored: A {stored(server, got['a'])}, B {stored(server, got['session_b'])}")
+    assert not got["a1"]
+    assert not got["b"], "day 2's new session was refused with day 1's rows"
+    assert not got["a2"], "the open session's rows of day 2 were refused"
+    assert stored(server, got["session_b"]) == 1500 + 800
+    assert stored(server, got["a"]) == 2500
+    assert list(got["b2"]) == [16] and SETTING in got["b2"][16]
