@@ -9,6 +9,8 @@ when chromium or Playwright is absent."""
 
 from __future__ import annotations
 
+from datetime import UTC, datetime
+
 import numpy as np
 import pytest
 import test_phone_kit_browser as kit_page
@@ -891,6 +893,8 @@ def test_a_lent_phone_sends_the_last_patients_readings_with_their_own_link(serve
         assert api.http.get(f"/api/patients/{second_patient}/sessions").json() == []
         sync_api.expect(phone.locator("#start")).to_be_visible(timeout=20_000)  # B's welcome
         phone.screenshot(path=str(shots / "lent-2-welcome.png"))
+        # attack13: A's token went with A's readings (it stayed in the finished state)
+        assert first not in phone.evaluate(STORAGE), "A's kit token stayed on the phone"
     finally:
         proxy.close()
 
@@ -930,5 +934,77 @@ def test_a_kept_session_whose_link_was_revoked(server, phone, shots, whose):
             phone.click("#continue")
         sync_api.expect(phone.locator("#start")).to_be_visible(timeout=20_000)
         assert api.http.get(f"/api/patients/{other_patient}/sessions").json() == []
+    finally:
+        proxy.close()
+
+
+#: Everything the kit page keeps on the phone: localStorage and IndexedDB's state and outbox.
+STORAGE = """
+async () => {
+  const local = Object.fromEntries(Object.keys(localStorage)
+    .map((k) => [k, localStorage.getItem(k)]));
+  const all = (name) => KitStore.tx([name], "readonly",
+    (tx) => KitStore.req(tx.objectStore(name).getAll()));
+  return JSON.stringify({ local, state: await all("state"), outbox: await all("outbox") });
+}
+"""
+
+
+def test_a_lent_phone_keeps_nothing_of_the_last_patients_link(server, phone, shots):
+    """attack13: a clinic's phone lent in turn. Patient A's session was finished and all
+    sent; then B's link was opened on the phone. A's kit token stayed in the phone's
+    storage (the finished session's state keeps the link it was recorded under, 647d2f9)
+    until B started a session of their own, so B — or anyone holding the phone after —
+    could take it from there and send readings into A's record or read A's program with
+    it. And with the phone offline, B's welcome showed A's program (its name and the
+    therapist's note for A, kept for offline use) as B's own. Now another link opened
+    on the phone leaves nothing of the last one's: no token, no program."""
+    from test_phone_kit_browser import CuttableProxy
+
+    api = server.client("alice")
+    first_patient = api.patient("Ann Lent")["id"]
+    second_patient = api.patient("Ben Lent")["id"]
+    first = api.device(first_patient, "Ann's phone")["token"]
+    second = api.device(second_patient, "Ben's phone")["token"]
+    today = datetime.now(UTC).date().isoformat()  # the server's clinic zone is UTC
+    made = api.http.post(f"/api/patients/{first_patient}/programs", json={
+        "name": "Ann after the fall", "start_date": today,
+        "note": "Ann: the bruise on the left hip, go gently",
+        "exercises": [{"exercise": "elbow_flexion", "sets": 1, "repetitions": 3,
+                       "days_per_week": 5}]})
+    assert made.status_code == 201, made.text
+    proxy = CuttableProxy(server.port)
+    url = f"http://127.0.0.1:{proxy.port}"
+    try:
+        phone.goto(f"{url}/kit#token={first}")
+        sync_api.expect(phone.locator("#program-name")).to_have_text("Ann after the fall")
+        phone.evaluate("navigator.serviceWorker.ready")  # the page opens offline later
+        phone.click("#start")
+        phone.click("#segment-forearm")
+        phone.click("#ready")
+        phone.evaluate(FEEDER, motion_events(phone_simulation(seed=14))[:300])
+        _wait(lambda: phone.evaluate("kit.stream.connected && kit.stream.samples > 100 "
+                                     "&& kit.stream.unsent === 0"), 30, "A's session streamed")
+        phone.evaluate("kit.stream.finish()")
+        _wait(lambda: phone.evaluate("kit.stream.state.finished"), 30, "A's session sent")
+        context = phone.context
+        phone.close()
+
+        proxy.cut()  # B's link opened on the phone while it is offline
+        phone = context.new_page()
+        phone.goto(f"{url}/kit#token={second}")
+        sync_api.expect(phone.locator("#start")).to_be_visible(timeout=20_000)
+        said = phone.locator("#screen").inner_text()
+        kept = phone.evaluate(STORAGE)
+        phone.screenshot(path=str(shots / "lent-offline-welcome.png"), full_page=True)
+        print(f"\nB's welcome offline: {said!r}\nA's token kept on the phone: {first in kept}")
+        assert "Ann" not in said, "B's welcome showed A's program"
+        assert first not in kept, "A's kit token stayed on the phone"
+        assert "bruise" not in kept and "Ann" not in kept, "A's program stayed on the phone"
+
+        proxy.restore()
+        phone.reload()
+        sync_api.expect(phone.locator("#start")).to_be_visible(timeout=20_000)
+        assert first not in phone.evaluate(STORAGE)
     finally:
         proxy.close()

@@ -596,7 +596,8 @@ class KitStream {
       this.ws.send(JSON.stringify({ type: "bye" }));
       clearInterval(this._flushTimer);
       this.state.finished = true;
-      KitStore.setState("stream", { ...this.state });
+      this._saving = this._saving.then(() => KitStore.setState("stream", { ...this.state }))
+        .catch(() => {});  // unsaved, a reload resumes and says bye again
       this.onChange(this);
     }
   }

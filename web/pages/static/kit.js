@@ -711,12 +711,15 @@ function sendTheLastPatients(kept) {
   return new Promise((resolve, reject) => {
     const done = () => {
       clearInterval(id);
+      const sent = kit.stream;
       kit.stream = null;
       kit.did = {};
       localStorage.removeItem(DID_KEY);
       localStorage.removeItem(STEP_KEY);
       document.getElementById("status").hidden = false;
-      resolve();
+      // nothing of the other link stays on this phone: its token would let whoever holds
+      // the phone send readings into that patient's record (after its last save)
+      sent._saving.then(() => KitStore.clear()).then(resolve, reject);
     };
     let viaThisLink = false;  // its own link revoked: resumed with this one (see below)
     const id = setInterval(() => {
@@ -762,8 +765,10 @@ async function main() {
     // session's list: it was that kit's patient's
     if (TOKEN_SHAPE.test(given)) {
       if (given !== localStorage.getItem(TOKEN_KEY)) {
+        // the last link's patient's: their session's list, their recent sessions and
+        // their program (with the therapist's note), which an offline welcome would show
         localStorage.removeItem(LAST_KEY);
-        localStorage.removeItem(TODAY_KEY);  // its recent sessions were that patient's
+        localStorage.removeItem(TODAY_KEY);
       }
       localStorage.setItem(TOKEN_KEY, given);
     }
@@ -800,8 +805,11 @@ async function main() {
   await holdTheKit();
   if (!kit.token) return noLink();
   let kept = await KitStore.getState("stream");
-  if (kept && !kept.finished && kept.stream !== undefined && kept.token && kept.token !== kit.token) {
-    await sendTheLastPatients(kept);
+  if (kept && kept.token && kept.token !== kit.token) {
+    // another link's session: sent with its own link (unsent), then gone from the phone
+    // with that link's token (a finished one kept it until a new session started here)
+    if (!kept.finished && kept.stream !== undefined) await sendTheLastPatients(kept);
+    else await KitStore.clear();
     kept = null;
   }
   kit.today = await loadToday();
