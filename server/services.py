@@ -20,7 +20,7 @@ from .db import models
 from .db.engine import make_engine, make_sessionmaker
 from .db.migrate import upgrade
 from .export_turns import FairTurns
-from .ingest.budget import SHARED_BURST_S, KitBudget, follow_loop
+from .ingest.budget import KitBudget, SharedBudget, follow_loop
 from .ingest.writer import GroupWriter, StreamState
 from .kit.daily_samples import KitDay
 from .live.access import AccessWatch
@@ -113,9 +113,10 @@ class Services:
         #: device id → how fast its messages are read (ingest/budget.py), kept while it
         #: has a socket open or a debt to pay
         self.kit_budgets: dict[int, KitBudget] = {}
-        #: how fast all kits' messages are read together, in turns (ingest/budget.py)
-        self.ingest_budget = KitBudget(settings.ingest_messages_per_s,
-                                       settings.ingest_rows_per_s, burst_s=SHARED_BURST_S)
+        #: how fast all kits' messages are read together, in turns, shared among the
+        #: kits' therapists (ingest/budget.py)
+        self.ingest_budget = SharedBudget(settings.ingest_messages_per_s,
+                                          settings.ingest_rows_per_s)
         #: device id → sample rows its sessions of the last day hold, per session, while
         #: it has a socket open (kit/daily_samples.py; from the database at its first)
         self.kit_samples: dict[int, KitDay] = {}

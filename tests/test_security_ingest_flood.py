@@ -259,3 +259,114 @@ def test_turns_taken_together_come_one_after_another_and_the_share_follows_the_l
         task.cancel()
         return loop_budget.share
     assert asyncio.run(follow()) == 0.25
+
+
+async def _real_time_kit(url: str, token: str, seconds: float) -> tuple[list[float], int, int]:
+    """A kit streaming at real time, as the phone kit does: 10 one-sensor rows (100 Hz)
+    every 100 ms for ``seconds``. Returns each message's delay until acked [s], the
+    messages left unacked 3 s after the last, and the messages sent."""
+    from websockets.asyncio.client import connect
+
+    hello = {"type": "hello", "protocol": 1, "device": "real time", "side": "right",
+             "sensors": ["forearm"], "rate_hz": 100, "nine_axis": False, "resume": None}
+    async with connect(url, additional_headers={"Authorization": f"Bearer {token}"},
+                       open_timeout=60, close_timeout=1) as ws:
+        await ws.send(json.dumps(hello))
+        ready = json.loads(await ws.recv())
+        assert ready["type"] == "ready", ready
+        sent: dict[int, float] = {}
+        delays: list[float] = []
+
+        async def acks() -> None:
+            async for raw in ws:
+                message = json.loads(raw)
+                if message["type"] == "ack":
+                    now = time.monotonic()
+                    for seq in [s for s in sent if s <= message["seq"]]:
+                        delays.append(now - sent.pop(seq))
+        reader = asyncio.create_task(acks())
+        row = ",0.1,0.2,9.8,0.01,0.02,0.03,null,null,null]"
+        start, seq = time.monotonic(), 0
+        while time.monotonic() - start < seconds:
+            sent[seq] = time.monotonic()
+            await ws.send(f'{{"type":"samples","seq":{seq},"sensor":"forearm","rows":['
+                          + ",".join(f"[{(seq * 10 + i) / 100}{row}" for i in range(10))
+                          + "]}")
+            seq += 1
+            await asyncio.sleep(max(0.0, start + seq * 0.1 - time.monotonic()))
+        await asyncio.sleep(3.0)
+        reader.cancel()
+        return delays, len(sent), seq
+
+
+#: A real-time kit's messages are acked within this [s] (median) whoever else streams
+REAL_TIME_ACK_S = 0.5
+
+
+def test_a_therapists_many_kits_do_not_hold_back_another_therapists_stream(srv):
+    """attack13: all kits' budget (3bbb18c) gave every stream its turn in the order taken,
+    a message each, whatever the stream's therapist and the message's size: a
+    therapist's 4 kits (16 streams of 1000-row messages, 94,000 rows a second: the whole
+    budget) made another therapist's kit streaming at real time (10 rows every 100 ms)
+    wait for a round of them all per message: its acks from 106 ms (median) to 1,935 ms
+    (max 6.2 s), 34 of 80 messages still unacked 3 s after its last: its live view fell
+    behind without end. The budget is now shared among the therapists whose kits stream,
+    each an equal part."""
+    alice = srv.client("alice")
+    tokens = [alice.device(alice.patient(f"Rows {k}")["id"])["token"] for k in range(4)]
+    bob = srv.client("bob")
+    honest = bob.device(bob.patient("Real Time")["id"])["token"]
+    alone, _, _ = asyncio.run(_real_time_kit(srv.ws_url, honest, 3.0))
+    context = multiprocessing.get_context("spawn")
+    started, out = context.Event(), context.Queue()
+    floods = [context.Process(target=_flood, args=(srv.ws_url, tokens[j::2], 1000,
+                                                   FLOOD_S, started, out))
+              for j in range(2)]
+    for flood in floods:
+        flood.start()
+    try:
+        assert started.wait(60), "the flooding kits did not start"
+        time.sleep(1.0)
+        delays, unacked, sent = asyncio.run(_real_time_kit(srv.ws_url, honest, FLOOD_S - 3.0))
+        results = [r for _ in floods for r in out.get(timeout=120)]
+    finally:
+        for flood in floods:
+            flood.join(30)
+            if flood.is_alive():
+                flood.kill()
+    took = max(r[3] for r in results)
+    rows = sum(r[1] for r in results) * 1000
+    print(f"\nthe real-time kit's acks: median {statistics.median(alone) * 1e3:.0f} ms alone, "
+          f"{statistics.median(delays) * 1e3:.0f} ms (max {max(delays) * 1e3:.0f}) beside "
+          f"another therapist's 4 kits' flood ({rows / took:,.0f} rows/s acked); "
+          f"{unacked} of {sent} unacked 3 s after its last")
+    assert not [e for r in results for e in r[2]]
+    assert unacked == 0, "the real-time kit fell behind"
+    assert statistics.median(delays) <= REAL_TIME_ACK_S
+
+
+def test_all_kits_budget_is_shared_among_therapists():
+    """On a made-up clock: one therapist's streams taking turn after turn (their debt) do
+    not make another therapist's next turn wait. A therapist whose turns wait (busy)
+    leaves every other therapist an equal part of the rates: each busy one has
+    ``share`` / (busy ones), one alone or beside streams within their part the whole."""
+    from armtrack.server.ingest import budget as b
+
+    now = [0.0]
+    shared = b.SharedBudget(messages_per_s=100, rows_per_s=1000, clock=lambda: now[0],
+                            burst_s=0.0)
+    waits = [shared.turn_s("alice") for _ in range(4)]
+    assert waits == [0.0, 0.01, 0.02, 0.03], waits  # alone: the whole rate
+    shared.spend("alice", rows=500)  # half a second of rows
+    assert shared.turn_s("bob") == 0.0  # bob waits for none of alice's turns
+    # bob within his part: alice reads at the whole rate (4 messages and 500 rows owed)
+    assert abs(shared.turn_s("alice") - 0.5) < 1e-9
+    assert abs(shared.turn_s("bob") - 0.02) < 1e-9  # his part: half, 1 message owed
+    # both busy: alice's part is half (5 messages at 50/s, 500 rows at 500/s)
+    assert abs(shared.turn_s("alice") - 1.0) < 1e-9
+    shared.share = 0.5  # the loop behind: everyone's part halves
+    assert abs(shared.turn_s("bob") - 0.08) < 1e-9
+    now[0] = 100.0  # alice gone quiet: bob alone again, at the whole (shared) rate
+    shared.share = 1.0
+    assert shared.turn_s("bob") == 0.0
+    assert abs(shared.turn_s("bob") - 0.01) < 1e-9

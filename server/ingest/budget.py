@@ -19,7 +19,9 @@ flooding at once (each within its own budget: eight took another therapist's pag
 turn, instead of taking the event loop whole. Its rates are the most: a loaded machine's
 event loop keeps up with fewer messages (the same eight kits under the configured 8,000 a
 second: another page 1.3x in one run, 418x in the next), so the kits' budget follows the
-loop (``follow_loop``): while its timers fire late, kits are read more slowly."""
+loop (``follow_loop``): while its timers fire late, kits are read more slowly. It is
+shared among the kits' therapists (``SharedBudget``): a therapist's kits take turns in a
+part of their own, so that one therapist's many streams never hold back another's."""
 
 from __future__ import annotations
 
@@ -92,7 +94,68 @@ class KitBudget:
                 and self._rows >= self.rows_per_s * self.burst_s)
 
 
-async def follow_loop(budget: KitBudget, share_min: float) -> None:
+#: How long after its last turn that had to wait a therapist's kits count as reading all
+#: their part (busy) [s], and how often the busy ones are counted again [s].
+BUSY_S, COUNT_EVERY_S = 1.0, 0.05
+
+
+class SharedBudget:
+    """All kits' budget (``ARMTRACK_INGEST_MESSAGES_PER_S``, ``_ROWS_PER_S``), shared
+    among the therapists whose kits stream (the owner of a turn: its kit's therapist):
+    each has a ``KitBudget`` of its own, whose part of the rates is ``share`` over the
+    number of busy therapists (those whose turns had to wait within ``BUSY_S``), itself
+    counted. A therapist's kits flooding therefore read at most their part while another
+    therapist's stream waits on its own part only, never behind their turns; one alone,
+    or beside streams that take less than theirs, reads at the whole rate. Before, every
+    stream took its turn in one queue, a message each whatever its size and therapist:
+    a therapist's 16 streams of 1000-row messages held another's real-time kit (10 rows
+    every 100 ms) to one message per round of them all (acks 0.1 → 1.9 s, falling
+    behind for good). ``share`` (0–1] follows the loop (``follow_loop``)."""
+
+    def __init__(self, messages_per_s: float, rows_per_s: float,
+                 clock=time.monotonic, burst_s: float = SHARED_BURST_S):
+        self.messages_per_s = float(messages_per_s)
+        self.rows_per_s = float(rows_per_s)
+        self.burst_s = burst_s
+        self.share = 1.0
+        self._clock = clock
+        self._owners: dict[object, KitBudget] = {}
+        self._waited: dict[object, float] = {}  # owner → its last turn that had to wait
+        self._busy: set[object] = set()
+        self._counted_at = -float("inf")
+
+    def _budget(self, owner: object) -> KitBudget:
+        """``owner``'s budget, its part of the rates set for now."""
+        now = self._clock()
+        if now - self._counted_at >= COUNT_EVERY_S:
+            self._counted_at = now
+            self._busy = {o for o, at in self._waited.items() if now - at < BUSY_S}
+            for gone in [o for o in self._waited if o not in self._busy]:
+                del self._waited[gone]
+            for gone in [o for o, b in self._owners.items()
+                         if o not in self._busy and o != owner and b.full()]:
+                del self._owners[gone]  # a quiet therapist's, nothing owed: as new
+        budget = self._owners.get(owner)
+        if budget is None:
+            budget = self._owners[owner] = KitBudget(self.messages_per_s, self.rows_per_s,
+                                                     self._clock, self.burst_s)
+        budget.share = self.share / (1 + len(self._busy - {owner}))
+        return budget
+
+    def turn_s(self, owner: object = None) -> float:
+        """Take the next message's turn for a kit of ``owner``: seconds [s] until it comes."""
+        wait = self._budget(owner).turn_s()
+        if wait >= PAUSE_MIN_S:
+            self._waited[owner] = self._clock()
+            self._busy.add(owner)
+        return wait
+
+    def spend(self, owner: object = None, messages: int = 0, rows: int = 0) -> None:
+        """Count ``messages`` messages and ``rows`` sample rows read from ``owner``'s kits."""
+        self._budget(owner).spend(messages, rows)
+
+
+async def follow_loop(budget: KitBudget | SharedBudget, share_min: float) -> None:
     """Keep ``budget``'s share of its rates (all kits') at what the event loop keeps up
     with: each second ``TICK_S`` in a row its timer fires over ``LATE_S`` late, the share
     goes down (``SLOWER``), never below ``share_min``; each on time back up (``FASTER``).

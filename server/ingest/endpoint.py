@@ -287,8 +287,8 @@ class IngestConnection:
         if (wait := self.budget.wait_s()) >= budget.PAUSE_MIN_S:
             await asyncio.sleep(wait)
             paused = True
-        if (wait := self.services.ingest_budget.turn_s()) >= budget.PAUSE_MIN_S:
-            await asyncio.sleep(wait)  # all kits' turns, in the order taken
+        if (wait := self.services.ingest_budget.turn_s(self.therapist_id)) >= budget.PAUSE_MIN_S:
+            await asyncio.sleep(wait)  # its therapist's kits' turns, in the order taken
         elif not paused and time.perf_counter() - self._slice_from < budget.SLICE_S:
             return
         elif not paused:
@@ -298,7 +298,7 @@ class IngestConnection:
     def _spend_rows(self, rows: int) -> None:
         """Count ``rows`` sample rows read, in the kit's budget and all kits'."""
         self.budget.spend(rows=rows)
-        self.services.ingest_budget.spend(rows=rows)
+        self.services.ingest_budget.spend(self.therapist_id, rows=rows)
 
     async def _start(self) -> bool:
         text = await self.receive()
