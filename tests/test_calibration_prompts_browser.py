@@ -161,3 +161,52 @@ def test_calibration_prompts_follow_the_stream_when_the_browser_is_busy(
     assert ranks == sorted(ranks), f"a prompt went back: {shown}"
     times = [p["t"] for p in phases if p["t"] is not None]
     assert times == sorted(times), f"an older answer was shown: {phases}"
+
+
+def test_the_page_asks_a_swaying_trunk_to_keep_holding_the_npose(module_server, page, shots):
+    """A kit with a trunk sensor whose trunk sways (9-axis random sway seed 15, the N-pose
+    held 20 s, at real pace): the therapist's page says 'Keep holding' with the lean's
+    figure while the sway hides the trunk's side lean (``live_status.trunk_guide``), the
+    patient's view 'Keep holding', and then 'Trunk steady' (the simulator's replay of the
+    guide: 14 s). Before: 'Still ✓ — keep holding (n s)' whatever the trunk did."""
+    from test_estimation_hard_cases import swaying_kit
+
+    recording = swaying_kit("random", 15, True, npose_s=20.5).recording
+    api = module_server.client("alice")
+    patient = api.patient("Swaying Browser", side=recording.side, height_m=recording.height_m)
+    device = api.device(patient["id"])
+    page.set_viewport_size({"width": 1366, "height": 900})
+    sign_in(page, module_server.url)
+    start = threading.Event()
+    kit = KitThread(recording, module_server.ws_url, device["token"], gates=[(0.0, start)])
+    try:
+        live = None
+        deadline = time.monotonic() + 60
+        while live is None and time.monotonic() < deadline:
+            live = api.http.get(f"/api/patients/{patient['id']}/live").json()["session"]
+            if live is None:
+                time.sleep(0.1)
+        assert live, "the kit's stream did not start"
+        page.goto(f"{module_server.url}/sessions/{live['id']}")
+        sync_api.expect(page.locator("#calibration-box")).to_have_attribute(
+            "data-phase", "waiting", timeout=90_000)
+        start.set()
+        still = page.locator("#calibration-box .still")
+        # (the first answers, under half a second of the pose: 'Checking whether the trunk
+        # is steady'; a loaded machine's page polls late)
+        sync_api.expect(still).to_contain_text("Keep holding: the trunk is swaying",
+                                               timeout=90_000)
+        sync_api.expect(still).to_have_attribute("data-trunk", "keep-holding")
+        asking = still.inner_text()
+        page.click("#show-patient")
+        sync_api.expect(page.locator("#pv-still")).to_contain_text("Keep holding")
+        page.screenshot(path=str(shots / "calibration-keep-holding-patient.png"), timeout=90_000)
+        page.click("#close-patient-view")
+        page.screenshot(path=str(shots / "calibration-keep-holding-1366.png"), timeout=90_000)
+        sync_api.expect(still).to_have_attribute("data-trunk", "steady", timeout=60_000)
+        steady = still.inner_text()
+    finally:
+        kit.cut()
+    print(f"asked: {asking!r}; then: {steady!r}")
+    assert "±" in asking and "needed" in asking
+    assert "Trunk steady" in steady and "the pose can end" in steady

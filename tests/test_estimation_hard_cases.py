@@ -352,7 +352,9 @@ def test_a_swaying_kit_is_told_its_upright_is_not_known():
     and ``test_a_longer_npose_on_a_nine_axis_swaying_kit``). The same kit with a
     still trunk says nothing of it. The level (2σ over the 1° bar, 2° without a
     magnetometer: ``quality.LEAN_SD_MAX_DEG``) was set from the bars before looking at
-    which kits miss them. Before: no such warning."""
+    which kits miss them. Before: no such warning. The figure names the lean (est13: 'its
+    side lean is known only to ±2.5°', was 'its upright … (side lean)') and the hold the
+    live view guides (``test_a_guided_npose_pins_the_trunk``)."""
     swaying = calibration_only(random_sway_kit(9).recording)
     still = calibration_only(simulate(replace(sway_config(9), trunk_sway=None)).recording)
     for name, calibration in (("swaying", swaying), ("still", still)):
@@ -362,9 +364,10 @@ def test_a_swaying_kit_is_told_its_upright_is_not_known():
     print(f"lean σ side/forward: swaying {swaying.lean_sd_deg[0]:.2f}/"
           f"{swaying.lean_sd_deg[1]:.2f}°, still {still.lean_sd_deg[0]:.3f}/"
           f"{still.lean_sd_deg[1]:.3f}°")
-    assert f"±{2 * swaying.lean_sd_deg[0]:.1f}°" in found[0].message
+    assert f"side lean is known only to ±{2 * swaying.lean_sd_deg[0]:.1f}°" in found[0].message
     assert "trunk swayed" in found[0].message and "back supported" in found[0].message
-    assert "N-pose) for 15 s" in found[0].message
+    assert "N-pose) for 15–20 s, until the live view says the trunk is steady" in \
+        found[0].message
     assert "trunk-swayed" not in {w.code for w in still.warnings}
     assert max(still.lean_sd_deg) < 0.5 and swaying.lean_sd_deg[0] > 0.5
 
@@ -700,9 +703,11 @@ def test_a_swaying_kit_in_a_clean_field_keeps_its_magnetometers(seed, monkeypatc
         "the poses' bias covariance was made honest; 1.85°, 1.28 cm before the upright "
         "was the sway's centre): the calibration — with the true sensor-to-segment rotations "
         "0.19°, 0.13 cm (0.41°, 0.20 cm with the thorax's side lean alone taken out); the "
-        "sway's centre 1.49° off in side lean (σ 0.77°; the plain mean 2.03°), a lean the "
-        "sway kept over the poses' 7.5 s, which no sensor tells from a tilted mounting "
-        "then"))),
+        "sway's centre 1.49° off in side lean (σ 1.27°, 0.77° told under a flat band; the "
+        "plain mean 2.03°), a lean the sway kept over the poses' 7.5 s, which no sensor "
+        "tells from a tilted mounting then; its calibration warns (trunk-swayed), and held "
+        "as long as the live view guides (19 s) the kit is 0.22°: "
+        "test_a_guided_npose_pins_the_trunk_and_meets_the_bar"))),
     10])
 def test_a_swaying_kit_in_a_clean_field_meets_the_bar(seed):
     """The 9-axis kit under the low-pass random sway (the earth's field alone, the case's
@@ -711,6 +716,72 @@ def test_a_swaying_kit_in_a_clean_field_meets_the_bar(seed):
     print(f"random sway 9-axis, seed {seed}: {worst} {worst_deg:.2f}°, wrist {wrist_cm:.2f} cm")
     assert worst_deg <= ANGLE_BAR_DEG[True] and wrist_cm <= WRIST_BAR_CM
 
+
+def guided_npose_s(kind: str, seed: int, nine_axis: bool) -> tuple[float, float | None]:
+    """How long the live guide (``live_status.trunk_guide``: ``calibrate.held_side_lean_sd_deg``
+    and ``quality.trunk_hold_guide``) keeps this swaying kit in its N-pose, polled every 0.5 s
+    from the shared protocol's 3 s on: the N-pose's end [s] (its window starts at 0.5 s) and
+    the side lean's σ then [deg]. The sway is a function of time, so a kit held the guide's
+    cap shows every shorter hold."""
+    from armtrack.estimator.calibration.quality import GUIDED_HOLD_MAX_S, trunk_hold_guide
+    from armtrack.estimator.pipeline.calibrate import held_side_lean_sd_deg
+
+    start = 0.5
+    trunk = swaying_kit(kind, seed, nine_axis, npose_s=start + GUIDED_HOLD_MAX_S
+                        ).recording.sensors["trunk"]
+    for end in np.arange(3.0, start + GUIDED_HOLD_MAX_S + 0.01, 0.5):
+        held = (trunk.t >= start) & (trunk.t <= end)
+        sd = held_side_lean_sd_deg(trunk.t[held], trunk.acc[held])
+        if not trunk_hold_guide(sd, float(end) - start)["keep_holding"]:
+            return float(end), sd
+    return start + GUIDED_HOLD_MAX_S, sd
+
+
+#: The kits that miss the bars with the shared protocol's 3-s N-pose by the trunk's side
+#: lean (bench/README.md): tuning 9-axis random 9 (the strict xfail above, 1.28°) and 6-axis
+#: sine 4 (1.32°, its abduction axis); held out 9-axis random 11 / 13 / 15 / 18 and 6-axis
+#: random 11 / 15 / 18.
+@pytest.mark.parametrize("nine_axis, kind, seed", [
+    (True, "random", 9), (False, "sine", 4),
+    (True, "random", 11), (True, "random", 13), (True, "random", 15), (True, "random", 18),
+    (False, "random", 11), (False, "random", 15), (False, "random", 18)])
+def test_a_guided_npose_pins_the_trunk_and_meets_the_bar(nine_axis, kind, seed):
+    """The live view asks for the N-pose to be held until the sway's centre has pinned the
+    thorax's side lean (σ within ``quality.LEAN_PINNED_SD_DEG``, 20 s at most); the kit
+    held that long meets the bars (1° / 2° without magnetometers, 1 cm), and its
+    calibration does not warn of the sway. Measured (est13): holds of 14–19 s; before, at
+    3 s, 1.09–1.78° or over 1 cm. No assumption of an upright mean posture: the lean is
+    the trunk's own, over the poses."""
+    from armtrack.estimator.simulation.scenarios import SCORED_FROM_S, calibration_offset
+
+    npose_s, sd = guided_npose_s(kind, seed, nine_axis)
+    sim = swaying_kit(kind, seed, nine_axis, npose_s=npose_s)
+    estimates, calibration = estimate_recording(sim.recording)
+    worst, worst_deg, wrist_cm = score(estimates, sim.truth.t, sim_truth_deg(sim),
+                                       sim.truth.positions,
+                                       scored_from=SCORED_FROM_S + calibration_offset(npose_s))
+    print(f"{'9' if nine_axis else '6'}-axis {kind} sway, seed {seed}: N-pose held to "
+          f"{npose_s:.1f} s (side lean σ {sd:.2f}°); {worst} {worst_deg:.2f}°, wrist "
+          f"{wrist_cm:.2f} cm; lean σ {calibration.lean_sd_deg[0]:.2f}/"
+          f"{calibration.lean_sd_deg[1]:.2f}°")
+    assert npose_s < 20.5  # pinned, not stopped by the cap
+    assert "trunk-swayed" not in {w.code for w in calibration.warnings}
+    assert worst_deg <= ANGLE_BAR_DEG[nine_axis] and wrist_cm <= WRIST_BAR_CM
+
+
+def test_a_still_trunk_is_steady_at_once():
+    """The guide asks nothing more of a trunk that does not sway: the same kit with a
+    still trunk is steady at the shared protocol's 3 s (its side lean's σ ~0.02°)."""
+    from armtrack.estimator.calibration.quality import trunk_hold_guide
+    from armtrack.estimator.pipeline.calibrate import held_side_lean_sd_deg
+
+    trunk = simulate(replace(sway_config(9), trunk_sway=None)).recording.sensors["trunk"]
+    held = (trunk.t >= 0.5) & (trunk.t <= 3.0)
+    sd = held_side_lean_sd_deg(trunk.t[held], trunk.acc[held])
+    guide = trunk_hold_guide(sd, 2.5)
+    print(f"still trunk at 3 s: σ {sd:.3f}°; {guide['message']}")
+    assert guide["pinned"] and not guide["keep_holding"]
+    assert "Trunk steady" in guide["message"]
 
 @pytest.mark.parametrize("seed", [*range(1, 9), 11])
 def test_long_six_axis_session_with_drifting_bias_and_rests(seed):

@@ -573,6 +573,20 @@ def _sway_centre(t: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return centre / norm, error / norm**2
 
 
+
+def held_side_lean_sd_deg(t: np.ndarray, acc: np.ndarray) -> float | None:
+    """How well a pose held so far pins the thorax's side lean through a trunk's sway: one
+    σ [deg] of the sway's centre (``_sway_centre``) over the trunk sensor's samples at
+    ``t`` [s] (acc [m/s²], sensor frame) along the thorax's lateral axis, taken as the
+    default mounting's turned to that centre (the arm's poses that find it are not done
+    yet; a sensor turned up to 25° about the thorax's long axis mixes in cos²/sin² of the
+    forward lean's variance). None under two blocks' span."""
+    if len(t) < 2 or t[-1] - t[0] < 2 * SWAY_BLOCK_S:
+        return None
+    centre, covariance = _sway_centre(t, _unit_rows(acc))
+    lateral = tilt_only_R_sensor_segment(centre, "trunk", "right")[:, 2]  # (any side)
+    return float(np.rad2deg(np.sqrt(lateral @ covariance @ lateral)))
+
 def _band_covariance(tau: np.ndarray, lo: float, hi: float, slope: float) -> np.ndarray:
     """The correlation at lags ``tau`` [s] (≥ 0) of a process whose spectrum is ∝ f^−slope
     on ``lo…hi`` [Hz] (slope 0 or 1), 1 at lag 0."""

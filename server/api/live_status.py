@@ -18,7 +18,13 @@ from weakref import WeakKeyDictionary
 import numpy as np
 from armtrack.estimator.arm.joints import NORMAL_RANGE_DEG
 from armtrack.estimator.calibration import pose_stillness_warnings
-from armtrack.estimator.calibration.quality import STILL_ACC_STD, STILL_GYR_RMS
+from armtrack.estimator.calibration.quality import (
+    GUIDED_HOLD_MAX_S,
+    STILL_ACC_STD,
+    STILL_GYR_RMS,
+    trunk_hold_guide,
+)
+from armtrack.estimator.pipeline.calibrate import held_side_lean_sd_deg
 from fastapi import APIRouter, Depends
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session as DbSession
@@ -86,14 +92,16 @@ def lost_fraction(totals: dict[str, float], rate_hz: float | None) -> float | No
     return max(0.0, 1.0 - totals["samples"] / expected) if expected > 0 else None
 
 
-def _samples(db: DbSession, session_id: int, start: float, end: float
-             ) -> dict[str, np.ndarray]:
-    """Stored rows of each sensor with ``start <= t <= end``."""
-    blocks = db.execute(
-        select(models.SampleBlock.sensor, models.SampleBlock.data)
-        .where(models.SampleBlock.session_id == session_id,
-               models.SampleBlock.t_last >= start, models.SampleBlock.t_first <= end)
-        .order_by(models.SampleBlock.sensor, models.SampleBlock.ordinal)).all()
+def _samples(db: DbSession, session_id: int, start: float, end: float,
+             sensor: str | None = None) -> dict[str, np.ndarray]:
+    """Stored rows of each sensor (or ``sensor`` alone) with ``start <= t <= end``."""
+    query = (select(models.SampleBlock.sensor, models.SampleBlock.data)
+             .where(models.SampleBlock.session_id == session_id,
+                    models.SampleBlock.t_last >= start, models.SampleBlock.t_first <= end))
+    if sensor is not None:
+        query = query.where(models.SampleBlock.sensor == sensor)
+    blocks = db.execute(query.order_by(models.SampleBlock.sensor,
+                                       models.SampleBlock.ordinal)).all()
     by_sensor: dict[str, list[bytes]] = {}
     for sensor, data in blocks:
         by_sensor.setdefault(sensor, []).append(data)
@@ -119,6 +127,15 @@ def _stillness(rows: dict[str, np.ndarray]) -> dict[str, Any]:
             "sensors": sensors}
 
 
+def trunk_guide(rows: np.ndarray, start: float, now_t: float) -> dict[str, Any]:
+    """The live guide on the trunk through an N-pose held from ``start`` to ``now_t``
+    [s]: ``quality.trunk_hold_guide`` of how well the trunk sensor's stored rows
+    (``SAMPLE_COLUMNS``) since ``start`` pin its side lean through a sway."""
+    rows = rows[(rows[:, 0] >= start) & (rows[:, 0] <= now_t)]
+    sd = held_side_lean_sd_deg(rows[:, 0], rows[:, 1:4]) if len(rows) else None
+    return trunk_hold_guide(sd, now_t - start)
+
+
 def _verdict(db: DbSession, session_id: int, name: str, start: float, end: float
              ) -> dict[str, Any]:
     key = (session_id, start)
@@ -137,7 +154,8 @@ def _verdict(db: DbSession, session_id: int, name: str, start: float, end: float
 def calibration_progress(db: DbSession, session_id: int, now_t: float | None
                          ) -> dict[str, Any]:
     """The session's calibration poses so far: each with its verdict, and the one held
-    now (``holding``) with how long and how still."""
+    now (``holding``) with how long and how still, and, an N-pose on a kit with a trunk
+    sensor, whether the hold has pinned the trunk's lean yet (``trunk``: ``trunk_guide``)."""
     marks = db.execute(select(models.Mark.t, models.Mark.label)
                        .where(models.Mark.session_id == session_id)
                        .order_by(models.Mark.t, models.Mark.id)).all()
@@ -166,6 +184,13 @@ def calibration_progress(db: DbSession, session_id: int, now_t: float | None
                 window = _samples(db, session_id, max(pose["start"], now_t - STILL_WINDOW_S),
                                   now_t)
                 pose.update(_stillness(window))
+                if pose["name"] == "npose":
+                    # how well the hold so far pins the trunk's lean through a sway: the
+                    # guide asks for a longer hold until it does (GUIDED_HOLD_MAX_S at most)
+                    trunk = _samples(db, session_id, max(pose["start"], now_t - 3 *
+                                                         GUIDED_HOLD_MAX_S), now_t, "trunk")
+                    if "trunk" in trunk:
+                        pose["trunk"] = trunk_guide(trunk["trunk"], pose["start"], now_t)
             holding = pose
     return {"poses": poses, "holding": holding, "instructions": POSES, "exercise": exercise,
             "exercise_since_s": exercise_t, "stream_time_s": now_t}

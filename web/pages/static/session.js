@@ -249,10 +249,19 @@ function calibrationState(live) {
     let still;
     if (p.still === undefined) still = null;
     else still = p.still;
+    // a kit with a trunk sensor: the server's guide says whether the hold has pinned the
+    // trunk's lean through a sway yet (live_status.trunk_guide), in words for the therapist
+    const trunk = p.trunk || null;
+    let stillText = still === null ? "Checking…" : still ? `Still ✓ — keep holding (${p.held_s.toFixed(0)} s)`
+      : "Moving — please hold still";
+    if (trunk && still !== false) {
+      stillText = trunk.pinned ? `Still ✓ — ${trunk.message} (${p.held_s.toFixed(0)} s)`
+        : `${trunk.message} (${p.held_s.toFixed(0)} s)`;
+    }
     return { phase: "hold:" + p.name, kind: "holding", icon: p.name === "npose" ? "N" : "T",
-      title: `Hold the ${name}`, how: cal.instructions[p.name], still,
-      stillText: still === null ? "Checking…" : still ? `Still ✓ — keep holding (${p.held_s.toFixed(0)} s)`
-        : "Moving — please hold still", poses: cal.poses, warnings };
+      title: `Hold the ${name}`, how: cal.instructions[p.name], still, stillText,
+      keepHolding: Boolean(trunk && trunk.keep_holding), trunkSteady: Boolean(trunk && trunk.pinned),
+      poses: cal.poses, warnings };
   }
   if (session.status !== "live" && session.stopped_by_server) {
     return { phase: "stopped", kind: "warn", icon: "■", title: "The server stopped the kit's stream",
@@ -332,7 +341,8 @@ function renderCalibration(live) {
   parts.how.hidden = !s.how;
   parts.still.textContent = s.stillText || "";
   parts.still.hidden = !s.stillText;
-  parts.still.style.color = s.still === false ? "var(--warn)" : "var(--good)";
+  parts.still.style.color = s.still === false || s.keepHolding ? "var(--warn)" : "var(--good)";
+  parts.still.dataset.trunk = s.keepHolding ? "keep-holding" : s.trunkSteady ? "steady" : "";
   clear(parts.steps, ["npose", "tpose"].map((name) => {
     const p = [...s.poses].reverse().find((q) => q.name === name);
     if (!p) return el("span", { class: "step" }, POSE_NAMES[name] + ": not yet");
@@ -347,7 +357,9 @@ function renderCalibration(live) {
   document.getElementById("pv-title").textContent = s.patientTitle || s.title;
   document.getElementById("pv-how").textContent = s.patientHow || s.how || "";
   const pvStill = document.getElementById("pv-still");
-  pvStill.textContent = s.kind === "holding" ? (s.still === false ? "Hold still…" : s.still ? "Still ✓" : "") : "";
+  pvStill.textContent = s.kind === "holding" ? (s.still === false ? "Hold still…"
+    : s.keepHolding ? "Keep holding — sit tall and still…" : s.still ? "Still ✓" : "") : "";
+  pvStill.dataset.trunk = s.keepHolding ? "keep-holding" : s.trunkSteady ? "steady" : "";
   pvStill.className = "still " + (s.still === false ? "no" : "ok");
   if (s.phase !== spokenPhase) {
     spokenPhase = s.phase;
