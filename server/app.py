@@ -8,13 +8,16 @@ import contextlib
 import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
+from datetime import UTC, datetime
 
 from armtrack.web.pages import api_docs
 from armtrack.web.pages import routes as pages
 from armtrack.web.viewer import routes as viewer_routes
-from fastapi import FastAPI
+from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.middleware.cors import CORSMiddleware
+from fastapi.responses import JSONResponse
+from sqlalchemy.exc import OperationalError
 
 from . import heap
 from .api import (
@@ -35,7 +38,7 @@ from .api.erase import erase_expired
 from .audit import AuditMiddleware
 from .ingest import endpoint
 from .live import endpoint as live_endpoint
-from .plain_text import validation_error
+from .plain_text import database_unavailable, validation_error
 from .security import BodyLimit, SecurityHeaders, UntrustedProxyNotice, UploadGate
 from .services import Services
 from .settings import Settings
@@ -103,6 +106,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                   "(docs/spec/api.md). "
                   "armtrack supports therapy; it is not a diagnostic device.")
     app.add_exception_handler(RequestValidationError, validation_error)
+    app.add_exception_handler(OperationalError, database_unavailable)
     app.include_router(auth_routes.router)
     app.include_router(patients.router)
     app.include_router(device.router)
@@ -133,7 +137,17 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(UntrustedProxyNotice, settings=settings)
 
     @app.get("/healthz", include_in_schema=False)
-    def health() -> dict[str, str]:
-        return {"status": "ok"}
+    def health(request: Request) -> JSONResponse:
+        """200 ``ok``; 503 while what kits send cannot be stored (a full disk, a locked
+        database): the clinic's monitoring sees it, with the database's words."""
+        services = getattr(request.app.state, "services", None)
+        failing = services.writer.failing if services is not None else None
+        if failing is None:
+            return JSONResponse({"status": "ok"})
+        since = datetime.fromtimestamp(failing["since"], UTC).isoformat(timespec="seconds")
+        return JSONResponse({"status": "storage failing",
+                             "detail": f"what kits send is not stored since {since}: the "
+                                       f"database says \"{failing['reason']}\""},
+                            status_code=503)
 
     return app

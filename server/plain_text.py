@@ -10,6 +10,7 @@ in, with the field named: 422 in REST, an ``error`` (close 4400) for a ``hello``
 
 from __future__ import annotations
 
+import logging
 import math
 import re
 from typing import Annotated
@@ -17,6 +18,10 @@ from typing import Annotated
 from fastapi.encoders import jsonable_encoder
 from fastapi.responses import JSONResponse
 from pydantic import AfterValidator
+
+from .db.errors import database_words
+
+log = logging.getLogger("armtrack")
 
 _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
 _CONTROL_BUT_LINES = re.compile(r"[\x00-\x08\x0b-\x1f\x7f-\x9f]")
@@ -92,3 +97,14 @@ async def validation_error(request, exc) -> JSONResponse:
     return JSONResponse(status_code=422,
                         # again after the encoder: an error's context it wrote as text
                         content={"detail": printable(jsonable_encoder(printable(exc.errors())))})
+
+
+async def database_unavailable(request, exc) -> JSONResponse:
+    """503 in words for a request the database cannot serve just now (SQLAlchemy's
+    ``OperationalError``: a full disk, a database locked past the busy timeout, PostgreSQL
+    gone): what it said and what to do, instead of a bare 500 "Internal Server Error"."""
+    log.warning("%s %s: the database failed: %s", request.method, request.url.path, exc)
+    return JSONResponse(status_code=503, headers={"Retry-After": "60"}, content={
+        "detail": f"The server cannot store or read this just now: its database says "
+                  f"\"{database_words(exc)}\". Try again in a few minutes; if it lasts, "
+                  f"tell the clinic's IT (the server's log says more)."})

@@ -287,6 +287,7 @@ def live_status(svc: Services, db: DbSession, patient_id: int,
                      if motion is not None else None),
         "estimating": bool(latest and latest.get("session_id") == session.id),
         "normal_ranges": NORMAL_RANGE_DEG,
+        "storage_failing": svc.writer.failing,
         "server_time": now_wall,
     }
 

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -44,6 +45,7 @@ import orjson
 from sqlalchemy import Connection, Engine, bindparam, case, insert, select, update
 
 from ..db import models
+from ..db.errors import database_words
 from ..store.blocks import STORED_MAX_BYTES, pack_stored
 from .protocol import ROW_WIDTH, MarkMessage, Samples, dumps
 
@@ -148,6 +150,9 @@ class GroupWriter:
         self._task: asyncio.Task | None = None
         self.commits = 0
         self.failures = 0
+        #: while commits fail: since when [s, Unix time] and what the database said
+        #: (``/healthz`` and the live views say it); None once a commit succeeds
+        self.failing: dict[str, float | str] | None = None
 
     def start(self) -> None:
         self._task = asyncio.create_task(self._run(), name="armtrack-group-writer")
@@ -190,15 +195,24 @@ class GroupWriter:
                 fenced = await loop.run_in_executor(self._executor, self._commit, batch)
             except Exception as exc:
                 self.failures += 1
+                words = database_words(exc)
+                if self.failing is None:
+                    self.failing = {"since": time.time(), "reason": words}
                 log.warning("commit of %d messages failed: %s", len(batch), exc)
                 for stream in {w.stream for w in batch}:
-                    stream.on_storage_error(f"storage failed ({type(exc).__name__}); "
-                                            "the data stay unacked and will be retried")
+                    # the database's words stay out: kits match reasons' words
+                    # (kit-stream.js), and the operator reads them in the log
+                    stream.on_storage_error("storage failed: the server cannot store data "
+                                            "now; the data stay unacked and will be retried")
                 self._queue[:0] = batch
                 await asyncio.sleep(RETRY_S)
                 self._wake.set()
                 continue
             self.commits += 1
+            if self.failing is not None:
+                log.warning("commits succeed again after failing since %s",
+                            time.strftime("%H:%M:%S", time.localtime(self.failing["since"])))
+                self.failing = None
             self._done(batch, fenced)
 
     def _done(self, batch: list[Write], fenced: dict[str, str] | None = None) -> None:

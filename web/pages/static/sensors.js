@@ -28,3 +28,18 @@ function sensorTable(live) {
       el("th", { class: "num" }, "Signal"))),
     el("tbody", {}, rows));
 }
+
+// While the server cannot store what kits send (a full disk, a locked database: the live
+// status's ``storage_failing``), the sensors still look connected: this says what is
+// happening to the data and who can mend it. Null when storing works.
+function storageNote(live) {
+  const failing = live.storage_failing;
+  if (!failing) return null;
+  const since = fmtDate(new Date(failing.since * 1000).toISOString(), { seconds: true });
+  return el("div", { id: "storage-failing", class: "card stopped-by-server", role: "alert" },
+    el("h3", {}, "What the kit sends is not stored just now"),
+    el("p", {}, `Since ${since} the server's database says “${failing.reason}”.`),
+    el("p", {}, "The kit keeps its readings and sends them again once the server can store "
+      + "them: nothing is lost while it does, so let the patient carry on or pause. "
+      + "Tell the clinic's IT: the server needs room on its disk or its database needs attention."));
+}

@@ -222,7 +222,7 @@ async function pollLive() {
     if (liveStatus.session.status !== session.status) { session.status = liveStatus.session.status; setStatus(); }
     showStopped(liveStatus.session.stopped_by_server);
     document.getElementById("sensors-card").hidden = false;
-    clear(document.getElementById("sensors"), sensorTable(liveStatus));
+    clear(document.getElementById("sensors"), storageNote(liveStatus), sensorTable(liveStatus));
     renderCalibration(liveStatus);
     LiveFollow.live(liveStatus);
   } else if (!liveStatus.session || liveStatus.session.id !== session.id) {
