@@ -113,3 +113,44 @@ def test_a_stream_sent_faster_than_real_time_was_not_seen_in_the_future(server):
     print(f"\nlast seen {[round(t - live['server_time'], 1) for t in seen]} s from the "
           "server's now")
     assert seen and all(t <= live["server_time"] for t in seen)
+
+
+def test_a_backlog_says_when_it_arrived_not_0_s_ago(server, tmp_path):
+    """Left by b2e5272: a backlog sent faster than real time and cut off was placed at
+    "now" (its stream time lies ahead of the wall clock), so the page read "0 s ago" on
+    every poll until the wall clock caught up with the stream's time. The server now
+    keeps when each sensor's rows were stored (with the stream's position), and says that:
+    the truth for readings sent later than they were recorded. Here the kit was killed,
+    the session seen interrupted, and 5 s later the page must say about 5 s ago (not 0),
+    and no earlier than the kill."""
+    api = server.client("alice")
+    patient, killed = broken_off(server, api, "Backlog Ago", speed="0",
+                                 rows_per_message="1", samples=6000)
+    killed_wall = time.time() - (time.monotonic() - killed)
+    deadline = time.monotonic() + 60
+    while api.http.get(f"/api/patients/{patient['id']}/sessions").json()[0]["status"] == "live":
+        assert time.monotonic() < deadline, "the session never turned interrupted"
+        time.sleep(0.2)
+    interrupted_wall = time.time()  # every row was read by now
+    time.sleep(5)
+    live = api.http.get(f"/api/patients/{patient['id']}/live").json()
+    sensors = [s for s in live["sensors"] if s["samples"]]
+    print(f"\nkilled {live['server_time'] - killed_wall:.1f} s before, seen interrupted "
+          f"{live['server_time'] - interrupted_wall:.1f} s before; last seen "
+          f"{[round(s['seconds_since'], 1) for s in sensors]} s ago")
+    assert sensors
+    for s in sensors:
+        # stored no later than the session was seen interrupted, and not long before the
+        # kill (the kit streamed up to it; the server read the rest just after)
+        assert killed_wall - 3 <= s["last_seen"] <= interrupted_wall + 0.5, (
+            s, killed_wall, interrupted_wall)
+        assert s["seconds_since"] >= 4.5, s
+    with page_at(390) as page:
+        sign_in_as(page, server.url, "alice")
+        page.goto(f"{server.url}/patients/{patient['id']}")
+        sync_api.expect(page.locator("#sensor-table tbody tr").first).to_contain_text(
+            "Connection lost", timeout=30_000)
+        seen = page.locator("#sensor-table td.seen").all_inner_texts()
+        page.screenshot(path=str(tmp_path / "backlog-sensors-390.png"), full_page=True)
+    print(f"the page: {seen}")
+    assert seen and all(re.fullmatch(r"([5-9]|[1-9]\d) s ago", t) for t in seen), seen

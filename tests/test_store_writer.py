@@ -8,6 +8,7 @@ from __future__ import annotations
 import asyncio
 import math
 import random
+import time
 import zlib
 
 import numpy as np
@@ -114,6 +115,7 @@ def test_a_large_commit_stores_everything_in_a_few_statements(tmp_path):
         await asyncio.sleep(0)
         await writer.stop()
 
+    started = time.time()
     asyncio.run(commit())
     # fence, blocks, marks, streams, sessions: each over up to 500 rows an execution, not
     # one execution a row (3,000 writes of 750 streams were 4,500 before)
@@ -145,7 +147,11 @@ def test_a_large_commit_stores_everything_in_a_few_statements(tmp_path):
     assert set(streams.values()) == {per_stream}
     times = last_t["stream0001"]
     times = orjson.loads(times) if isinstance(times, str) else times
+    seen = {k: times.pop(k) for k in list(times) if k.startswith("~seen:")}
     assert times == {sensors[seq % 3]: seq * 0.1 + 0.09 for seq in (1, 2, 3)}
+    # and when each sensor's rows were stored (the sensor table's "last seen")
+    assert set(seen) == {f"~seen:{name}" for name in sensors}
+    assert all(started <= at <= time.time() for at in seen.values()), (seen, started)
     by_session = {sid: n for sid, n, _ in sessions}
     for stream_id, session_id in ids:
         marked = 1 if int(stream_id[-4:]) % 100 == 0 else 0

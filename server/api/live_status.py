@@ -30,6 +30,7 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session as DbSession
 
 from ..db import models
+from ..ingest.writer import SEEN_PREFIX
 from ..live.motion import MotionWatch, current_exercise, watch, watching
 from ..live.streams import STALE_S
 from ..services import Services
@@ -220,13 +221,29 @@ def _snapshot(svc: Services, patient_id: int) -> dict[int, dict[str, Any]]:
     return out
 
 
+def stored_seen(db: DbSession, session_id: int) -> dict[str, float]:
+    """Per sensor, when its last rows were stored [s, Unix time], as the session's streams
+    keep it with their position (``writer.SEEN_PREFIX``; none for rows stored before)."""
+    seen: dict[str, float] = {}
+    for (last_t,) in db.execute(select(models.Stream.last_t)
+                                .where(models.Stream.session_id == session_id)):
+        for key, at in (last_t or {}).items():
+            if key.startswith(SEEN_PREFIX):
+                name = key[len(SEEN_PREFIX):]
+                seen[name] = max(seen.get(name, at), at)
+    return seen
+
+
 def _stored_last_seen(session: models.Session, totals: dict[str, dict[str, float]],
-                      name: str, now_wall: float) -> float:
-    """When sensor ``name``'s last stored sample was taken [s, Unix time], from the store
-    alone: the session's start (the kit's hello) plus the stream's own time from its first
-    sample to that one, and never after ``now_wall`` [s, Unix time] (a backlog sent faster
-    than real time). For a stream no page polled while it was open, or a server
-    restarted since (their arrival times are kept in memory only): "never" was wrong."""
+                      name: str, now_wall: float, seen: dict[str, float]) -> float:
+    """When sensor ``name`` was last seen [s, Unix time], from the store alone, for a
+    stream no page polled while it was open, or a server restarted since (arrival times
+    are kept in memory only: "never" was wrong): when its last rows were stored
+    (``seen``), the truth also for a backlog sent later and faster than it was recorded;
+    for rows stored before that was kept, the session's start (the kit's hello) plus the
+    stream's own time from its first sample to that one. Never after ``now_wall``."""
+    if name in seen:
+        return min(now_wall, seen[name])
     first = min(t["t_first"] for t in totals.values())
     return min(now_wall, session.started_at.timestamp() + (totals[name]["t_last"] - first))
 
@@ -247,11 +264,14 @@ def live_status(svc: Services, db: DbSession, patient_id: int,
     status = svc.sensor_status.get(patient_id, {})
     sensors = []
     now_t = None
+    seen: dict[str, float] | None = None  # read once, when a sensor needs it
     for name in session.sensors:
         arrivals = (open_stream or {}).get(name)
         last_seen = arrivals["last_seen"] if arrivals else _last_seen.get((session.id, name))
         if last_seen is None and name in totals:
-            last_seen = _stored_last_seen(session, totals, name, now_wall)
+            if seen is None:
+                seen = stored_seen(db, session.id)
+            last_seen = _stored_last_seen(session, totals, name, now_wall, seen)
         sensor_status = status.get(name, {})
         sensors.append({
             "sensor": name,

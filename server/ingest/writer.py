@@ -63,6 +63,10 @@ RETRY_S = 0.5
 #: (hello ``session``) keeps its clock offset [s] and the first block ordinal it uses.
 T_OFFSET_KEY = "~t_offset"
 ORDINAL_BASE_KEY = "~ordinal_base"
+#: ``last_t`` key prefix of when a sensor's last rows were stored [s, Unix time], e.g.
+#: ``~seen:forearm``: the sensor table's "last seen" of a stream no page watched, true for
+#: a backlog sent later (and faster) than it was recorded (``api/live_status.py``).
+SEEN_PREFIX = "~seen:"
 
 _STREAMS = models.Stream.__table__
 _SESSIONS = models.Session.__table__
@@ -259,6 +263,7 @@ class GroupWriter:
         streams: dict[str, tuple[StreamState, int]] = {}
         last_t: dict[str, dict[str, float]] = {}
         counts: dict[int, int] = {}
+        now = time.time()  # the rows' arrival, to the commit's delay (ack_interval_s)
         for write in batch:
             stream = write.stream
             top = streams.get(stream.stream_id, (stream, -1))[1]
@@ -267,6 +272,7 @@ class GroupWriter:
             if write.samples is not None:
                 rows = write.samples.rows
                 times[write.samples.sensor] = float(rows[-1, 0])
+                times[SEEN_PREFIX + write.samples.sensor] = now
                 runs.setdefault((stream.stream_id, write.samples.sensor), []).append(
                     (write.seq, rows))
                 counts[stream.session_id] = counts.get(stream.session_id, 0) + len(rows)
