@@ -39,7 +39,8 @@ def run(args: argparse.Namespace) -> int:
     if url.get_backend_name() != "sqlite":
         plain = url.set(drivername="postgresql", password=None).render_as_string()
         print("armtrack backup: the database is not SQLite; back PostgreSQL up with "
-              f"pg_dump: pg_dump --format=custom --file={args.file} '{plain}' (the password "
+              f"pg_dump: (umask 077; pg_dump --format=custom --file={args.file} '{plain}') "
+              "(umask 077: the dump readable by its owner only; the password "
               "from PGPASSWORD or ~/.pgpass; docs/operator.md, Backups)", file=sys.stderr)
         return 2
     source = Path(url.database or "")
