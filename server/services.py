@@ -88,6 +88,8 @@ class Services:
         self.cpu_pool = ThreadPoolExecutor(CPU_THREADS, thread_name_prefix="armtrack-cpu")
         #: exports holding a whole session in memory (CSV, OpenSim, PDF): a few at once
         self.exports = FairTurns(EXPORTS_AT_ONCE)
+        #: therapist id → their exports being made or downloaded (``deps.in_export_turn``)
+        self.exports_held: dict[int, int] = {}
         #: password hashing (argon2id: 64 MiB, ~0.1 s each), two at a time however many
         #: sign-ins arrive, in a pool of its own: a flood of sign-ins queues behind itself,
         #: not ahead of the kits' feedback

@@ -369,3 +369,54 @@ def test_fair_turns_go_to_the_owner_holding_fewest_and_a_cancelled_wait_holds_no
     # owners at a tie take turns, each its own in order; 3 went away and got none
     assert order == ["1a", "2a", "1b"], order
     assert free == 1 and not waiting
+
+
+#: Exports one account may have being made or downloaded at once (``deps.EXPORTS_HELD``)
+EXPORTS_HELD = 8
+
+
+def _status(s: socket.socket) -> int:
+    """The status of the answer on ``s``, reading no more than its first line."""
+    s.settimeout(600)
+    line = b""
+    while not line.endswith(b"\r\n"):
+        byte = s.recv(1)
+        assert byte, "closed before an answer"
+        line += byte
+    return int(line.split()[1])
+
+
+def test_one_account_cannot_fill_the_disk_with_exports_it_does_not_read(server,
+                                                                        long_sessions):
+    # attack13: a built export waits for its download in an unnamed file of the data
+    # folder for as long as its client holds the connection without reading: twelve
+    # angles.csv of a 540k-row session held so were 398 MB on disk, and nothing bounded
+    # how many one account (or a stolen sign-in) asked for: the disk the database lives
+    # on filled, every kit's and therapist's writes with it. Now an account has at most
+    # EXPORTS_HELD being made or downloaded at once; the next is 429 at once
+    server.create_user("ellen")  # carol may be disabled by a test before
+    alice, ellen = server.client("alice"), server.client("ellen")
+    path = f"/api/sessions/{long_sessions[8]['id']}/angles.csv"
+    base = _open_spools(server)
+    held = _dropped_gets(server, path, alice.token, EXPORTS_HELD + 4)
+    try:
+        statuses = [_status(s) for s in held]
+        spools = _open_spools(server) - base
+        print(f"\n{len(held)} angles.csv asked for and not read: answers {statuses}, "
+              f"{spools} export files held open")
+        mine = ellen.patient(name="Ellen's own")
+        other = ellen.http.get(f"/api/patients/{mine['id']}/export", timeout=600)
+        assert other.status_code == 200, "another account's export was refused"
+        refused = alice.http.get(path, timeout=600)
+        assert spools <= EXPORTS_HELD, f"{spools} export files held by one account"
+        assert statuses.count(200) == EXPORTS_HELD and statuses.count(429) == 4
+        assert refused.status_code == 429 and "at once" in refused.json()["detail"]
+        assert refused.headers.get("retry-after")
+    finally:
+        for s in held:
+            s.close()
+    deadline = time.monotonic() + 60
+    while _open_spools(server) > base and time.monotonic() < deadline:
+        time.sleep(0.5)
+    again = alice.http.get(path, timeout=600)
+    assert again.status_code == 200, "the account's exports were not given back"

@@ -21,6 +21,7 @@ from ..auth import DEMO_USER, hash_token
 from ..db import models
 from ..live.access import holds
 from ..services import ExportUnwanted, Services
+from .spool import SpooledResponse
 
 T = TypeVar("T")
 
@@ -82,13 +83,42 @@ async def in_export_turn(request: Request, asker: models.Therapist,
     are shared fairly among the therapists asking (``asker``: as read when it came)."""
     token = await oauth2(request)
     services = request.app.state.services
+    held = services.exports_held
+    if held.get(asker.id, 0) >= EXPORTS_HELD:
+        raise HTTPException(status.HTTP_429_TOO_MANY_REQUESTS,
+                            f"this account has {EXPORTS_HELD} exports being made or "
+                            "downloaded at once, the most it may: ask again once one has "
+                            "finished downloading", headers={"Retry-After": "5"})
+    held[asker.id] = held.get(asker.id, 0) + 1
+
+    def release() -> None:
+        if (left := held.get(asker.id, 0) - 1) > 0:
+            held[asker.id] = left
+        else:
+            held.pop(asker.id, None)
 
     def work(db: DbSession) -> T:
         return fn(db, current_therapist(db, token, request), *args)
     try:
-        return await services.run_export(work, owner=asker.id, gone=_disconnected(request))
+        answer = await services.run_export(work, owner=asker.id, gone=_disconnected(request))
     except ExportUnwanted:  # nobody is there to answer
+        release()
         raise HTTPException(CLIENT_GONE, "the client went away before its turn") from None
+    except BaseException:
+        release()
+        raise
+    if isinstance(answer, SpooledResponse):
+        answer.on_end = release  # its file waits on disk until the download ends
+    else:
+        release()
+    return answer
+
+
+#: Exports one account may have being made or downloaded at once (a built one waits for
+#: its download in a file of the data folder, for as long as its client holds the
+#: connection without reading: twelve angles.csv of a 540k-row session so held were 398 MB,
+#: and any number could be asked for: the disk the database lives on filled).
+EXPORTS_HELD = 8
 
 
 #: Status logged for an export nobody waited for (nginx's "client closed request").

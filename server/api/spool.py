@@ -41,12 +41,15 @@ class SpooledResponse(StreamingResponse):
     def __init__(self, spool: BinaryIO, **kwargs) -> None:
         super().__init__(chunks(spool), **kwargs)
         self.spool = spool
+        #: called once the answer has ended, however it ended (``deps.in_export_turn``)
+        self.on_end: Callable[[], None] = lambda: None
 
     async def __call__(self, scope, receive, send) -> None:
         try:
             await super().__call__(scope, receive, send)
         finally:
             self.spool.close()
+            self.on_end()
 
 
 def as_text(write: Callable[[TextIO], None]) -> Callable[[BinaryIO], None]:
