@@ -68,9 +68,21 @@ const LiveFollow = (() => {
     return day(a) === day(b);
   }
 
+  // The session's own day in the clinic's zone, as a heading writes it ("Thu, Dec 3"; with
+  // the year when it is not this year's).
+  function dayWords(moment) {
+    const zone = (CLINIC && CLINIC.time_zone) || undefined;
+    const year = (d) => new Date(d).toLocaleDateString("en-CA", { timeZone: zone, year: "numeric" });
+    return parseMoment(moment).toLocaleDateString(undefined, { weekday: "short", month: "short",
+      day: "numeric", timeZone: zone, ...(year(parseMoment(moment)) !== year(Date.now()) ? { year: "numeric" } : {}) });
+  }
+
+  // The sessions of this session's day (a replay of last Thursday: Thursday's, not today's).
   async function history() {
     const all = await api(`/api/patients/${current.patient_id}/summaries?limit=30`);
-    const today = all.filter((s) => sameDay(s.started_at, Date.now())).reverse();
+    const day = parseMoment(current.started_at);
+    const isToday = sameDay(day, Date.now());
+    const today = all.filter((s) => sameDay(parseMoment(s.started_at), day)).reverse();
     let card = document.getElementById("day-history");
     if (!today.length) { if (card) card.remove(); return; }
     if (!card) {
@@ -79,7 +91,7 @@ const LiveFollow = (() => {
       main.insertBefore(card, document.getElementById("calibration"));
     }
     const times = fmtSessionTimes(today.map((s) => s.started_at));
-    clear(card, el("h2", {}, "Today's sessions"),
+    clear(card, el("h2", {}, isToday ? "Today's sessions" : `Sessions of ${dayWords(current.started_at)}`),
       el("div", { class: "row", style: "gap:8px;flex-wrap:wrap" }, today.map((s, k) => el(
         s.id === current.id ? "span" : "a",
         { class: "chip day-session" + (s.id === current.id ? " current" : ""),

@@ -1,0 +1,80 @@
+"""A therapist reviews last week: a session's page showed "Today's sessions" with today's
+sessions — on Thursday's session, Friday's chip and not Thursday's own (found reviewing a
+week of home use, 390 and 1280 px). The strip is the session's day's: "Today's sessions"
+on a session of today, "Sessions of <its day>" on an older one, the session in view among
+them. A real server on a simulated calendar (``server/clock.py``), real WebSockets,
+Debian's chromium."""
+
+from __future__ import annotations
+
+import asyncio
+from datetime import UTC, datetime, timedelta
+from types import SimpleNamespace
+
+import pytest
+from armtrack.server.emulator import KitEmulator
+from browser_helpers import need_browser, page_at, sign_in_as
+from server_support import Zygote, ZygoteServerProcess
+from test_programs_followed import PREAMBLE, Planned, recording_of
+
+sync_api = need_browser()
+
+
+@pytest.fixture(scope="module")
+def world(tmp_path_factory):
+    """Two sessions yesterday at 10:00 and 10:30 (UTC, the clinic's zone), one today."""
+    folder = tmp_path_factory.mktemp("day-sessions")
+    now_file = folder / "now.txt"
+    zygote = Zygote(PREAMBLE.format(path=str(now_file)))
+    server = ZygoteServerProcess(folder / "server", zygote)
+    server.create_user("alice")
+    server.start()
+    try:
+        alice = server.client("alice")
+        patient = alice.patient("Week Review")
+        token = alice.device(patient["id"], "phone")["token"]
+        real_now = datetime.now(UTC)
+        yesterday = (real_now - timedelta(days=1)).replace(hour=10, minute=0, second=0,
+                                                           microsecond=0)
+        today = real_now - timedelta(minutes=2)
+
+        def stream(at: datetime, seed: int) -> int:
+            now_file.write_text(at.isoformat())
+            kit = KitEmulator(recording_of(Planned(at, {"elbow_flexion": [(3, 90.0)]}),
+                                           seed=seed), server.ws_url, token, speed=0,
+                              rows_per_message=50)
+            stats = asyncio.run(kit.run())
+            return alice.wait_processed(stats.session, timeout=240)["id"]
+
+        ids = [stream(yesterday, 1), stream(yesterday + timedelta(minutes=30), 2),
+               stream(today, 3)]
+        now_file.write_text("")
+        yield SimpleNamespace(server=server, ids=ids, yesterday=yesterday)
+    finally:
+        server.stop()
+        zygote.close()
+
+
+@pytest.mark.parametrize("width", [390, 1280])
+def test_a_past_sessions_page_lists_its_own_days_sessions(world, width):
+    first, second, todays = world.ids
+    day = world.yesterday
+    with page_at(width) as page:
+        sign_in_as(page, world.server.url, "alice")
+        page.goto(f"{world.server.url}/sessions/{first}")
+        card = page.locator("#day-history")
+        sync_api.expect(card.locator(".day-session")).to_have_count(2, timeout=30_000)
+        heading = card.locator("h2").inner_text()
+        chips = card.locator(".day-session").evaluate_all(
+            "els => els.map(e => e.dataset.session)")
+        print(f"\n{width} px, session {first} of {day:%a %d %b}: {heading!r}, chips {chips}")
+        assert heading == f"Sessions of {day:%a}, {day:%b} {day.day}", heading
+        assert chips == [str(first), str(second)]
+        sync_api.expect(card.locator(".current")).to_have_attribute(
+            "data-session", str(first))
+
+        page.goto(f"{world.server.url}/sessions/{todays}")
+        sync_api.expect(card.locator(".day-session")).to_have_count(1, timeout=30_000)
+        assert card.locator("h2").inner_text() == "Today's sessions"
+        sync_api.expect(card.locator(".current")).to_have_attribute(
+            "data-session", str(todays))
