@@ -1008,3 +1008,54 @@ def test_a_lent_phone_keeps_nothing_of_the_last_patients_link(server, phone, sho
         assert first not in phone.evaluate(STORAGE)
     finally:
         proxy.close()
+
+
+@pytest.mark.parametrize("width", [390, 1280])
+def test_a_session_carried_on_after_the_cap_says_why_it_has_no_poses(capped_server, phone,
+                                                                      shots, width):
+    """The phone's session that goes on after the full one (4aada70) holds no calibration
+    poses: the patient held them at the full session's start. Its page said only "No
+    calibration pose: the default sensor mounting was used", as for a kit that skipped
+    them. The phone now names the session it carries on in hello (carried-on/1), and the
+    session page says so, links it, and says why its poses are not carried over (the
+    estimator's calibration: a new session's filters start their heading anew, and only
+    the poses fix the sensor's turn on the arm and the arm's heading)."""
+    from browser_helpers import sign_in_as
+
+    api = capped_server.client("alice")
+    patient = api.patient(f"Carried On {width}")
+    device = api.device(patient["id"], "phone")
+    events = motion_events(phone_simulation(seed=21))
+    _start_kit(phone, capped_server.url, device["token"], shots, f"c{width}")
+    phone.click("#ready")
+    phone.evaluate(FEEDER, events[:330])
+    _wait(lambda: phone.evaluate("window.__feed.i >= 330"), 60, "330 readings")
+    _wait(lambda: phone.evaluate("kit.stream.carriedOver >= 1"), 60, "a new session")
+    _wait(lambda: phone.evaluate("kit.stream.unsent === 0 && kit.stream.connected"), 60,
+          "the outbox sent")
+    second = phone.evaluate("kit.stream.state.session")
+    answer = api.http.post(f"/api/sessions/{second}/close", timeout=CLOSE_S)
+    assert answer.status_code == 200, answer.text
+    sessions = sorted(s["id"] for s in
+                      api.http.get(f"/api/patients/{patient['id']}/sessions").json())
+    carries = [api.session(s).get("carries_on") for s in sessions]
+    print(f"\nsessions {sessions}: carries_on {carries}")
+    assert sessions[-1] == second and len(sessions) >= 2
+    # the first held the poses; each later one carries on the one before
+    assert carries == [None, *sessions[:-1]]
+    first = sessions[-2]
+    api.wait_processed(second, timeout=120)
+    page = phone.context.new_page()  # the therapist's page, beside the kit's
+    try:
+        page.set_viewport_size({"width": width, "height": 900})
+        sign_in_as(page, capped_server.url, "alice")
+        page.goto(f"{capped_server.url}/sessions/{second}")
+        why = page.locator("#no-poses")
+        sync_api.expect(why).to_be_visible(timeout=30_000)
+        text = why.inner_text()
+        page.screenshot(path=str(shots / f"c{width}-carried-on.png"), full_page=True)
+        print(f"{width} px: {text!r}")
+        assert f"carries on session {first}" in text and "held the poses" in text
+        assert why.locator("a").get_attribute("href") == f"/sessions/{first}"
+    finally:
+        page.close()

@@ -153,3 +153,7 @@ class SessionOut(BaseModel):
     stopped_by_server: StoppedByServer | None = Field(
         None, description="the server stopped the session's stream: why, when and what "
         "to do (docs/extensions/stream-stopped.md); null when it never did")
+    carries_on: int | None = Field(
+        None, description="the session of the same kit this one carries on (it was full or "
+        "closed while the kit streamed; its calibration poses were held there): "
+        "docs/extensions/carried-on.md; null otherwise")

@@ -21,6 +21,7 @@ from .. import audit
 from ..auth import hash_token
 from ..commands.output import write_angles_csv
 from ..db import models
+from ..ingest import carried_on
 from ..kit import daily_samples, discharge, new_sessions
 from ..services import Services
 from ..store.background import ProcessingFailed
@@ -72,7 +73,8 @@ def session_out(session: models.Session) -> SessionOut:
         **session_coverage(session), processed=bool(session.estimate_columns),
         calibration=session.calibration,
         estimator=session.estimator, processing_error=session.processing_error,
-        dated=dated_by(session), stopped_by_server=stopped_by_server(session))
+        dated=dated_by(session), stopped_by_server=stopped_by_server(session),
+        carries_on=carried_on.carries_on(session))
 
 
 @router.get("/patients/{patient_id}/sessions", response_model=list[SessionOut])

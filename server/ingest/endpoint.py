@@ -49,7 +49,7 @@ from ..services import Services
 from ..store.gyro_bias import session_prior, session_priors_by_id
 from ..store.processing import mark_closed
 from ..store.stopped import record_stop
-from . import budget, protocol
+from . import budget, carried_on, protocol
 from .feedback import FEEDBACK_EXTENSION, Band, FeedbackRunner, FeedbackTracker
 from .protocol import Hello, Refused
 from .writer import (
@@ -159,6 +159,8 @@ class IngestConnection:
         #: programs/1 (docs/extensions/programs-hello.md): the program hello named, and
         #: what ready says of it
         self.program_ref: int | str | None = None
+        #: carried-on/1 (docs/extensions/carried-on.md): the kit's session this one carries on
+        self.carries_on: int | None = None
         self.program: dict[str, Any] | None = None
         self.program_error: str | None = None
         #: the server stopped this stream after ready (store/stopped.py's record)
@@ -308,6 +310,7 @@ class IngestConnection:
             message = protocol.parse(text)
             self.hello = protocol.check_hello(message)
             self.program_ref = program_stream.check_program(message, self.hello)
+            self.carries_on = carried_on.check(message, self.hello)
             ready = await self._open_stream(self.hello)
         except Refused as error:
             if error.close_code is None:
@@ -385,7 +388,8 @@ class IngestConnection:
                 log.warning("no live estimates for session %s: %s", session_id, exc)
         if hello.extensions:  # docs/extensions/README.md: those this server speaks
             extra["extensions"] = [e for e in hello.extensions
-                                   if e in (FEEDBACK_EXTENSION, CLOSED_SESSION_EXTENSION)
+                                   if e in (FEEDBACK_EXTENSION, CLOSED_SESSION_EXTENSION,
+                                            carried_on.EXTENSION)
                                    or e in program_stream.SPOKEN]
         if FEEDBACK_EXTENSION in hello.extensions:
             if parked is not None and parked.feedback is not None:
@@ -466,6 +470,8 @@ class IngestConnection:
         db.flush()
         db.add(models.Stream(id=stream_id, session_id=session.id, device_id=self.device_id,
                              next_seq=0, last_t={}))
+        if self.carries_on is not None:
+            carried_on.link(db, session, self.carries_on)
         if self.program_ref is not None:
             self.program, self.program_error = program_stream.follow_program(
                 db, patient.id, session.id, self.program_ref)

@@ -6,7 +6,8 @@
 // (effort and pain after each exercise, kept on the phone until the server stored them),
 // closed-session/1 (a session closed while offline: the rest goes as a new session; one
 // the therapist closed while it streamed ends here too: the rest goes, nothing more; one
-// full at the server's cap ends with bye and the phone goes on in a new session).
+// full at the server's cap ends with bye and the phone goes on in a new session),
+// carried-on/1 (that new session names the one it carries on, where the poses were held).
 //
 // Axes (docs/phone-kit.md): the phone is strapped screen out (away from the skin), its top
 // toward the joint above (the elbow for the forearm, the shoulder for the upper arm), on
@@ -19,7 +20,7 @@
 "use strict";
 
 const TAIL_KEY = "armtrack.kit.tail";
-const EXTENSIONS = ["feedback/1", "programs/1", "effort-pain/1", "closed-session/1"];
+const EXTENSIONS = ["feedback/1", "programs/1", "effort-pain/1", "closed-session/1", "carried-on/1"];
 
 const KitAxes = {
   /** One DeviceMotionEvent's reading as a row's 6 numbers, or null when incomplete. */
@@ -355,7 +356,9 @@ class KitStream {
         type: "hello", protocol: 1, device: this.device, side: this.side,
         sensors: [this.sensor], rate_hz: 60, nine_axis: false,
         resume: this.state.stream, extensions: EXTENSIONS,
-        ...(this.program != null ? { program: this.program } : {}) }));
+        ...(this.program != null ? { program: this.program } : {}),
+        // carried-on/1: a new session going on from the full (or closed) one names it
+        ...(this.state.stream == null && this.state.carriesOn != null ? { carries_on: this.state.carriesOn } : {}) }));
     };
     ws.onmessage = (event) => this._message(ws, JSON.parse(event.data));
     ws.onclose = (event) => {
@@ -417,6 +420,8 @@ class KitStream {
       this.state.seqBase = stored;
       this.state.acked = stored - 1;
       this.state.stream = null;
+      // the new session names this one (carried-on/1): its poses were held here
+      if (this.state.session != null) this.state.carriesOn = this.state.session;
       this.state.session = null;
       await KitStore.setState("stream", { ...this.state });
       this.unsent = await KitStore.count();

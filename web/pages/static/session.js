@@ -233,6 +233,21 @@ async function pollLive() {
   }
 }
 
+// Why a finished session has no calibration pose: the kit skipped them, or (carried-on/1,
+// docs/extensions/carried-on.md) the session carries on the kit's earlier one, full or
+// closed while it streamed, where the patient held them.
+function noPosesWhy() {
+  const earlier = session && session.carries_on;
+  if (earlier == null) {
+    return el("p", { style: "margin:4px 0", id: "no-poses" }, "No calibration pose: the default sensor mounting was used.");
+  }
+  return el("p", { style: "margin:4px 0", id: "no-poses" },
+    "No calibration pose: this session carries on ",
+    el("a", { href: `/sessions/${earlier}` }, `session ${earlier}`),
+    " of the same kit, where the patient held the poses (that one was full, or closed while the kit sent). "
+    + "They are not carried over: each session's orientation filters start anew, and only the poses tell how the sensor sits on the arm and which way the arm faces.");
+}
+
 // ---------------------------------------------------------------- calibration guidance
 let spokenPhase = null;
 let speak = false;
@@ -277,7 +292,9 @@ function calibrationState(live) {
     return { phase: "done", kind: warnings.length ? "warn" : "done", icon: warnings.length ? "!" : "✓",
       title: warnings.length ? "Calibrated, with warnings — the angles may be less accurate"
         : "Calibrated — live angles are running",
-      how: cal.poses.length ? null : "No calibration pose was made: the default sensor mounting is used.",
+      how: cal.poses.length ? null : session && session.carries_on != null
+        ? `No calibration pose in this session: it carries on session ${session.carries_on}, where the patient held the poses; the default sensor mounting is used here.`
+        : "No calibration pose was made: the default sensor mounting is used.",
       poses: cal.poses, warnings, patientTitle: "Well done", patientHow: "You can start the exercise." };
   }
   if (cal.poses.length) {
@@ -507,9 +524,9 @@ async function showReplay() {
       exerciseChipText(e) + ` · ${e.start.toFixed(0)}–${e.end === null ? "…" : e.end.toFixed(0)} s`)))
       : el("p", { class: "muted" }, "No exercise was marked or found in this session."),
     el("h3", {}, "Calibration"),
-    el("p", { style: "margin:4px 0" }, summary.calibration_poses.length
-      ? `${summary.calibration_poses.length} pose(s)` + (q.calibration_method ? ` · method: ${q.calibration_method}` : "")
-      : "No calibration pose: the default sensor mounting was used."),
+    summary.calibration_poses.length
+      ? el("p", { style: "margin:4px 0" }, `${summary.calibration_poses.length} pose(s)` + (q.calibration_method ? ` · method: ${q.calibration_method}` : ""))
+      : noPosesWhy(),
     q.calibration_warnings.length ? el("ul", { class: "warnings", id: "calibration-warnings" },
       q.calibration_warnings.map((w) => el("li", {}, w))) : el("p", { class: "muted", style: "margin:4px 0" }, "No calibration warning."),
     el("h3", {}, "Data quality"),
