@@ -194,6 +194,8 @@ def get_progress_pdf(patient_id: Id, db: Db, therapist: Therapist,
     patient = own_patient(db, therapist, patient_id)
     programs = adherence.patient_programs_progress(db, patient, settings)
     zone = clinic_zone(settings.clinic_timezone)
-    data = program_pdf.progress_pdf(patient, programs, today(zone), settings.clinic_timezone)
+    data = program_pdf.progress_pdf(patient, programs, today(zone), settings.clinic_timezone,
+                                    clinic_name=settings.clinic_name,
+                                    therapist=therapist.full_name or therapist.username)
     return Response(data, media_type="application/pdf", headers={
         "Content-Disposition": f'attachment; filename="patient-{patient_id}-progress.pdf"'})

@@ -25,6 +25,20 @@ FLAG_WORDS = {"no_session": "No session", "range_falling": "Range falling",
               "pain_rising": "Pain rising"}
 
 
+def _foot(fig: Figure, patient: models.Patient, clinic_name: str, therapist: str) -> None:
+    """Whose report and whose patient, on each page above the disclaimer, as the session
+    PDF says them: the clinic, the therapist, the patient with their clinic number and
+    date of birth (two patients of one name told apart on paper)."""
+    who = [patient.name]
+    if patient.clinic_number:
+        who.append(f"clinic no. {patient.clinic_number}")
+    if patient.date_of_birth:
+        who.append(f"born {day_words(patient.date_of_birth)}")
+    line = " · ".join([*([clinic_name] if clinic_name else []), f"Therapist: {therapist}",
+                       ", ".join(who)])
+    fig.text(0.06, 0.036, line, fontsize=7.5, color="#333")
+
+
 def _program_page(fig: Figure, patient: models.Patient, p: ProgramProgress, today: date,
                   zone: str, page: int, pages: int) -> None:
     fig.text(0.06, 0.965, "Exercise program progress", fontsize=15, weight="bold")
@@ -125,17 +139,20 @@ def _program_page(fig: Figure, patient: models.Patient, p: ProgramProgress, toda
 
 
 def progress_pdf(patient: models.Patient, programs: Sequence[ProgramProgress], today: date,
-                 zone: str) -> bytes:
-    """One page per program (a page saying there is none, without one)."""
+                 zone: str, clinic_name: str = "", therapist: str = "") -> bytes:
+    """One page per program (a page saying there is none, without one); each page's foot
+    names the clinic (``clinic_name``, if set), the ``therapist`` and the patient."""
     out = io.BytesIO()
     with PdfPages(out) as pdf:
         if not programs:
             fig = Figure(figsize=A4)
             fig.text(0.06, 0.965, "Exercise program progress", fontsize=15, weight="bold")
             fig.text(0.06, 0.93, f"{patient.name}: no program prescribed.", fontsize=10)
+            _foot(fig, patient, clinic_name, therapist)
             pdf.savefig(fig)
         for i, p in enumerate(programs):
             fig = Figure(figsize=A4)
             _program_page(fig, patient, p, today, zone, i + 1, len(programs))
+            _foot(fig, patient, clinic_name, therapist)
             pdf.savefig(fig)
     return out.getvalue()
