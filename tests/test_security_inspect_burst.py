@@ -14,6 +14,7 @@ import time
 
 import httpx
 import numpy as np
+import pytest
 from server_support import server_fixture
 from test_security_upload_burst import still_recording
 
@@ -70,3 +71,51 @@ def test_a_burst_of_one_kits_inspections_is_read_one_at_a_time(server):
                         in a.json()["detail"] for a in busy), busy[:1]
     assert grown < 150, f"the server's peak memory grew {grown:.0f} MiB"
     assert max(waits) < 1.0, f"another therapist waited {max(waits):.1f} s"
+
+
+@pytest.mark.parametrize("route", ["inspect", "upload"])
+def test_a_burst_of_one_therapists_files_is_read_two_at_a_time(server, route):
+    """attack13: a therapist's token had no such bound (only a kit's): 12 inspections of a
+    30 MB recording at once from one therapist took the server +776 MB and another
+    therapist's page to 1.0 s (at the 200 MB upload limit and 40 worker threads: tens of
+    GB), 12 uploads +676 MB. Now a therapist's uploads and inspections are read at most
+    two at once (two tabs); the next is 429 at once, saying so."""
+    alice = server.client("alice")
+    patient = alice.patient(f"Therapist's {route}")
+    bob = server.client("bob")
+    data = still_recording(1500)  # 450,000 rows, ~27 MB
+    path = "/api/recordings/inspect" if route == "inspect" else "/api/recordings"
+    form = {"patient_id": str(patient["id"])} | ({"wait": "false"} if route == "upload" else {})
+    field = "files" if route == "inspect" else "file"
+    one = alice.http.post(path, data=form, files={field: ("session.csv", data, "text/csv")},
+                          timeout=300)
+    assert one.status_code in (200, 202), one.text  # one alone is read (sets the peak)
+    before = peak_rss_mb(server.process.pid)
+
+    async def scenario():
+        limits = httpx.Limits(max_connections=BURST + 5, max_keepalive_connections=0)
+        async with httpx.AsyncClient(base_url=server.url, limits=limits, timeout=300,
+                                     headers=alice.http.headers) as http:
+            burst = [asyncio.create_task(http.post(path, data=form, files={
+                field: ("session.csv", data, "text/csv")})) for _ in range(BURST)]
+            waits = []
+            async with httpx.AsyncClient(base_url=server.url, headers=bob.http.headers,
+                                         timeout=300) as other:
+                while not all(task.done() for task in burst):
+                    began = time.monotonic()
+                    assert (await other.get("/api/patients")).status_code == 200
+                    waits.append(time.monotonic() - began)
+                    await asyncio.sleep(0.05)
+            return [await task for task in burst], waits
+
+    answers, waits = asyncio.run(scenario())
+    grown = peak_rss_mb(server.process.pid) - before
+    codes = [a.status_code for a in answers]
+    busy = [a for a in answers if a.status_code == 429]
+    print(f"\n{BURST} {route}s of {len(data) / 1e6:.0f} MB at once from one therapist: "
+          f"{ {c: codes.count(c) for c in set(codes)} }; the server's peak memory "
+          f"+{grown:.0f} MiB over one's; bob's {len(waits)} requests: median "
+          f"{np.median(waits) * 1000:.0f} ms, longest {max(waits) * 1000:.0f} ms")
+    assert set(codes) <= {200, 202, 429}, codes
+    assert busy and all("at once" in a.json()["detail"] for a in busy), busy[:1]
+    assert grown < 300, f"the server's peak memory grew {grown:.0f} MiB"

@@ -215,7 +215,8 @@ def upload_recording(db: Db, who: Annotated[models.Therapist | models.Device,
         device_id = None
         one_at_a_time = contextlib.nullcontext(True)
     assert patient is not None
-    with one_at_a_time as taken:
+    with (imports.therapist_turn(who) if device_id is None else contextlib.nullcontext()), \
+            one_at_a_time as taken:
         if not taken:
             raise HTTPException(status.HTTP_429_TOO_MANY_REQUESTS, new_sessions.BUSY)
         try:
