@@ -23,6 +23,7 @@ from ..commands.output import write_angles_csv
 from ..db import models
 from ..ingest import carried_on
 from ..kit import daily_samples, discharge, new_sessions
+from ..reports.content import no_estimates_words
 from ..services import Services
 from ..store.background import ProcessingFailed
 from ..store.coverage import plain_metadata, session_coverage
@@ -338,10 +339,7 @@ def _angles_file(db: DbSession, therapist: models.Therapist, session_id: int,
     session = own_session(db, therapist, session_id)
     columns, values = stored_estimates(db, session)
     if not columns:
-        raise HTTPException(status.HTTP_409_CONFLICT,
-                            f"session {session_id} has no estimates yet"
-                            + (f": {session.processing_error}" if session.processing_error
-                               else " (it is live or being processed)"))
+        raise HTTPException(status.HTTP_409_CONFLICT, no_estimates_words(session))
     width = columns.index(ANGLE_COLUMNS_END) + 1
     return spooled(as_text(lambda out: write_angles_csv(out, columns[:width],
                                                         values[:, :width])),

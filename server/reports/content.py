@@ -287,13 +287,28 @@ def span(t: np.ndarray, start_s: float, end_s: float, closed: bool = False) -> s
                  int(np.searchsorted(t, end_s, "left")))
 
 
+def no_estimates_words(session: models.Session) -> str:
+    """Why ``session`` has no estimates, and what to do, by its state: live, interrupted
+    (close it), empty, failed, or being estimated."""
+    n = session.id
+    if session.status == "live":
+        return f"session {n} is live: its estimates come once it ends"
+    if session.status == "interrupted":
+        return (f"session {n} was interrupted (its kit may still resume it): close it to "
+                f"estimate what was recorded ('Close and estimate' on its page, or POST "
+                f"/api/sessions/{n}/close)")
+    if not session.samples:
+        return f"session {n} holds no samples: there is nothing to estimate"
+    if session.processing_error:
+        return f"session {n} could not be estimated: {session.processing_error}"
+    return f"session {n} is being estimated: try again in a minute"
+
+
 def load_session(db: DbSession, session: models.Session) -> SessionData:
     """The session's estimates and raw data; raises NoEstimates when none are stored."""
     columns, values = stored_estimates(db, session)
     if not columns:
-        raise NoEstimates(f"session {session.id} has no estimates yet"
-                          + (f": {session.processing_error}" if session.processing_error
-                             else " (it is live or being processed)"))
+        raise NoEstimates(no_estimates_words(session))
     patient = db.get(models.Patient, session.patient_id)
     device = db.get(models.Device, session.device_id) if session.device_id else None
     index = {c: i for i, c in enumerate(columns)}
