@@ -87,9 +87,9 @@ class Settings(BaseSettings):
         "100 Hz): past it the server reads the kit's sockets no faster")
     ingest_messages_per_s: float = Field(
         8000.0, gt=0, description="most ingest messages the server reads a second from all "
-        "kits together, each stream in turn (200 kits of 3 sensors at 100 Hz sending 10 "
-        "rows a message send 6,000): past it every stream is read one message at a time "
-        "in turn, no faster (TCP pushes back; nothing refused, nothing acked lost)")
+        "kits together, shared among their therapists, each therapist's streams in turn (200 "
+        "kits of 3 sensors at 100 Hz sending 10 rows a message send 6,000): past it every "
+        "stream is read one message at a time in turn, no faster (TCP pushes back; nothing refused, nothing acked lost)")
     ingest_rows_per_s: float = Field(
         100000.0, gt=0, description="most sample rows the server reads a second from all "
         "kits together (200 kits of 3 sensors at 100 Hz send 60,000): past it every "

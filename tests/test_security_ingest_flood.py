@@ -370,3 +370,38 @@ def test_all_kits_budget_is_shared_among_therapists():
     shared.share = 1.0
     assert shared.turn_s("bob") == 0.0
     assert abs(shared.turn_s("bob") - 0.01) < 1e-9
+
+
+def test_therapists_kits_together_are_read_no_faster_than_all_kits_budget():
+    """On a made-up clock: four therapists' kits, each reading at 90 % of all kits' rate
+    (within one kit's budget: the defaults let one kit read 3,000 of the 8,000 messages a
+    second), are read together no faster than all kits' budget, in equal parts. Before,
+    a therapist's part counted only the therapists whose turns had waited: none of these
+    ever waits within the whole rate, so together they were read at 3.6 times it, and
+    ``ARMTRACK_INGEST_MESSAGES_PER_S`` bounded nothing once two therapists' kits
+    streamed."""
+    import heapq
+
+    from armtrack.server.ingest import budget as b
+
+    rate, each, owners, seconds = 100.0, 0.9, 4, 20.0
+    now = [0.0]
+    shared = b.SharedBudget(messages_per_s=rate, rows_per_s=1e9, clock=lambda: now[0])
+    due = [(i * 1e-3, i) for i in range(owners)]  # (next read wanted [s], owner)
+    read: dict[int, list[float]] = {i: [] for i in range(owners)}
+    while due:
+        at, owner = heapq.heappop(due)
+        now[0] = at
+        wait = shared.turn_s(owner)
+        at += wait if wait >= b.PAUSE_MIN_S else 0.0  # read once its turn comes
+        read[owner].append(at)
+        if at < seconds:
+            heapq.heappush(due, (at + 1 / (each * rate), owner))
+    late = {o: sum(1 for t in ts if seconds / 2 <= t < seconds) / (seconds / 2)
+            for o, ts in read.items()}
+    total = sum(late.values())
+    print(f"messages a second over the last {seconds / 2:.0f} s: "
+          f"{ {o: round(r, 1) for o, r in late.items()} }, together {total:.1f} "
+          f"(all kits' budget {rate:.0f})")
+    assert total <= rate * 1.05, total
+    assert min(late.values()) >= 0.8 * rate / owners, late  # each about its equal part
