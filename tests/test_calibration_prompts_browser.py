@@ -165,13 +165,13 @@ def test_calibration_prompts_follow_the_stream_when_the_browser_is_busy(
 
 def test_the_page_asks_a_swaying_trunk_to_keep_holding_the_npose(module_server, page, shots):
     """A kit with a trunk sensor whose trunk sways (9-axis random sway seed 15, the N-pose
-    held 20 s, at real pace): the therapist's page says 'Keep holding' with the lean's
+    held 24.5 s, at real pace): the therapist's page says 'Keep holding' with the lean's
     figure while the sway hides the trunk's side lean (``live_status.trunk_guide``), the
     patient's view 'Keep holding', and then 'Trunk steady' (the simulator's replay of the
-    guide: 14 s). Before: 'Still ✓ — keep holding (n s)' whatever the trunk did."""
+    guide: 17 s). Before: 'Still ✓ — keep holding (n s)' whatever the trunk did."""
     from test_estimation_hard_cases import swaying_kit
 
-    recording = swaying_kit("random", 15, True, npose_s=20.5).recording
+    recording = swaying_kit("random", 15, True, npose_s=25.0).recording
     api = module_server.client("alice")
     patient = api.patient("Swaying Browser", side=recording.side, height_m=recording.height_m)
     device = api.device(patient["id"])
