@@ -20,10 +20,11 @@ from sqlalchemy.orm import Session as DbSession
 
 from ..commands.output import write_angles_csv
 from ..db import models
+from ..programs import store
 from ..reports import content
 from ..reports.content import NoEstimates
 from ..reports.csv import spreadsheet_text
-from ..reports.targets import current_targets, target_history
+from ..reports.targets import current_targets, patient_targets, target_history
 from ..services import Services
 from ..store.processing import stored_estimates
 from ..store.recordings import session_recording
@@ -64,12 +65,49 @@ def _entries(patient_id: int) -> Select:
             .order_by(models.AuditEntry.id))
 
 
+def _programs(db: DbSession, patient_id: int) -> list[dict]:
+    """The patient's programs for their export: each with every version (its exercises)
+    and the sessions that followed each version, oldest first."""
+    targets = patient_targets(db, patient_id)
+    out = []
+    for program in db.scalars(select(models.Program).where(
+            models.Program.patient_id == patient_id).order_by(models.Program.id)):
+        followed = db.execute(
+            select(models.SessionProgram.session_id, models.ProgramVersion.number)
+            .join(models.ProgramVersion,
+                  models.ProgramVersion.id == models.SessionProgram.version_id)
+            .where(models.ProgramVersion.program_id == program.id)
+            .order_by(models.SessionProgram.session_id)).all()
+        out.append({
+            "program": {"id": program.id, "name": program.name,
+                        "created_at": program.created_at.isoformat(),
+                        "ended_at": program.ended_at.isoformat() if program.ended_at
+                        else None},
+            "versions": [store.version_out(v, targets).model_dump(mode="json")
+                         for v in program.versions],
+            "sessions_followed": [{"session_id": s, "version": n} for s, n in followed]})
+    return out
+
+
+def _ratings(db: DbSession, session_id: int) -> list[dict]:
+    """The pain (NRS 0–10) and effort (Borg CR10) the patient gave in a session, with
+    their stream time [s] and when the server received them."""
+    return [{"exercise": r.exercise, "t": r.t, "effort": r.effort, "pain": r.pain,
+             "received_at": r.received_at.isoformat()}
+            for r in db.scalars(select(models.SessionRating).where(
+                models.SessionRating.session_id == session_id)
+                .order_by(models.SessionRating.id))]
+
+
 def patient_archive(db: DbSession, patient: models.Patient, out: BinaryIO) -> None:
     """Write to ``out`` (a seekable binary file) the zip of patient.json, devices.json (no
-    tokens), targets.json, target_history.json (every setting and removal), sessions.json,
-    and per session ``sessions/<id>/recording.csv``, ``angles.csv`` and ``report.json``
-    (when estimated), and audit.json: every logged access to the patient's data. One
-    session's data are in memory at a time; each file goes into the zip as it is made."""
+    tokens), targets.json, target_history.json (every setting and removal), programs.json
+    (each program, every version with its exercises, and the sessions that followed each
+    version), sessions.json, and per session ``sessions/<id>/recording.csv``,
+    ``angles.csv`` and ``report.json`` (when estimated) and ``ratings.json`` (the pain and
+    effort the patient gave, when any), and audit.json: every logged access to the
+    patient's data. One session's data are in memory at a time; each file goes into the
+    zip as it is made."""
     with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as archive:
         archive.writestr("patient.json", PatientOut.model_validate(patient).model_dump_json(
             indent=2))
@@ -84,6 +122,7 @@ def patient_archive(db: DbSession, patient: models.Patient, out: BinaryIO) -> No
             [{"angle": v.angle, "min_deg": v.min_deg, "max_deg": v.max_deg, "note": v.note,
               "set_at": v.set_at.isoformat(), "set_by": v.set_by}
              for v in target_history(db, patient.id)]))
+        archive.writestr("programs.json", _json(_programs(db, patient.id)))
         sessions = list(db.scalars(select(models.Session)
                                    .where(models.Session.patient_id == patient.id)
                                    .order_by(models.Session.started_at, models.Session.id)))
@@ -96,6 +135,9 @@ def patient_archive(db: DbSession, patient: models.Patient, out: BinaryIO) -> No
                 with archive.open(folder + "recording.csv", "w", force_zip64=True) as member:
                     write_recording_to(recording, member)
             del recording
+            ratings = _ratings(db, session.id)
+            if ratings:
+                archive.writestr(folder + "ratings.json", _json(ratings))
             columns, values = stored_estimates(db, session)
             if columns:
                 width = columns.index(ANGLE_COLUMNS_END) + 1
@@ -118,9 +160,10 @@ def patient_archive(db: DbSession, patient: models.Patient, out: BinaryIO) -> No
 async def export_patient(patient_id: Id, therapist: Therapist, request: Request,
                          svc: Annotated[Services, Depends(services)]) -> StreamingResponse:
     """Everything held about the patient, as one zip archive: the patient, their kits
-    (without tokens), targets and sessions as JSON, each session's raw data
-    (``recording.csv``), angles (``angles.csv``) and report (``report.json``), and the
-    audit log's entries about them."""
+    (without tokens), targets, programs (every version, the sessions that followed each)
+    and sessions as JSON, each session's raw data (``recording.csv``), angles
+    (``angles.csv``), report (``report.json``) and the pain and effort given
+    (``ratings.json``), and the audit log's entries about them."""
     def work(db: DbSession, therapist: models.Therapist) -> StreamingResponse:
         patient = own_patient(db, therapist, patient_id)
         # the zip goes to a temporary file (spool): the server's memory holds one
