@@ -89,7 +89,8 @@ class Settings(BaseSettings):
         8000.0, gt=0, description="most ingest messages the server reads a second from all "
         "kits together, shared among their therapists, each therapist's streams in turn (200 "
         "kits of 3 sensors at 100 Hz sending 10 rows a message send 6,000): past it every "
-        "stream is read one message at a time in turn, no faster (TCP pushes back; nothing refused, nothing acked lost)")
+        "stream is read one message at a time in turn, no faster (TCP pushes back; nothing "
+        "refused, nothing acked lost)")
     ingest_rows_per_s: float = Field(
         100000.0, gt=0, description="most sample rows the server reads a second from all "
         "kits together (200 kits of 3 sensors at 100 Hz send 60,000): past it every "

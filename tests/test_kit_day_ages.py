@@ -98,3 +98,51 @@ def test_a_socket_open_past_a_day_does_not_hold_the_first_days_rows(world):
     assert stored(server, got["session_b"]) == 1500 + 800
     assert stored(server, got["a"]) == 2500
     assert list(got["b2"]) == [16] and SETTING in got["b2"][16]
+
+
+def test_a_kits_day_is_counted_right_from_threads_at_once(monkeypatch):
+    """A kit's day is read on database threads (a hello's ``_day_left``: several kits'
+    hellos at once) while its streams count on the event loop: ``KitDay.total`` takes the
+    sessions that left the window out of its heap, and two threads doing it at once took
+    out each other's entries (a session still in the window dropped from the count, or one
+    gone counted on: the day over- or under-told). Three threads each read the total of a
+    day whose older half just left the window; the count must be the database's."""
+    import sys
+    import threading
+
+    from armtrack.server import clock
+    from armtrack.server.kit.daily_samples import WINDOW, KitDay
+
+    old_interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)  # threads switch as often as they can
+    wrong = []
+    try:
+        for _ in range(10):
+            base = datetime.now(UTC)
+            monkeypatch.setattr(clock, "now", lambda at=base: at)
+            n = 20000  # sessions of one row each, one a second
+            born = {i: (base - timedelta(seconds=n - i), 1) for i in range(n)}
+            day = KitDay(born)
+            later = base + WINDOW - timedelta(seconds=n // 2)  # the older half has left
+            monkeypatch.setattr(clock, "now", lambda at=later: at)
+            start, errors = threading.Barrier(3), []
+
+            def read(day=day, start=start, errors=errors):
+                start.wait()
+                try:
+                    day.total()
+                except Exception as exc:  # what a race raises: told below
+                    errors.append(repr(exc))
+            threads = [threading.Thread(target=read) for _ in range(3)]
+            for thread in threads:
+                thread.start()
+            for thread in threads:
+                thread.join()
+            truth = sum(rows for at, rows in born.values() if at > later - WINDOW)
+            got = None if errors else day.total()
+            if errors or got != truth:
+                wrong.append((got, truth, errors[:1]))
+    finally:
+        sys.setswitchinterval(old_interval)
+    print(f"{len(wrong)} of 10 days counted wrong: {wrong[:3]}")
+    assert not wrong

@@ -8,6 +8,7 @@ session holds at most ``ARMTRACK_MAX_SESSION_SAMPLES`` and a kit starts at most
 from __future__ import annotations
 
 import heapq
+import threading
 from datetime import UTC, datetime, timedelta
 
 from sqlalchemy import func, select
@@ -58,9 +59,12 @@ class KitDay:
     from the database at the kit's first stream (``day_of``), then what its streams and
     uploads add. A session leaves the count ``WINDOW`` after it was created, as it leaves
     ``stored``'s: a socket open for more than a day no longer holds its first sessions'
-    rows against the kit. Event loop only; O(log n) a call."""
+    rows against the kit. Read on database threads (a hello's check) as well as on the
+    event loop, so one thread at a time (two taking the aged sessions out of the heap at
+    once took out each other's: the day miscounted); O(log n) a call."""
 
     def __init__(self, sessions: dict[int, tuple[datetime, int]] | None = None):
+        self._lock = threading.Lock()
         self._rows: dict[int, int] = {}
         self._born: list[tuple[datetime, int]] = []  # (created_at [UTC], session id), a heap
         self._total = 0
@@ -70,22 +74,25 @@ class KitDay:
     def total(self) -> int:
         """Rows of the kit's sessions created in the last ``WINDOW`` (by ``clock.now``)."""
         since = clock.now() - WINDOW
-        while self._born and self._born[0][0] <= since:
-            _, session_id = heapq.heappop(self._born)
-            self._total -= self._rows.pop(session_id)
-        return self._total
+        with self._lock:
+            while self._born and self._born[0][0] <= since:
+                _, session_id = heapq.heappop(self._born)
+                self._total -= self._rows.pop(session_id)
+            return self._total
 
     def add(self, session_id: int, created_at: datetime, rows: int) -> None:
         """``rows`` more stored in session ``session_id`` (created at ``created_at``);
         nothing for a session already out of the window."""
-        if session_id not in self._rows:
-            created_at = _aware(created_at)
-            if created_at <= clock.now() - WINDOW:
-                return
-            self._rows[session_id] = 0
-            heapq.heappush(self._born, (created_at, session_id))
-        self._rows[session_id] += rows
-        self._total += rows
+        created_at = _aware(created_at)
+        since = clock.now() - WINDOW
+        with self._lock:
+            if session_id not in self._rows:
+                if created_at <= since:
+                    return
+                self._rows[session_id] = 0
+                heapq.heappush(self._born, (created_at, session_id))
+            self._rows[session_id] += rows
+            self._total += rows
 
 
 def day_of(db: DbSession, device_id: int) -> KitDay:
