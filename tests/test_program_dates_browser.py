@@ -71,3 +71,42 @@ def test_the_editor_says_a_wrong_target_in_the_forms_words(module_server, width,
         sync_api.expect(error.first).to_contain_text(
             "Bend the elbow: give both ends of the target, or neither")
     assert api.http.get(f"/api/patients/{patient['id']}/programs").json() == []
+
+
+@pytest.mark.parametrize("width", [390, 1280])
+def test_the_pain_and_effort_line_dates_read_as_dates(module_server, width):
+    """Found reviewing a week of home use: the program card's "Pain (0–10) and effort
+    (Borg CR10) by session: 2026-11-30: pain 2, effort 3 · 2026-12-01: …" wrote ISO dates
+    (broken "2026-12-" / "01" at 390 px) beside "week of Nov 30, 2026"."""
+    import asyncio
+    import re
+    from datetime import UTC, date, datetime
+
+    from armtrack.server.emulator import KitEmulator
+    from test_programs_followed import Planned, recording_of
+
+    api = module_server.client("alice")
+    patient = api.patient(f"Rated {width}")
+    token = api.device(patient["id"], "phone")["token"]
+    made = api.http.post(f"/api/patients/{patient['id']}/programs", json={
+        "name": "Elbow at home", "start_date": date.today().isoformat(), "exercises": [
+            {"exercise": "elbow_flexion", "sets": 1, "repetitions": 3, "days_per_week": 5}]})
+    assert made.status_code == 201, made.text
+    kit = KitEmulator(recording_of(Planned(datetime.now(UTC), {"elbow_flexion": [(3, 90.0)]}),
+                                   seed=7), module_server.ws_url, token, speed=0,
+                      rows_per_message=50,
+                      hello_extra={"extensions": ["programs/1", "effort-pain/1"],
+                                   "program": "Elbow at home"},
+                      ratings=[{"id": "r1", "exercise": "elbow_flexion", "t": 20.0,
+                                "effort": 4.0, "pain": 3}])
+    api.wait_processed(asyncio.run(kit.run()).session, timeout=240)
+    with page_at(width) as page:
+        sign_in_as(page, module_server.url, "alice")
+        page.goto(f"{module_server.url}/patients/{patient['id']}")
+        line = page.locator("p", has_text="Pain (0–10) and effort")
+        sync_api.expect(line).to_be_visible(timeout=30_000)
+        text = line.inner_text()
+    print(f"\n{width} px: {text!r}")
+    assert not re.search(r"\d{4}-\d\d-\d\d", text), text
+    day = date.today()  # the clinic's day (its zone unset: UTC, as this machine's)
+    assert f"{day:%b} {day.day}, {day.year}: pain 3, effort 4" in text, text

@@ -149,7 +149,7 @@ function weeksTable(weeks) {
 function painLine(pain) {
   if (!pain.length) return null;
   return el("p", { class: "small" }, el("b", {}, "Pain (0–10) and effort (Borg CR10) by session: "),
-    pain.map((p, i) => [i ? " · " : "", `${p.day}: pain ${p.pain ?? "—"}, effort ${p.effort ?? "—"}`]));
+    pain.map((p, i) => [i ? " · " : "", `${fmtDay(p.day)}: pain ${p.pain ?? "—"}, effort ${p.effort ?? "—"}`]));
 }
 
 // Where an exercise's target comes from, in the therapist's words (the API's
