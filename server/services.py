@@ -186,12 +186,13 @@ class Services:
 
     def count_kit_samples(self, device_id: int, session_id: int, created_at: datetime,
                           rows: int) -> None:
-        """``rows`` more stored by kit ``device_id`` outside its streams (an upload: session
-        ``session_id``, created at ``created_at``), in the day its open streams count
+        """``rows`` stored by kit ``device_id`` outside its streams (an upload: session
+        ``session_id``, created at ``created_at``, holding them all), in the day its open
+        streams count
         (``kit_samples``; without one, the next counts them from the database). Event
         loop only."""
-        if device_id in self.kit_samples:
-            self.kit_samples[device_id].add(session_id, created_at, rows)
+        if device_id in self.kit_samples:  # (read from the database with it, or before)
+            self.kit_samples[device_id].hold(session_id, created_at, rows)
 
     def kit_budget(self, device_id: int) -> KitBudget:
         """The reading budget of kit ``device_id``, one for all its streams."""

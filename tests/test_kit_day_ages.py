@@ -146,3 +146,25 @@ def test_a_kits_day_is_counted_right_from_threads_at_once(monkeypatch):
         sys.setswitchinterval(old_interval)
     print(f"{len(wrong)} of 10 days counted wrong: {wrong[:3]}")
     assert not wrong
+
+
+def test_an_upload_read_with_the_kits_day_is_counted_once():
+    """An upload's session counted in its kit's day while a stream of the kit is open
+    (``Services.count_kit_samples``, after the upload's commit): a stream whose first
+    message came between that commit and the count read the kit's day from the database
+    (``day_of``) with the upload in it, and the count added the upload's rows again (the
+    kit refused early, for as long as its socket stayed open). The upload's session holds
+    its rows once, whichever came first."""
+    from types import SimpleNamespace
+
+    from armtrack.server.kit.daily_samples import KitDay
+    from armtrack.server.services import Services
+
+    created = datetime.now(UTC) - timedelta(minutes=5)
+    read_with_it = SimpleNamespace(kit_samples={7: KitDay({41: (created, 1200)})})
+    Services.count_kit_samples(read_with_it, 7, 41, created, 1200)
+    read_before_it = SimpleNamespace(kit_samples={7: KitDay({})})
+    Services.count_kit_samples(read_before_it, 7, 41, created, 1200)
+    days = (read_with_it.kit_samples[7].total(), read_before_it.kit_samples[7].total())
+    print(f"the kit's day after a 1200-row upload (read with it, before it): {days}")
+    assert days == (1200, 1200)

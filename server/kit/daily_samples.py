@@ -95,6 +95,18 @@ class KitDay:
             self._total += rows
 
 
+    def hold(self, session_id: int, created_at: datetime, rows: int) -> None:
+        """Session ``session_id`` (created at ``created_at``) holds ``rows`` in all: an
+        upload, stored whole, counted once whether the kit's day was read from the
+        database before its commit or after it (with it)."""
+        with self._lock:
+            if session_id in self._rows:
+                self._total += rows - self._rows[session_id]
+                self._rows[session_id] = rows
+                return
+        self.add(session_id, created_at, rows)
+
+
 def day_of(db: DbSession, device_id: int) -> KitDay:
     """The kit's day as the database holds it: its sessions created in the last
     ``WINDOW`` with their rows."""
