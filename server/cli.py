@@ -68,6 +68,25 @@ def main(argv: Sequence[str] | None = None) -> int:
     except OSError as exc:
         print(f"armtrack {args.command}: {exc}", file=sys.stderr)
         return 2
+    except Exception as exc:
+        from pydantic import ValidationError  # imported only here: start-up stays light
+
+        if not isinstance(exc, ValidationError) or exc.title != "Settings":
+            raise
+        for line in setting_errors(exc):  # one line a bad setting, no traceback
+            print(f"armtrack {args.command}: {line}", file=sys.stderr)
+        return 2
+
+
+def setting_errors(exc) -> list[str]:
+    """The settings ``Settings`` refused, each as ``ARMTRACK_NAME='value': what it must
+    be`` (pydantic's words, without its "Value error, " and its links)."""
+    lines = []
+    for error in exc.errors(include_url=False):
+        name = "ARMTRACK_" + "_".join(str(part) for part in error["loc"]).upper()
+        message = error["msg"].removeprefix("Value error, ").removeprefix(f"{name}: ")
+        lines.append(f"setting {name}={error.get('input')!r}: {message}")
+    return lines
 
 
 def print_json(value: object) -> None:

@@ -364,3 +364,22 @@ def test_a_broker_url_of_another_scheme_is_refused_without_its_password():
         make_hub("https://armtrack:br0ker-pw@cache:6379/0")
     print(refused.value)
     assert "br0ker-pw" not in str(refused.value) and "https://" in str(refused.value)
+
+
+@pytest.mark.parametrize("name,value,words", [
+    ("ARMTRACK_CLINIC_CLOCK", "13h", "'24h' or '12h'"),
+    ("ARMTRACK_PORT", "eighty", "integer"),
+    ("ARMTRACK_CLINIC_TIMEZONE", "Mars/Olympus", "IANA")])
+def test_a_bad_setting_is_named_without_a_traceback(tmp_path, name, value, words):
+    """A setting the server cannot take (ARMTRACK_CLINIC_CLOCK=13h) ended `armtrack serve`
+    in a 40-line Python traceback, the setting's name lower-cased at its end. Now one line
+    a bad setting: its variable, the value given and what it must be; exit code 2."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("ARMTRACK_")}
+    env[name] = value
+    done = subprocess.run([sys.executable, "-m", "armtrack.server.cli", "serve", "--settings",
+                           "--data-dir", str(tmp_path / "d")],
+                          capture_output=True, text=True, env=env, timeout=120)
+    print(done.stderr)
+    assert done.returncode == 2, (done.returncode, done.stderr[-500:])
+    assert "Traceback" not in done.stderr
+    assert name in done.stderr and repr(value) in done.stderr and words in done.stderr
