@@ -19,7 +19,7 @@ from fastapi.encoders import jsonable_encoder
 from fastapi.responses import JSONResponse
 from pydantic import AfterValidator
 
-from .db.errors import database_words
+from .db.errors import told_words
 
 log = logging.getLogger("armtrack")
 
@@ -102,9 +102,10 @@ async def validation_error(request, exc) -> JSONResponse:
 async def database_unavailable(request, exc) -> JSONResponse:
     """503 in words for a request the database cannot serve just now (SQLAlchemy's
     ``OperationalError``: a full disk, a database locked past the busy timeout, PostgreSQL
-    gone): what it said and what to do, instead of a bare 500 "Internal Server Error"."""
+    gone): what kind of failure and what to do, instead of a bare 500 "Internal Server
+    Error"; the database's words in the log (``told_words``: PostgreSQL's name its host)."""
     log.warning("%s %s: the database failed: %s", request.method, request.url.path, exc)
     return JSONResponse(status_code=503, headers={"Retry-After": "60"}, content={
-        "detail": f"The server cannot store or read this just now: its database says "
-                  f"\"{database_words(exc)}\". Try again in a few minutes; if it lasts, "
-                  f"tell the clinic's IT (the server's log says more)."})
+        "detail": f"The server cannot store or read this just now: {told_words(exc)}. "
+                  f"Try again in a few minutes; if it lasts, tell the clinic's IT (the "
+                  f"server's log says more)."})
