@@ -26,13 +26,17 @@ def owner_only_file(path: Path) -> None:
 
 
 def make_engine(url: str) -> Engine:
-    """An engine for ``url``; for an SQLite file its folder is made if missing."""
+    """An engine for ``url``; for an SQLite file its folder is made if missing. A failed
+    statement's parameters stay out of its error's text (``hide_parameters``), which the
+    server logs: they are what a request stored (a patient's name, a new password's
+    hash; attack13 found both in the log of a database locked past its busy timeout)."""
     parsed = make_url(url)
     if parsed.get_backend_name() != "sqlite":
-        return create_engine(url, pool_pre_ping=True)
+        return create_engine(url, pool_pre_ping=True, hide_parameters=True)
     if parsed.database and parsed.database != ":memory:":
         owner_only_file(Path(parsed.database))
-    engine = create_engine(url, connect_args={"check_same_thread": False, "timeout": 30})
+    engine = create_engine(url, connect_args={"check_same_thread": False, "timeout": 30},
+                           hide_parameters=True)
 
     @event.listens_for(engine, "connect")
     def _sqlite_pragmas(dbapi_connection, _record) -> None:  # pragma: no cover - trivial
