@@ -42,3 +42,9 @@ def test_stream_goes_on_in_a_new_session_at_the_cap(server, tmp_path):
     assert len(sessions) == -(-rows // CAP) and all(s["samples"] <= CAP for s in sessions)
     assert all(s["status"] == "closed" and not s.get("stopped_by_server") for s in sessions)
     assert "new session" in done.stdout
+    # each new session names the full one it carries on (carried-on/1): its page says why
+    # it has no calibration poses of its own
+    ids = sorted(s["id"] for s in sessions)
+    carries = {s["id"]: s.get("carries_on") for s in sessions}
+    print(f"carries_on: {carries}")
+    assert [carries[i] for i in ids] == [None, *ids[:-1]]

@@ -7,7 +7,8 @@ A lost connection is resumed (``hello`` with ``resume`` = the stream id) with ba
 and what the server's ``next_seq`` shows missing is sent again. When everything is
 acked it says ``bye`` and closes with 1000. A message refused because its session is
 full (``ARMTRACK_MAX_SESSION_SAMPLES``) is not lost: once the rest of that session is
-acked the kit says ``bye`` and goes on in a new session (``hello`` with ``resume`` null),
+acked the kit says ``bye`` and goes on in a new session (``hello`` with ``resume`` null,
+naming the full one in ``carries_on``: carried-on/1),
 starting with what was refused, numbered from 0 again.
 """
 
@@ -32,6 +33,7 @@ from websockets.asyncio.client import ClientConnection, connect
 from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidStatus, InvalidURI
 from websockets.uri import parse_uri
 
+from ..ingest.carried_on import EXTENSION as CARRIED_ON
 from ..ingest.protocol import SESSION_FULL, SHORT_CLOSE_REASON, SHORT_CLOSE_REASONS
 from .messages import MessagePlan, encode, hello_message
 from .outbox import KitError, KitRefused, KitStats, Outbox
@@ -157,6 +159,8 @@ class KitEmulator:
         #: plan seqs refused because their session was full, to send first in the next
         self._carry: list[int] = []
         self._full = False  # this session is full: send nothing new, bye once acked
+        #: the full session a new one carries on (carried-on/1, docs/extensions/carried-on.md)
+        self._carries_on: int | None = None
         self._t0 = self.plan.start_time  # the recording-clock time [s] of _wall0
         self._wall0: float | None = None  # monotonic time [s] of the first ready
         self._all_acked = asyncio.Event()
@@ -253,6 +257,7 @@ class KitEmulator:
         self.outbox = Outbox(self.stats)
         self._wire = []
         self._full = False
+        self._carries_on = self.stats.session  # the new session names it in hello
         self.stats.stream = None
         self._all_acked.clear()
 
@@ -289,6 +294,10 @@ class KitEmulator:
     async def _handshake(self, ws: ClientConnection) -> list[int]:
         """Say ``hello`` and wait for ``ready``; returns the seqs to send again."""
         hello = dict(self.hello, resume=self.stats.stream)
+        if self.stats.stream is None and self._carries_on is not None:
+            asked = hello.get("extensions", [])
+            hello["extensions"] = asked if CARRIED_ON in asked else [*asked, CARRIED_ON]
+            hello["carries_on"] = self._carries_on
         await self._send_text(ws, encode(hello))
         async with asyncio.timeout(self.open_timeout_s):
             while True:
