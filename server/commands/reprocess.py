@@ -22,6 +22,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from armtrack.estimator.orientation import FILTERS, GYRO_DELAY_FILTERS
     from armtrack.server.db import models
+    from armtrack.server.db.migrate import ensure_current
     from armtrack.server.services import Services
     from armtrack.server.store.processing import process_session
 
@@ -32,7 +33,9 @@ def run(args: argparse.Namespace) -> int:
     services = Services(settings_from(args))
     failed = 0
     try:
-        services.migrate()
+        # the schema only: marking live sessions interrupted is the server's start-up
+        # step, and the server may be running with kits streaming
+        ensure_current(services.engine)
         for session_id in args.session_ids:
             with services.db() as db:
                 session = db.get(models.Session, session_id)
