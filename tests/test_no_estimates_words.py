@@ -78,3 +78,8 @@ def test_a_session_without_samples_says_so(server):
     detail = answer.json()["detail"]
     assert f"session {session} holds no samples" in detail, detail
     assert "sensors must be" not in detail
+    # and IT's re-estimation says the same in its words
+    done = server.armtrack("reprocess", str(session), timeout=180)
+    print("reprocess:", done.returncode, done.stderr.strip())
+    assert done.returncode == 2
+    assert "holds no samples" in done.stderr and "sensors must be" not in done.stderr

@@ -78,7 +78,10 @@ def process_session(db: DbSession, session_id: int, filter_name: str = DEFAULT_F
     except EstimatorError as exc:
         db.execute(delete(models.EstimateBlock)
                    .where(models.EstimateBlock.session_id == session_id))
-        session.processing_error = str(exc)
+        # a session whose kit sent nothing: said so, not the estimator's "got ()"
+        session.processing_error = (str(exc) if session.samples
+                                    else "the session holds no samples: there is nothing "
+                                         "to estimate")
         session.estimator = {"version": estimator_version(), "filter": filter_name}
         db.commit()
         return
