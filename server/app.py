@@ -36,6 +36,7 @@ from .api import (
 )
 from .api.erase import erase_expired
 from .audit import AuditMiddleware
+from .db.errors import told
 from .ingest import endpoint
 from .live import endpoint as live_endpoint
 from .plain_text import database_unavailable, validation_error
@@ -139,15 +140,16 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @app.get("/healthz", include_in_schema=False)
     def health(request: Request) -> JSONResponse:
         """200 ``ok``; 503 while what kits send cannot be stored (a full disk, a locked
-        database): the clinic's monitoring sees it, with the database's words."""
+        database): the clinic's monitoring sees it, with the database's words for a full
+        disk or a lock (``db.errors.told``), the kind of failure for others."""
         services = getattr(request.app.state, "services", None)
         failing = services.writer.failing if services is not None else None
         if failing is None:
             return JSONResponse({"status": "ok"})
         since = datetime.fromtimestamp(failing["since"], UTC).isoformat(timespec="seconds")
-        return JSONResponse({"status": "storage failing",
-                             "detail": f"what kits send is not stored since {since}: the "
-                                       f"database says \"{failing['reason']}\""},
+        return JSONResponse({"status": "storage failing",  # anyone may ask: no host named
+                             "detail": f"what kits send is not stored since {since}: "
+                                       f"{told(str(failing['reason']))}"},
                             status_code=503)
 
     return app

@@ -41,3 +41,28 @@ def test_a_full_disk_is_said_as_such():
     status, detail = _answer(said)
     print(status, detail)
     assert status == 503 and "database or disk is full" in detail
+
+
+def test_healthz_does_not_name_the_database_server(tmp_path):
+    """/healthz answers anyone (a monitor, and whoever reaches the proxy): while commits
+    fail it said the database's words, PostgreSQL's naming its host and port."""
+    from armtrack.server.app import create_app
+    from armtrack.server.db.errors import database_words
+    from armtrack.server.settings import Settings
+
+    try:
+        sa.create_engine("postgresql+psycopg://armtrack:pw@localhost:1/armtrack_clinic"
+                         ).connect()
+    except OperationalError as exc:
+        said = exc
+    app = create_app(Settings(data_dir=tmp_path))
+    health = next(r.endpoint for r in app.routes if getattr(r, "path", "") == "/healthz")
+    failing = {"since": 1.8e9, "reason": database_words(said)}  # as the writer keeps it
+    request = SimpleNamespace(app=SimpleNamespace(state=SimpleNamespace(
+        services=SimpleNamespace(writer=SimpleNamespace(failing=failing)))))
+    response = health(request)
+    detail = json.loads(response.body)["detail"]
+    print(response.status_code, detail)
+    assert response.status_code == 503
+    assert "port 1" not in detail and "127.0.0.1" not in detail
+    assert "cannot reach its database" in detail

@@ -23,9 +23,14 @@ TOLD_WORDS = ("database or disk is full", "database is locked",
 
 def told_words(exc: BaseException) -> str:
     """What a failed request's answer says of the database (anyone may have asked: a
-    sign-in): its own words when they are of ``TOLD_WORDS``; else only the kind of
-    failure, since PostgreSQL's first line names its host, address, port and user."""
-    words = database_words(exc)
+    sign-in): ``told`` of what it said."""
+    return told(database_words(exc))
+
+
+def told(words: str) -> str:
+    """What an answer to anyone says of the database's ``words`` (``database_words``): the
+    words when they are of ``TOLD_WORDS``; else only the kind of failure, since
+    PostgreSQL's first line names its host, address, port and user."""
     if any(told in words for told in TOLD_WORDS):
         return f"its database says \"{words}\""
     if "connect" in words.lower():
