@@ -90,13 +90,43 @@ def printable(value, depth: int = 0):
     return value
 
 
+#: Words in a field's name that make its value a secret, never echoed (shown as ***).
+SECRET_FIELDS = ("password", "token", "secret")
+
+
+def _secret(name: object) -> bool:
+    return isinstance(name, str) and any(word in name.lower() for word in SECRET_FIELDS)
+
+
+def _hidden(value, depth: int = 0):
+    """``value`` with the values of secret-named keys as ``***``, however deep."""
+    if isinstance(value, dict) and depth < ECHO_DEPTH:
+        return {k: "***" if _secret(k) else _hidden(v, depth + 1) for k, v in value.items()}
+    if isinstance(value, list | tuple) and depth < ECHO_DEPTH:
+        return [_hidden(v, depth + 1) for v in value]
+    return value
+
+
+def _without_secrets(error: dict) -> dict:
+    """One error of a 422 whose echoed ``input`` keeps no password: the refused field's
+    own value when its name is a secret's, and secret-named keys in a whole body."""
+    if "input" not in error:
+        return error
+    loc = error.get("loc") or ()
+    shown = "***" if loc and _secret(loc[-1]) else _hidden(error["input"])
+    return {**error, "input": shown}
+
+
 async def validation_error(request, exc) -> JSONResponse:
     """FastAPI's 422 answer, with the echoed input made encodable: a lone surrogate, a NaN
     or a deeply nested input in a body made the answer itself fail (a 500 instead of the
-    422 naming the field)."""
+    422 naming the field). A password (a too-short new one, or a whole body with a
+    misnamed field) is not echoed: ``***`` (it went back to whatever keeps response
+    bodies: a proxy's log, the browser's)."""
+    errors = [_without_secrets(e) for e in exc.errors()]
     return JSONResponse(status_code=422,
                         # again after the encoder: an error's context it wrote as text
-                        content={"detail": printable(jsonable_encoder(printable(exc.errors())))})
+                        content={"detail": printable(jsonable_encoder(printable(errors)))})
 
 
 async def database_unavailable(request, exc) -> JSONResponse:

@@ -18,7 +18,7 @@ import json
 
 import pytest
 from armtrack.estimator.recording.rules import STEP_LIMIT_S, T_LIMIT_S
-from server_support import ServerProcess
+from server_support import PASSWORD, ServerProcess
 from websockets.asyncio.client import connect
 from websockets.exceptions import ConnectionClosed
 
@@ -285,3 +285,21 @@ def test_an_effort_rating_whose_id_is_not_text_is_refused_and_the_stream_goes_on
     session = api.http.get(f"/api/sessions/{answers[0]['session']}").json()
     print(session["status"], session["samples"])
     assert session["status"] == "closed" and session["samples"] == 2
+
+
+@pytest.mark.parametrize("who,path,body", [
+    ("alice", "/api/auth/password", {"old_password": PASSWORD, "new_password": "S3cr-t"}),
+    ("alice", "/api/auth/password", {"current_password": PASSWORD,
+                                     "new_password": "S3cr-t but long enough"}),
+    ("root", "/api/admin/therapists", {"username": "newbie", "password": "S3cr-t"}),
+])
+def test_a_refused_password_is_not_echoed_in_the_422(srv, who, path, body):
+    """attack13: a 422 echoes the refused input, and so it sent back the passwords of a
+    refused password change (the new one too short; a field misnamed: the whole body,
+    the current password in it) or of a new account, to land in whatever keeps response
+    bodies (a proxy's log, the browser's). Secret fields are now shown as ***."""
+    answer = srv.client(who).http.post(path, json=body)
+    print(f"\n{path}: {answer.status_code} {answer.text[:300]}")
+    assert answer.status_code == 422
+    assert "S3cr-t" not in answer.text and PASSWORD not in answer.text
+    assert "***" in answer.text  # the field is still named, its value hidden
