@@ -8,6 +8,7 @@ Debian's chromium."""
 from __future__ import annotations
 
 import asyncio
+import json
 from datetime import UTC, datetime, timedelta
 from types import SimpleNamespace
 
@@ -78,3 +79,69 @@ def test_a_past_sessions_page_lists_its_own_days_sessions(world, width):
         assert card.locator("h2").inner_text() == "Today's sessions"
         sync_api.expect(card.locator(".current")).to_have_attribute(
             "data-session", str(todays))
+
+
+@pytest.fixture(scope="module")
+def busy_week(tmp_path_factory):
+    """Two sessions on a day three days ago, then 31 sessions the day after (a patient
+    who did many short sessions): the first day's lie past the newest 30 the page read."""
+    from test_security_session_flood import HELLO
+
+    folder = tmp_path_factory.mktemp("day-sessions-busy")
+    now_file = folder / "now.txt"
+    zygote = Zygote(PREAMBLE.format(path=str(now_file)))
+    server = ZygoteServerProcess(folder / "server", zygote,
+                                 env={"ARMTRACK_MAX_NEW_SESSIONS_PER_KIT_HOUR": "100"})
+    server.create_user("alice")
+    server.start()
+    try:
+        from websockets.asyncio.client import connect
+
+        alice = server.client("alice")
+        patient = alice.patient("Many Sessions")
+        token = alice.device(patient["id"], "kit")["token"]
+        day = (datetime.now(UTC) - timedelta(days=3)).replace(hour=10, minute=0, second=0,
+                                                              microsecond=0)
+
+        async def session_at(at: datetime) -> int:
+            now_file.write_text(at.isoformat())
+            async with connect(server.ws_url, additional_headers={
+                    "Authorization": f"Bearer {token}"}) as ws:
+                await ws.send(json.dumps(HELLO))
+                ready = json.loads(await asyncio.wait_for(ws.recv(), 10))
+                assert ready["type"] == "ready", ready
+                await ws.send(json.dumps({"type": "bye"}))
+                return ready["session"]
+
+        async def all_sessions() -> list[int]:
+            ids = [await session_at(day), await session_at(day + timedelta(minutes=30))]
+            for k in range(31):
+                ids.append(await session_at(day + timedelta(days=1, minutes=k)))
+            return ids
+
+        ids = asyncio.run(all_sessions())
+        now_file.write_text("")
+        yield SimpleNamespace(server=server, ids=ids, day=day)
+    finally:
+        server.stop()
+        zygote.close()
+
+
+def test_a_days_sessions_past_the_newest_30_are_listed(busy_week):
+    """The strip read the patient's newest 30 summaries and kept those of the session's
+    day: a day with 31 sessions after it had no strip at all on its sessions' pages."""
+    first, second = busy_week.ids[:2]
+    day = busy_week.day
+    with page_at(1280) as page:
+        sign_in_as(page, busy_week.server.url, "alice")
+        page.goto(f"{busy_week.server.url}/sessions/{first}")
+        card = page.locator("#day-history")
+        page.wait_for_timeout(3000)  # the strip comes with the page's first reads
+        chips = card.locator(".day-session").evaluate_all(
+            "els => els.map(e => e.dataset.session)")
+        print(f"\nsession {first} of {day:%a %d %b}, 31 sessions after its day: chips {chips}")
+        sync_api.expect(card.locator(".day-session")).to_have_count(2, timeout=30_000)
+        assert card.locator("h2").inner_text() == f"Sessions of {day:%a}, {day:%b} {day.day}"
+        chips = card.locator(".day-session").evaluate_all(
+            "els => els.map(e => e.dataset.session)")
+        assert chips == [str(first), str(second)]

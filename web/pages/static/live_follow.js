@@ -77,12 +77,26 @@ const LiveFollow = (() => {
       day: "numeric", timeZone: zone, ...(year(parseMoment(moment)) !== year(Date.now()) ? { year: "numeric" } : {}) });
   }
 
+  // The summaries of the sessions of `day`'s day, oldest first: the API's pages (newest
+  // first) read back until one starts before that day, at most DAY_PAGES of them (a day
+  // weeks ago lies past the newest page: its strip was empty, or missing some).
+  const DAY_PAGE = 30, DAY_PAGES = 10;
+  async function sessionsOfDay(day) {
+    const found = [];
+    for (let page = 0; page < DAY_PAGES; page += 1) {
+      const some = await api(`/api/patients/${current.patient_id}/summaries?limit=${DAY_PAGE}&offset=${page * DAY_PAGE}`);
+      found.push(...some.filter((s) => sameDay(parseMoment(s.started_at), day)));
+      const oldest = some.length ? parseMoment(some[some.length - 1].started_at) : null;
+      if (some.length < DAY_PAGE || (oldest < day && !sameDay(oldest, day))) break;
+    }
+    return found.reverse();
+  }
+
   // The sessions of this session's day (a replay of last Thursday: Thursday's, not today's).
   async function history() {
-    const all = await api(`/api/patients/${current.patient_id}/summaries?limit=30`);
     const day = parseMoment(current.started_at);
     const isToday = sameDay(day, Date.now());
-    const today = all.filter((s) => sameDay(parseMoment(s.started_at), day)).reverse();
+    const today = await sessionsOfDay(day);
     let card = document.getElementById("day-history");
     if (!today.length) { if (card) card.remove(); return; }
     if (!card) {
