@@ -161,10 +161,18 @@ def create_device(patient_id: Id, body: DeviceIn, db: Db, therapist: Therapist,
 
 @router.get("/patients/{patient_id}/devices", response_model=list[DeviceOut])
 def list_devices(patient_id: Id, db: Db, therapist: Therapist,
-                 page: Annotated[Page, Depends()]) -> list[models.Device]:
+                 page: Annotated[Page, Depends()]) -> list[DeviceOut]:
+    """The patient's kits, oldest first, each with when its newest session started."""
     own_patient(db, therapist, patient_id)
-    return list(db.scalars(select(models.Device).where(models.Device.patient_id == patient_id)
-                           .order_by(models.Device.id).limit(page.limit).offset(page.offset)))
+    last = (select(models.Session.device_id, func.max(models.Session.started_at).label("at"))
+            .where(models.Session.patient_id == patient_id)
+            .group_by(models.Session.device_id).subquery())
+    rows = db.execute(select(models.Device, last.c.at)
+                      .outerjoin(last, last.c.device_id == models.Device.id)
+                      .where(models.Device.patient_id == patient_id)
+                      .order_by(models.Device.id).limit(page.limit).offset(page.offset)).all()
+    return [DeviceOut.model_validate(device).model_copy(update={"last_session_at": at})
+            for device, at in rows]
 
 
 @router.delete("/devices/{device_id}", status_code=status.HTTP_204_NO_CONTENT)

@@ -96,6 +96,9 @@ class DeviceOut(BaseModel):
     name: str
     created_at: datetime
     revoked_at: datetime | None
+    last_session_at: datetime | None = Field(
+        None, description="when the kit's newest session started (null: none yet): which "
+        "of a patient's kits is still in use")
 
 
 class DeviceCreated(DeviceOut):
