@@ -48,3 +48,10 @@ def test_stream_goes_on_in_a_new_session_at_the_cap(server, tmp_path):
     carries = {s["id"]: s.get("carries_on") for s in sessions}
     print(f"carries_on: {carries}")
     assert [carries[i] for i in ids] == [None, *ids[:-1]]
+    # the link is the server's own note: a session's exported recording (handed to a
+    # colleague, read back by another server) carries no "carries_on" header line, whose
+    # number would name a session of this server only
+    header = [line for line in api.http.get(f"/api/sessions/{ids[1]}/recording.csv").text
+              .splitlines() if line.startswith("#")]
+    print("exported header:", header)
+    assert header and not any("carries_on" in line for line in header)

@@ -2,8 +2,9 @@
 its earlier one (that one full at ``ARMTRACK_MAX_SESSION_SAMPLES``, or closed by the
 therapist while the kit streamed) names it in ``hello``'s ``carries_on``. The calibration
 poses were held at the earlier session's start; the session page says so and why they are
-not carried over. Kept in the session's metadata under ``carries_on`` (an int: not
-recording text, so never exported as a header)."""
+not carried over. Kept in the session's metadata under ``carries_on`` (an int; left out
+of an exported recording's header, ``store.recordings.header_metadata``: it names a session
+of this server only)."""
 
 from __future__ import annotations
 

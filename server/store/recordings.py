@@ -21,6 +21,7 @@ from sqlalchemy.orm import Session as DbSession
 
 from .. import clock
 from ..db import models
+from ..ingest.carried_on import KEY as CARRIES_ON_KEY
 from ..ingest.points import POINT_PREFIX, frame_from_meta, frame_to_meta
 from .blocks import SAMPLE_COLUMNS, pack, unpack_many
 from .gyro_bias import session_prior
@@ -217,6 +218,8 @@ def header_metadata(meta: dict) -> dict[str, str]:
         if key == GYRO_DELAY_KEY:
             continue  # the session's own column (delay_metadata)
         if isinstance(value, dict | list):  # the server's own notes (measured angles)
+            continue
+        if key == CARRIES_ON_KEY:  # the server's own link to a session of its own
             continue
         value = " ".join(str(value).split())
         try:
