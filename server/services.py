@@ -14,7 +14,6 @@ from typing import Any, TypeVar
 
 from armtrack.web.viewer.host import ViewerHost
 from sqlalchemy import update
-from starlette.concurrency import run_in_threadpool
 
 from .db import models
 from .db.engine import make_engine, make_sessionmaker
@@ -88,6 +87,11 @@ class Services:
         self.cpu_pool = ThreadPoolExecutor(CPU_THREADS, thread_name_prefix="armtrack-cpu")
         #: exports holding a whole session in memory (CSV, OpenSim, PDF): a few at once
         self.exports = FairTurns(EXPORTS_AT_ONCE)
+        #: their threads, as many as run at once: the allocator keeps what a thread freed
+        #: in that thread's arena, so exports built on any of the request pool's 40
+        #: threads kept memory for as many as had built one
+        self.export_pool = ThreadPoolExecutor(EXPORTS_AT_ONCE,
+                                              thread_name_prefix="armtrack-export")
         #: therapist id → their exports being made or downloaded (``deps.in_export_turn``)
         self.exports_held: dict[int, int] = {}
         #: password hashing (argon2id: 64 MiB, ~0.1 s each), two at a time however many
@@ -181,6 +185,7 @@ class Services:
         await asyncio.get_running_loop().run_in_executor(None, self.processing.stop)
         self.db_pool.shutdown(wait=True)
         self.cpu_pool.shutdown(wait=True)
+        self.export_pool.shutdown(wait=True)
         self.password_pool.shutdown(wait=True)
         self.engine.dispose()
 
@@ -272,8 +277,9 @@ class Services:
 
     async def run_export(self, fn: Callable[..., T], *args: Any, owner: int = 0,
                          gone: Awaitable[Any] | None = None) -> T:
-        """``fn(db, *args)``, a session's export, with a database session on a worker
-        thread, at most ``EXPORTS_AT_ONCE`` at once in this process; the others wait their
+        """``fn(db, *args)``, a session's export, with a database session on one of
+        ``EXPORTS_AT_ONCE`` threads of its own (``export_pool``), at most that many at once
+        in this process; the others wait their
         turn holding no thread. Each holds the whole session in memory, several times over:
         angles.csv of a 1.89 M-row session took the server +595 MB, six at once +2978 MB,
         and the thread pool lets 40 run at once. Turns are shared fairly among ``owner``s
@@ -286,7 +292,8 @@ class Services:
         if not await self._export_turn(owner, gone):
             raise ExportUnwanted
         try:
-            return await run_in_threadpool(context.run, call)
+            return await asyncio.get_running_loop().run_in_executor(
+                self.export_pool, context.run, call)
         finally:
             self.exports.release(owner)
 
