@@ -559,28 +559,24 @@ def _sway_centre(t: np.ndarray, up: np.ndarray, confidence: float | None = None
     means = np.stack([np.bincount(block, up[:, k]) for k in range(3)], axis=1)[kept]
     means /= count[kept, None]
     lo, hi = SWAY_BAND_HZ
-    tau = times[:, None] - times[None, :]
-    safe = np.where(tau == 0.0, 1.0, tau)
+    tau = np.abs(times[:, None] - times[None, :])
     noise = SWAY_NOISE**2 * np.diag(count[kept].max() / count[kept])
-    covariance = np.where(tau == 0.0, 1.0, (np.sin(2 * np.pi * hi * safe)
-                                            - np.sin(2 * np.pi * lo * safe))
-                          / (2 * np.pi * (hi - lo) * safe)) + noise
+    covariance = _band_covariance(tau, lo, hi, 0.0) + noise
     weights = np.linalg.solve(covariance, np.ones(len(times)))
     weights /= weights.sum()
     centre = weights @ means
     residual = means - centre
     spread = np.eye(len(times)) - weights[None, :]  # residual = spread @ means
-    told = _band_covariance(np.abs(tau), lo, hi, SWAY_ERROR_SLOPE) + noise
-    expected = float(np.trace(spread @ told @ spread.T))
+    told = _band_covariance(tau, lo, hi, SWAY_ERROR_SLOPE) + noise
+    residual_covariance = spread @ told @ spread.T
+    expected = float(np.trace(residual_covariance))
     scatter = residual.T @ residual / max(expected, 1e-300)  # the sway's (3, 3) [rad²]
     error = scatter * float(weights @ told @ weights)
     if confidence is not None:
-        residual_covariance = spread @ told @ spread.T
         dof = expected**2 / max(float(np.sum(residual_covariance**2)), 1e-300)
         error *= dof / chi2.ppf(1.0 - confidence, dof)
     norm = np.linalg.norm(centre)
     return centre / norm, error / norm**2
-
 
 
 #: How sure the live guide must be of the sway's size before it says the trunk is pinned
@@ -605,6 +601,7 @@ def held_side_lean_sd_deg(t: np.ndarray, acc: np.ndarray) -> float | None:
     centre, covariance = _sway_centre(t, _unit_rows(acc), confidence=GUIDE_CONFIDENCE)
     lateral = tilt_only_R_sensor_segment(centre, "trunk", "right")[:, 2]  # (any side)
     return float(np.rad2deg(np.sqrt(lateral @ covariance @ lateral)))
+
 
 def _band_covariance(tau: np.ndarray, lo: float, hi: float, slope: float) -> np.ndarray:
     """The correlation at lags ``tau`` [s] (≥ 0) of a process whose spectrum is ∝ f^−slope
