@@ -31,6 +31,28 @@ def peak_rss_mb(pid: int) -> float:
     raise AssertionError("no VmHWM")
 
 
+def burst_beside_another(server, headers: dict, other_headers: dict, send):
+    """``BURST`` requests ``send(http)`` at once (an httpx.AsyncClient with ``headers``)
+    while another therapist (``other_headers``) asks for their patients every 50 ms:
+    the burst's answers and the other's waits [s]."""
+    async def scenario():
+        limits = httpx.Limits(max_connections=BURST + 5, max_keepalive_connections=0)
+        async with httpx.AsyncClient(base_url=server.url, limits=limits, timeout=300,
+                                     headers=headers) as http:
+            burst = [asyncio.create_task(send(http)) for _ in range(BURST)]
+            waits = []
+            async with httpx.AsyncClient(base_url=server.url, headers=other_headers,
+                                         timeout=300) as other:
+                while not all(task.done() for task in burst):
+                    began = time.monotonic()
+                    assert (await other.get("/api/patients")).status_code == 200
+                    waits.append(time.monotonic() - began)
+                    await asyncio.sleep(0.05)
+            return [await task for task in burst], waits
+
+    return asyncio.run(scenario())
+
+
 def test_a_burst_of_one_kits_inspections_is_read_one_at_a_time(server):
     alice = server.client("alice")
     patient = alice.patient("Inspects")
@@ -43,22 +65,9 @@ def test_a_burst_of_one_kits_inspections_is_read_one_at_a_time(server):
     assert one.status_code == 200, one.text  # one alone is read (and sets the peak)
     before = peak_rss_mb(server.process.pid)
 
-    async def scenario():
-        limits = httpx.Limits(max_connections=BURST + 5, max_keepalive_connections=0)
-        async with httpx.AsyncClient(base_url=server.url, limits=limits, timeout=300) as http:
-            burst = [asyncio.create_task(http.post("/api/recordings/inspect", headers=kit,
-                                                   files=files)) for _ in range(BURST)]
-            waits = []
-            async with httpx.AsyncClient(base_url=server.url, headers=bob.http.headers,
-                                         timeout=300) as other:
-                while not all(task.done() for task in burst):
-                    began = time.monotonic()
-                    assert (await other.get("/api/patients")).status_code == 200
-                    waits.append(time.monotonic() - began)
-                    await asyncio.sleep(0.05)
-            return [await task for task in burst], waits
-
-    answers, waits = asyncio.run(scenario())
+    answers, waits = burst_beside_another(
+        server, kit, bob.http.headers,
+        lambda http: http.post("/api/recordings/inspect", files=files))
     grown = peak_rss_mb(server.process.pid) - before
     codes = [a.status_code for a in answers]
     busy = [a for a in answers if a.status_code == 429]
@@ -92,23 +101,10 @@ def test_a_burst_of_one_therapists_files_is_read_two_at_a_time(server, route):
     assert one.status_code in (200, 202), one.text  # one alone is read (sets the peak)
     before = peak_rss_mb(server.process.pid)
 
-    async def scenario():
-        limits = httpx.Limits(max_connections=BURST + 5, max_keepalive_connections=0)
-        async with httpx.AsyncClient(base_url=server.url, limits=limits, timeout=300,
-                                     headers=alice.http.headers) as http:
-            burst = [asyncio.create_task(http.post(path, data=form, files={
-                field: ("session.csv", data, "text/csv")})) for _ in range(BURST)]
-            waits = []
-            async with httpx.AsyncClient(base_url=server.url, headers=bob.http.headers,
-                                         timeout=300) as other:
-                while not all(task.done() for task in burst):
-                    began = time.monotonic()
-                    assert (await other.get("/api/patients")).status_code == 200
-                    waits.append(time.monotonic() - began)
-                    await asyncio.sleep(0.05)
-            return [await task for task in burst], waits
-
-    answers, waits = asyncio.run(scenario())
+    answers, waits = burst_beside_another(
+        server, alice.http.headers, bob.http.headers,
+        lambda http: http.post(path, data=form, files={
+            field: ("session.csv", data, "text/csv")}))
     grown = peak_rss_mb(server.process.pid) - before
     codes = [a.status_code for a in answers]
     busy = [a for a in answers if a.status_code == 429]
