@@ -309,17 +309,23 @@ class Services:
         watch = asyncio.ensure_future(gone)
         try:
             await asyncio.wait((turn, watch), return_when=asyncio.FIRST_COMPLETED)
-        finally:
+        except BaseException:  # the request cancelled: a turn given meanwhile goes back
             watch.cancel()
-            if not turn.done():
-                turn.cancel()
-                await asyncio.wait((turn,))  # a turn given at the last moment is kept
-        if turn.cancelled():
-            return False
-        if watch.done() and not watch.cancelled():
-            self.exports.release(owner)
+            self._give_back(turn, owner)
+            raise
+        watch.cancel()
+        if watch.done() and not watch.cancelled():  # the client went away
+            self._give_back(turn, owner)
             return False
         return True
+
+    def _give_back(self, turn: asyncio.Future, owner: int) -> None:
+        """No export after all: the turn ``turn`` (``exports.acquire``) goes back, given or
+        still waited for (then ``acquire`` gives back one given at the last moment)."""
+        if not turn.done():
+            turn.cancel()
+        elif not turn.cancelled() and turn.exception() is None:
+            self.exports.release(owner)
 
     async def run_password(self, fn: Callable[..., T], *args: Any) -> T:
         """``fn(*args)`` (a password check or hash) on the password pool; raises

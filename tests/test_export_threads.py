@@ -48,3 +48,42 @@ def test_exports_are_built_on_as_many_threads_as_may_run_at_once(tmp_path):
     print(f"12 exports, {EXPORTS_AT_ONCE} at once, built on threads: "
           f"{len(builders)}")
     assert len(builders) <= EXPORTS_AT_ONCE
+
+
+def test_an_export_cancelled_as_its_turn_is_given_gives_the_turn_back(tmp_path):
+    """A request cancelled (a server shutting down, a middleware giving up) just as the
+    turn it waited for was given kept that turn for good: ``EXPORTS_AT_ONCE`` such and
+    every later export of the server waited forever."""
+    services = Services(Settings(data_dir=tmp_path))
+
+    async def scenario() -> tuple[int, bool]:
+        turns = services.exports
+        for _ in range(EXPORTS_AT_ONCE):  # every turn held: the next export waits
+            await turns.acquire(99)
+        never = asyncio.get_running_loop().create_future()  # its client stays
+        waiting = asyncio.ensure_future(services.run_export(lambda db: None, owner=1,
+                                                            gone=never))
+        for _ in range(5):
+            await asyncio.sleep(0)
+        turns.release(99)  # the turn goes to the waiting export ...
+        waiting.cancel()  # ... as its request is cancelled
+        await asyncio.gather(waiting, return_exceptions=True)
+        for _ in range(EXPORTS_AT_ONCE - 1):
+            turns.release(99)
+        free = turns._free
+        try:  # and the next export still gets its turn
+            await asyncio.wait_for(services.run_export(lambda db: None, owner=2), 10)
+            served = True
+        except TimeoutError:
+            served = False
+        never.cancel()
+        return free, served
+
+    try:
+        free, served = asyncio.run(scenario())
+    finally:
+        services.export_pool.shutdown(wait=True)
+        services.engine.dispose()
+    print(f"turns free after the cancelled export: {free} of {EXPORTS_AT_ONCE}; "
+          f"the next export served: {served}")
+    assert free == EXPORTS_AT_ONCE and served
