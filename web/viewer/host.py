@@ -23,6 +23,7 @@ import viser
 from armtrack.server.db import models
 from armtrack.server.live.access import holds
 from armtrack.server.live.streams import stream_receiving
+from viser import _messages
 
 from .grants import GRANT_TTL_S, Grant, GrantBook
 from .live import LiveDriver
@@ -82,6 +83,20 @@ def _viser_prints_to_log():
             log.debug("viser: %s", line.rstrip())
 
 
+def refuse_share_tunnel(server: viser.ViserServer) -> None:
+    """Take away viser's answer to a client's ``ShareUrlRequest`` (its "Share" button,
+    hidden here but handled all the same): it asks https://share.viser.studio for a public
+    address and opens tunnels from there to this loopback server, forking a process for
+    them. Any therapist's 3D view could send it; a clinic's server never shares its viewer
+    with the internet (viser 1.1's ``_websock_server.unregister_handler``)."""
+    try:
+        for message in (_messages.ShareUrlRequest, _messages.ShareUrlDisconnect):
+            server._websock_server.unregister_handler(message)
+    except (AttributeError, AssertionError, KeyError) as exc:
+        raise ViewerError(f"cannot take away viser {viser.__version__}'s share-URL handler: "
+                          "its internals differ from 1.1's") from exc
+
+
 def quiet_viser_server(port: int = 0) -> viser.ViserServer:
     """A ``ViserServer`` on 127.0.0.1:``port`` (0: any free one) that prints nothing."""
     with _viser_prints_to_log():
@@ -125,6 +140,7 @@ class ViewerHost:
     def _start_server(self) -> None:
         server = quiet_viser_server(self.requested_port)
         self.server = server
+        refuse_share_tunnel(server)
         on_websocket_open(server, self._gate)
         server.on_client_connect(self._connect)
         server.on_client_disconnect(self._disconnect)

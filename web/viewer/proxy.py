@@ -25,8 +25,10 @@ async def proxy(websocket: WebSocket, upstream_url: str,
     requested = [Subprotocol(p) for p in websocket.scope.get("subprotocols", [])
                  if p.startswith("viser-v")]
     try:
+        # proxy=None: the viewer is on this host's loopback; a proxy the environment names
+        # for outbound traffic (HTTPS_PROXY) cannot reach it, and the ticket is not its
         upstream = await connect(upstream_url, subprotocols=requested or None, max_size=None,
-                                 compression=None, open_timeout=10)
+                                 compression=None, open_timeout=10, proxy=None)
     except (OSError, InvalidHandshake, TimeoutError):
         await websocket.close(CLOSE_UPSTREAM_DOWN)
         return
