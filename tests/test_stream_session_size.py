@@ -55,3 +55,15 @@ def test_stream_goes_on_in_a_new_session_at_the_cap(server, tmp_path):
               .splitlines() if line.startswith("#")]
     print("exported header:", header)
     assert header and not any("carries_on" in line for line in header)
+
+
+def test_an_uploaded_headers_own_carries_on_line_is_exported_again():
+    """Only the server's link (an int, carried-on/1) stays out of an exported header: a
+    recording uploaded with its own ``carries_on`` header line (text, the kit's or the
+    clinic's) kept it as metadata and lost it on export, the file no longer reading back
+    to what was stored."""
+    from armtrack.server.ingest.carried_on import KEY
+    from armtrack.server.store.recordings import header_metadata
+
+    assert header_metadata({KEY: 12, "device": "kit 7"}) == {"device": "kit 7"}
+    assert header_metadata({KEY: "the morning set"}) == {KEY: "the morning set"}

@@ -219,8 +219,8 @@ def header_metadata(meta: dict) -> dict[str, str]:
             continue  # the session's own column (delay_metadata)
         if isinstance(value, dict | list):  # the server's own notes (measured angles)
             continue
-        if key == CARRIES_ON_KEY:  # the server's own link to a session of its own
-            continue
+        if key == CARRIES_ON_KEY and isinstance(value, int):  # the server's own link to a
+            continue  # session of its own (an uploaded header's text line is kept)
         value = " ".join(str(value).split())
         try:
             check_metadata(key, value)
