@@ -154,3 +154,30 @@ def test_a_backlog_says_when_it_arrived_not_0_s_ago(server, tmp_path):
         page.screenshot(path=str(tmp_path / "backlog-sensors-390.png"), full_page=True)
     print(f"the page: {seen}")
     assert seen and all(re.fullmatch(r"([5-9]|[1-9]\d) s ago", t) for t in seen), seen
+
+
+def test_a_stored_last_seen_does_not_depend_on_the_servers_time_zone(monkeypatch):
+    """Rows stored before their arrival was kept are placed by the session's start plus
+    the stream's own time. SQLite gives that start back naive (UTC), and ``.timestamp()``
+    read it as the server's local time: on a server whose TZ is not UTC (a clinic's
+    machine set to its own zone) 'last seen' was off by the zone's offset (UTC+9: 9 h
+    before the kit's rows; UTC-5: in the future, so 'now')."""
+    from datetime import UTC, datetime
+    from types import SimpleNamespace
+
+    from armtrack.server.api.live_status import _stored_last_seen
+
+    started = datetime(2026, 12, 4, 10, 0, 0)  # naive UTC, as SQLite answers
+    session = SimpleNamespace(started_at=started)
+    totals = {"forearm": {"t_first": 0.0, "t_last": 5.0}}
+    truth = started.replace(tzinfo=UTC).timestamp() + 5.0
+    placed = {}
+    for zone in ("UTC", "Asia/Tokyo", "America/New_York"):
+        monkeypatch.setenv("TZ", zone)
+        time.tzset()
+        placed[zone] = _stored_last_seen(session, totals, "forearm", truth + 60.0, {})
+    monkeypatch.delenv("TZ")
+    time.tzset()
+    print(f"last seen placed, s after the truth: "
+          f"{ {z: round(p - truth) for z, p in placed.items()} }")
+    assert all(p == truth for p in placed.values()), placed

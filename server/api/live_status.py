@@ -36,7 +36,7 @@ from ..live.streams import STALE_S
 from ..services import Services
 from ..store.blocks import SAMPLE_COLUMNS, unpack_many
 from ..store.stopped import stopped_by_server
-from .deps import Therapist, own_patient
+from .deps import Therapist, aware_utc, own_patient
 from .deps import services as get_services
 from .schemas import Id, StoppedByServer
 
@@ -245,7 +245,8 @@ def _stored_last_seen(session: models.Session, totals: dict[str, dict[str, float
     if name in seen:
         return min(now_wall, seen[name])
     first = min(t["t_first"] for t in totals.values())
-    return min(now_wall, session.started_at.timestamp() + (totals[name]["t_last"] - first))
+    start = aware_utc(session.started_at).timestamp()  # SQLite's naive UTC: not local time
+    return min(now_wall, start + (totals[name]["t_last"] - first))
 
 
 def live_status(svc: Services, db: DbSession, patient_id: int,
