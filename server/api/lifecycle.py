@@ -23,9 +23,9 @@ from ..db import models
 from ..programs import store
 from ..reports import content
 from ..reports.content import NoEstimates
-from ..reports.csv import spreadsheet_text
 from ..reports.targets import current_targets, patient_targets, target_history
 from ..services import Services
+from ..spreadsheet import spreadsheet_text
 from ..store.processing import stored_estimates
 from ..store.recordings import session_recording
 from .deps import Db, Page, Therapist, in_export_turn, own_patient, services

@@ -9,6 +9,7 @@ import csv
 import io
 from collections.abc import Iterable
 
+from ..spreadsheet import spreadsheet_text
 from .content import AngleExercise, RomEntry, SessionReport
 
 ROM_FIELDS = ("min", "max", "range", "normal_min", "normal_max", "percent_of_normal",
@@ -18,19 +19,6 @@ REPETITION_FIELDS = ("repetitions", "mean_amplitude_deg", "mean_movement_time_s"
                      "peak_velocity_deg_s", "median_sparc", "median_ldlj")
 SUMMARY_COLUMNS = ("session_id", "scope", "start_s", "end_s", "angle", *ROM_FIELDS,
                    *REPETITION_FIELDS, "amplitude_cv", "movement_time_cv")
-
-
-#: A text cell starting with one of these is a formula to a spreadsheet (OWASP, "CSV
-#: injection"); tab and carriage return too, since some spreadsheets skip them first.
-FORMULA_START = ("=", "+", "-", "@", "\t", "\r")
-
-
-def spreadsheet_text(value: object) -> object:
-    """A text cell that a spreadsheet shows as text: one that would start a formula gets a
-    leading apostrophe (OWASP). Numbers stay numbers (a negative angle is ``-12.5``)."""
-    if isinstance(value, str) and value.startswith(FORMULA_START):
-        return "'" + value
-    return value
 
 
 def cell(value: object) -> object:

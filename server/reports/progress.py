@@ -24,6 +24,7 @@ from sqlalchemy.orm import Session as DbSession
 from ..db import models
 from ..lru import BoundedLru
 from ..programs.adherence import ProgramProgress
+from ..spreadsheet import spreadsheet_text
 from .content import (
     AngleName,
     NoEstimates,
@@ -36,7 +37,6 @@ from .content import (
     session_report,
     utc,
 )
-from .csv import spreadsheet_text
 from .targets import targets_at
 
 SECONDS_PER_WEEK = 7 * 24 * 3600.0
