@@ -16,6 +16,9 @@ const DID_KEY = "armtrack.kit.did";
 /** The last finished session's list of what was done, with when (the welcome shows it); forgotten
  * when another kit's link is opened (main). */
 const LAST_KEY = "armtrack.kit.last";
+/** Set (sessionStorage) when the patient chose to carry on a session cut short long ago
+ * that could not be sent (offline): the reload resumes it (endTheStaleSession). */
+const CARRY_ON_KEY = "armtrack.kit.carry-on";
 /** A kit token as the server makes it (server/auth.py new_token("dev_"): 256 random bits,
  * URL-safe base64): anything else in a link is the link cut short. */
 const TOKEN_SHAPE = /^dev_[A-Za-z0-9_-]{43}$/;
@@ -33,6 +36,13 @@ const MOTION_WAIT_MS = 8000;
  * repetition from rest and back to rest, so the marked set must hold the return), or after
  * RETURN_WAIT_MS at most. */
 const RETURN_FRACTION = 0.15, SETTLE_MS = 1200, RETURN_WAIT_MS = 7000;
+/** A session kept on the phone whose last reading is older than this [s] when the page
+ * opens is not carried on: the page was closed or the battery died, and after so long the
+ * phone has most likely been off the arm (charged, put away), so the poses it was
+ * calibrated with no longer hold, and the day may have changed. It is sent as it is and
+ * ended, and the page starts afresh. A reload or a tab closed by mistake comes back well
+ * within it; the longest rest between sets (10 min) keeps the page open and recording. */
+const CARRY_ON_WITHIN_S = 30 * 60;
 
 /** Used when the server cannot be asked (offline, first start) — the catalogue's defaults. */
 const FALLBACK_EXERCISES = [
@@ -226,7 +236,9 @@ function welcome() {
     ? KitProgram.summary(kit.today, kit.today.exercises)
     : [el("h1", {}, "Your arm exercises"),
       el("p", { class: "lead" }, `Today: ${count ? [...new Set(kit.today.exercises.map((e) => e.title))].join(", ") : "your exercises"}.`)];
-  screen(...intro, lastTime(),
+  const notice = kit.notice ? el("p", { class: "note", id: "notice" }, kit.notice) : null;
+  kit.notice = null;
+  screen(...intro, notice, lastTime(),
     el("p", {}, "Your phone measures your arm. You need a strap or a sports armband for the phone."),
     kit.today.offline ? el("p", { class: "note" }, "Offline: using the exercises saved on this phone.") : null,
     big("Start", { id: "start", onclick: chooseSegment }));
@@ -702,11 +714,53 @@ async function resume(kept) {
  * or erased on the server, the screen says so and "Continue" drops it from the phone. */
 function sendTheLastPatients(kept) {
   noStatus();  // the bar would show the other link's state as this one's
-  const info = el("p", { class: "lead", id: "handover" }, "Sending…");
   screen(el("h1", {}, "Sending the last session on this phone"),
     el("p", {}, "This phone keeps readings of a session recorded with another link (another "
-      + "patient's, or an older one). They go to that session first; then yours can start."), info);
-  kit.stream = new KitStream({ token: kept.token, sensor: kept.sensor, side: kept.side,
+      + "patient's, or an older one). They go to that session first; then yours can start."));
+  return sendAndEnd(kept, {
+    lost: "The other patient's link was replaced or removed, so what was left of their session "
+      + "on this phone cannot be sent. Their therapist has everything sent before.",
+    erased: "The other patient's therapist erased that session, so what was left of it on this phone is not sent." });
+}
+
+/** When the session kept on this phone had its last reading [Date], or null when it
+ * was within CARRY_ON_WITHIN_S (it is carried on). Its clock: t = seconds since startEpoch
+ * plus clockShift (kit-stream.js). */
+function stoppedLongAgo(kept) {
+  const last = (kept.startEpoch + (kept.lastT || 0) - (kept.clockShift || 0)) * 1000;
+  return Number.isFinite(last) && Date.now() - last > CARRY_ON_WITHIN_S * 1000 ? new Date(last) : null;
+}
+
+/** This link's own session, cut short long ago (stoppedLongAgo): sent as it is and ended
+ * (bye: the therapist's page shows it finished and estimated, not interrupted); the
+ * welcome follows and says so. Offline it waits on the phone, and the patient may carry
+ * on with that session instead (as before: nothing can be sent meanwhile). */
+async function endTheStaleSession(kept, at) {
+  const when = `${dayWords(at, "on ")} at ${at.toLocaleTimeString(undefined, { hour: "numeric", minute: "2-digit" })}`;
+  screen(el("h1", {}, "Sending your last session"),
+    el("p", { class: "lead" }, `Your last session, ${when}, stopped part way (the page was closed or the phone switched off). `
+      + "What you did then is sent to your therapist as it is; then today's session starts afresh, with the arm poses."));
+  const carryOn = big("Carry on with that session instead", { id: "carry-on", class: "big secondary", hidden: "",
+    onclick: () => { sessionStorage.setItem(CARRY_ON_KEY, "1"); location.reload(); } });
+  const sent = sendAndEnd(kept, {
+    lost: "This link was replaced or removed, so what was left of that session on this phone cannot be sent. Your therapist has everything sent before.",
+    erased: "Your therapist erased that session, so what was left of it on this phone is not sent.",
+    offline: () => { carryOn.hidden = false; },
+    online: () => { carryOn.hidden = true; } });
+  document.getElementById("screen").append(carryOn);
+  await sent;
+  kit.notice = `Your last session, ${when}, stopped part way. What you did then was sent to your therapist.`;
+}
+
+/** Sends the kept session's rest with its own link and ends it (bye); resolves once all of
+ * it is sent, the phone's storage of it cleared. ``words.lost``: what the screen says when
+ * its link was revoked, ``words.erased``: when its session was erased (then "Continue"
+ * drops it); ``words.offline()``: called while it cannot be sent (then it is ended only
+ * once the server is reached, ``words.online()`` called then). */
+function sendAndEnd(kept, words) {
+  const info = el("p", { class: "lead", id: "handover" }, "Sending…");
+  document.getElementById("screen").append(info);
+  kit.stream = new KitStream({ token: kept.token || kit.token, sensor: kept.sensor, side: kept.side,
     device: PHONE_KIT, program: kept.program });
   return new Promise((resolve, reject) => {
     const done = () => {
@@ -717,11 +771,12 @@ function sendTheLastPatients(kept) {
       localStorage.removeItem(DID_KEY);
       localStorage.removeItem(STEP_KEY);
       document.getElementById("status").hidden = false;
-      // nothing of the other link stays on this phone: its token would let whoever holds
-      // the phone send readings into that patient's record (after its last save)
+      // nothing of that session stays on this phone: another link's token would let
+      // whoever holds the phone send readings into that patient's record (after its last save)
       sent._saving.then(() => KitStore.clear()).then(resolve, reject);
     };
     let viaThisLink = false;  // its own link revoked: resumed with this one (see below)
+    let offlineTicks = 0;     // 300 ms each without a connection
     const id = setInterval(() => {
       const s = kit.stream;
       if (s.state && s.state.finished && !s.error) return done();
@@ -737,10 +792,7 @@ function sendTheLastPatients(kept) {
       }
       if ((s.state && s.state.finished) || /revoked/.test(s.error || "")) {
         clearInterval(id);
-        info.textContent = viaThisLink || /revoked/.test(s.error || "")
-          ? "The other patient's link was replaced or removed, so what was left of their session "
-            + "on this phone cannot be sent. Their therapist has everything sent before."
-          : "The other patient's therapist erased that session, so what was left of it on this phone is not sent.";
+        info.textContent = viaThisLink || /revoked/.test(s.error || "") ? words.lost : words.erased;
         info.after(big("Continue", { id: "continue", onclick: async () => {
           if (!s.state.finished) {  // revoked, kept until now: it goes from this phone
             s._abandon();
@@ -751,8 +803,20 @@ function sendTheLastPatients(kept) {
         return;
       }
       info.textContent = s.connected ? `Sending… ${s.unsent} to go` : "Saved on this phone, will send when online.";
+      if (words.offline && !finishing) {
+        if (s.connected) finishOnce();
+        else if (++offlineTicks > 10) words.offline();
+      }
     }, 300);
-    kit.stream.start({ resume: true }).then(() => kit.stream.finish()).catch(reject);
+    // with words.offline, the session is ended (kept so on the phone) only once the server
+    // is reached: until then the patient may still choose to carry on with it
+    let finishing = false;
+    const finishOnce = () => {
+      finishing = true;
+      if (words.online) words.online();
+      kit.stream.finish().catch(reject);
+    };
+    kit.stream.start({ resume: true }).then(() => { if (!words.offline) finishOnce(); }).catch(reject);
   });
 }
 
@@ -819,8 +883,15 @@ async function main() {
       el("p", { class: "lead" }, "Your therapist has replaced or removed it. Ask them for a new link."));
   }
   kit.side = kit.today.side || "right";
-  // a session under way goes on (its stream's resume is taken: docs/extensions/discharge.md)
-  if (kept && !kept.finished && kept.stream !== undefined) return resume(kept);
+  // a session under way goes on (its stream's resume is taken: docs/extensions/discharge.md),
+  // unless it was cut short long ago: then it is ended and the day starts afresh
+  if (kept && !kept.finished && kept.stream !== undefined) {
+    const at = stoppedLongAgo(kept);
+    const carryOn = sessionStorage.getItem(CARRY_ON_KEY);
+    sessionStorage.removeItem(CARRY_ON_KEY);
+    if (!at || carryOn) return resume(kept);
+    await endTheStaleSession(kept, at);
+  }
   if (kit.today.discharged) {  // offline: as the server last said
     noStatus();
     return screen(el("h1", {}, "Your therapist has discharged you"),
