@@ -31,10 +31,12 @@ RECORDING = "left_reach_50hz.csv"
 #: owned — the owner only (others 404, as if it did not exist); list — every therapist,
 #: each their own; self — acts on the caller's own account; admin — clinic admins;
 #: upload — a therapist for their patient, or a kit for its own patient; reset — only a
-#: one-time reset token; public — sign-in; device — a kit's own token only (its patient's).
+#: one-time reset token; public — sign-in; device — a kit's own token only (its patient's);
+#: signout — ends the caller's own sign-in.
 KINDS = {
     ("POST", "/api/auth/token"): "public",
     ("POST", "/api/auth/password"): "self",
+    ("POST", "/api/auth/signout"): "signout",
     ("POST", "/api/auth/reset"): "reset",
     ("POST", "/api/patients"): "list",
     ("GET", "/api/patients"): "list",
@@ -62,6 +64,8 @@ def kind(method: str, path: str) -> str:
 
 
 EXPECTED_REFUSAL = {"none": 401, "device": 401, "revoked": 401, "expired": 401}
+#: The accounts of the signed-in identities.
+SIGNED_IN = {"owner": "alice", "other": "bob", "admin": "carol"}
 
 
 class World:
@@ -141,6 +145,8 @@ class World:
         values = self.values(identity, method, path, missing)
         url = path.format(**values)
         token = self.tokens[identity]
+        if (method, path) == ("POST", "/api/auth/signout") and identity in SIGNED_IN:
+            token = self.server.client(SIGNED_IN[identity]).token  # a sign-in to end
         headers = {"Authorization": f"Bearer {token}"} if token else {}
         patient_id = values["patient_id"]
         kwargs: dict = {}
@@ -194,6 +200,8 @@ def expected(route_kind: str, identity: str, method: str, path: str) -> set[int]
         return {EXPECTED_REFUSAL[identity]}
     if route_kind == "self":
         return {400}  # their own account only: the old password is wrong
+    if route_kind == "signout":
+        return {204}  # each ends a sign-in of their own (a fresh one: the matrix goes on)
     if route_kind == "admin":
         return {200, 201} if identity == "admin" else {403}
     if route_kind == "list":

@@ -2,8 +2,8 @@
 sign-ins slow the user name and the client address down (429 with ``Retry-After``,
 ``security.LoginLimiter``; the client's address comes from ``X-Forwarded-For`` only behind
 a proxy in ``ARMTRACK_TRUSTED_PROXIES``); a disabled account and, outside demo mode, the
-demo account cannot sign in. A therapist changes their password (old and new); an
-admin-issued one-time reset token sets a new one."""
+demo account cannot sign in; signing out ends the sign-in on the server. A therapist
+changes their password (old and new); an admin-issued one-time reset token sets a new one."""
 
 from __future__ import annotations
 
@@ -147,6 +147,22 @@ async def sign_in(form: Annotated[OAuth2PasswordRequestForm, Depends()],
 
     await svc.run_db(store)
     return TokenOut(access_token=token, expires_in=int(lifetime.total_seconds()))
+
+
+@router.post("/signout", status_code=status.HTTP_204_NO_CONTENT, responses={
+    401: {"description": "the token is unknown or has already ended"}})
+async def sign_out(therapist: Therapist, token: Annotated[str | None, Depends(oauth2)],
+                   svc: Annotated[Services, Depends(services)]) -> None:
+    """End this sign-in (the bearer token given): it stops working at once, and the live
+    feeds and 3D views opened with it close (4401). The account's other sign-ins stay."""
+    def work(db: DbSession) -> None:
+        db.execute(delete(models.AccessToken).where(
+            models.AccessToken.therapist_id == therapist.id,
+            models.AccessToken.token_hash == hash_token(token or "")))
+        db.commit()
+
+    await svc.run_db(work)
+    await svc.access.recheck()
 
 
 def _account(db: DbSession, username: str, demo_mode: bool) -> models.Therapist | None:

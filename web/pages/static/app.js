@@ -21,9 +21,18 @@ const ANGLES = Object.keys(ANGLE_LABELS);
 
 function token() { return sessionStorage.getItem(TOKEN_KEY); }
 
+// Signing out ends the sign-in on the server (its token stops working, its live feeds
+// close) and in the tabs it was handed to, not only in this tab.
+// The request outlives the page (keepalive): the sign-in page opens at once.
 function signOut() {
+  const ended = token();
   sessionStorage.removeItem(TOKEN_KEY);
   sessionStorage.removeItem(USER_KEY);
+  if (ended) {
+    if (authChannel) authChannel.postMessage({ kind: "signed-out", token: ended });
+    fetch("/api/auth/signout", { method: "POST", keepalive: true,
+      headers: { Authorization: "Bearer " + ended } }).catch(() => { /* offline */ });
+  }
   location.href = "/signin";
 }
 
@@ -47,6 +56,12 @@ document.addEventListener("click", noteNewTab, true);
 document.addEventListener("auxclick", noteNewTab, true);
 if (authChannel) {
   authChannel.onmessage = (event) => {
+    if (event.data && event.data.kind === "signed-out" && event.data.token && event.data.token === token()) {
+      sessionStorage.removeItem(TOKEN_KEY);
+      sessionStorage.removeItem(USER_KEY);
+      location.href = "/signin";
+      return;
+    }
     if (event.data && event.data.kind === "need-token" && token()
         && Date.now() - openedNewTabAt < HANDOFF_WINDOW_MS) {
       openedNewTabAt = -Infinity;
