@@ -220,6 +220,16 @@ class Api:
         answer.raise_for_status()
         return answer.json()
 
+    def live_session(self, patient_id: int, timeout: float = 60) -> dict:
+        """The session the patient's kit streams now (``/live``'s), once it has begun."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            live = self.http.get(f"/api/patients/{patient_id}/live").json()["session"]
+            if live is not None:
+                return live
+            time.sleep(0.1)
+        raise AssertionError(f"the kit's stream did not start in {timeout} s")
+
     def wait_processed(self, session_id: int, timeout: float = 60) -> dict:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:

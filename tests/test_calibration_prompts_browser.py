@@ -118,13 +118,7 @@ def test_calibration_prompts_follow_the_stream_when_the_browser_is_busy(
     kit = KitThread(recording, module_server.ws_url, device["token"],
                     gates=[(0.0, start), (npose.end, npose_shown)])
     try:
-        live = None
-        deadline = time.monotonic() + 60
-        while live is None and time.monotonic() < deadline:
-            live = api.http.get(f"/api/patients/{patient['id']}/live").json()["session"]
-            if live is None:
-                time.sleep(0.1)
-        assert live, "the kit's stream did not start"
+        live = api.live_session(patient["id"])
         page.goto(f"{module_server.url}/sessions/{live['id']}")
         sync_api.expect(page.locator("#calibration-box")).to_have_attribute(
             "data-phase", "waiting", timeout=90_000)
@@ -163,12 +157,36 @@ def test_calibration_prompts_follow_the_stream_when_the_browser_is_busy(
     assert times == sorted(times), f"an older answer was shown: {phases}"
 
 
+#: Into the swaying kit's N-pose [s]: the kit waits there until the page has said 'Keep
+#: holding' (and its views were taken), then at each of the others while the page has not
+#: yet had a still arm to say 'Trunk steady' on (the guide's replay: pinned at 17 s; the
+#: pose lasts 24.5 s).
+ASKING_AT_S, STEADY_GATES_S = 10.0, [17.5 + k for k in range(7)]
+
+
+def _holding_at(api, patient_id: int, held_s: float) -> dict:
+    """The pose held now, as ``/live`` says it once the pose has been held ``held_s`` [s]
+    (a kit waiting at a gate: the answer no longer changes)."""
+    deadline = time.monotonic() + 90
+    while time.monotonic() < deadline:
+        holding = (api.http.get(f"/api/patients/{patient_id}/live").json()["calibration"]
+                   or {}).get("holding") or {}
+        if holding.get("held_s", 0.0) >= held_s:
+            return holding
+        time.sleep(0.2)
+    raise AssertionError(f"the pose was never held {held_s} s")
+
+
 def test_the_page_asks_a_swaying_trunk_to_keep_holding_the_npose(module_server, page, shots):
     """A kit with a trunk sensor whose trunk sways (9-axis random sway seed 15, the N-pose
     held 24.5 s, at real pace): the therapist's page says 'Keep holding' with the lean's
     figure while the sway hides the trunk's side lean (``live_status.trunk_guide``), the
     patient's view 'Keep holding', and then 'Trunk steady' (the simulator's replay of the
-    guide: 17 s). Before: 'Still ✓ — keep holding (n s)' whatever the trunk did."""
+    guide: 17 s). Before: 'Still ✓ — keep holding (n s)' whatever the trunk did. The kit
+    waits 10 s into the pose until the page has said 'Keep holding', then at each second
+    from 17.5 s until the server says the trunk pinned and the arm still (the sway moves
+    the arm too), and the page must then say so. Before, a page or stream slowed by a
+    loaded machine raced the pose's end, and 'steady' was missed (load 15)."""
     from test_estimation_hard_cases import swaying_kit
 
     recording = swaying_kit("random", 15, True, npose_s=25.0).recording
@@ -177,16 +195,14 @@ def test_the_page_asks_a_swaying_trunk_to_keep_holding_the_npose(module_server, 
     device = api.device(patient["id"])
     page.set_viewport_size({"width": 1366, "height": 900})
     sign_in(page, module_server.url)
-    start = threading.Event()
-    kit = KitThread(recording, module_server.ws_url, device["token"], gates=[(0.0, start)])
+    npose = next(pose for pose in recording.calibration if pose.name == "npose")
+    start, asked = threading.Event(), threading.Event()
+    steady_gates = [(at, threading.Event()) for at in STEADY_GATES_S]
+    kit = KitThread(recording, module_server.ws_url, device["token"],
+                    gates=[(0.0, start), (npose.start + ASKING_AT_S, asked),
+                           *((npose.start + at, gate) for at, gate in steady_gates)])
     try:
-        live = None
-        deadline = time.monotonic() + 60
-        while live is None and time.monotonic() < deadline:
-            live = api.http.get(f"/api/patients/{patient['id']}/live").json()["session"]
-            if live is None:
-                time.sleep(0.1)
-        assert live, "the kit's stream did not start"
+        live = api.live_session(patient["id"])
         page.goto(f"{module_server.url}/sessions/{live['id']}")
         sync_api.expect(page.locator("#calibration-box")).to_have_attribute(
             "data-phase", "waiting", timeout=90_000)
@@ -203,8 +219,20 @@ def test_the_page_asks_a_swaying_trunk_to_keep_holding_the_npose(module_server, 
         page.screenshot(path=str(shots / "calibration-keep-holding-patient.png"), timeout=90_000)
         page.click("#close-patient-view")
         page.screenshot(path=str(shots / "calibration-keep-holding-1366.png"), timeout=90_000)
-        sync_api.expect(still).to_have_attribute("data-trunk", "steady", timeout=60_000)
-        steady = still.inner_text()
+        asked.set()
+        steady, told = None, []
+        for at, gate in steady_gates:  # the stream waits at `at` [s] of the pose
+            holding = _holding_at(api, patient["id"], at - 0.5)
+            told.append((at, holding.get("still"), holding.get("trunk", {}).get("pinned")))
+            if holding.get("still") and holding.get("trunk", {}).get("pinned"):
+                sync_api.expect(still).to_have_attribute("data-trunk", "steady",
+                                                         timeout=90_000)
+                sync_api.expect(still).to_contain_text("Trunk steady", timeout=90_000)
+                steady = still.inner_text()
+                break
+            gate.set()
+        print(f"the server at each wait (s into the pose, arm still, trunk pinned): {told}")
+        assert steady is not None, "the trunk never pinned while the arm was still"
     finally:
         kit.cut()
     print(f"asked: {asking!r}; then: {steady!r}")

@@ -13,7 +13,6 @@ from __future__ import annotations
 import itertools
 import re
 import threading
-import time
 
 import pytest
 import test_pages_browser
@@ -105,13 +104,7 @@ def test_the_live_page_names_counts_and_follows_the_patient(module_server, page,
     all_counted = threading.Event()
     first_kit = KitThread(recording, module_server.ws_url, device["token"],
                           gates=[(last_t - 5.0, all_counted)])
-    live = None
-    deadline = time.monotonic() + 60
-    while live is None and time.monotonic() < deadline:  # the stream's session
-        live = api.http.get(f"/api/patients/{patient['id']}/live").json()["session"]
-        if live is None:
-            time.sleep(0.2)
-    assert live, "the kit's stream did not start"
+    live = api.live_session(patient["id"])  # the stream's session
     page.goto(f"{module_server.url}/sessions/{live['id']}")
 
     # the exercise in words, and its count rising as the repetitions happen
