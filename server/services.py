@@ -193,9 +193,8 @@ class Services:
                           rows: int) -> None:
         """``rows`` stored by kit ``device_id`` outside its streams (an upload: session
         ``session_id``, created at ``created_at``, holding them all), in the day its open
-        streams count
-        (``kit_samples``; without one, the next counts them from the database). Event
-        loop only."""
+        streams count (``kit_samples``; without one, the next counts them from the
+        database). Event loop only."""
         if device_id in self.kit_samples:  # (read from the database with it, or before)
             self.kit_samples[device_id].hold(session_id, created_at, rows)
 
@@ -279,12 +278,12 @@ class Services:
                          gone: Awaitable[Any] | None = None) -> T:
         """``fn(db, *args)``, a session's export, with a database session on one of
         ``EXPORTS_AT_ONCE`` threads of its own (``export_pool``), at most that many at once
-        in this process; the others wait their
-        turn holding no thread. Each holds the whole session in memory, several times over:
-        angles.csv of a 1.89 M-row session took the server +595 MB, six at once +2978 MB,
-        and the thread pool lets 40 run at once. Turns are shared fairly among ``owner``s
-        (therapists' ids: ``FairTurns``). ``gone``: done once nobody wants the export any
-        more; while it waits, raises ``ExportUnwanted`` then."""
+        in this process; the others wait their turn holding no thread. Each holds the
+        whole session in memory, several times over: angles.csv of a 1.89 M-row session
+        took the server +595 MB, six at once +2978 MB, and the thread pool lets 40 run at
+        once. Turns are shared fairly among ``owner``s (therapists' ids: ``FairTurns``).
+        ``gone``: done once nobody wants the export any more; while it waits, raises
+        ``ExportUnwanted`` then."""
         def call() -> T:
             with self.db() as db:
                 return fn(db, *args)

@@ -14,6 +14,7 @@ its CPU does not slow the measuring client's), real database file."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import multiprocessing
 import statistics
@@ -78,6 +79,29 @@ def _flood(url: str, tokens: list[str], rows: int, seconds: float, started, out,
     out.put(asyncio.run(all_()))
 
 
+@contextlib.contextmanager
+def flooding(url: str, token_groups: list[list[str]], rows: int, sockets: int = SOCKETS):
+    """One client process a group of kit tokens, each flooding (``_flood``) for
+    ``FLOOD_S``; entered once they stream (and a second more), it gives a function that
+    waits for their end and returns every stream's (sent, acked, errors, seconds)."""
+    context = multiprocessing.get_context("spawn")
+    started, out = context.Event(), context.Queue()
+    floods = [context.Process(target=_flood, args=(url, tokens, rows, FLOOD_S, started, out,
+                                                   sockets))
+              for tokens in token_groups]
+    for flood in floods:
+        flood.start()
+    try:
+        assert started.wait(60), "the flooding kits did not start"
+        time.sleep(1.0)
+        yield lambda: [r for _ in floods for r in out.get(timeout=120)]
+    finally:
+        for flood in floods:
+            flood.join(30)
+            if flood.is_alive():
+                flood.kill()
+
+
 def _page_times(http: httpx.Client, seconds: float) -> list[float]:
     """Seconds each ``GET /api/patients`` took, one every 50 ms for ``seconds``."""
     times, end = [], time.monotonic() + seconds
@@ -98,19 +122,9 @@ def test_one_kits_flood_does_not_slow_another_therapists_pages(srv, rows):
     bob.patient("Elsewhere")
     _page_times(bob.http, 1.0)  # warm
     before = _page_times(bob.http, 4.0)
-    context = multiprocessing.get_context("spawn")
-    started, out = context.Event(), context.Queue()
-    flood = context.Process(target=_flood, args=(srv.ws_url, [token], rows, FLOOD_S, started, out))
-    flood.start()
-    try:
-        assert started.wait(60), "the flooding kit did not start"
-        time.sleep(1.0)
+    with flooding(srv.ws_url, [[token]], rows) as results_of:
         during = _page_times(bob.http, FLOOD_S - 2.0)
-        results = out.get(timeout=120)
-    finally:
-        flood.join(30)
-        if flood.is_alive():
-            flood.kill()
+        results = results_of()
     took = max(r[3] for r in results)
     sent = sum(r[0] for r in results)
     acked = sum(r[1] for r in results)
@@ -141,23 +155,10 @@ def test_many_kits_flooding_together_do_not_slow_another_therapists_pages(srv):
     bob.patient("Elsewhere")
     _page_times(bob.http, 1.0)  # warm
     before = _page_times(bob.http, 4.0)
-    context = multiprocessing.get_context("spawn")
-    started, out = context.Event(), context.Queue()
-    floods = [context.Process(target=_flood, args=(srv.ws_url, tokens[j::KIT_PROCESSES], 1,
-                                                   FLOOD_S, started, out, 1))
-              for j in range(KIT_PROCESSES)]
-    for flood in floods:
-        flood.start()
-    try:
-        assert started.wait(60), "the flooding kits did not start"
-        time.sleep(1.0)
+    groups = [tokens[j::KIT_PROCESSES] for j in range(KIT_PROCESSES)]
+    with flooding(srv.ws_url, groups, 1, sockets=1) as results_of:
         during = _page_times(bob.http, FLOOD_S - 2.0)
-        results = [r for _ in floods for r in out.get(timeout=120)]
-    finally:
-        for flood in floods:
-            flood.join(30)
-            if flood.is_alive():
-                flood.kill()
+        results = results_of()
     took = max(r[3] for r in results)
     acked = sum(r[1] for r in results)
     errors = [e for r in results for e in r[2]]
@@ -317,23 +318,9 @@ def test_a_therapists_many_kits_do_not_hold_back_another_therapists_stream(srv):
     bob = srv.client("bob")
     honest = bob.device(bob.patient("Real Time")["id"])["token"]
     alone, _, _ = asyncio.run(_real_time_kit(srv.ws_url, honest, 3.0))
-    context = multiprocessing.get_context("spawn")
-    started, out = context.Event(), context.Queue()
-    floods = [context.Process(target=_flood, args=(srv.ws_url, tokens[j::2], 1000,
-                                                   FLOOD_S, started, out))
-              for j in range(2)]
-    for flood in floods:
-        flood.start()
-    try:
-        assert started.wait(60), "the flooding kits did not start"
-        time.sleep(1.0)
+    with flooding(srv.ws_url, [tokens[0::2], tokens[1::2]], 1000) as results_of:
         delays, unacked, sent = asyncio.run(_real_time_kit(srv.ws_url, honest, FLOOD_S - 3.0))
-        results = [r for _ in floods for r in out.get(timeout=120)]
-    finally:
-        for flood in floods:
-            flood.join(30)
-            if flood.is_alive():
-                flood.kill()
+        results = results_of()
     took = max(r[3] for r in results)
     rows = sum(r[1] for r in results) * 1000
     print(f"\nthe real-time kit's acks: median {statistics.median(alone) * 1e3:.0f} ms alone, "

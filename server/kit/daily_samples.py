@@ -94,7 +94,6 @@ class KitDay:
             self._rows[session_id] += rows
             self._total += rows
 
-
     def hold(self, session_id: int, created_at: datetime, rows: int) -> None:
         """Session ``session_id`` (created at ``created_at``) holds ``rows`` in all: an
         upload, stored whole, counted once whether the kit's day was read from the
