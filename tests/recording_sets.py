@@ -30,6 +30,9 @@ SHARED_DIR = Path(os.environ.get("ARMTRACK_TEST_SHARED_DIR")
                   or Path(__file__).resolve().parents[1].parent / "shared")
 SHARED_RECORDINGS = SHARED_DIR / "data" / "recordings"
 ELEVATION = "shoulder_elevation"
+#: Angles whose exercise goes to both sides of rest (``docs/programs.md``, One repetition).
+BOTH_WAYS_ANGLES = ("forearm_pronation", "wrist_flexion", "wrist_deviation",
+                    "shoulder_rotation")
 #: Angles whose repetitions ``shoulder_elevation`` repeats (it is the upper arm's angle
 #: from hanging, whichever way it rises).
 ELEVATING = ("shoulder_flexion", "shoulder_abduction")
@@ -61,11 +64,27 @@ class SessionFacts:
     excursions: dict[str, tuple] | None = None
 
     def counts(self, angles=None) -> dict[str, int]:
-        """Repetitions per angle (``angles``: those, 0 where none; default: every angle
-        that has some but ``shoulder_elevation``, as the README's table)."""
+        """Repetitions per angle as a therapist counts them (``docs/programs.md``, One
+        repetition: on a both-ways angle a turn to each side is one, the count the turns
+        to the side turned to more often; the README counts each turn, "pronation to 75°
+        ×3, then supination to −75° ×3": 6 turns, 3 repetitions) (``angles``: those, 0
+        where none; default: every angle that has some but ``shoulder_elevation``)."""
+        if angles is None:
+            angles = [k for k in self.repetitions if k != ELEVATION]
+        return {k: self._count(k) for k in angles}
+
+    def turns(self, angles=None) -> dict[str, int]:
+        """Excursions from rest and back per angle (each turn of a both-ways angle one),
+        as the README's table counts them."""
         if angles is None:
             angles = [k for k in self.repetitions if k != ELEVATION]
         return {k: len(self.repetitions.get(k, ())) for k in angles}
+
+    def _count(self, angle: str) -> int:
+        signed = self.repetitions.get(angle, ())
+        if angle not in BOTH_WAYS_ANGLES:
+            return len(signed)
+        return max(sum(1 for a in signed if a > 0), sum(1 for a in signed if a < 0))
 
 
 _ARM = ("upper_arm", "forearm", "hand")

@@ -8,8 +8,10 @@ import pytest
 from armtrack.estimator.arm import REPORTED_ANGLES
 from armtrack.estimator.errors import InvalidArgument, InvalidShape
 from armtrack.estimator.metrics import (
+    BOTH_WAYS,
     RepetitionParams,
     consistency,
+    count_repetitions,
     detect_repetitions,
     repetitions_by_angle,
 )
@@ -199,6 +201,57 @@ def test_synthetic_repetitions_in_closed_form():
         assert abs(r.start_s - (peak - duration / 2 + inset)) <= 0.021
         assert abs(r.end_s - (peak + duration / 2 - inset)) <= 0.021
         assert r.peak_velocity_deg_s == pytest.approx(expected_velocity, rel=0.01)
+
+
+#: How patients make repetitions: (name, signed turns [deg, s], both ways, rest level
+#: [deg], rest between [s], the repetitions a therapist counts: docs/programs.md's table).
+CYCLES = [
+    ("palm down then up x5", [(70.0, 2.0), (-70.0, 2.0)] * 5, True, 0.0, 1.0, 5),
+    ("palm down x5, then up x5", [(70.0, 2.0)] * 5 + [(-70.0, 2.0)] * 5, True, 0.0, 1.0, 5),
+    ("palm down x5, up x3", [(70.0, 2.0), (-70.0, 2.0)] * 3 + [(70.0, 2.0)] * 2, True, 0.0,
+     1.0, 5),
+    ("up first, then down x4", [(-60.0, 2.0), (60.0, 2.0)] * 4, True, 0.0, 1.0, 4),
+    ("resting palm down, turning up and back x5", [(-130.0, 3.0)] * 5, True, 65.0, 1.0, 5),
+    ("no pause at thumb up, x6", [(70.0, 1.5), (-70.0, 1.5)] * 6, True, 0.0, 0.2, 6),
+    ("wrist down then up x4", [(55.0, 2.0), (-45.0, 2.0)] * 4, True, 0.0, 1.0, 4),
+    ("arm out then in x3", [(50.0, 2.5), (-40.0, 2.5)] * 3, True, 0.0, 1.0, 3),
+    ("elbow bent and straightened x4", [(120.0, 3.0)] * 4, False, 0.0, 1.0, 4),
+]
+
+
+@pytest.mark.parametrize("name,plan,both_ways,rest_deg,rest_s,truth", CYCLES,
+                         ids=[c[0] for c in CYCLES])
+@pytest.mark.parametrize("seed", [None, 1, 2, 3])
+def test_a_repetition_is_a_full_cycle_counted_once(name, plan, both_ways, rest_deg, rest_s,
+                                                   truth, seed):
+    """docs/programs.md, One repetition: a full cycle out and back counted once. Noise-free
+    (``seed`` None), and as a phone measures it (``seed``): 60 Hz, 2-5 ms time-stamp jitter,
+    1.5° of white noise on the angle (a phone's 6-axis estimate, test_phone_kit_accuracy's
+    RMSE bar is 2°) and a drift of the rest of 4° a minute."""
+    rate = 100.0 if seed is None else 60.0
+    t, angle, _ = raised_cosines(plan, rate_hz=rate, rest_s=rest_s, rest_level_deg=rest_deg)
+    if seed is not None:
+        rng = np.random.default_rng(seed)
+        t = t + rng.uniform(-1, 1, t.size) * rng.uniform(0.002, 0.005) * 0.5
+        angle = angle + rng.normal(0, 1.5, t.size) + 4.0 * t / 60.0
+    excursions = detect_repetitions(angle * DEG, t)
+    counted = count_repetitions(excursions, both_ways)
+    print(f"{name} (seed {seed}): {len(excursions)} excursions "
+          f"{[r.direction for r in excursions]}, {counted} repetitions (truth {truth})")
+    assert len(excursions) == len(plan)
+    assert counted == truth
+
+
+def test_both_ways_angles_are_the_catalogues():
+    """The both-ways angles are those of the catalogue's exercises that go to both sides
+    of rest (turn the palm, bend the wrist, turn the arm out and in) and the wrist's side
+    bend; the elbow's and the shoulder's raises go one way."""
+    from armtrack.server.programs.catalogue import CATALOGUE
+
+    assert {e.name for e in CATALOGUE.values() if e.both_ways} == {
+        "pronation", "wrist_flexion", "shoulder_rotation"}
+    assert BOTH_WAYS == {"forearm_pronation", "wrist_flexion", "wrist_deviation",
+                         "shoulder_rotation"}
 
 
 def test_still_series_has_no_repetition():

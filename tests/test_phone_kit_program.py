@@ -160,6 +160,12 @@ def test_the_patient_follows_the_program_on_the_phone(kit_server, phone, shots):
         phone.click("#start-exercise")
         sync_api.expect(phone.locator("#reps")).to_be_visible()
         assert _sim_now(phone) < timeline.palm[0], "the palm's mark came after it began"
+        # palm down, then up, is one (docs/programs.md): the count reaches 2 with the second
+        # turn down, and the set waits for the last turn up
+        _wait(lambda: "turn the other way" in phone.locator("#live-note").inner_text(), 60,
+              "the last turn the other way asked for")
+        last_note = phone.locator("#reps").inner_text()
+        phone.screenshot(path=str(shots / "p3b-palm-last-turn.png"), full_page=True)
         _wait(lambda: _sim_now(phone) > timeline.palm[1] + 1.0, 60, "the palm turns")
         if phone.locator("#reps").count():
             phone.click("#next")  # "Finish"
@@ -216,13 +222,19 @@ def test_the_patient_follows_the_program_on_the_phone(kit_server, phone, shots):
           f"repetitions counted {counted}, week {week['week']}: done {week['done']} of "
           f"{week['prescribed']} ({week['adherence_percent']} %)")
     # what the simulation did: 2 × 3 elbow flexions (each set ended by the kit after the
-    # last one came back), then palm turns; the kit counts by the report's rule (each turn
-    # out and back one way is one, as test_programs_followed.py and
-    # test_one_repetition_count.py), so it ends the palm set once the prescribed 2 are in
-    # (the simulated patient goes on turning after the set's end: not counted)
+    # last one came back), then 2 palm turns down and up; the kit counts by the report's
+    # rule (palm down, then up, is one, as test_programs_followed.py and
+    # test_one_repetition_count.py), so it ends the palm set once the prescribed 2 are in,
+    # with their turns up
     assert counted == {"elbow_flexion": ELBOW_SETS * ELBOW_REPS, "pronation": PALM_REPS}
     palm_end = next(t for label, t in timed if label == "end:exercise:pronation")
     assert palm_end < timeline.palm[1], "the palm set ended by the kit's count"
+    turns = sim.truth.repetitions("forearm_pronation")
+    print(f"palm: {last_note!r} while the last turn was asked for; turns back at "
+          f"{[round(e.down_s, 2) for e in turns]} s, the set ended at {palm_end:.2f} s")
+    assert last_note == f"{PALM_REPS} of {PALM_REPS}"
+    assert len(turns) == 2 * PALM_REPS and palm_end > turns[-1].down_s, \
+        "the set waited for the last turn up"
     assert week["done"]["sessions"] == 1 and week["done"]["days"] == 1
     assert week["done"]["exercises"] == 2
     assert week["done"]["repetitions"] == ELBOW_SETS * ELBOW_REPS + PALM_REPS

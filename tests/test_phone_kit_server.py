@@ -69,11 +69,14 @@ def test_coverage_of_single_sensor_kits():
 
 
 def test_the_live_counter_is_the_reports_rule_counted_once_back_at_rest():
-    """Issue 22: the kit's counter is ``detect_repetitions`` (the report's rule), applied
-    as the estimates come: pronation, supination, a flexion that turns back without
-    reaching rest (one), a wobble under 10° (none) — each counted once back at rest."""
+    """Issue 22: the kit's counter is the report's rule (``count_repetitions`` of
+    ``detect_repetitions``' excursions), applied as the estimates come: pronation,
+    supination, a pronation that turns back without reaching rest (one turn), a wobble
+    under 10° (none), a supination — each turn counted once back at rest; palm down and
+    up is one repetition (docs/programs.md), so 4 turns are 2, the count going up with
+    the first turn of each and ``unpaired`` saying a turn the other way is still due."""
     import numpy as np
-    from armtrack.estimator.metrics import detect_repetitions
+    from armtrack.estimator.metrics import count_repetitions, detect_repetitions
 
     def excursion(peaks_deg, seconds=4.0):  # rest → peaks → rest, smooth, at 20 Hz
         knots = np.array([0.0, *peaks_deg, 0.0])
@@ -86,16 +89,21 @@ def test_the_live_counter_is_the_reports_rule_counted_once_back_at_rest():
                           excursion([70, 35, 70], 6.0), excursion([6]), excursion([-70])])
     t = 0.05 * np.arange(deg.size)
     counter = RepetitionCounter(Band("forearm_pronation", -70.0, 70.0))
-    shown = []
+    shown, unpaired = [], []
     for a in range(0, deg.size, 7):  # poses of 7 estimates
         counter.add(t[a:a + 7], deg[a:a + 7])
         shown.append(counter.recount())
+        unpaired.append(counter.unpaired)
         reps = detect_repetitions(np.deg2rad(deg[:a + 7]), t[:a + 7])
-        assert shown[-1] == len(reps)  # the report's count of what has come so far
+        assert shown[-1] == count_repetitions(reps, True)  # the report's count so far
     peak = int(np.argmax(deg[:120]))  # at the first turn's peak: not yet counted
     assert shown[peak // 7] == 0
-    assert shown[-1] == 4 == len(detect_repetitions(np.deg2rad(deg), t))
+    turns = detect_repetitions(np.deg2rad(deg), t)
+    print(f"turns {[r.direction for r in turns]}: counts shown {sorted(set(shown))}, "
+          f"unpaired {unpaired[-1]}")
+    assert len(turns) == 4 and shown[-1] == 2 == count_repetitions(turns, True)
     assert shown == sorted(shown)
+    assert set(unpaired) == {0, 1} and unpaired[-1] == 0
 
 
 def test_device_today_default_then_the_therapists_target(module_server):

@@ -357,18 +357,28 @@ def test_swapped_forearm_and_hand_sensors_are_flagged_by_the_joint_residuals():
 @pytest.mark.parametrize("name", SHARED)
 def test_repetitions_counted_on_the_estimates_match_the_truth(recordings, name):
     """The counts of the recordings' facts: the shared README's, or the stand-in's
-    simulation's (tests/recording_sets.py)."""
-    from armtrack.estimator.metrics import CALIBRATION_TAIL_S, repetitions_by_angle
+    simulation's (tests/recording_sets.py): the excursions (each turn one), and the
+    repetitions as a therapist counts them (a both-ways angle's turn to each side one)."""
+    from armtrack.estimator.metrics import (
+        BOTH_WAYS,
+        CALIBRATION_TAIL_S,
+        count_repetitions,
+        repetitions_by_angle,
+    )
 
-    expected = recordings.facts[name].counts()
+    expected = recordings.facts[name].turns()
+    therapist = recordings.facts[name].counts()
     recording = read_recording(recordings.path(name))
     estimates, _ = estimate_recording(recording)
     calibration_end = max(p.end for p in recording.calibration) + CALIBRATION_TAIL_S
     counted = repetitions_by_angle({k: estimates.angles[k] for k in expected},
                                    estimates.t, exclude=[(estimates.t[0], calibration_end)])
     got = {k: len(v) for k, v in counted.items()}
-    print(f"{recordings.source} {name}: {got} (truth {expected})")
+    repetitions = {k: count_repetitions(v, k in BOTH_WAYS) for k, v in counted.items()}
+    print(f"{recordings.source} {name}: turns {got} (truth {expected}), repetitions "
+          f"{repetitions} (truth {therapist})")
     assert got == expected
+    assert repetitions == therapist
 
 
 def test_a_silent_sensor_can_be_dropped_so_the_others_need_not_wait():

@@ -330,11 +330,11 @@ def test_sessions_are_dated_on_the_simulated_calendar_and_follow_their_version(w
 
 def test_the_report_counts_the_simulated_repetitions(world):
     """The raw numbers the rest stands on: each marked set's repetitions, as simulated
-    (pronation: each turn out and back one way is a repetition, so 2 per simulated one)."""
+    (docs/programs.md, One repetition: pronation's palm down, then up, is one)."""
     for planned, session in world["sessions"]:
         results = report_results(world["reports"][session["id"]])
         for name, sets in planned.done.items():
-            want = sum(r for r, _ in sets) * (2 if name == "pronation" else 1)
+            want = sum(r for r, _ in sets)
             print(f"session {session['id']} {name}: {results[name]['reps']} of {want}, "
                   f"range {results[name]['range']}")
             assert results[name]["reps"] == want

@@ -15,7 +15,14 @@ radians with ``_deg`` helpers for reports. Modules:
 """
 
 from .consistency import Consistency, coefficient_of_variation, consistency
-from .repetitions import Repetition, RepetitionParams, detect_repetitions, repetitions_by_angle
+from .repetitions import (
+    BOTH_WAYS,
+    Repetition,
+    RepetitionParams,
+    count_repetitions,
+    detect_repetitions,
+    repetitions_by_angle,
+)
 from .rom import (
     CALIBRATION_TAIL_S,
     RangeOfMotion,
@@ -40,10 +47,10 @@ from .timebase import Windows
 from .trajectory import TrajectoryErrors, position_errors, series_errors
 
 __all__ = [
-    "CALIBRATION_TAIL_S", "Consistency", "Phase", "RangeOfMotion", "Repetition",
+    "BOTH_WAYS", "CALIBRATION_TAIL_S", "Consistency", "Phase", "RangeOfMotion", "Repetition",
     "RepetitionParams", "RomParams", "Smoothness", "SmoothnessParams", "TrajectoryErrors",
     "Windows", "angle_smoothness", "angular_speed_profile", "calibration_exclusion",
-    "coefficient_of_variation", "consistency", "detect_repetitions", "ldlj", "percent_of",
-    "position_errors", "range_of_motion", "range_of_motion_table", "repetition_smoothness",
-    "repetitions_by_angle", "rom_report", "series_errors", "sparc",
+    "coefficient_of_variation", "consistency", "count_repetitions", "detect_repetitions",
+    "ldlj", "percent_of", "position_errors", "range_of_motion", "range_of_motion_table",
+    "repetition_smoothness", "repetitions_by_angle", "rom_report", "series_errors", "sparc",
 ]

@@ -1,4 +1,12 @@
-"""Repetitions: one excursion from the rest position and back is one repetition.
+"""Repetitions: a full cycle out and back, counted once, as a therapist counts.
+
+``detect_repetitions`` finds the *excursions* of one angle: one movement from the rest
+position and back (the rule below). ``count_repetitions`` counts them as repetitions of
+an exercise (``docs/programs.md``, "One repetition"): an exercise that moves one way from
+rest (bend the elbow, raise the arm, reach) makes one excursion a repetition; one that
+goes to both sides of its rest (``BOTH_WAYS``: turn the palm down, then up; bend the
+wrist down, then up; turn the arm out, then in) makes a repetition of a turn to each
+side, so its count is the number of turns to the side turned to more often.
 
 Angles in [rad], times in [s], angular velocities in [rad/s]; ``Repetition`` also gives
 its amplitude [deg] and peak velocity [deg/s] for reports.
@@ -19,8 +27,8 @@ The rule, on one angle series:
    stretch is incomplete and not counted). So noise around the rest band's edge and
    wobbles smaller than ``min_amplitude`` are not counted, and a movement that turns
    back without reaching rest (0 → 120 → 60 → 120 → 0°) is one repetition. Each
-   direction counts: wrist flexion then extension is two repetitions, ``direction``
-   +1 and −1.
+   direction is an excursion of its own: wrist flexion then extension is two,
+   ``direction`` +1 and −1 (one repetition of a both-ways exercise, ``count_repetitions``).
 4. **Times**: the *peak* is the sample of largest ``|e|``. The *start* is the last rest
    sample before the excursion whose speed is at most ``onset_speed_fraction`` of the
    excursion's peak speed (searching back to the previous repetition's end); the *end*
@@ -33,7 +41,7 @@ Only repetitions and stretches are looped over, never samples.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -42,6 +50,13 @@ from ..errors import InvalidArgument
 from .rest import rest_by_mode, rest_from_windows
 from .timebase import Windows, as_series, select, stretches, uniform
 from .velocity import angular_velocity, lowpass
+
+#: Angles whose exercises go to both sides of the rest position: the forearm's turn (palm
+#: down, then up), the wrist's bend (down, then up) and side bend (toward the thumb, then
+#: the little finger), the shoulder's rotation (hand out, then in). A repetition is a turn
+#: to each side (``count_repetitions``); on every other angle it is one excursion.
+BOTH_WAYS: frozenset[str] = frozenset(
+    {"forearm_pronation", "wrist_flexion", "wrist_deviation", "shoulder_rotation"})
 
 
 @dataclass(frozen=True)
@@ -168,6 +183,24 @@ def detect_repetitions(
         offset += grid.size
         found.extend(_in_stretch(grid, smooth, velocity, rest, p))
     return tuple(found)
+
+
+def count_repetitions(excursions: Sequence[Repetition], both_ways: bool) -> int:
+    """How many repetitions the ``excursions`` of one angle (``detect_repetitions``) are,
+    as a therapist counts: a full cycle out and back, counted once.
+
+    ``both_ways`` False (the exercise moves one way from rest: ``BOTH_WAYS`` does not hold
+    its angle): each excursion is one. True: a repetition is a turn to each side of the
+    rest, in either order; the count is the larger of the two sides' counts. Palm down and
+    up ×5 is 5, so is palm down ×5 then up ×5; down ×5 and up ×3 is 5 (the range of motion
+    says how far each side went); a patient who rests at one end (the palm down on a
+    table) and turns to the other and back makes one excursion per repetition, all to one
+    side: also one each. Counted live, the count goes up with the first turn of each
+    repetition (the side that leads), never down."""
+    if not both_ways:
+        return len(excursions)
+    positive = sum(1 for r in excursions if r.direction > 0)
+    return max(positive, len(excursions) - positive)
 
 
 def repetitions_by_angle(

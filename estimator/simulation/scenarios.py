@@ -68,12 +68,15 @@ def _single(name: str, default_amplitude_deg: float, default_reps: int):
 
 
 def _elbow_held(name: str, first_deg: float, second_deg: float, default_reps: int):
-    """Elbow to 90° and held; ``name`` to ``first_deg`` ×reps then ``second_deg`` ×reps."""
+    """Elbow to 90° and held; ``name`` to ``first_deg`` and back, then to ``second_deg`` and
+    back, ×reps: one repetition of a both-ways exercise is a turn to each side
+    (``docs/programs.md``: palm down, then up), as the catalogue's instruction says."""
     def build(reps: int | None, amplitude_deg: float | None, start: float):
         count = default_reps if reps is None else reps
         scale = 1.0 if amplitude_deg is None else amplitude_deg / first_deg
-        first = repetitions(start + 2.0, count, first_deg * scale * DEG)
-        second = repetitions(start + 2.0 + count * 4.5, count, second_deg * scale * DEG)
+        # repetitions(): 1.5-s ramps, 0.5 s held, 1 s still: a turn every 4.5 s
+        first = repetitions(start + 2.0, count, first_deg * scale * DEG, rest=5.5)
+        second = repetitions(start + 2.0 + 4.5, count, second_deg * scale * DEG, rest=5.5)
         end = start + 2.0 + 2 * count * 4.5
         # up on a ramp centred at start + 0.75 s, down at end + 0.75 s (σ 0.375 s)
         elbow = hold_and_return(start, 90 * DEG, 1.5, end - start - 1.5, sigma=0.375,

@@ -36,7 +36,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from armtrack.estimator.metrics import (
+        BOTH_WAYS,
         calibration_exclusion,
+        count_repetitions,
         range_of_motion_table,
         repetitions_by_angle,
     )
@@ -108,7 +110,8 @@ def run(args: argparse.Namespace) -> int:
                   else f"{rom.normal_min_deg:.0f}…{rom.normal_max_deg:.0f}")
         percent = "" if rom.percent_of_normal is None else f"{rom.percent_of_normal:.0f}"
         print(f"  {name:<24}{rom.min_deg:8.1f}{rom.max_deg:8.1f}{rom.range_deg:8.1f}"
-              f"{normal:>12}{percent:>10}{len(repetitions[name]):>6}", file=report)
+              f"{normal:>12}{percent:>10}"
+              f"{count_repetitions(repetitions[name], name in BOTH_WAYS):>6}", file=report)
     return 0
 
 

@@ -4,16 +4,17 @@ estimates it computes anyway, the current exercise's angle, its target band and 
 repetitions counted so far, at most ``FEEDBACK_HZ`` times a second. Display only: what is
 stored and reported comes from the stored samples, as for any kit.
 
-Repetitions are counted by the report's own rule (``estimator.metrics.detect_repetitions``:
-one excursion of the exercise's angle from rest and back is one repetition, each
-direction counting — a turn of the palm down and back is one, up and back another), on the
-catalogue's angle for the exercise (``Band.angle``), causally: a repetition counts once it
-is back at rest. So the kit shows the count the report and the therapist's live page
-(``server/live/motion.py``) give. The target band is shown, not used for counting (the
-report counts an excursion short of the target too). It is counted on the live
-estimates: each pose carries the ``trail`` of the estimates since the previous pose (25 per
-second of stream time, ``live/estimator.py``; docs/extensions/live-exercise.md), so a
-backlog a kit sends at once after a lost link is counted like a stream in real time.
+Repetitions are counted by the report's own rule (``estimator.metrics.count_repetitions``
+on ``detect_repetitions``' excursions: a full cycle out and back counted once — the elbow
+bent and straightened is one; the palm turned down and up is one, the count going up with
+the first turn of each), on the catalogue's angle for the exercise (``Band.angle``),
+causally: an excursion counts once it is back at rest. So the kit shows the count the
+report and the therapist's live page (``server/live/motion.py``) give. The target band is
+shown, not used for counting (the report counts an excursion short of the target too).
+It is counted on the live estimates: each pose carries the ``trail`` of the estimates
+since the previous pose (25 per second of stream time, ``live/estimator.py``;
+docs/extensions/live-exercise.md), so a backlog a kit sends at once after a lost link is
+counted like a stream in real time.
 
 A count runs from its exercise's mark (``count_from``: the mark's time). A stream resumed
 on the server that kept its live side (``endpoint``'s parked live state) goes on with the
@@ -39,7 +40,7 @@ from typing import Any
 
 import numpy as np
 from armtrack.estimator.arm.joints import REPORTED_ANGLES
-from armtrack.estimator.metrics import detect_repetitions
+from armtrack.estimator.metrics import BOTH_WAYS, Repetition, count_repetitions, detect_repetitions
 
 log = logging.getLogger("armtrack.ingest")
 
@@ -66,16 +67,20 @@ class RepetitionCounter:
     """The report's repetition rule on one exercise's angle since its count began.
 
     ``add`` appends estimates; ``recount`` applies ``detect_repetitions`` to those of the
-    last ``KEEP_S`` seconds or so (older ones, before a repetition already counted, are
-    let go with their count). A repetition counts once its return to rest is seen; the
+    last ``KEEP_S`` seconds or so (older ones, before an excursion already counted, are
+    let go, the excursions found in them kept) and counts the excursions by
+    ``count_repetitions``. A repetition counts once its return to rest is seen; the
     count shown never goes back (a later sample may move the rest level a little)."""
 
     def __init__(self, band: Band):
         self.band = band
         self.count = 0
+        #: on a both-ways angle, the turns the side that leads is ahead by (0: each turn
+        #: has its turn the other way; the count is complete), else 0
+        self.unpaired = 0
         self._t: list[float] = []
         self._deg: list[float] = []
-        self._committed = 0  # repetitions counted on samples already let go
+        self._committed: list[Repetition] = []  # excursions of samples already let go
         self._stale = False
 
     def add(self, t: np.ndarray, deg: np.ndarray) -> None:
@@ -96,7 +101,10 @@ class RepetitionCounter:
         self._stale = False
         t = np.asarray(self._t)
         reps = detect_repetitions(np.deg2rad(np.asarray(self._deg)), t)
-        self.count = max(self.count, self._committed + len(reps))
+        turns = (*self._committed, *reps)
+        both_ways = self.band.angle in BOTH_WAYS
+        self.count = max(self.count, count_repetitions(turns, both_ways))
+        self.unpaired = (abs(sum(r.direction for r in turns)) if both_ways else 0)
         if t[-1] - t[0] < 2 * KEEP_S:
             return self.count
         done = [r for r in reps if r.end_s < t[-1] - KEEP_S]
@@ -104,7 +112,7 @@ class RepetitionCounter:
             # the rest between it and the next (so that the next starts from rest)
             after = reps[len(done)].start_s if len(reps) > len(done) else t[-1] - KEEP_S
             cut = int(np.searchsorted(t, 0.5 * (done[-1].end_s + after)))
-            self._committed += len(done)
+            self._committed.extend(done)
             del self._t[:cut], self._deg[:cut]
         return self.count
 
@@ -227,6 +235,7 @@ class FeedbackTracker:
             "angle_deg": value if value is not None and math.isfinite(value) else None,
             "target": None if band is None else [band.min_deg, band.max_deg],
             "repetitions": 0 if self.counter is None else self.counter.recount(),
+            "unpaired_turns": 0 if self.counter is None else self.counter.unpaired,
             "count_from": self.count_from if self.exercise is not None else None,
             "angles_deg": {k: v for k, v in angles.items() if k in self.measured
                            and v is not None and math.isfinite(v)},

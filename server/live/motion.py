@@ -4,7 +4,8 @@ live page (``GET /api/patients/{id}/live`` → ``exercise``).
 A ``MotionWatch`` per watched patient listens to the live hub's poses (only while a page
 polls that patient: it stops ``IDLE_S`` after the last poll) and keeps the session's
 angles of the last ``BUFFER_S`` seconds. On a poll the repetitions are counted on a
-worker thread with the report's own rules (``estimator.metrics.detect_repetitions``;
+worker thread with the report's own rules (``estimator.metrics.detect_repetitions`` and
+``count_repetitions``;
 without an exercise mark, the report's grouping of detected movements), so the count on
 the live page is the count the report will give:
 
@@ -30,7 +31,7 @@ from typing import Any
 
 import numpy as np
 from armtrack.estimator.arm.joints import REPORTED_ANGLES
-from armtrack.estimator.metrics import detect_repetitions
+from armtrack.estimator.metrics import BOTH_WAYS, count_repetitions, detect_repetitions
 
 from ..programs.catalogue import exercise as catalogue_exercise
 from ..reports.words import exercise_words as words
@@ -175,7 +176,7 @@ def current_exercise(motion: MotionWatch, session_id: int, mark: dict[str, Any] 
                  else mark["name"] if mark["name"] in found else _leading(found))
         return {"name": mark["name"], "label": words(mark["name"]), "source": "marks",
                 "since_s": mark["t"], "angle": angle, "counted_to_s": counted_to,
-                "repetitions": len(found.get(angle, ())) if angle else 0}
+                "repetitions": _count(found, angle)}
     groups = detected_groups({k: v for k, v in found.items() if v})
     if not groups:
         return None
@@ -189,7 +190,12 @@ def current_exercise(motion: MotionWatch, session_id: int, mark: dict[str, Any] 
     angle = _leading({k: in_group[k] for k in moved})
     return {"name": name, "label": words(name), "source": "detected", "since_s": a,
             "angle": angle, "counted_to_s": counted_to,
-            "repetitions": len(in_group[angle]) if angle else 0}
+            "repetitions": _count(in_group, angle)}
+
+
+def _count(found: dict[str, Any], angle: str | None) -> int:
+    """``angle``'s repetitions among its excursions ``found[angle]`` (the report's count)."""
+    return count_repetitions(found.get(angle, ()), angle in BOTH_WAYS) if angle else 0
 
 
 def _leading(found: dict[str, Any]) -> str | None:

@@ -4,7 +4,8 @@ signs), its default target band [deg], the sensor that must be worn to measure i
 sentence for the patient and a picture (the name of a drawing the kit page has).
 
 Programs (``docs/programs.md``) count an exercise's repetitions and take its range on its
-``angle`` only (the report's rule: one excursion from rest and back is one repetition).
+``angle`` only (the report's rule, ``estimator.metrics.count_repetitions``: a full cycle out
+and back, counted once — for ``both_ways`` exercises, a turn to each side).
 A multi-joint exercise names the angle it is counted on: *reach* moves the shoulder and the
 elbow together and is counted on ``shoulder_flexion``, its largest-amplitude angle (the rule
 the report uses to name detected exercises, ``reports/content.py``'s ``detected_groups``).
@@ -26,6 +27,7 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 from armtrack.estimator.arm.coverage import ANGLES_OF_SENSOR, measured_angles
+from armtrack.estimator.metrics import BOTH_WAYS
 
 
 @dataclass(frozen=True)
@@ -36,7 +38,8 @@ class Exercise:
     target band [deg] — from where the movement starts to where it should reach (a
     therapist's target for ``angle`` replaces it). ``sensor``: the segment whose sensor
     measures ``angle`` (``coverage.ANGLES_OF_SENSOR``; the single-sensor kits wear one).
-    ``repetitions``: the default count.
+    ``repetitions``: the default count. ``both_ways`` (from ``angle``): one repetition is a
+    turn to each side of the rest (palm down, then up), not one excursion from rest.
     ``instruction``: one sentence for the patient. ``picture``: a drawing's name.
     """
 
@@ -50,8 +53,12 @@ class Exercise:
     instruction: str
     picture: str
 
+    @property
+    def both_ways(self) -> bool:
+        return self.angle in BOTH_WAYS
+
     def as_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        return {**asdict(self), "both_ways": self.both_ways}
 
 
 CATALOGUE: dict[str, Exercise] = {e.name: e for e in (

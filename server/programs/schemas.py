@@ -25,6 +25,9 @@ class CatalogueOut(BaseModel):
     target_deg: float = Field(description="default target band: where it should reach")
     sensor: str = Field(description="the segment whose sensor measures it")
     repetitions: int = Field(description="the default count")
+    both_ways: bool = Field(False, description=(
+        "one repetition is a turn to each side of the rest (palm down, then up), not one "
+        "excursion from rest and back (docs/programs.md, One repetition)"))
     instruction: str = Field(description="what the patient does, in a sentence")
     picture: str = Field(description="the name of the kit page's drawing")
     measurable: bool | None = Field(None, description=(

@@ -70,7 +70,8 @@ def ready_program(db: DbSession, version: models.ProgramVersion) -> dict[str, An
         exercises.append({
             "name": e.exercise, "title": entry.title, "angle": e.angle,
             "sensor": entry.sensor, "instruction": entry.instruction,
-            "picture": entry.picture, "sets": e.sets, "repetitions": e.repetitions,
+            "picture": entry.picture, "both_ways": entry.both_ways, "sets": e.sets,
+            "repetitions": e.repetitions,
             "hold_s": e.hold_s, "rest_s": e.rest_s, "note": e.note,
             "target": {"min_deg": low, "max_deg": high, "from": source}})
     return {"id": program.id, "name": program.name, "version": version.number,

@@ -14,10 +14,11 @@ percentages [%], smoothness and coefficients of variation dimensionless.
 * **``exercises``.** From ``exercise:<name>`` marks (each mark to its ``end:`` mark, or to
   the next exercise, or to the end); without marks, *detected*: the repetitions of every
   moved angle, grouped by their leading angle and in time (``detected_groups``).
-  Per exercise and angle: repetitions (one excursion from rest and
-  back, ``estimator.metrics.repetitions``), movement time, peak angular velocity, SPARC
-  and LDLJ of each whole repetition, consistency (CV of amplitude and movement time per
-  direction).
+  Per exercise and angle: repetitions (a full cycle out and back counted once,
+  ``estimator.metrics.count_repetitions``: one excursion from rest and back, or on a
+  both-ways angle a turn to each side, ``docs/programs.md``), and per excursion
+  (``details``) movement time, peak angular velocity, SPARC and LDLJ, consistency (CV of
+  amplitude and movement time per direction).
 * **``quality``** (``quality.py``): sensors, sample rates, lost samples, magnetometer
   disturbances, the calibration used, warnings.
 """
@@ -35,10 +36,12 @@ import numpy as np
 from armtrack.estimator.arm.joints import REPORTED_ANGLES
 from armtrack.estimator.errors import EstimatorError
 from armtrack.estimator.metrics import (
+    BOTH_WAYS,
     RangeOfMotion,
     Repetition,
     calibration_exclusion,
     consistency,
+    count_repetitions,
     detect_repetitions,
     percent_of,
     range_of_motion_table,
@@ -114,7 +117,8 @@ class RomEntry(BaseModel):
 
 
 class RepetitionOut(BaseModel):
-    """One repetition: one excursion from rest and back."""
+    """One excursion from rest and back (a repetition, or on a both-ways angle a turn to
+    one side: half of one)."""
 
     start_s: float
     peak_s: float
@@ -141,7 +145,10 @@ class AngleExercise(BaseModel):
     """The repetitions of one angle within one exercise."""
 
     angle: AngleName
-    repetitions: int
+    repetitions: int = Field(
+        description="a full cycle out and back counted once: the excursions (details), or "
+        "on a both-ways angle (forearm_pronation, wrist_flexion, wrist_deviation, "
+        "shoulder_rotation) a turn to each side: the larger of the two directions' counts")
     mean_amplitude_deg: float | None
     mean_movement_time_s: float | None
     peak_velocity_deg_s: float | None = Field(description="largest of the repetitions")
@@ -418,7 +425,7 @@ def angle_exercise(name: str, angle_rad: np.ndarray, t: np.ndarray,
                                        amplitude_cv=finite(c.amplitude_cv, 4),
                                        movement_time_cv=finite(c.movement_time_cv, 4)))
     return AngleExercise(
-        angle=name, repetitions=len(details),
+        angle=name, repetitions=count_repetitions(reps, name in BOTH_WAYS),
         mean_amplitude_deg=mean([d.amplitude_deg for d in details]),
         mean_movement_time_s=mean([d.movement_time_s for d in details]),
         peak_velocity_deg_s=max((d.peak_velocity_deg_s for d in details), default=None),

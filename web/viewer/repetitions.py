@@ -7,7 +7,7 @@ from collections import deque
 from collections.abc import Mapping, Sequence
 
 import numpy as np
-from armtrack.estimator.metrics import Repetition, detect_repetitions
+from armtrack.estimator.metrics import BOTH_WAYS, Repetition, count_repetitions, detect_repetitions
 
 #: Seconds of live poses kept for counting.
 BUFFER_S = 60.0
@@ -17,14 +17,17 @@ RECOUNT_S = 1.0
 
 class RunningRepetitions:
     """Live counts per angle. Poses go into a ``BUFFER_S`` buffer; every ``RECOUNT_S`` the
-    buffer is counted again and each repetition whose peak is newer than the last one
-    counted adds one, so a repetition is counted once even as the buffer slides on."""
+    buffer is counted again and each excursion whose peak is newer than the last one
+    counted is kept, so an excursion is counted once even as the buffer slides on; the
+    count is the report's (``count_repetitions``: on a both-ways angle a turn to each side
+    is one)."""
 
     def __init__(self, names: Sequence[str]):
         self.names = tuple(names)
         self._t: deque[float] = deque()
         self._values: dict[str, deque[float]] = {k: deque() for k in self.names}
         self.counts: dict[str, int] = dict.fromkeys(self.names, 0)
+        self._found: dict[str, list[Repetition]] = {k: [] for k in self.names}
         self._last_peak: dict[str, float] = dict.fromkeys(self.names, -np.inf)
         self._last_count = -np.inf
 
@@ -53,10 +56,13 @@ class RunningRepetitions:
                 continue
             for rep in detect_repetitions(values, t):
                 if rep.peak_s > self._last_peak[k] + 1e-9:
-                    self.counts[k] += 1
+                    self._found[k].append(rep)
                     self._last_peak[k] = rep.peak_s
+            self.counts[k] = count_repetitions(self._found[k], k in BOTH_WAYS)
 
 
 def counted_by(repetitions: Mapping[str, Sequence[Repetition]], t: float) -> dict[str, int]:
-    """Per angle, the repetitions of a stored session ended by time ``t`` [s]."""
-    return {k: sum(1 for r in reps if r.end_s <= t) for k, reps in repetitions.items()}
+    """Per angle, the repetitions of a stored session's excursions ended by time ``t``
+    [s] (``count_repetitions``)."""
+    return {k: count_repetitions([r for r in reps if r.end_s <= t], k in BOTH_WAYS)
+            for k, reps in repetitions.items()}

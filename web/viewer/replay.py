@@ -101,6 +101,8 @@ class ReplayDriver:
         exclude = [(self.t0, data.rom_start_s)] if data.rom_start_s > self.t0 else None
         self.repetitions: dict[str, tuple[Repetition, ...]] = repetitions_by_angle(
             angles, table.t, exclude=exclude)
+        #: the whole session's repetitions per angle (``count_repetitions``)
+        self.totals = counted_by(self.repetitions, math.inf)
         # in words, as the therapist reads them ("12.5 s · Elbow flexion"), not codes
         self._mark_options = {f"{t:.1f} s · {mark_words(label)}": t for t, label in data.marks}
         self._build_controls()
@@ -201,7 +203,7 @@ class ReplayDriver:
             name = exercise_angle(exercise, pose.rom_deg)
             counts = counted_by(self.repetitions, pose.t)
             panels.show_repetitions(name, counts.get(name, 0) if name else 0,
-                                    len(self.repetitions.get(name, ())) if name else None)
+                                    self.totals.get(name) if name else None)
             state = "playing" if self.playing else "paused"
             panels.show_status([
                 f"Replay · session {self.data.session_id} · {state} at {self.speed:g}×",

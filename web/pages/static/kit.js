@@ -32,9 +32,12 @@ const STILL_S = 0.5, STILL_GYRO = 0.25, STILL_ACC = 0.8, HOLD_S = 2.5;
 /** How long "I'm ready" waits for a first motion reading before saying there is none [ms]. */
 const MOTION_WAIT_MS = 8000;
 /** After a set's last repetition the set ends once the angle is back within
- * RETURN_FRACTION of the band from its start and SETTLE_MS has passed (the report counts a
- * repetition from rest and back to rest, so the marked set must hold the return), or after
- * RETURN_WAIT_MS at most. */
+ * RETURN_FRACTION of the band from its start (a both-ways exercise's start is its neutral,
+ * 0°) and SETTLE_MS has passed (the report counts a repetition from rest and back to rest,
+ * so the marked set must hold the return), or after RETURN_WAIT_MS at most. A both-ways
+ * exercise (palm down, then up: docs/programs.md) is counted on its first turn: the set
+ * waits first for the last turn the other way (feedback's unpaired_turns back to 0), at
+ * most RETURN_WAIT_MS. */
 const RETURN_FRACTION = 0.15, SETTLE_MS = 1200, RETURN_WAIT_MS = 7000;
 /** A session kept on the phone whose last reading is older than this [s] when the page
  * opens is not carried on: the page was closed or the battery died, and after so long the
@@ -49,7 +52,7 @@ const FALLBACK_EXERCISES = [
   { name: "elbow_flexion", title: "Bend the elbow", angle: "elbow_flexion", sensor: "forearm", repetitions: 10,
     instruction: "Arm along your side, thumb forward: bend the elbow to bring the hand up toward the shoulder, then straighten it fully.",
     picture: "elbow_flexion", target: { min_deg: 0, max_deg: 120 } },
-  { name: "pronation", title: "Turn the palm", angle: "forearm_pronation", sensor: "forearm", repetitions: 10,
+  { name: "pronation", title: "Turn the palm", angle: "forearm_pronation", sensor: "forearm", repetitions: 10, both_ways: true,
     instruction: "Elbow bent at a right angle by your side: turn the palm down, then up, as far as is comfortable.",
     picture: "pronation", target: { min_deg: -70, max_deg: 70 } },
   { name: "shoulder_flexion", title: "Raise the arm forward", angle: "shoulder_elevation", sensor: "upper_arm", repetitions: 10,
@@ -549,6 +552,7 @@ function exercise(index, set = 0, resumed = false) {
   // across a resumed stream), a new run's count added to what was shown before it
   let run = kept.run, base = kept.run !== undefined ? (kept.runBase || 0) : (kept.reps || 0);
   let done = false, spoken = kept.reps || 0, shown = kept.reps || 0, reachedAt = null, backAt = null;
+  let pairedAt = null;  // a both-ways set: when its last turn had its turn the other way
   // the set's end: the next set after a rest, else well done and how it was
   const after = () => (set + 1 < sets ? restBetweenSets(index, set + 1) : wellDone(index));
   const end = () => {
@@ -586,12 +590,18 @@ function exercise(index, set = 0, resumed = false) {
       if (n >= ex.repetitions) {
         // the last repetition is counted on the way up: the set ends once the arm is back
         // (RETURN_FRACTION, SETTLE_MS above)
-        if (reachedAt === null) {
+        const owed = ex.both_ways && f.unpaired_turns > 0;
+        if (reachedAt === null || (pairedAt === null && !owed)) {
           reachedAt = Date.now();
-          note.textContent = "That's all of them — now back to the start.";
-          say("That's all. Back to the start.");
+          if (!owed) pairedAt = reachedAt;
+          note.textContent = owed ? "Last one: now turn the other way, then back to the start."
+            : "That's all of them — now back to the start.";
+          say(owed ? "Last one. Now the other way." : "That's all. Back to the start.");
         }
-        if (backAt === null && f.angle_deg <= lo + RETURN_FRACTION * (hi - lo)) backAt = Date.now();
+        const back = ex.both_ways ? Math.abs(f.angle_deg) <= RETURN_FRACTION * (hi - lo)
+          : f.angle_deg <= lo + RETURN_FRACTION * (hi - lo);
+        if (owed) backAt = null;
+        else if (backAt === null && back) backAt = Date.now();
         if ((backAt !== null && Date.now() - backAt > SETTLE_MS) || Date.now() - reachedAt > RETURN_WAIT_MS) end();
       }
     } else {
