@@ -77,19 +77,29 @@ const LiveFollow = (() => {
       day: "numeric", timeZone: zone, ...(year(parseMoment(moment)) !== year(Date.now()) ? { year: "numeric" } : {}) });
   }
 
-  // The summaries of the sessions of `day`'s day, oldest first: the API's pages (newest
-  // first) read back until one starts before that day, at most DAY_PAGES of them (a day
-  // weeks ago lies past the newest page: its strip was empty, or missing some).
+  // The summaries of the sessions of `day`'s day, oldest first. The light session list is
+  // read back (newest first, DAY_PAGE at a time, at most DAY_PAGES pages) until it starts
+  // before that day; then the summaries of that stretch of the list only, one either side
+  // (a session begun meanwhile shifts the list by one). Each summary is built from its
+  // session's report: reading back every newer session's (up to 300) to show one day's few
+  // cost the server the reports of them all.
   const DAY_PAGE = 30, DAY_PAGES = 10;
   async function sessionsOfDay(day) {
-    const found = [];
+    let first = null, last = null;  // the day's sessions' places in the list (newest: 0)
     for (let page = 0; page < DAY_PAGES; page += 1) {
-      const some = await api(`/api/patients/${current.patient_id}/summaries?limit=${DAY_PAGE}&offset=${page * DAY_PAGE}`);
-      found.push(...some.filter((s) => sameDay(parseMoment(s.started_at), day)));
+      const some = await api(`/api/patients/${current.patient_id}/sessions?limit=${DAY_PAGE}&offset=${page * DAY_PAGE}`);
+      some.forEach((s, k) => {
+        if (!sameDay(parseMoment(s.started_at), day)) return;
+        if (first === null) first = page * DAY_PAGE + k;
+        last = page * DAY_PAGE + k;
+      });
       const oldest = some.length ? parseMoment(some[some.length - 1].started_at) : null;
       if (some.length < DAY_PAGE || (oldest < day && !sameDay(oldest, day))) break;
     }
-    return found.reverse();
+    if (first === null) return [];
+    const offset = Math.max(0, first - 1);
+    const found = await api(`/api/patients/${current.patient_id}/summaries?limit=${Math.min(200, last + 2 - offset)}&offset=${offset}`);
+    return found.filter((s) => sameDay(parseMoment(s.started_at), day)).reverse();
   }
 
   // The sessions of this session's day (a replay of last Thursday: Thursday's, not today's).
