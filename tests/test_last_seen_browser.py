@@ -95,6 +95,46 @@ def test_an_interrupted_session_is_closed_from_its_own_page(server):
     assert width <= 390
 
 
+def test_an_interrupted_session_with_a_later_one_is_closed_from_its_own_page(server):
+    """Found by a new user: a kit cut off (session A interrupted), then the patient's other
+    kit streamed a whole session (B, closed). A's page, opened from the patient page's
+    list, said "live session A · Interrupted" and "waiting for the first estimate…" for
+    good, without "Close and estimate" (the page followed the patient's live status, which
+    names B), and its "Live 3D arm" showed B's arm and range ("Elbow flexion 0° (0° to
+    120°)") as A's. Now the page says A is interrupted, offers to close it, and shows no
+    other session's arm (chromium, 1280 px)."""
+    api = server.client("alice")
+    patient, _ = broken_off(server, api, "Two Kits")
+    interrupted = api.http.get(f"/api/patients/{patient['id']}/sessions").json()[0]["id"]
+    token = api.device(patient["id"], "the other kit")["token"]
+    subprocess.run(
+        [sys.executable, "-m", "armtrack.server.cli", "stream", "--exercise", "elbow_flexion",
+         "--side", "left", "--url", server.ws_url, "--token", token, "--quiet", "--speed", "0"],
+        check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, timeout=120)
+    later = api.http.get(f"/api/patients/{patient['id']}/sessions").json()[0]["id"]
+    assert later != interrupted
+    api.wait_processed(later, timeout=120)
+    with page_at(1280) as page:
+        sign_in_as(page, server.url, "alice")
+        page.goto(f"{server.url}/sessions/{interrupted}")
+        sync_api.expect(page.locator("#calibration-box")).to_contain_text(
+            "The stream is interrupted", timeout=30_000)
+        sync_api.expect(page.locator("#viewer-frame")).to_have_count(0)
+        sync_api.expect(page.locator("#reload-viewer")).to_be_hidden()
+        # its poses are not known here ("N-pose: not yet" would be untrue)
+        sync_api.expect(page.locator("#calibration-box .steps")).to_be_hidden()
+        viewer = page.locator("#viewer").inner_text()
+        page.screenshot(path=str(server.data_dir / "interrupted-with-a-later-session.png"),
+                        full_page=True)
+        print(f"\nsession {interrupted} (session {later} came after it): the 3D view says "
+              f"{viewer!r}")
+        close = page.locator("#close-session")
+        sync_api.expect(close).to_be_visible()
+        close.click()
+        sync_api.expect(page.get_by_text("Finished", exact=True)).to_be_visible(timeout=120_000)
+    assert api.wait_processed(interrupted, timeout=120)["status"] == "closed"
+
+
 def test_a_stream_sent_faster_than_real_time_was_not_seen_in_the_future(server):
     """A backlog sent at once (``armtrack stream --speed 0``: as fast as it can) and cut
     off: its last sample's stream time lies far past the session's start plus the wall

@@ -219,6 +219,11 @@ async function pollLive() {
   liveStatus = status;
   normals = liveStatus.normal_ranges || normals;
   if (liveStatus.session && liveStatus.session.id === session.id) {
+    if (notTheLatest) {  // its kit came back to it: the live view again
+      notTheLatest = false;
+      document.getElementById("reload-viewer").hidden = false;
+      openViewer("live");
+    }
     if (liveStatus.session.status !== session.status) { session.status = liveStatus.session.status; setStatus(); }
     showStopped(liveStatus.session.stopped_by_server);
     document.getElementById("sensors-card").hidden = false;
@@ -230,7 +235,29 @@ async function pollLive() {
     LiveFollow.newer(liveStatus);
     const fresh = await api(`/api/sessions/${session.id}`);
     if (fresh.status === "closed") finishLive();
+    else if (fresh.status !== "live") interruptedBehindALaterOne(fresh);
   }
+}
+
+/** This session is interrupted (or stopped) and the patient's live status names a later
+ * one of theirs: the live feed has nothing of this session, and the live 3D view shows the
+ * patient's latest session, not this one. The page says it is interrupted and offers to
+ * close it (as when it is the latest), and shows no other session's arm. */
+let notTheLatest = false;
+function interruptedBehindALaterOne(fresh) {
+  if (session.status !== fresh.status) { session.status = fresh.status; setStatus(); }
+  showStopped(fresh.stopped_by_server);
+  renderCalibration({ calibration: null, posesUnknown: true });
+  document.getElementById("pose-age").textContent = "no kit streams into this session";
+  if (notTheLatest) return;
+  notTheLatest = true;
+  clearTimeout(viewerTimer);
+  viewerGrant = null;
+  document.getElementById("viewer-title").textContent = "3D arm";
+  document.getElementById("reload-viewer").hidden = true;  // it would open the latest session's
+  clear(document.getElementById("viewer"), el("div", { class: "placeholder", id: "viewer-not-live" },
+    "This session's kit is not connected, and a later session of the patient came after it. "
+    + "Close this session to estimate what was recorded: its replay opens then."));
 }
 
 // Why a finished session has no calibration pose: the kit skipped them, or (carried-on/1,
@@ -360,6 +387,7 @@ function renderCalibration(live) {
   parts.still.hidden = !s.stillText;
   parts.still.style.color = s.still === false || s.keepHolding ? "var(--warn)" : "var(--good)";
   parts.still.dataset.trunk = s.keepHolding ? "keep-holding" : s.trunkSteady ? "steady" : "";
+  parts.steps.style.display = live.posesUnknown ? "none" : "";  // the live status names another session
   clear(parts.steps, ["npose", "tpose"].map((name) => {
     const p = [...s.poses].reverse().find((q) => q.name === name);
     if (!p) return el("span", { class: "step" }, POSE_NAMES[name] + ": not yet");
