@@ -148,3 +148,31 @@ def test_another_patients_link_does_not_show_the_last_patients_session(server, p
     print("\n" + said)
     phone.screenshot(path=str(shots / "lent-phone.png"))
     assert "7 of 10" not in said and phone.locator("#last-session").count() == 0
+
+
+def test_a_phone_strapped_upside_down_is_told_at_the_arm_down_pose(server, phone, shots):
+    """Found by a new user: the strap screen said "Turn the phone round", but "I'm ready"
+    goes on all the same, and the arm-down pose then said "Get into position…" for good
+    to a patient standing still with the arm hanging (the pose wants the phone's top up):
+    no word of what was wrong. Now the pose says to turn the phone round."""
+    from test_phone_kit_browser import FEEDER, motion_events, phone_simulation
+
+    api = server.client("alice")
+    device = api.device(api.patient("Upside Down")["id"], "phone")
+    # the simulated forearm's first 2 s (arm hanging, still), the phone turned 180° about
+    # its screen's normal: x and y (and their rates) change sign
+    events = [[t, -x, -y, z, alpha, -beta, -gamma]
+              for t, x, y, z, alpha, beta, gamma in motion_events(phone_simulation())[:120]]
+    phone.goto(f"{server.url}/kit#token={device['token']}")
+    phone.click("#start")
+    phone.click("#segment-forearm")
+    phone.click("#ready")
+    phone.evaluate(FEEDER, events)
+    sync_api.expect(phone.locator("h1")).to_have_text("Arm down, hold still")
+    sync_api.expect(phone.locator("#hold")).to_contain_text("Turn the phone round",
+                                                            timeout=10_000)
+    said = phone.locator("#screen").inner_text()
+    print("\n" + said)
+    phone.screenshot(path=str(shots / "upside-down-npose.png"))
+    assert "top toward your elbow" in said
+    fits(phone)

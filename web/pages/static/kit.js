@@ -156,6 +156,7 @@ function still(condition = () => true) {
 }
 const hanging = (ay) => ay > 8.3;          // long axis vertical, top up (arm down)
 const horizontal = (ay) => Math.abs(ay) < 3; // long axis level (arm out to the side)
+const upsideDown = (ay) => ay < -6;         // long axis vertical, top down (as the strap check)
 
 // -- layout -------------------------------------------------------------------------------
 function screen(...children) {
@@ -407,11 +408,18 @@ function calibrationPose(name) {
   screen(el("h1", {}, pose.title), picture(name), el("p", { class: "lead" }, pose.text), count, hint);
   say(pose.text + " Then hold still.");
   let holdStart = null;
+  let toldUpsideDown = false;
   every(100, () => {
     const s = kit.stream;
     if (!still(pose.condition)) {
       if (holdStart !== null) { hint.textContent = "Hold still…"; buzz(80); }
-      else hint.textContent = "Get into position…";
+      else if (name === "npose" && still(upsideDown)) {
+        // the arm hangs still but the phone's top points down: the pose never starts, so
+        // say why (the strap check said so too, but "I'm ready" goes on regardless)
+        const turn = `The phone is upside down. Turn the phone round: its top toward ${TOP_TOWARD[kit.sensor]}.`;
+        hint.textContent = turn;
+        if (!toldUpsideDown) { toldUpsideDown = true; say(turn); }
+      } else hint.textContent = "Get into position…";
       holdStart = null;
       count.textContent = "";
       return;
