@@ -258,25 +258,36 @@ class LoginLimiter:
     with ``Retry-After``), the right password too — else the wait would not slow a
     guesser. The owner of a name under attack thus gets in after at most ``max_delay_s``,
     while a guesser gets about one try per ``max_delay_s``. A success clears the user
-    name's failures.
+    name's failures. An address that signed in to a name within ``known_s`` is not held
+    by that name's wait (its own address's failures still hold it): else a guesser who
+    sends a wrong password the moment each wait ends, polling meanwhile (a 429 costs no
+    guess), keeps the owner out for as long as they go on (nine tries in 130 s, all 429).
 
     Bounded whatever it is sent: a key is a fixed-size hash of the name or address, a key
     keeps at most its last ``free`` + 32 failure times, and the table at most ``max_keys``
-    keys — past that, the key whose last failure is oldest is forgotten first.
+    keys — past that, the key whose last failure is oldest is forgotten first; the
+    addresses known per name are its last ``KNOWN_PER_NAME`` that signed in, for at most
+    ``max_keys`` names.
 
     An attempt is counted as a failure from when it is let through (``reserve``) until its
     password has been checked (``settle``): attempts sent at once would otherwise all pass
     the check before the first had failed (100 at once were 43–49 guesses, not 10). Used
     from the event loop only (no lock)."""
 
+    #: Addresses remembered per user name as having signed in to it.
+    KNOWN_PER_NAME = 8
+
     def __init__(self, free: int, window_s: float, max_delay_s: float = 60.0,
-                 max_keys: int = 100_000):
+                 max_keys: int = 100_000, known_s: float = 30 * 24 * 3600.0):
         self.free = free
         self.window_s = window_s
         self.max_delay_s = max_delay_s
         self.max_keys = max_keys
+        self.known_s = known_s
         self._failures: OrderedDict[str, deque[float]] = OrderedDict()
         self._pending: dict[str, int] = {}  # attempts let through, not yet settled
+        #: name key → address key → when that address last signed in to the name
+        self._known: OrderedDict[str, OrderedDict[str, float]] = OrderedDict()
 
     def _recent(self, key: str, now: float) -> deque[float]:
         times = self._failures.get(key)
@@ -297,11 +308,20 @@ class LoginLimiter:
                        if times else 1.0)
         return times[-1] + min(2.0 ** (beyond - 1), self.max_delay_s) - now
 
+    def _holding(self, keys: list[str], now: float) -> list[str]:
+        """The keys whose waits hold an attempt: all of them, but the user name's
+        (``keys[0]``) for an address (``keys[1]``) that signed in to it within ``known_s``."""
+        if len(keys) > 1:
+            seen = self._known.get(keys[0], {}).get(keys[1])
+            if seen is not None and now - seen < self.known_s:
+                return keys[1:]
+        return keys
+
     def retry_after(self, keys: list[str]) -> int | None:
         """Whole seconds until an attempt is allowed again, or None when it is now."""
         now = time.monotonic()
         wait = max((self._wait(self._recent(key, now), self._pending.get(key, 0), now)
-                    for key in keys), default=0.0)
+                    for key in self._holding(keys, now)), default=0.0)
         return max(1, math.ceil(wait)) if wait > 0 else None
 
     def reserve(self, keys: list[str]) -> int | None:
@@ -323,7 +343,7 @@ class LoginLimiter:
             else:
                 self._pending.pop(key, None)
         if succeeded:
-            self.succeeded(keys[0])
+            self.succeeded(keys)
         elif succeeded is not None:
             self.failed(keys)
 
@@ -339,8 +359,20 @@ class LoginLimiter:
         while len(self._failures) > self.max_keys:
             self._failures.popitem(last=False)
 
-    def succeeded(self, key: str) -> None:
-        self._failures.pop(key, None)
+    def succeeded(self, keys: list[str]) -> None:
+        """The user name (``keys[0]``) signed in: its failures go, and the address
+        (``keys[1]``) is known to it from now on (``known_s``)."""
+        self._failures.pop(keys[0], None)
+        if len(keys) < 2:
+            return
+        known = self._known.pop(keys[0], None) or OrderedDict()
+        known.pop(keys[1], None)
+        known[keys[1]] = time.monotonic()
+        while len(known) > self.KNOWN_PER_NAME:
+            known.popitem(last=False)
+        self._known[keys[0]] = known
+        while len(self._known) > self.max_keys:
+            self._known.popitem(last=False)
 
     def __len__(self) -> int:
         return len(self._failures)

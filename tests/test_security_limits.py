@@ -70,6 +70,45 @@ def test_a_user_name_is_slowed_down_not_locked_out(tmp_path):
         server.stop()
 
 
+def test_a_guesser_racing_the_wait_does_not_lock_the_owner_out_where_they_signed_in(tmp_path):
+    """A user name's wait held its owner too, and a guesser who sends a wrong password the
+    moment each wait ends (polling meanwhile: a 429 costs no guess) gets there first: on a
+    real server (the default settings) the owner, trying again as Retry-After said, was
+    answered 429 nine times in 130 s while the guesser spent 17 guesses. An address that
+    signed in to the name lately is not held by the name's wait (its own failures still
+    count); any other address still is."""
+    server = start(tmp_path, "raced", ARMTRACK_LOGIN_MAX_FAILURES="3")
+    try:
+        assert sign_in(server.url, "alice", PASSWORD, "127.0.0.50").status_code == 200
+        stop, guesses = threading.Event(), []
+
+        def guesser() -> None:  # from elsewhere, a wrong password as soon as it may
+            while not stop.is_set():
+                if sign_in(server.url, "alice", "wrong", "127.0.0.60").status_code == 429:
+                    time.sleep(0.05)
+                else:
+                    guesses.append(time.monotonic())
+
+        thread = threading.Thread(target=guesser, daemon=True)
+        thread.start()
+        try:
+            deadline = time.monotonic() + 60
+            while len(guesses) < 5 and time.monotonic() < deadline:
+                time.sleep(0.1)  # the name now waits 4 s after each guess
+            assert len(guesses) >= 5, guesses
+            elsewhere = sign_in(server.url, "alice", PASSWORD, "127.0.0.51")
+            owner = sign_in(server.url, "alice", PASSWORD, "127.0.0.50")
+            print(f"\nafter {len(guesses)} guesses: a new address {elsewhere.status_code}, "
+                  f"the owner's {owner.status_code} {owner.text[:80]}")
+            assert elsewhere.status_code == 429  # the name is still slowed for the others
+            assert owner.status_code == 200, "the guesser held the owner out"
+        finally:
+            stop.set()
+            thread.join(30)
+    finally:
+        server.stop()
+
+
 def rss_mb(pid: int) -> float:
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():
         if line.startswith("VmRSS:"):
