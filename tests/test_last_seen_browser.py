@@ -135,6 +135,37 @@ def test_an_interrupted_session_with_a_later_one_is_closed_from_its_own_page(ser
     assert api.wait_processed(interrupted, timeout=120)["status"] == "closed"
 
 
+def test_the_days_strip_says_interrupted_once_the_kit_is_gone(server):
+    """Found by a new user: with the live page open, the kit cut off: the page's badge and
+    box said "Interrupted" / "The stream is interrupted", but its day's strip still said
+    "14:44 · live now" for this very session (read once, when the page opened)."""
+    api = server.client("alice")
+    patient = api.patient("Strip Watcher", side="left")
+    token = api.device(patient["id"], "kit")["token"]
+    kit = subprocess.Popen(
+        [sys.executable, "-m", "armtrack.server.cli", "stream", "--exercise", "elbow_flexion",
+         "--side", "left", "--url", server.ws_url, "--token", token, "--quiet"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 60
+        while not (sessions := api.http.get(f"/api/patients/{patient['id']}/sessions").json()):
+            assert time.monotonic() < deadline, "the kit streamed nothing"
+            time.sleep(0.2)
+        with page_at(1280) as page:
+            sign_in_as(page, server.url, "alice")
+            page.goto(f"{server.url}/sessions/{sessions[0]['id']}")
+            chip = page.locator(".day-session.current")
+            sync_api.expect(chip).to_contain_text("live now", timeout=30_000)
+            kit.send_signal(signal.SIGKILL)
+            sync_api.expect(page.locator("#calibration-box")).to_contain_text(
+                "The stream is interrupted", timeout=60_000)
+            sync_api.expect(chip).to_contain_text("interrupted", timeout=10_000)
+            print(f"\nthe strip after the kit was cut off: {chip.inner_text()!r}")
+    finally:
+        kit.kill()
+        kit.wait()
+
+
 def test_a_stream_sent_faster_than_real_time_was_not_seen_in_the_future(server):
     """A backlog sent at once (``armtrack stream --speed 0``: as fast as it can) and cut
     off: its last sample's stream time lies far past the session's start plus the wall

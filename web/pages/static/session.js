@@ -188,8 +188,7 @@ function connectLive() {
       lastPose = update;
       poseDirty = true;
     } else if (update.kind === "session" && update.session_id === session.id) {
-      session.status = update.status;
-      setStatus();
+      statusChanged(update.status);
       if (update.status === "closed") finishLive();
     } else if (update.kind === "error") {
       showError(document.getElementById("angles-card"), update.reason);
@@ -224,7 +223,7 @@ async function pollLive() {
       document.getElementById("reload-viewer").hidden = false;
       openViewer("live");
     }
-    if (liveStatus.session.status !== session.status) { session.status = liveStatus.session.status; setStatus(); }
+    if (liveStatus.session.status !== session.status) statusChanged(liveStatus.session.status);
     showStopped(liveStatus.session.stopped_by_server);
     document.getElementById("sensors-card").hidden = false;
     clear(document.getElementById("sensors"), storageNote(liveStatus), sensorTable(liveStatus));
@@ -245,7 +244,7 @@ async function pollLive() {
  * close it (as when it is the latest), and shows no other session's arm. */
 let notTheLatest = false;
 function interruptedBehindALaterOne(fresh) {
-  if (session.status !== fresh.status) { session.status = fresh.status; setStatus(); }
+  if (session.status !== fresh.status) statusChanged(fresh.status);
   showStopped(fresh.stopped_by_server);
   renderCalibration({ calibration: null, posesUnknown: true });
   document.getElementById("pose-age").textContent = "no kit streams into this session";
@@ -612,6 +611,14 @@ function showStopped(stop) {
 }
 
 // ---------------------------------------------------------------- start
+/** The session turned live, interrupted or closed while the page is open: its badge, and
+ * the day's strip, which names each session's state ("live now", "interrupted"). */
+function statusChanged(status) {
+  session.status = status;
+  setStatus();
+  LiveFollow.history().catch(() => {});
+}
+
 function setStatus() {
   const actions = document.getElementById("actions");
   clear(actions, statusBadge(session.status));
