@@ -74,7 +74,9 @@ class Calibration:
     ``Rz(heading) · R_world_sensor · R_sensor_segment`` (``segment_kernel``).
     ``lean_sd_deg``: how well the thorax's upright is known through a trunk's sway, one σ
     of its side lean (about the thorax's X) and forward lean (about its Z) [deg]; None
-    when the upright is not the sway's centre (no trunk sensor, no poses)."""
+    when the upright is not the sway's centre (no trunk sensor, no poses);
+    ``lean_basis``: what that σ was made of (``LeanBasis``), for the session to tell it
+    again from how the trunk sways through it (``sway.retold_lean``)."""
 
     method: str
     final_time_s: float
@@ -83,6 +85,37 @@ class Calibration:
     R_world_thorax: np.ndarray
     warnings: tuple[CalibrationWarning, ...]
     lean_sd_deg: tuple[float, float] | None = None
+    lean_basis: LeanBasis | None = None
+
+
+@dataclass(frozen=True)
+class LeanBasis:
+    """How the calibration's thorax upright was taken through a trunk's sway: the poses'
+    span ``start``…``end`` [s] the sway's centre was fitted over (``_sway_centre``), the
+    thorax's ``lateral`` (Z) and ``forward`` (X) axes in the trunk sensor's frame (unit),
+    that centre's error covariance ``up_covariance`` [rad², sensor frame], the share
+    ``axis_weight`` of its forward part the abduction axis replaced and that axis's
+    variance ``axis_var`` [rad²], and ``nine_axis`` (the warning's level)."""
+
+    start: float
+    end: float
+    lateral: np.ndarray
+    forward: np.ndarray
+    up_covariance: np.ndarray
+    axis_weight: float
+    axis_var: float
+    nine_axis: bool
+
+    def lean_sd_deg(self, side_scale: float = 1.0, forward_scale: float = 1.0
+                    ) -> tuple[float, float]:
+        """One σ of the side and forward lean [deg], the centre's variance along each
+        axis scaled by ``side_scale`` and ``forward_scale`` (what a session showed of the
+        sway's centre against what its model told, ``sway.retold_lean``; 1: as told)."""
+        side_var = side_scale * float(self.lateral @ self.up_covariance @ self.lateral)
+        forward_var = ((1.0 - self.axis_weight) ** 2 * forward_scale
+                       * float(self.forward @ self.up_covariance @ self.forward)
+                       + self.axis_weight**2 * self.axis_var)
+        return float(np.rad2deg(np.sqrt(side_var))), float(np.rad2deg(np.sqrt(forward_var)))
 
 
 def _up(acc: np.ndarray) -> np.ndarray:
@@ -521,7 +554,7 @@ SWAY_BAND_HZ = (0.05, 0.5)
 #: the flat band under-told it (random sway, 9-axis, 3-s N-pose, side lean's mean
 #: normalised squared error 2.87 on seeds 1–10 and 21–60, 3.58 held out on 11–20); pink
 #: (1) 1.03 / 1.28 (bench/README.md). A sway that is one or a few sines at 0.1–0.2 Hz is
-#: over-told by it (0.1–0.5).
+#: over-told by it (0.1–0.5), until the session tells it again (``sway.retold_lean``).
 SWAY_ERROR_SLOPE = 1.0
 #: The blocks the trunk's up direction is averaged over before the fit [s], and the noise
 #: left in a block's mean, as a fraction of the sway's σ.
@@ -779,22 +812,22 @@ def calibrate(tracks: Mapping[str, SensorTrack], plan: CalibrationPlan, side: Si
         R_sensor_segment["trunk"] = R_sensor_segment["trunk"] @ Rotation.from_rotvec(
             [0.0, turn, 0.0]).as_matrix()
         heading["trunk"] = headings["trunk"]
-    lean_sd_deg = None
+    lean_sd_deg, basis = None, None
     if sway_corrected:
         # the thorax's X (forward) and Z (lateral) in the trunk sensor's frame: a side lean
         # (about X) moves the upright along Z, a forward lean (about Z) along X; the axis
         # correction replaced the share ``weight`` of the forward part by the axis's own
-        forward, lateral = R_sensor_segment["trunk"][:, 0], R_sensor_segment["trunk"][:, 2]
-        side_var = float(lateral @ up_covariance @ lateral)
-        forward_var = ((1.0 - weight) ** 2 * float(forward @ up_covariance @ forward)
-                       + weight**2 * AXIS_SIGMA_RAD[nine_axis]**2)
-        lean_sd_deg = (float(np.rad2deg(np.sqrt(side_var))),
-                       float(np.rad2deg(np.sqrt(forward_var))))
+        basis = LeanBasis(start=float(t_trunk[a]), end=float(t_trunk[b - 1]),
+                          lateral=R_sensor_segment["trunk"][:, 2].copy(),
+                          forward=R_sensor_segment["trunk"][:, 0].copy(),
+                          up_covariance=up_covariance, axis_weight=float(weight),
+                          axis_var=float(AXIS_SIGMA_RAD[nine_axis]**2), nine_axis=nine_axis)
+        lean_sd_deg = basis.lean_sd_deg()
         if (warning := trunk_sway_warning(*lean_sd_deg, nine_axis)) is not None:
             warnings.append(warning)
     return Calibration(method=method, final_time_s=final_time_s,
                        R_sensor_segment=R_sensor_segment, heading=heading,
                        R_world_thorax=R_world_thorax, warnings=tuple(warnings),
-                       lean_sd_deg=lean_sd_deg)
+                       lean_sd_deg=lean_sd_deg, lean_basis=basis)
 
 

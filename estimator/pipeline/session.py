@@ -34,6 +34,7 @@ from .drift import taken_at
 from .estimates import REFERENCE_ORDER, EstimateArrays, Estimates
 from .magnetic import disagreeing_sensors, disagreement_warning
 from .segment_kernel import segment_orientations
+from .sway import SwayBlocks, retold_lean
 from .tracks import SensorTrack
 from .wrist_points import MAX_POINTS_LAG_S, GammaElbow, WristTrack
 
@@ -93,6 +94,9 @@ class Pipeline:
         self._constraints: dict[str, HeadingConstraint] = {}
         self._mean_heading = False  # see ``_apply_constraints``
         self._turned: dict[int, np.ndarray] = {}  # segment → angle turned so far [rad]
+        # the trunk's up direction over the session, to tell the lean's σ again at the
+        # end (``sway.retold_lean``)
+        self._sway = SwayBlocks() if "trunk" in config.sensors else None
         # wrist points (a robot's handle, a camera) and an upper-arm IMU: the γ elbow
         self._wrist: WristTrack | None = None
         self.gamma: GammaElbow | None = None
@@ -129,6 +133,9 @@ class Pipeline:
             raise InvalidArgument(f"sensor {sensor!r} is not in this session "
                                   f"({', '.join(self._tracks)})")
         self._tracks[sensor].append(t, acc, gyr, mag)
+        if sensor == "trunk" and self._sway is not None:
+            self._sway.add(np.column_stack([np.asarray(t, dtype=np.float64),
+                                            np.asarray(acc, dtype=np.float64)]))
 
     def feed_rows(self, sensor: str, rows: np.ndarray) -> None:
         """``feed`` of stream rows (n, 10) float64 ``[t, ax, ay, az, gx, gy, gz, mx, my,
@@ -141,6 +148,8 @@ class Pipeline:
             raise InvalidArgument(f"sensor {sensor!r} is not in this session "
                                   f"({', '.join(self._tracks)})")
         track.append_rows(rows)
+        if sensor == "trunk" and self._sway is not None:
+            self._sway.add(rows)
 
     def learnt_biases(self) -> dict[str, LearntGyroBias]:
         """Each sensor's gyroscope bias after its last sample and how it was learnt (see
@@ -184,9 +193,14 @@ class Pipeline:
         return self._estimate(final=False)
 
     def finish(self) -> Estimates:
-        """The end of the stream: calibrate if not yet done, and estimate the rest."""
+        """The end of the stream: calibrate if not yet done, and estimate the rest; the
+        calibration's lean σ and its warning are then told again by how the trunk swayed
+        through the session (``sway.retold_lean``)."""
         self._finished = True
-        return self._advance(final=True)
+        estimates = self._advance(final=True)
+        if self.calibration is not None and self._sway is not None:
+            self.calibration = retold_lean(self.calibration, *self._sway.blocks())
+        return estimates
 
     # -- internals ---------------------------------------------------------------------
     def _plan(self) -> CalibrationPlan:
