@@ -91,7 +91,8 @@ def test_a_duration_reads_as_the_pages_read_it():
     from armtrack.server.reports.words import duration_words
 
     pages = {0.4: "0 s", 35.2: "35 s", 40.5: "41 s", 59.5: "1 min 00 s",
-             62.5: "1 min 03 s", 125.0: "2 min 05 s"}
+             62.5: "1 min 03 s", 125.0: "2 min 05 s", 3599.4: "59 min 59 s",
+             3599.5: "1 h 00 min", 3917.0: "1 h 05 min", 72055.5: "20 h 00 min"}
     said = {seconds: duration_words(seconds) for seconds in pages}
     print(said)
     assert said == pages

@@ -57,3 +57,45 @@ def test_sessions_of_the_same_minute_are_told_apart(module_server, width, tmp_pa
     assert re.search(r"\b0?1:42:05\b|\b13:42:05\b", dates[1]), dates
     assert dates[0] != dates[1]
     assert re.search(r"\b0?9:15\b", dates[2]) and ":30" not in dates[2], dates
+
+
+def test_a_session_over_an_hour_reads_in_hours(module_server, tmp_path):
+    """Found by a new user: a phone session that lasted 20 h read "1200 min 56 s" in the
+    patient's session list (and the PDF says durations alike): minutes past the hour,
+    which the therapist must divide. A session may last hours (ARMTRACK_MAX_SESSION_SAMPLES:
+    ~9 h of a phone). Here an upload whose last second comes 65 min after the rest (a kit
+    left on): its row and its PDF say "1 h 05 min", to the minute."""
+    import subprocess
+
+    api = module_server.client("alice")
+    patient = api.patient("Long Session")
+    text = format_recording(simulate(SimulationConfig(rate_hz=25.0, repetitions=1,
+                                                      seed=6)).recording).decode()
+    lines = text.splitlines()
+    first_row = next(i for i, line in enumerate(lines) if line[:1].isdigit())
+    t_end = float(lines[-1].split(",")[0])
+    late = [i for i in range(first_row, len(lines)) if float(lines[i].split(",")[0]) > t_end - 1]
+    for i in late:  # the last second, 65 min later: the session spans 1 h 05 min and more
+        t, rest = lines[i].split(",", 1)
+        lines[i] = f"{float(t) + 3900:.4f},{rest}"
+    answer = api.http.post("/api/recordings", data={"patient_id": patient["id"]},
+                           files={"file": ("long.csv", ("\n".join(lines) + "\n").encode())})
+    assert answer.status_code == 201, answer.text
+    session = api.wait_processed(answer.json()["id"], timeout=120)
+    with page_at(1280) as page:
+        sign_in_as(page, module_server.url, "alice")
+        page.goto(f"{module_server.url}/patients/{patient['id']}")
+        row = page.locator("#sessions tbody tr").first
+        sync_api.expect(row).to_contain_text("Finished", timeout=30_000)
+        shown = row.inner_text()
+        page.screenshot(path=str(tmp_path / "long-session.png"))
+    pdf = tmp_path / "long.pdf"
+    pdf.write_bytes(api.http.get(f"/api/sessions/{session['id']}/report.pdf").content)
+    first = subprocess.run(["pdftotext", "-l", "1", str(pdf), "-"], capture_output=True,
+                           text=True, check=True).stdout
+    seconds = round(api.http.get(f"/api/sessions/{session['id']}/summary").json()["duration_s"])
+    words = f"{seconds // 3600} h {seconds % 3600 // 60:02d} min"  # 1 h 05 min
+    print(f"\n{seconds} s; the row: {shown!r}; the PDF's session line: "
+          f"{next(line for line in first.splitlines() if 'min' in line)!r}")
+    assert words in shown
+    assert words in first

@@ -44,9 +44,12 @@ def mark_words(label: str) -> str:
 
 def duration_words(seconds: float) -> str:
     """A duration [s] as the pages say it (``fmtDuration`` in web/pages/static/app.js):
-    "35 s", "2 min 05 s" — not "0.6 min", which a reader must convert. A half rounds up
-    (``Math.round``), not to even as Python's ``round``."""
+    "35 s", "2 min 05 s" — not "0.6 min", which a reader must convert — and from an hour
+    on "1 h 05 min", to the minute (not "65 min 17 s"). A half rounds up (``Math.round``),
+    not to even as Python's ``round``."""
     whole = math.floor(seconds + 0.5)
+    if whole >= 3600:
+        return f"{whole // 3600} h {whole % 3600 // 60:02d} min"
     return f"{whole // 60} min {whole % 60:02d} s" if whole >= 60 else f"{whole} s"
 
 

@@ -228,10 +228,13 @@ function todayIso() {
   return `${d.getFullYear()}-${String(d.getMonth() + 1).padStart(2, "0")}-${String(d.getDate()).padStart(2, "0")}`;
 }
 
+// A duration [s]: "35 s", "2 min 05 s", and from an hour on "1 h 05 min" (to the minute:
+// "65 min 17 s" had the reader divide). server/reports/words.py duration_words says it alike.
 function fmtDuration(seconds) {
   if (seconds === null || seconds === undefined) return "—";
   const s = Math.round(seconds);
   const m = Math.floor(s / 60);
+  if (m >= 60) return `${Math.floor(m / 60)} h ${String(m % 60).padStart(2, "0")} min`;
   return m ? `${m} min ${String(s % 60).padStart(2, "0")} s` : `${s} s`;
 }
 
