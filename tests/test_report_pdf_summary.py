@@ -96,3 +96,29 @@ def test_a_duration_reads_as_the_pages_read_it():
     said = {seconds: duration_words(seconds) for seconds in pages}
     print(said)
     assert said == pages
+
+
+def test_the_summary_names_the_kit_as_the_therapist_did(clinic):
+    """Found by a new user: a session streamed by the kit the therapist named "kit H2" read
+    "Arm and kit: right arm · kit kit H2" (and "kit Ada's phone" for a phone): the word
+    "kit" was put before whatever name it had. The row says the arm, then the kit's name."""
+    import sys
+
+    if shutil.which("pdftotext") is None:
+        pytest.skip("pdftotext (Debian poppler-utils) is missing")
+    alice = clinic.client("alice")
+    patient = alice.patient("Named Kit")
+    token = alice.device(patient["id"], "kit H2")["token"]
+    subprocess.run(
+        [sys.executable, "-m", "armtrack.server.cli", "stream", "--exercise", "elbow_flexion",
+         "--url", clinic.ws_url, "--token", token, "--quiet", "--speed", "0"],
+        check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, timeout=120)
+    session = alice.http.get(f"/api/patients/{patient['id']}/sessions").json()[0]
+    alice.wait_processed(session["id"], timeout=120)
+    answer = alice.http.get(f"/api/sessions/{session['id']}/report.pdf")
+    assert answer.status_code == 200, answer.text[:300]
+    first = subprocess.run(["pdftotext", "-f", "1", "-l", "1", "-", "-"], input=answer.content,
+                           capture_output=True, check=True).stdout.decode()
+    line = next(x for x in first.splitlines() if "right arm" in x)
+    print(f"\nthe summary's arm and kit: {line!r}")
+    assert "right arm · kit H2" in line and "kit kit" not in first

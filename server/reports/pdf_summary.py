@@ -167,7 +167,8 @@ def summary_page(fig: Figure, report: SessionReport, letterhead: Letterhead,
         ("Date of birth", day_words(lh.date_of_birth) if lh.date_of_birth else "–"),
         # two lines: with "(uploaded; recording time unknown)" one ran past the frame
         ("Session", f"{when}{dated} · {duration_words(s.duration_s)}"),
-        ("Arm and kit", f"{s.side} arm · " + (f"kit {s.kit}" if s.kit else "uploaded file")),
+        # the kit as the therapist named it ("Ada's phone", "kit H2"), not "kit kit H2"
+        ("Arm and kit", f"{s.side} arm · " + (s.kit if s.kit else "uploaded file")),
     ]
     if lh.program:
         rows.append(("Program", lh.program))
