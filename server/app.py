@@ -17,7 +17,7 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import JSONResponse
-from sqlalchemy.exc import OperationalError
+from sqlalchemy.exc import OperationalError, ProgrammingError
 
 from . import heap
 from .api import (
@@ -36,10 +36,10 @@ from .api import (
 )
 from .api.erase import erase_expired
 from .audit import AuditMiddleware
-from .db.errors import told
+from .db.errors import lacks_schema, told
 from .ingest import endpoint
 from .live import endpoint as live_endpoint
-from .plain_text import database_unavailable, validation_error
+from .plain_text import database_failed, validation_error
 from .security import BodyLimit, SecurityHeaders, UntrustedProxyNotice, UploadGate
 from .services import Services
 from .settings import Settings
@@ -107,7 +107,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                   "(docs/spec/api.md). "
                   "armtrack supports therapy; it is not a diagnostic device.")
     app.add_exception_handler(RequestValidationError, validation_error)
-    app.add_exception_handler(OperationalError, database_unavailable)
+    app.add_exception_handler(OperationalError, database_failed)
+    app.add_exception_handler(ProgrammingError, database_failed)
     app.include_router(auth_routes.router)
     app.include_router(patients.router)
     app.include_router(device.router)
@@ -141,9 +142,22 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     def health(request: Request) -> JSONResponse:
         """200 ``ok``; 503 while what kits send cannot be stored (a full disk, a locked
         database): the clinic's monitoring sees it, with the database's words for a full
-        disk or a lock (``db.errors.told``), the kind of failure for others."""
+        disk or a lock (``db.errors.told``), the kind of failure for others; 503
+        ``database not upgraded`` once a request or a kit's write met a table or column
+        not there and while the database is not at this armtrack's schema
+        (``Services.schema_problem``): what to run, which waiting will not replace. No
+        path or host is named."""
         services = getattr(request.app.state, "services", None)
-        failing = services.writer.failing if services is not None else None
+        if services is None:
+            return JSONResponse({"status": "ok"})
+        failing = services.writer.failing
+        check = getattr(services, "schema_problem", None)
+        if check is not None and failing is not None and lacks_schema(str(failing["reason"])):
+            services.schema_suspect()  # a kit's write met a table or column not there
+        schema = check() if check is not None else None
+        if schema is not None:
+            return JSONResponse({"status": "database not upgraded", "detail": schema},
+                                status_code=503)
         if failing is None:
             return JSONResponse({"status": "ok"})
         since = datetime.fromtimestamp(failing["since"], UTC).isoformat(timespec="seconds")

@@ -18,8 +18,9 @@ from typing import Annotated
 from fastapi.encoders import jsonable_encoder
 from fastapi.responses import JSONResponse
 from pydantic import AfterValidator
+from sqlalchemy.exc import OperationalError
 
-from .db.errors import told_words
+from .db.errors import NOT_UPGRADED, database_words, lacks_schema, told_words
 
 log = logging.getLogger("armtrack")
 
@@ -127,6 +128,28 @@ async def validation_error(request, exc) -> JSONResponse:
     return JSONResponse(status_code=422,
                         # again after the encoder: an error's context it wrote as text
                         content={"detail": printable(jsonable_encoder(printable(errors)))})
+
+
+async def database_failed(request, exc) -> JSONResponse:
+    """A request the database could not serve (SQLAlchemy's ``OperationalError`` or
+    ``ProgrammingError``). A table or column not there (SQLite's "no such table", PostgreSQL's
+    'column … does not exist': a database of another armtrack version, not upgraded):
+    500 saying what to run (``NOT_UPGRADED``), since waiting will not mend it; any other
+    ``OperationalError``: 503 "try again" (``database_unavailable``); any other
+    ``ProgrammingError``: the server's fault, a plain 500 with its traceback in the log."""
+    words = database_words(exc)
+    if lacks_schema(words):
+        log.error("%s %s: the database lacks what this armtrack needs (not upgraded?): %s",
+                  request.method, request.url.path, words)
+        services = getattr(getattr(getattr(request, "app", None), "state", None),
+                           "services", None)
+        if services is not None:  # /healthz asks the database again
+            services.schema_suspect()
+        return JSONResponse(status_code=500, content={
+            "detail": f"The server cannot serve this: {NOT_UPGRADED}."})
+    if not isinstance(exc, OperationalError):
+        raise exc
+    return await database_unavailable(request, exc)
 
 
 async def database_unavailable(request, exc) -> JSONResponse:

@@ -6,6 +6,9 @@ from __future__ import annotations
 
 import asyncio
 import contextvars
+import logging
+import math
+import time
 from collections.abc import Awaitable, Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -17,7 +20,8 @@ from sqlalchemy import update
 
 from .db import models
 from .db.engine import make_engine, make_sessionmaker
-from .db.migrate import upgrade
+from .db.errors import NOT_UPGRADED
+from .db.migrate import schema_words, upgrade
 from .export_turns import FairTurns
 from .ingest.budget import KitBudget, SharedBudget, follow_loop
 from .ingest.writer import GroupWriter, StreamState
@@ -47,6 +51,13 @@ PASSWORD_THREADS = 2
 PASSWORD_WAITING_MAX = 128
 #: Session exports that hold a whole session in memory, at once (``Services.run_export``).
 EXPORTS_AT_ONCE = 2
+#: /healthz asks the database its schema at most this often [s] (a query), once a table
+#: or column was found missing; a database at the schema that lacks one is said so for
+#: SCHEMA_SUSPECT_S [s] after the last such error
+SCHEMA_CHECK_S = 5.0
+SCHEMA_SUSPECT_S = 60.0
+
+log = logging.getLogger("armtrack.server")
 
 
 class ExportUnwanted(Exception):
@@ -80,6 +91,10 @@ class Services:
         #: the loopback viser server and its one-time viewer grants (web/viewer)
         self.viewer = ViewerHost(self, settings.viewer_port, settings.viewer_grant_s)
         self.writer = GroupWriter(self.engine, settings.ack_interval_s)
+        #: (monotonic time [s], words) of the last schema check (``schema_problem``), and
+        #: when a table or column was last found missing (None: never)
+        self._schema_checked: tuple[float, str | None] = (-math.inf, None)
+        self._schema_suspect_at: float | None = None
         #: short database reads and writes of the async side
         self.db_pool = ThreadPoolExecutor(4, thread_name_prefix="armtrack-db")
         #: CPU work of the async side (the kits' feedback recounts): off the event loop,
@@ -140,6 +155,37 @@ class Services:
         self.feed_slots = FeedSlots(settings.max_live_feeds_per_user)
         self._access_task: asyncio.Task | None = None
         self._budget_task: asyncio.Task | None = None
+
+    def schema_problem(self) -> str | None:
+        """What is wrong with the database's schema and what to run (``/healthz``), or
+        None. Asked of the database (``db.migrate.schema_words``, at most every
+        ``SCHEMA_CHECK_S``) only once a request or a kit's write met a table or column not
+        there (``schema_suspect``): no query for a healthy server's every probe. A
+        database at this armtrack's schema that still lacks one (a damaged or foreign
+        file) is said in ``NOT_UPGRADED``'s words for ``SCHEMA_SUSPECT_S`` after the last
+        such error. None while it cannot be asked (a lock, a server out of reach)."""
+        if self._schema_suspect_at is None:
+            return None
+        now = time.monotonic()
+        if now - self._schema_checked[0] >= SCHEMA_CHECK_S:
+            try:
+                found = schema_words(self.engine)
+            except Exception as exc:  # not this check's to say: the writer's failure is
+                log.debug("schema check: %s", exc)
+                found = None
+            self._schema_checked = (now, found)
+        found = self._schema_checked[1]
+        if found is None and now - self._schema_suspect_at < SCHEMA_SUSPECT_S:
+            return NOT_UPGRADED.removeprefix("its ")
+        if found is None:
+            self._schema_suspect_at = None
+        return found
+
+    def schema_suspect(self) -> None:
+        """A request or a kit's write met a table or column not there: ``schema_problem``
+        asks the database (again, not its answer of up to ``SCHEMA_CHECK_S`` ago)."""
+        self._schema_suspect_at = time.monotonic()
+        self._schema_checked = (-math.inf, None)
 
     def migrate(self) -> None:
         """Bring the schema to the newest version, and mark sessions left live by a

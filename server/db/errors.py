@@ -1,5 +1,10 @@
 """The database's errors said in words (light: no sqlalchemy import): the command line's
-:class:`SchemaError`, and :func:`database_words` for what the database itself said."""
+:class:`SchemaError`, :func:`database_words` for what the database itself said, and which
+of its failures waiting mends (a lock, a full disk, a server out of reach: "try again")
+and which it does not (:func:`lacks_schema`: a table or column this armtrack needs is
+not there — a database of another armtrack version, not upgraded: what to run)."""
+
+import re
 
 
 class SchemaError(Exception):
@@ -36,3 +41,25 @@ def told(words: str) -> str:
     if "connect" in words.lower():
         return "it cannot reach its database"
     return "its database failed"
+
+
+#: What SQLite and PostgreSQL say when a table or column is not there: "no such table:
+#: x", "no such column: x.y", "table x has no column named y"; 'relation "x" does not
+#: exist', 'column x.y does not exist', 'column "y" of relation "x" does not exist'.
+_LACKING = re.compile(r"no such (table|column)\b|has no column named|"
+                      r"\b(relation|column) \S+ (of relation \S+ )?does not exist")
+
+#: What an answer says of a database that lacks what this armtrack needs, and what to
+#: run: no table, column, statement, path or host is named (anyone may have asked).
+NOT_UPGRADED = (
+    "its database lacks a table or column this version of armtrack needs: it was made or "
+    "restored by another version and not upgraded. Waiting will not mend this: the "
+    "clinic's IT should stop armtrack and start it again with `armtrack serve`, which "
+    "upgrades the database as it starts or says why it cannot (docs/operator.md, "
+    "Upgrading)")
+
+
+def lacks_schema(words: str) -> bool:
+    """Whether the database's ``words`` (``database_words``) say a table or column is not
+    there: waiting does not mend it, an upgrade does."""
+    return _LACKING.search(words) is not None

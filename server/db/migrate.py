@@ -96,6 +96,26 @@ def current_revision(engine: Engine) -> str | None:
         return connection.execute(text("SELECT version_num FROM alembic_version")).scalar()
 
 
+def schema_words(engine: Engine) -> str | None:
+    """None when the database is at this armtrack's schema (or that cannot be told: the
+    migration files unreadable); else what is wrong and what to run, in words for the
+    clinic's IT that name no path or host (``/healthz``). A query; raises what the
+    database raises (a lock, a server out of reach)."""
+    head = head_revision()
+    at = current_revision(engine)
+    if head is None or at == head:
+        return None
+    known = _revisions()
+    if at is not None and known is not None and at not in known:
+        return (f"the database is at schema {at}, which a newer armtrack made; this one's is "
+                f"{head}. Run the armtrack that upgraded it, or restore the backup taken "
+                f"before the upgrade (docs/operator.md, Upgrading)")
+    return (f"the database is at schema {at or 'none'}, an older armtrack's, and was not "
+            f"upgraded; this one's is {head}. Stop armtrack and start it again with "
+            f"`armtrack serve`, which upgrades the database as it starts "
+            f"(docs/operator.md, Upgrading)")
+
+
 def ensure_current(engine: Engine) -> bool:
     """Migrate the database to the newest schema if it is not there; True if it migrated."""
     head = head_revision()
