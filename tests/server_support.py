@@ -244,6 +244,8 @@ class Api:
 
 _ZYGOTE = r"""
 import json, os, signal, sys
+from armtrack.server.cpu_threads import one_blas_thread
+one_blas_thread()  # as `armtrack serve` does, before numpy is loaded (forks inherit it)
 import armtrack.server.app  # noqa: F401  (the slow imports, done once)
 import armtrack.server.commands.serve  # noqa: F401
 from armtrack.server.cli import main

@@ -266,6 +266,10 @@ Ctrl-C stops.
 def run(args: argparse.Namespace) -> int:
     import asyncio
 
+    from armtrack.server.cpu_threads import one_blas_thread
+
+    one_blas_thread()  # a server too: before numpy's first import (as `serve`)
+
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(name)s %(message)s")
     try:
         code = asyncio.run(_main(args))

@@ -135,6 +135,9 @@ def demo_account_present(settings) -> bool:
 def run(args: argparse.Namespace) -> int:
     import sys
 
+    from armtrack.server.cpu_threads import one_blas_thread
+
+    one_blas_thread()  # before numpy's first import (docs/operator.md#cpu-threads)
     import uvicorn
     from armtrack.server.app import create_app
     from armtrack.server.security import trusted_proxies, unsafe_settings
