@@ -30,8 +30,12 @@ server = restart_test.server  # a real server per test (killed and started again
 pytestmark = pytest.mark.slow
 
 #: Moves the kept session's start back by ``shift`` seconds (as if it had been recorded
-#: that long ago), run on a page of the kit's origin that is not the kit.
-AGE_THE_KEPT_SESSION = """async (shift) => {
+#: that long ago), run on a page of the kit's origin that is not the kit. With ``asleep``,
+#: only its session clock (startEpoch + t) moves, not the wall-clock time of its last
+#: reading: what a phone's sleep does (``performance.now()`` does not tick while a phone
+#: sleeps, MDN "Ticking during sleep": only Windows' browsers do), so that a session locked
+#: between sets falls behind the wall clock by every sleep while its readings are recent.
+AGE_THE_KEPT_SESSION = """async ([shift, asleep]) => {
   const db = await new Promise((ok, no) => {
     const r = indexedDB.open("armtrack-kit", 1);
     r.onsuccess = () => ok(r.result);
@@ -44,6 +48,7 @@ AGE_THE_KEPT_SESSION = """async (shift) => {
     r.onsuccess = () => ok(r.result);
   });
   state.startEpoch -= shift;
+  if (state.lastWall && !asleep) state.lastWall -= shift;
   store.put(state, "stream");
   await new Promise((ok) => { tx.oncomplete = ok; });
   return state.session;
@@ -96,7 +101,7 @@ def aged(playwright, server, profile: str, session: int, hours: float):
     context = open_phone(playwright, profile)
     phone = first_page(context)
     phone.goto(f"{server.url}/healthz")
-    assert phone.evaluate(AGE_THE_KEPT_SESSION, hours * 3600) == session
+    assert phone.evaluate(AGE_THE_KEPT_SESSION, [hours * 3600, False]) == session
     return context, phone
 
 
@@ -158,4 +163,23 @@ def test_offline_the_patient_may_carry_on_the_old_session(server, phone_profile,
         assert not phone.evaluate("kit.stream.ended")  # carried on, not ended meanwhile
         assert api.session(old)["samples"] >= taken
         assert api.session(old)["status"] == "live"
+        context.close()
+
+
+def test_a_session_whose_clock_fell_behind_in_sleep_is_carried_on(server, phone_profile):
+    """A phone locked between sets sleeps, and its page's clock (``performance.now()``)
+    stops meanwhile: 40 minutes locked put the session clock 40 minutes behind. Closed by
+    mistake and opened again a minute after its last reading, the session is carried on,
+    not ended as if cut short 40 minutes ago: how long ago is read on the wall clock."""
+    events = motion_events(phone_simulation(seed=9))
+    with sync_api.sync_playwright() as playwright:
+        old, _ = cut_short(playwright, server, phone_profile, events)
+        context = open_phone(playwright, phone_profile)
+        phone = first_page(context)
+        phone.goto(f"{server.url}/healthz")
+        assert phone.evaluate(AGE_THE_KEPT_SESSION, [40 * 60, True]) == old
+        phone.goto(f"{server.url}/kit")
+        sync_api.expect(phone.locator("h1")).to_contain_text("Continue your session",
+                                                             timeout=60_000)
+        print(f"\nits clock 40 min behind, reopened at once: {phone.locator('h1').inner_text()!r}")
         context.close()

@@ -115,7 +115,10 @@ const KitStore = {
  * Times: t [s] = (performance.timeOrigin + event.timeStamp) / 1000 − the session's start
  * (epoch seconds kept with the state), so a reload continues the same clock; a reading
  * older than the last kept one is stamped with the last time (t never goes back); a clock
- * set back between two loads is made up by state.clockShift [s] (added to t).
+ * set back between two loads is made up by state.clockShift [s] (added to t). That clock
+ * stops while a phone sleeps (performance.now() does not tick in sleep but on Windows), so
+ * it falls behind the wall clock by every sleep of the session: state.lastWall [epoch s]
+ * is the wall clock (Date.now) at the last reading, for how long ago it was taken.
  */
 class KitStream {
   constructor({ token, sensor, side, device, program, onChange, onFeedback, onClose, onReady,
@@ -237,6 +240,7 @@ class KitStream {
     if (!values) return null;
     const t = this.time(event.timeStamp);
     this.state.lastT = t;
+    this.state.lastWall = Date.now() / 1000;
     this.rows.push([t, ...values, null, null, null]);
     this.samples += 1;
     return [t, ...values];

@@ -742,10 +742,13 @@ function sendTheLastPatients(kept) {
 }
 
 /** When the session kept on this phone had its last reading [Date], or null when it
- * was within CARRY_ON_WITHIN_S (it is carried on). Its clock: t = seconds since startEpoch
- * plus clockShift (kit-stream.js). */
+ * was within CARRY_ON_WITHIN_S (it is carried on). On the wall clock (lastWall): the
+ * session's own clock (t = seconds since startEpoch plus clockShift, kit-stream.js) stops
+ * while the phone sleeps, so a session locked between sets would seem to have stopped
+ * that much earlier; a session kept before lastWall was: its own clock. */
 function stoppedLongAgo(kept) {
-  const last = (kept.startEpoch + (kept.lastT || 0) - (kept.clockShift || 0)) * 1000;
+  const last = (Number.isFinite(kept.lastWall) ? kept.lastWall
+    : kept.startEpoch + (kept.lastT || 0) - (kept.clockShift || 0)) * 1000;
   return Number.isFinite(last) && Date.now() - last > CARRY_ON_WITHIN_S * 1000 ? new Date(last) : null;
 }
 
