@@ -12,6 +12,7 @@ of at most the cap, all closed, none stopped."""
 from __future__ import annotations
 
 import json
+import subprocess
 
 from server_support import armtrack, server_fixture
 
@@ -55,6 +56,19 @@ def test_stream_goes_on_in_a_new_session_at_the_cap(server, tmp_path):
               .splitlines() if line.startswith("#")]
     print("exported header:", header)
     assert header and not any("carries_on" in line for line in header)
+    # its report says which calibration it used, in words (not "default; poses: none"):
+    # the JSON and the PDF's first and last pages
+    api.wait_processed(ids[1], timeout=120)
+    said = api.http.get(f"/api/sessions/{ids[1]}/report").json()["quality"]["calibration"]
+    pdf = tmp_path / "carried.pdf"
+    pdf.write_bytes(api.http.get(f"/api/sessions/{ids[1]}/report.pdf").content)
+    text = " ".join(subprocess.run(["pdftotext", str(pdf), "-"], capture_output=True,
+                                   text=True, check=True).stdout.split())
+    print(f"report: {said}\nPDF: ...{text[text.find('Calibration'):][:400]}")
+    assert said["carries_on"] == ids[0]
+    assert (f"carries on session {ids[0]}" in said["words"]
+            and "default sensor mounting" in said["words"])
+    assert f"carries on session {ids[0]}" in text and "default sensor mounting" in text
 
 
 def test_an_uploaded_headers_own_carries_on_line_is_exported_again():

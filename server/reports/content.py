@@ -200,6 +200,11 @@ class SensorQuality(BaseModel):
 class CalibrationQuality(BaseModel):
     method: str | None = Field(description="two-pose, n-pose or default")
     default_mounting: bool = Field(description="no pose found: the default mounting is used")
+    carries_on: int | None = Field(
+        None, description="the session this one carries on (carried-on/1), where the "
+        "patient held the poses; null: none")
+    words: str = Field("", description="which calibration was used, in a sentence for the "
+                       "therapist (reports.words.calibration_words)")
     final_time_s: float | None
     poses: list[PoseOut]
     excluded: Window | None = Field(description="left out of every metric (the poses)")

@@ -29,7 +29,7 @@ from matplotlib.textpath import TextPath
 
 from .content import Exercise, SessionData, SessionReport
 from .pdf_summary import DATED_WORDS, Letterhead, local, style_table, summary_page
-from .words import ANGLE_WORDS, duration_words, exercise_words
+from .words import ANGLE_WORDS, calibration_words, duration_words, exercise_words
 
 # Names and notes are a user's text: "$…$" in a patient's name is no formula (mathtext made
 # such a name fail the whole PDF, issue 17). Set once for the process, not per call with
@@ -93,8 +93,6 @@ def _header(fig: Figure, report: SessionReport, letterhead: Letterhead) -> None:
     s, q = report.session, report.quality
     started = s.started_at if s.started_at.tzinfo else s.started_at.replace(tzinfo=UTC)
     cal = q.calibration
-    poses = ", ".join(f"{POSES.get(p.name, p.name)} {p.start_s:.1f}–{p.end_s:.1f} s"
-                      for p in cal.poses) or "none"
     lines = [
         ("Patient", s.patient_name + (f", height {s.height_m:.2f} m" if s.height_m else "")),
         ("Date", local(started, letterhead.zone, clock=letterhead.clock)
@@ -104,9 +102,9 @@ def _header(fig: Figure, report: SessionReport, letterhead: Letterhead) -> None:
                 + ", ".join(SENSORS.get(n, n) for n in s.sensors)
                 + (" · assumes: " + ", ".join(ASSUMPTION_WORDS.get(a, a) for a in s.assumptions)
                    if s.assumptions else "")),
-        ("Calibration", f"{cal.method or '–'}"
-                        + (" (default mounting)" if cal.default_mounting else "")
-                        + f"; poses: {poses}"),
+        ("Calibration", calibration_words(cal.method, [(p.name, p.start_s, p.end_s)
+                                                        for p in cal.poses],
+                                          cal.carries_on, brief=True)),
     ]
     y = 0.925
     for key, value in lines:
@@ -315,9 +313,7 @@ def _details_page(fig: Figure, report: SessionReport) -> None:
     cal = q.calibration
     lines.append(f"Estimates: {q.estimates} at {_fmt(q.estimate_rate_hz, '.0f', ' Hz')}, "
                  f"{len(q.estimate_gaps)} gap(s) > 0.25 s")
-    lines.append(f"Calibration: {cal.method or '–'}"
-                 + (" — no pose found, default sensor mounting assumed"
-                    if cal.default_mounting else "")
+    lines.append(f"Calibration: {cal.words or cal.method or '–'}"
                  + (f"; excluded from metrics {cal.excluded.start_s:.1f}–"
                     f"{cal.excluded.end_s:.1f} s" if cal.excluded else ""))
     lines.append("Estimator: " + (", ".join(f"{k} {v}" for k, v in q.estimator.items())

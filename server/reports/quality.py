@@ -22,6 +22,7 @@ import numpy as np
 from armtrack.estimator.metrics.timebase import runs
 from armtrack.estimator.sampling import packets, sample_interval_s, summarise_sampling
 
+from ..ingest.carried_on import carries_on
 from .content import (
     CalibrationQuality,
     PoseOut,
@@ -31,6 +32,7 @@ from .content import (
     Window,
     finite,
 )
+from .words import calibration_words
 
 #: Relative deviation of |m| from its median that counts as a disturbance [-].
 MAG_TOLERANCE = 0.15
@@ -122,6 +124,10 @@ def quality(data: SessionData) -> Quality:
         calibration=CalibrationQuality(
             method=calibration.get("method"),
             default_mounting=calibration.get("method") == "default",
+            carries_on=carries_on(session),
+            words=calibration_words(calibration.get("method"),
+                                    [(p.name, p.start_s, p.end_s) for p in poses],
+                                    carries_on(session)),
             final_time_s=finite(calibration.get("final_time_s")), poses=poses,
             excluded=excluded),
         estimator={str(k): str(v) for k, v in (session.estimator or {}).items()},

@@ -57,3 +57,29 @@ def day_words(day: date, weekday: bool = False) -> str:
     """A calendar day as the reports write it: "3 Dec 2026" ("Thu 3 Dec 2026" with
     ``weekday``) — not "2026-12-03" nor an ISO week code ("2026-W49")."""
     return (f"{day:%a} " if weekday else "") + f"{day.day} {day:%b %Y}"
+
+
+def calibration_words(method: str | None, poses: list[tuple[str, float, float]],
+                      carries_on: int | None = None, brief: bool = False) -> str:
+    """Which calibration a session's estimates used, in a sentence for the therapist:
+    ``method`` (the estimator's: two-pose, n-pose, default), the ``poses`` held
+    ``(name, start_s, end_s)`` and the session it carries on (carried-on/1), if any;
+    ``brief``: in a line (the PDF's header)."""
+    held = ", ".join(f"{POSE_WORDS.get(n, n)} {a:.1f}–{b:.1f} s" for n, a, b in poses)
+    if method == "two-pose":
+        return f"From the calibration poses held in this session ({held})."
+    if method == "n-pose":
+        return f"From the N-pose held in this session ({held}); no T-pose."
+    default = ("the default sensor mounting is used (each sensor as the strapping guide "
+               "places it) and the first second is taken as the arm hanging")
+    if method == "default" and carries_on is not None:
+        if brief:
+            return (f"No pose here: carries on session {carries_on}, where they were held; "
+                    f"default sensor mounting used.")
+        return (f"No calibration pose in this session: it carries on session {carries_on}, "
+                f"where the patient held the poses, but each session is calibrated on its "
+                f"own, so {default}.")
+    if method == "default":
+        return ("No calibration pose: default sensor mounting used." if brief
+                else f"No calibration pose in this session: {default}.")
+    return "Not estimated yet." if method is None else f"{method}."
