@@ -46,10 +46,10 @@ def _downgrade(server: ServerProcess, revision: str) -> None:
     """Take the database back to ``revision`` behind the running server (what restoring
     an older armtrack's backup does), with alembic's own downgrade."""
     from alembic import command
+    from armtrack.server.db.engine import make_engine
     from armtrack.server.db.migrate import alembic_config
-    from sqlalchemy import create_engine
 
-    engine = create_engine(server.database_url)
+    engine = make_engine(server.database_url)  # SQLite: the server's busy timeout
     try:
         command.downgrade(alembic_config(engine), revision)
     finally:

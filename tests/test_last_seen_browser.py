@@ -166,6 +166,41 @@ def test_the_days_strip_says_interrupted_once_the_kit_is_gone(server):
         kit.wait()
 
 
+def test_a_kit_cut_off_while_a_pose_is_held_says_interrupted_not_hold(server):
+    """Found by CI's run of the test above on a busy machine: the kit was cut off while
+    the patient held the N-pose, and the box said "Hold the N-pose · Still ✓ — keep holding
+    (1 s)" for the next 60 s and on: the page read the server's last calibration state
+    (a pose being held) before the session's state, so a hold that can no longer end hid
+    that the stream had stopped. Here the kit is killed in the N-pose on purpose."""
+    api = server.client("alice")
+    patient = api.patient("Cut Off Holding", side="left")
+    token = api.device(patient["id"], "kit")["token"]
+    kit = subprocess.Popen(
+        [sys.executable, "-m", "armtrack.server.cli", "stream", "--exercise", "elbow_flexion",
+         "--side", "left", "--url", server.ws_url, "--token", token, "--quiet",
+         "--speed", "0.25"],  # a quarter of real time: the N-pose is held long enough
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 60
+        while not (sessions := api.http.get(f"/api/patients/{patient['id']}/sessions").json()):
+            assert time.monotonic() < deadline, "the kit streamed nothing"
+            time.sleep(0.2)
+        with page_at(1280) as page:
+            sign_in_as(page, server.url, "alice")
+            page.goto(f"{server.url}/sessions/{sessions[0]['id']}")
+            box = page.locator("#calibration-box")
+            sync_api.expect(box).to_have_attribute("data-phase", "hold:npose", timeout=30_000)
+            kit.send_signal(signal.SIGKILL)
+            sync_api.expect(box).to_contain_text("The stream is interrupted", timeout=30_000)
+            print(f"\nthe box after the kit was cut off in the N-pose: {box.inner_text()!r}")
+            assert "Hold the" not in box.inner_text()
+            assert "holding now" not in box.inner_text()
+            assert "N-pose: cut off when the stream stopped" in box.inner_text()
+    finally:
+        kit.kill()
+        kit.wait()
+
+
 def test_a_stream_sent_faster_than_real_time_was_not_seen_in_the_future(server):
     """A backlog sent at once (``armtrack stream --speed 0``: as fast as it can) and cut
     off: its last sample's stream time lies far past the session's start plus the wall

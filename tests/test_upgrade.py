@@ -121,3 +121,52 @@ def test_a_database_of_a_newer_armtrack_is_refused_in_words(tmp_path):
     assert current_revision(make_engine(f"sqlite:///{data / 'armtrack.db'}")) == "0099"
     guide = (Path(__file__).parents[1] / "docs" / "operator.md").read_text("utf-8")
     assert "\n## Upgrading\n" in guide  # the section the message names
+
+
+def test_a_migration_waits_for_another_writer_instead_of_failing(tmp_path):
+    """A migration run while another program writes to the same SQLite file (a running
+    server stamping "last seen", the test of the not-upgraded words taking the schema back
+    behind it) waits its turn. It began with a plain ``BEGIN``: it read the schema, then
+    wanted to write, and a write committed by the other in between made SQLite answer
+    "database is locked" at once, without the busy timeout's wait (WAL mode cannot move a
+    read snapshot forward into a write): CI's run failed so. Now it takes the write lock
+    first (``BEGIN IMMEDIATE``), so the busy timeout applies."""
+    import threading
+    import time
+
+    from alembic import command
+    from armtrack.server.db.migrate import alembic_config
+
+    path = tmp_path / "armtrack.db"
+    engine = make_engine(f"sqlite:///{path}")
+    upgrade(engine)
+    with engine.begin() as db:
+        db.exec_driver_sql("CREATE TABLE scratch (n INTEGER)")
+    stop = threading.Event()
+    writes = []
+
+    def other_writer() -> None:
+        other = sqlite3.connect(path, timeout=30)
+        while not stop.is_set():
+            other.execute("INSERT INTO scratch VALUES (1)")
+            other.commit()
+            writes.append(1)
+            time.sleep(0.001)
+        other.close()
+
+    writer = threading.Thread(target=other_writer)
+    writer.start()
+    while len(writes) < 20:  # the other program is writing
+        time.sleep(0.01)
+    at_start = len(writes)
+    try:
+        for revision in ("0009", "head", "0008", "head"):
+            command.downgrade(alembic_config(engine), revision) if revision != "head" \
+                else command.upgrade(alembic_config(engine), revision)
+    finally:
+        stop.set()
+        writer.join()
+        engine.dispose()
+    print(f"\n{len(writes) - at_start} writes by the other program between the migrations")
+    assert len(writes) > at_start
+    assert current_revision(make_engine(f"sqlite:///{path}")) == head_revision()

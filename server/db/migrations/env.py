@@ -3,7 +3,8 @@
 An upgrade is one transaction: all of it or nothing (a disk full or a kill half-way leaves
 the database as it was, and the next start migrates it from there). PostgreSQL's DDL is
 transactional as alembic runs it; on SQLite, whose DDL is transactional too, the driver
-opens a transaction only before DML, so the upgrade opens it itself (``BEGIN``); without,
+opens a transaction only before DML, so the upgrade opens it itself (``BEGIN IMMEDIATE``,
+holding the write lock from the start, so a server writing meanwhile is waited for); without,
 each table made or rebuilt was committed at once, and a migration cut short left tables
 that the next start failed to make again ("table programs already exists").
 
@@ -23,7 +24,11 @@ with engine.connect() as connection:
     if sqlite:  # outside a transaction: SQLite ignores this pragma inside one
         connection.exec_driver_sql("PRAGMA foreign_keys=OFF")
         connection.commit()
-        connection.exec_driver_sql("BEGIN")  # alembic sees a transaction of ours: runs in it
+        # alembic sees a transaction of ours and runs in it. IMMEDIATE: the write lock is
+        # taken first, so another program's writes are waited for (busy timeout); a plain
+        # BEGIN read the schema first and, had another committed since, SQLite refused the
+        # first write at once ("database is locked": WAL cannot move a read forward)
+        connection.exec_driver_sql("BEGIN IMMEDIATE")
     try:
         context.configure(connection=connection, target_metadata=Base.metadata,
                           render_as_batch=sqlite)

@@ -284,6 +284,19 @@ function calibrationState(live) {
   const warnings = [];
   for (const p of cal.poses) for (const w of p.warnings || []) warnings.push(w);
   for (const w of (lastPose && lastPose.warnings) || []) warnings.push(w);
+  // the session's state first: a pose whose hold began before the kit was cut off
+  // (its end mark never came) is not being held; the box said "Hold the N-pose ·
+  // Still ✓" on and on and hid that the stream had stopped
+  if (session.status !== "live" && session.stopped_by_server) {
+    return { phase: "stopped", kind: "warn", icon: "■", title: "The server stopped the kit's stream",
+      how: "The kit will not reconnect by itself: see why above; the data so far are stored. "
+        + "Close the session to estimate what was recorded.", closable: true, poses: cal.poses, warnings };
+  }
+  if (session.status !== "live") {
+    return { phase: "interrupted", kind: "warn", icon: "‖", title: "The stream is interrupted",
+      how: "The kit may reconnect and resume; the data so far are stored. If the patient has "
+        + "stopped, close the session to estimate what was recorded.", closable: true, poses: cal.poses, warnings };
+  }
   if (cal.holding) {
     const p = cal.holding;
     const name = POSE_NAMES[p.name];
@@ -303,16 +316,6 @@ function calibrationState(live) {
       title: `Hold the ${name}`, how: cal.instructions[p.name], still, stillText,
       keepHolding: Boolean(trunk && trunk.keep_holding), trunkSteady: Boolean(trunk && trunk.pinned),
       poses: cal.poses, warnings };
-  }
-  if (session.status !== "live" && session.stopped_by_server) {
-    return { phase: "stopped", kind: "warn", icon: "■", title: "The server stopped the kit's stream",
-      how: "The kit will not reconnect by itself: see why above; the data so far are stored. "
-        + "Close the session to estimate what was recorded.", closable: true, poses: cal.poses, warnings };
-  }
-  if (session.status !== "live") {
-    return { phase: "interrupted", kind: "warn", icon: "‖", title: "The stream is interrupted",
-      how: "The kit may reconnect and resume; the data so far are stored. If the patient has "
-        + "stopped, close the session to estimate what was recorded.", closable: true, poses: cal.poses, warnings };
   }
   if (estimating) {
     return { phase: "done", kind: warnings.length ? "warn" : "done", icon: warnings.length ? "!" : "✓",
@@ -390,7 +393,10 @@ function renderCalibration(live) {
   clear(parts.steps, ["npose", "tpose"].map((name) => {
     const p = [...s.poses].reverse().find((q) => q.name === name);
     if (!p) return el("span", { class: "step" }, POSE_NAMES[name] + ": not yet");
-    if (p.end === null) return el("span", { class: "step now" }, POSE_NAMES[name] + ": holding now");
+    if (p.end === null) {
+      return s.closable ? el("span", { class: "step bad" }, POSE_NAMES[name] + ": cut off when the stream stopped")
+        : el("span", { class: "step now" }, POSE_NAMES[name] + ": holding now");
+    }
     return el("span", { class: "step " + (p.still ? "ok" : "bad") },
       POSE_NAMES[name] + (p.still ? ": still ✓" : ": moved ✗"));
   }));
