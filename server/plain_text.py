@@ -4,8 +4,12 @@ Text must be valid Unicode that UTF-8 can hold (JSON's ``\\ud800`` escape gives 
 surrogate, which every later encoding — SQLite, PostgreSQL, CSV, PDF, a JSON answer —
 refuses: the routes that showed it answered 500 for good) and holds no control character
 (U+0000–U+001F, U+007F–U+009F: PostgreSQL refuses NUL, and the others only break lines of
-logs, CSV files and pages); a note may hold line breaks and tabs. Refused where it comes
-in, with the field named: 422 in REST, an ``error`` (close 4400) for a ``hello``.
+logs, CSV files and pages); a note may hold line breaks and tabs. A name (one-line text)
+holds no direction control either (``DIRECTION``: U+202A–U+202E, U+2066–U+2069, U+200E,
+U+200F, U+061C): "Anna\u202eevil" shows as "Annalive", so one patient could be made to
+look like another ("Trojan Source"). Refused where it comes in, with the field named: 422
+in REST, an ``error`` (close 4400) for a ``hello``. A name stored before that rule is read
+back with each such character written out (``shown``, in ``db.models.Name``).
 """
 
 from __future__ import annotations
@@ -26,6 +30,25 @@ log = logging.getLogger("armtrack")
 
 _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
 _CONTROL_BUT_LINES = re.compile(r"[\x00-\x08\x0b-\x1f\x7f-\x9f]")
+#: The characters that change the order text shows in, by their Unicode names.
+DIRECTION = {
+    "\u202a": "LEFT-TO-RIGHT EMBEDDING", "\u202b": "RIGHT-TO-LEFT EMBEDDING",
+    "\u202c": "POP DIRECTIONAL FORMATTING", "\u202d": "LEFT-TO-RIGHT OVERRIDE",
+    "\u202e": "RIGHT-TO-LEFT OVERRIDE", "\u2066": "LEFT-TO-RIGHT ISOLATE",
+    "\u2067": "RIGHT-TO-LEFT ISOLATE", "\u2068": "FIRST STRONG ISOLATE",
+    "\u2069": "POP DIRECTIONAL ISOLATE", "\u200e": "LEFT-TO-RIGHT MARK",
+    "\u200f": "RIGHT-TO-LEFT MARK", "\u061c": "ARABIC LETTER MARK",
+}
+_DIRECTION = re.compile("[" + "".join(DIRECTION) + "]")
+
+
+def shown(text: str | None) -> str | None:
+    """``text`` with each direction control written out as ``[U+202E]``: how a name stored
+    before they were refused is read back, so no page, report or export shows it
+    reordered."""
+    if text is None or not _DIRECTION.search(text):
+        return text
+    return _DIRECTION.sub(lambda m: f"[U+{ord(m[0]):04X}]", text)
 
 
 def text_problem(text: str, *, lines: bool = False) -> str | None:
@@ -39,6 +62,11 @@ def text_problem(text: str, *, lines: bool = False) -> str | None:
     found = (_CONTROL_BUT_LINES if lines else _CONTROL).search(text)
     if found:
         return f"character {found.start()} is a control character (U+{ord(found[0]):04X})"
+    found = None if lines else _DIRECTION.search(text)
+    if found:
+        return (f"character {found.start()} is a direction control (U+{ord(found[0]):04X} "
+                f"{DIRECTION[found[0]]}), which makes a name show in another order than it "
+                "is written: remove it")
     return None
 
 
@@ -60,7 +88,7 @@ def _check_secret(text: str) -> str:
     return text
 
 
-#: A name or other one-line text (no control characters).
+#: A name or other one-line text (no control characters, no direction controls).
 Line = Annotated[str, AfterValidator(_check(lines=False))]
 #: A note: line breaks and tabs allowed.
 Note = Annotated[str, AfterValidator(_check(lines=True))]

@@ -29,6 +29,8 @@ from sqlalchemy import (
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 
+from ..plain_text import shown
+
 
 def utcnow() -> datetime:
     return datetime.now(UTC)
@@ -46,6 +48,19 @@ class UtcDateTime(TypeDecorator):
         if value is None or value.tzinfo is not None:
             return value
         return value.replace(tzinfo=UTC)
+
+
+class Name(TypeDecorator):
+    """A name (of a patient, a therapist, a kit, a program), read back with any direction
+    control written out (``plain_text.shown``: "Anna[U+202E]evil"): refused at input since
+    they make a name show reordered, but a database from before may hold one, and every
+    page, report and export reads names through here (stored as it is, unchanged)."""
+
+    impl = String
+    cache_ok = True
+
+    def process_result_value(self, value: str | None, dialect) -> str | None:
+        return shown(value)
 
 
 def never_reused() -> dict[str, Any]:
@@ -73,7 +88,7 @@ class Therapist(Base):
     #: a disabled therapist cannot sign in, and their tokens stop working at once
     disabled_at: Mapped[datetime | None] = mapped_column(UtcDateTime)
     #: the name reports and pages show ("Dr Jane Doe"); the user name when unset
-    full_name: Mapped[str | None] = mapped_column(String(200))
+    full_name: Mapped[str | None] = mapped_column(Name(200))
 
 
 class AccessToken(Base):
@@ -96,12 +111,12 @@ class Patient(Base):
     id: Mapped[int] = mapped_column(primary_key=True)
     therapist_id: Mapped[int] = mapped_column(
         ForeignKey("therapists.id", ondelete="CASCADE"), index=True)
-    name: Mapped[str] = mapped_column(String(200))
+    name: Mapped[str] = mapped_column(Name(200))
     side: Mapped[str] = mapped_column(String(5))
     height_m: Mapped[float] = mapped_column(Float)
     created_at: Mapped[datetime] = mapped_column(UtcDateTime, default=utcnow)
     #: the clinic's own patient number (its records' identifier), optional
-    clinic_number: Mapped[str | None] = mapped_column(String(64))
+    clinic_number: Mapped[str | None] = mapped_column(Name(64))
     date_of_birth: Mapped[date | None] = mapped_column(Date)
     #: when the therapist discharged the patient (docs/extensions/discharge.md): their
     #: records stay, their kits start no new session; None while in care
@@ -123,7 +138,7 @@ class Device(Base):
     id: Mapped[int] = mapped_column(primary_key=True)
     patient_id: Mapped[int] = mapped_column(
         ForeignKey("patients.id", ondelete="CASCADE"), index=True)
-    name: Mapped[str] = mapped_column(String(200))
+    name: Mapped[str] = mapped_column(Name(200))
     token_hash: Mapped[str] = mapped_column(String(64), unique=True)
     created_at: Mapped[datetime] = mapped_column(UtcDateTime, default=utcnow)
     revoked_at: Mapped[datetime | None] = mapped_column(UtcDateTime)
@@ -352,7 +367,7 @@ class Program(Base):
     id: Mapped[int] = mapped_column(primary_key=True)
     patient_id: Mapped[int] = mapped_column(
         ForeignKey("patients.id", ondelete="CASCADE"), index=True)
-    name: Mapped[str] = mapped_column(String(120))
+    name: Mapped[str] = mapped_column(Name(120))
     created_at: Mapped[datetime] = mapped_column(UtcDateTime)
     ended_at: Mapped[datetime | None] = mapped_column(UtcDateTime)
 
