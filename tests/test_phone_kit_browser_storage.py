@@ -883,6 +883,7 @@ def test_a_lent_phone_sends_the_last_patients_readings_with_their_own_link(serve
     try:
         session, taken, phone = _recorded_offline(phone, api, url, proxy, first, shots, 12)
         phone.goto(f"{url}/kit#token={second}")  # B's link on the same phone
+        phone.click("#replace-kit")  # asked first (test_phone_kit_link_switch_browser)
         _wait(lambda: phone.evaluate("KitStore.count()") == 0, 60, "the phone's outbox emptied")
         stored = api.session(session)["samples"]
         said = phone.locator("#screen").inner_text()
@@ -993,6 +994,7 @@ def test_a_lent_phone_keeps_nothing_of_the_last_patients_link(server, phone, sho
         proxy.cut()  # B's link opened on the phone while it is offline
         phone = context.new_page()
         phone.goto(f"{url}/kit#token={second}")
+        phone.click("#replace-kit")  # asked first, in words that cannot name A offline
         sync_api.expect(phone.locator("#start")).to_be_visible(timeout=20_000)
         said = phone.locator("#screen").inner_text()
         kept = phone.evaluate(STORAGE)

@@ -143,6 +143,7 @@ def test_another_patients_link_does_not_show_the_last_patients_session(server, p
     sync_api.expect(phone.locator("#last-session")).to_contain_text("7 of 10 repetitions")
 
     phone.goto(f"{server.url}/kit#token={second}")
+    phone.click("#replace-kit")  # asked first (test_phone_kit_link_switch_browser)
     sync_api.expect(phone.locator("#start")).to_be_visible()
     said = phone.locator("#screen").inner_text()
     print("\n" + said)

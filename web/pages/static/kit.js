@@ -841,30 +841,86 @@ function sendAndEnd(kept, words) {
   });
 }
 
+/** How long the question whether to change links waits for the server's names [ms]. */
+const ASK_MS = 8000;
+/** What the server says a kit token is for: {device, first} (the kit's name, the patient's
+ * first name); {revoked: true} when it does not take the token (nothing more is told);
+ * {offline: true} when it cannot be asked (within ASK_MS). */
+async function whoseKit(token) {
+  try {
+    const answer = await fetch("/api/device/today", { headers: { Authorization: "Bearer " + token },
+      signal: AbortSignal.timeout(ASK_MS) });
+    if (answer.status === 401) return { revoked: true };
+    if (!answer.ok) return { offline: true };
+    const today = await answer.json();
+    return { device: today.device, first: today.patient_first_name };
+  } catch (_) { return { offline: true }; }
+}
+
+/** "Anna's exercises, kit “Anna's phone”", or null when nothing is known. */
+function kitWords(who) {
+  if (!who || (!who.device && !who.first)) return null;
+  return (who.first ? `${who.first}'s exercises` : "exercises") + (who.device ? `, kit “${who.device}”` : "");
+}
+
+/** A link of another kit opened on a phone that holds one: anyone can send a patient a
+ * link, and taking it silently let the sender make the phone stream into a kit they
+ * control. Resolves "replace" (the patient said so, or the phone's own link no longer
+ * works: nothing to keep), "keep" (the patient said no) or "dead" (the link opened does
+ * not work: it replaces nothing and is told nothing). */
+async function askToReplace(held, given) {
+  noStatus();
+  screen(el("h1", {}, "Checking the link…"));
+  const [old, next] = await Promise.all([whoseKit(held), whoseKit(given)]);
+  if (old.revoked) return "replace";
+  if (next.revoked) return "dead";
+  const cached = JSON.parse(localStorage.getItem(TODAY_KEY) || "null");
+  const oldWho = old.offline ? cached && { device: cached.device, first: cached.patient_first_name } : old;
+  return new Promise((resolve) => screen(
+    el("h1", {}, "Change this phone's exercise link?"),
+    el("p", { class: "lead", id: "held-kit" }, "This phone is set up for " + (kitWords(oldWho) || "your exercises") + "."),
+    el("p", { class: "lead", id: "new-kit" }, next.offline
+      ? "The link you just opened is for another kit (it cannot be checked now: no connection)."
+      : "The link you just opened is for " + kitWords(next) + "."),
+    el("p", {}, "Change only if your therapist gave you this new link. If you are not sure who sent it, keep your link and ask your therapist."),
+    big("Keep my link", { id: "keep-kit", onclick: () => resolve("keep") }),
+    big("Use the new link", { id: "replace-kit", class: "big secondary", onclick: () => resolve("replace") })));
+}
+
 async function main() {
+  // a new link opened in this tab changes only the fragment (no page load): start again
+  // with it, as on a fresh open (it was left on "Open your link", a revoked link's screen or
+  // the question whether to change to another kit's link)
+  window.addEventListener("hashchange", () => {
+    if (new URLSearchParams(location.hash.slice(1)).get("token")) location.reload();
+  });
   const fragment = new URLSearchParams(location.hash.slice(1));
   const given = fragment.get("token");
   if (given) {
+    history.replaceState(null, "", location.pathname);  // the token leaves the address bar
     // a link cut short does not take the place of the phone's working one; another kit's
-    // link (another patient's, on a phone lent in turn) starts without the last
-    // session's list: it was that kit's patient's
-    if (TOKEN_SHAPE.test(given)) {
-      if (given !== localStorage.getItem(TOKEN_KEY)) {
+    // link takes it only once the patient says so (askToReplace), and starts without the
+    // last session's list: it was that kit's patient's
+    const held = localStorage.getItem(TOKEN_KEY);
+    if (TOKEN_SHAPE.test(given) && given !== held) {
+      const answer = held ? await askToReplace(held, given) : "replace";
+      document.getElementById("status").hidden = false;
+      if (answer === "dead") {
+        noStatus();
+        return screen(el("h1", {}, "This link no longer works"),
+          el("p", { class: "lead", id: "dead-link" }, "The link you opened was replaced or removed. Your exercise kit on this phone stays as it was."),
+          big("Go to your exercises", { id: "to-kit", onclick: () => location.reload() }));
+      }
+      if (answer === "replace") {
         // the last link's patient's: their session's list, their recent sessions and
         // their program (with the therapist's note), which an offline welcome would show
         localStorage.removeItem(LAST_KEY);
         localStorage.removeItem(TODAY_KEY);
+        localStorage.setItem(TOKEN_KEY, given);
       }
-      localStorage.setItem(TOKEN_KEY, given);
     }
-    history.replaceState(null, "", location.pathname);  // the token leaves the address bar
   }
   kit.token = localStorage.getItem(TOKEN_KEY);
-  // a new link opened in this tab changes only the fragment (no page load): start again
-  // with it, as on a fresh open (it was left on "Open your link" or a revoked link's screen)
-  window.addEventListener("hashchange", () => {
-    if (new URLSearchParams(location.hash.slice(1)).get("token")) location.reload();
-  });
   if (given && !TOKEN_SHAPE.test(given)) return cutLink();
   if ("serviceWorker" in navigator) {
     navigator.serviceWorker.register("/kit-sw.js", { scope: "/kit" }).catch(() => {});
