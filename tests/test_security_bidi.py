@@ -128,3 +128,40 @@ def test_a_name_stored_before_the_rule_is_shown_with_the_character_written_out(s
     answer = api.http.patch(f"/api/patients/{pid}", json={"name": "Anna Evil"})
     assert answer.status_code == 200, answer.text
     assert srv.sql("SELECT name FROM patients WHERE id = :i", i=pid) == [("Anna Evil",)]
+
+
+
+def test_a_kits_device_name_kept_from_before_is_shown_with_the_character_written_out(srv):
+    # a session's metadata (a hello's device, an uploaded file's header) from before
+    api = srv.client("alice")
+    patient = api.patient(name="Bidi metadata")
+    device = api.device(patient["id"])
+    live_path = f"/api/patients/{patient['id']}/live"
+
+    async def session_with_samples() -> tuple[int, dict]:
+        headers = {"Authorization": f"Bearer {device['token']}"}
+        async with connect(srv.ws_url, additional_headers=headers) as ws:
+            await ws.send(json.dumps({"type": "hello", "protocol": 1, "device": "phone",
+                                      "side": "right", "sensors": ["upper_arm"],
+                                      "rate_hz": 100, "nine_axis": False, "resume": None}))
+            ready = json.loads(await asyncio.wait_for(ws.recv(), 30))
+            assert ready["type"] == "ready", ready
+            rows = [[i / 100, 0.0, 9.81, 0.0, 0.0, 0.0, 0.0, None, None, None]
+                    for i in range(50)]
+            await ws.send(json.dumps({"type": "samples", "seq": 0, "sensor": "upper_arm",
+                                      "rows": rows}))
+            while json.loads(await asyncio.wait_for(ws.recv(), 30))["type"] != "ack":
+                pass
+            srv.sql("UPDATE sessions SET metadata = :m WHERE id = :i",
+                    m=json.dumps({"device": f"phone{RLO}x"}), i=ready["session"])
+            live = (await asyncio.to_thread(api.http.get, live_path)).json()
+            await ws.send(json.dumps({"type": "bye"}))
+            return ready["session"], live
+
+    sid, live = asyncio.run(session_with_samples())
+    print(live["session"])
+    assert live["session"]["device"] == "phone[U+202E]x"
+    assert api.session(sid)["metadata"]["device"] == "phone[U+202E]x"
+    answer = api.http.get(f"/api/sessions/{sid}/recording.csv")
+    assert answer.status_code == 200, answer.text[:300]
+    assert RLO.encode() not in answer.content and "phone[U+202E]x" in answer.text

@@ -33,6 +33,7 @@ from ..db import models
 from ..ingest.writer import SEEN_PREFIX
 from ..live.motion import MotionWatch, current_exercise, watch, watching
 from ..live.streams import STALE_S
+from ..plain_text import shown
 from ..services import Services
 from ..store.blocks import SAMPLE_COLUMNS, unpack_many
 from ..store.stopped import stopped_by_server
@@ -298,7 +299,7 @@ def live_status(svc: Services, db: DbSession, patient_id: int,
         "patient_id": patient_id,
         "session": {"id": session.id, "status": session.status,
                     "started_at": session.started_at.isoformat(),
-                    "device": (session.meta or {}).get("device"), "rate_hz": session.rate_hz,
+                    "device": shown((session.meta or {}).get("device")), "rate_hz": session.rate_hz,
                     "stopped_by_server": None if (stop := stopped_by_server(session)) is None
                     else StoppedByServer(**stop).model_dump(mode="json")},
         "connected": open_stream is not None,

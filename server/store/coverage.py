@@ -10,6 +10,7 @@ from armtrack.estimator.arm.coverage import coverage
 from armtrack.estimator.recording.model import GYRO_DELAY_KEY
 
 from ..db import models
+from ..plain_text import shown
 
 #: The session metadata keys that hold them (not recording header material).
 COVERAGE_KEYS = ("measured_angles", "assumptions")
@@ -25,8 +26,9 @@ def session_coverage(session: models.Session) -> dict[str, Any]:
 
 
 def plain_metadata(session: models.Session) -> dict[str, str]:
-    """The session's metadata as text (a recording header's), without the coverage keys."""
-    out = {k: v for k, v in (session.meta or {}).items()
+    """The session's metadata as text (a recording header's), without the coverage keys;
+    a direction control kept from before they were refused written out (``shown``)."""
+    out = {k: shown(v) for k, v in (session.meta or {}).items()
            if k not in COVERAGE_KEYS and isinstance(v, str) and k != GYRO_DELAY_KEY}
     if session.gyro_delay_s is not None:  # docs/extensions/gyro-delay.md: its own column
         out[GYRO_DELAY_KEY] = repr(float(session.gyro_delay_s))

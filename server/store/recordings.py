@@ -23,6 +23,7 @@ from .. import clock
 from ..db import models
 from ..ingest.carried_on import KEY as CARRIES_ON_KEY
 from ..ingest.points import POINT_PREFIX, frame_from_meta, frame_to_meta
+from ..plain_text import shown
 from ..spreadsheet import header_text
 from .blocks import SAMPLE_COLUMNS, pack, unpack_many
 from .gyro_bias import session_prior
@@ -223,7 +224,7 @@ def header_metadata(meta: dict) -> dict[str, str]:
         if key == CARRIES_ON_KEY and isinstance(value, int):  # the server's own link to a
             continue  # session of its own (an uploaded header's text line is kept)
         # one line, and no cell a spreadsheet splits off it starts a formula: the kit's text
-        value = header_text(" ".join(str(value).split()))
+        value = header_text(" ".join(shown(str(value)).split()))
         try:
             check_metadata(key, value)
         except InvalidArgument:
