@@ -9,7 +9,7 @@ holds no direction control either (``DIRECTION``: U+202A–U+202E, U+2066–U+20
 U+200F, U+061C): "Anna\u202eevil" shows as "Annalive", so one patient could be made to
 look like another ("Trojan Source"). Refused where it comes in, with the field named: 422
 in REST, an ``error`` (close 4400) for a ``hello``. A name stored before that rule is read
-back with each such character written out (``shown``, in ``db.models.Name``).
+back with each such character written out (``text_direction.shown``, in ``db.models.Name``).
 """
 
 from __future__ import annotations
@@ -25,32 +25,12 @@ from pydantic import AfterValidator
 from sqlalchemy.exc import OperationalError
 
 from .db.errors import NOT_UPGRADED, database_words, lacks_schema, told_words
+from .text_direction import _DIRECTION, DIRECTION
 
 log = logging.getLogger("armtrack")
 
 _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
 _CONTROL_BUT_LINES = re.compile(r"[\x00-\x08\x0b-\x1f\x7f-\x9f]")
-#: The characters that change the order text shows in, by their Unicode names.
-DIRECTION = {
-    "\u202a": "LEFT-TO-RIGHT EMBEDDING", "\u202b": "RIGHT-TO-LEFT EMBEDDING",
-    "\u202c": "POP DIRECTIONAL FORMATTING", "\u202d": "LEFT-TO-RIGHT OVERRIDE",
-    "\u202e": "RIGHT-TO-LEFT OVERRIDE", "\u2066": "LEFT-TO-RIGHT ISOLATE",
-    "\u2067": "RIGHT-TO-LEFT ISOLATE", "\u2068": "FIRST STRONG ISOLATE",
-    "\u2069": "POP DIRECTIONAL ISOLATE", "\u200e": "LEFT-TO-RIGHT MARK",
-    "\u200f": "RIGHT-TO-LEFT MARK", "\u061c": "ARABIC LETTER MARK",
-}
-_DIRECTION = re.compile("[" + "".join(DIRECTION) + "]")
-
-
-def shown(text: str | None) -> str | None:
-    """``text`` with each direction control written out as ``[U+202E]``: how a name stored
-    before they were refused is read back, so no page, report or export shows it
-    reordered."""
-    if text is None or not _DIRECTION.search(text):
-        return text
-    return _DIRECTION.sub(lambda m: f"[U+{ord(m[0]):04X}]", text)
-
-
 def text_problem(text: str, *, lines: bool = False) -> str | None:
     """Why ``text`` is not acceptable text (words to follow "must be valid text: "), or
     None. ``lines``: line breaks and tabs are allowed (notes)."""

@@ -33,10 +33,10 @@ from ..db import models
 from ..ingest.writer import SEEN_PREFIX
 from ..live.motion import MotionWatch, current_exercise, watch, watching
 from ..live.streams import STALE_S
-from ..plain_text import shown
 from ..services import Services
 from ..store.blocks import SAMPLE_COLUMNS, unpack_many
 from ..store.stopped import stopped_by_server
+from ..text_direction import shown
 from .deps import Therapist, aware_utc, own_patient
 from .deps import services as get_services
 from .schemas import Id, StoppedByServer

@@ -29,7 +29,7 @@ from sqlalchemy import (
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 
-from ..plain_text import shown
+from ..text_direction import shown
 
 
 def utcnow() -> datetime:
@@ -52,7 +52,7 @@ class UtcDateTime(TypeDecorator):
 
 class Name(TypeDecorator):
     """A name (of a patient, a therapist, a kit, a program), read back with any direction
-    control written out (``plain_text.shown``: "Anna[U+202E]evil"): refused at input since
+    control written out (``text_direction.shown``: "Anna[U+202E]evil"): refused at input since
     they make a name show reordered, but a database from before may hold one, and every
     page, report and export reads names through here (stored as it is, unchanged)."""
 

@@ -10,7 +10,7 @@ from armtrack.estimator.arm.coverage import coverage
 from armtrack.estimator.recording.model import GYRO_DELAY_KEY
 
 from ..db import models
-from ..plain_text import shown
+from ..text_direction import shown
 
 #: The session metadata keys that hold them (not recording header material).
 COVERAGE_KEYS = ("measured_angles", "assumptions")

@@ -23,8 +23,8 @@ from .. import clock
 from ..db import models
 from ..ingest.carried_on import KEY as CARRIES_ON_KEY
 from ..ingest.points import POINT_PREFIX, frame_from_meta, frame_to_meta
-from ..plain_text import shown
 from ..spreadsheet import header_text
+from ..text_direction import shown
 from .blocks import SAMPLE_COLUMNS, pack, unpack_many
 from .gyro_bias import session_prior
 
