@@ -597,6 +597,9 @@ class KitStream {
   }
 
   _byeWhenDone() {
+    // once: two acks answered together both end here, and the second, after the page had
+    // cleared the phone (sendAndEnd), said bye again and saved the state with its token
+    if (this.state.finished) return;
     // ratings wait for their answer, unless this server cannot store them (no effort-pain/1)
     const ratingsDone = this.state.ratings.length === 0 || !this.extensions.includes("effort-pain/1");
     // nothing may wait unsaved either (a failed save): bye would end the session without it
