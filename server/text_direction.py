@@ -22,6 +22,7 @@ def shown(text: str | None) -> str | None:
     """``text`` with each direction control written out as ``[U+202E]``: how a name stored
     before they were refused is read back, so no page, report or export shows it
     reordered."""
-    if text is None or not _DIRECTION.search(text):
+    if not isinstance(text, str) or not _DIRECTION.search(text):  # None (or a kit's
+        # metadata value of another type) as it is
         return text
     return _DIRECTION.sub(lambda m: f"[U+{ord(m[0]):04X}]", text)
