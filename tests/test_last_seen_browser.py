@@ -12,6 +12,7 @@ import signal
 import subprocess
 import sys
 import time
+from contextlib import contextmanager
 
 from browser_helpers import need_browser, page_at, sign_in_as
 from server_support import server_fixture
@@ -135,35 +136,43 @@ def test_an_interrupted_session_with_a_later_one_is_closed_from_its_own_page(ser
     assert api.wait_processed(interrupted, timeout=120)["status"] == "closed"
 
 
-def test_the_days_strip_says_interrupted_once_the_kit_is_gone(server):
-    """Found by a new user: with the live page open, the kit cut off: the page's badge and
-    box said "Interrupted" / "The stream is interrupted", but its day's strip still said
-    "14:44 · live now" for this very session (read once, when the page opened)."""
-    api = server.client("alice")
-    patient = api.patient("Strip Watcher", side="left")
+@contextmanager
+def streaming_kit(server, api, name: str, speed: str = "1"):
+    """A patient whose kit (``armtrack stream`` at ``speed`` times real time) streams; the
+    kit's process and its session's id once the session exists (the kit killed after)."""
+    patient = api.patient(name, side="left")
     token = api.device(patient["id"], "kit")["token"]
     kit = subprocess.Popen(
         [sys.executable, "-m", "armtrack.server.cli", "stream", "--exercise", "elbow_flexion",
-         "--side", "left", "--url", server.ws_url, "--token", token, "--quiet"],
+         "--side", "left", "--url", server.ws_url, "--token", token, "--quiet",
+         "--speed", speed],
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         deadline = time.monotonic() + 60
         while not (sessions := api.http.get(f"/api/patients/{patient['id']}/sessions").json()):
             assert time.monotonic() < deadline, "the kit streamed nothing"
             time.sleep(0.2)
-        with page_at(1280) as page:
-            sign_in_as(page, server.url, "alice")
-            page.goto(f"{server.url}/sessions/{sessions[0]['id']}")
-            chip = page.locator(".day-session.current")
-            sync_api.expect(chip).to_contain_text("live now", timeout=30_000)
-            kit.send_signal(signal.SIGKILL)
-            sync_api.expect(page.locator("#calibration-box")).to_contain_text(
-                "The stream is interrupted", timeout=60_000)
-            sync_api.expect(chip).to_contain_text("interrupted", timeout=10_000)
-            print(f"\nthe strip after the kit was cut off: {chip.inner_text()!r}")
+        yield kit, sessions[0]["id"]
     finally:
         kit.kill()
         kit.wait()
+
+
+def test_the_days_strip_says_interrupted_once_the_kit_is_gone(server):
+    """Found by a new user: with the live page open, the kit cut off: the page's badge and
+    box said "Interrupted" / "The stream is interrupted", but its day's strip still said
+    "14:44 · live now" for this very session (read once, when the page opened)."""
+    api = server.client("alice")
+    with streaming_kit(server, api, "Strip Watcher") as (kit, session), page_at(1280) as page:
+        sign_in_as(page, server.url, "alice")
+        page.goto(f"{server.url}/sessions/{session}")
+        chip = page.locator(".day-session.current")
+        sync_api.expect(chip).to_contain_text("live now", timeout=30_000)
+        kit.send_signal(signal.SIGKILL)
+        sync_api.expect(page.locator("#calibration-box")).to_contain_text(
+            "The stream is interrupted", timeout=60_000)
+        sync_api.expect(chip).to_contain_text("interrupted", timeout=10_000)
+        print(f"\nthe strip after the kit was cut off: {chip.inner_text()!r}")
 
 
 def test_a_kit_cut_off_while_a_pose_is_held_says_interrupted_not_hold(server):
@@ -173,32 +182,19 @@ def test_a_kit_cut_off_while_a_pose_is_held_says_interrupted_not_hold(server):
     (a pose being held) before the session's state, so a hold that can no longer end hid
     that the stream had stopped. Here the kit is killed in the N-pose on purpose."""
     api = server.client("alice")
-    patient = api.patient("Cut Off Holding", side="left")
-    token = api.device(patient["id"], "kit")["token"]
-    kit = subprocess.Popen(
-        [sys.executable, "-m", "armtrack.server.cli", "stream", "--exercise", "elbow_flexion",
-         "--side", "left", "--url", server.ws_url, "--token", token, "--quiet",
-         "--speed", "0.25"],  # a quarter of real time: the N-pose is held long enough
-        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    try:
-        deadline = time.monotonic() + 60
-        while not (sessions := api.http.get(f"/api/patients/{patient['id']}/sessions").json()):
-            assert time.monotonic() < deadline, "the kit streamed nothing"
-            time.sleep(0.2)
-        with page_at(1280) as page:
-            sign_in_as(page, server.url, "alice")
-            page.goto(f"{server.url}/sessions/{sessions[0]['id']}")
-            box = page.locator("#calibration-box")
-            sync_api.expect(box).to_have_attribute("data-phase", "hold:npose", timeout=30_000)
-            kit.send_signal(signal.SIGKILL)
-            sync_api.expect(box).to_contain_text("The stream is interrupted", timeout=30_000)
-            print(f"\nthe box after the kit was cut off in the N-pose: {box.inner_text()!r}")
-            assert "Hold the" not in box.inner_text()
-            assert "holding now" not in box.inner_text()
-            assert "N-pose: cut off when the stream stopped" in box.inner_text()
-    finally:
-        kit.kill()
-        kit.wait()
+    # a quarter of real time: the N-pose is held long enough for the page to open
+    with (streaming_kit(server, api, "Cut Off Holding", speed="0.25") as (kit, session),
+          page_at(1280) as page):
+        sign_in_as(page, server.url, "alice")
+        page.goto(f"{server.url}/sessions/{session}")
+        box = page.locator("#calibration-box")
+        sync_api.expect(box).to_have_attribute("data-phase", "hold:npose", timeout=30_000)
+        kit.send_signal(signal.SIGKILL)
+        sync_api.expect(box).to_contain_text("The stream is interrupted", timeout=30_000)
+        print(f"\nthe box after the kit was cut off in the N-pose: {box.inner_text()!r}")
+        assert "Hold the" not in box.inner_text()
+        assert "holding now" not in box.inner_text()
+        assert "N-pose: cut off when the stream stopped" in box.inner_text()
 
 
 def test_a_stream_sent_faster_than_real_time_was_not_seen_in_the_future(server):

@@ -12,8 +12,9 @@ from __future__ import annotations
 import secrets
 
 import pytest
-from browser_helpers import ARGS, chromium, first_page, need_browser, screenshots_folder
+from browser_helpers import need_browser, screenshots_folder
 from server_support import server_fixture
+from test_phone_kit_errors_browser import fits, phone  # noqa: F401 (phone: a fixture)
 
 sync_api = need_browser()
 
@@ -27,21 +28,7 @@ def shots(tmp_path_factory):
     return screenshots_folder(tmp_path_factory, "kit-switch-shots")
 
 
-@pytest.fixture
-def phone():
-    """A phone-sized chromium (390 × 844, touch) with its own profile."""
-    with (sync_api.sync_playwright() as playwright,
-          chromium(playwright, 390, 844, phone=True, device_scale_factor=1,
-                   args=ARGS) as context):
-        yield first_page(context)
-
-
-def fits(page) -> None:
-    width = page.evaluate("document.documentElement.scrollWidth")
-    assert width <= 390, f"the screen is {width} px wide at 390"
-
-
-def test_another_kits_link_asks_first_and_no_keeps_the_phones_kit(server, phone, shots):
+def test_another_kits_link_asks_first_and_no_keeps_the_phones_kit(server, phone, shots):  # noqa: F811 (phone: imported)
     api = server.client("alice")
     anna = api.patient("Anna Berg")
     mine = api.device(anna["id"], "Anna's phone")["token"]
@@ -76,7 +63,7 @@ def test_another_kits_link_asks_first_and_no_keeps_the_phones_kit(server, phone,
     assert api.http.get(f"/api/patients/{other['id']}/sessions").json() == []
 
 
-def test_another_kits_link_replaces_the_kit_when_the_patient_says_so(server, phone, shots):
+def test_another_kits_link_replaces_the_kit_when_the_patient_says_so(server, phone, shots):  # noqa: F811 (phone: imported)
     api = server.client("alice")
     old = api.device(api.patient("Ruth Old")["id"], "old phone")["token"]
     new = api.device(api.patient("Ruth New")["id"], "new phone")["token"]
@@ -89,7 +76,7 @@ def test_another_kits_link_replaces_the_kit_when_the_patient_says_so(server, pho
     assert phone.evaluate(TOKEN_KEY) == new
 
 
-def test_a_link_that_does_not_work_tells_nothing_and_keeps_the_kit(server, phone, shots):
+def test_a_link_that_does_not_work_tells_nothing_and_keeps_the_kit(server, phone, shots):  # noqa: F811 (phone: imported)
     api = server.client("alice")
     mine = api.device(api.patient("Olga Held")["id"], "Olga's phone")["token"]
     phone.goto(f"{server.url}/kit#token={mine}")

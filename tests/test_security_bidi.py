@@ -13,8 +13,8 @@ import json
 
 import pytest
 from server_support import ServerProcess
+from test_input_bounds import hello_text, stream
 from websockets.asyncio.client import connect
-from websockets.exceptions import ConnectionClosed
 
 RLO = "\u202e"
 ALL = ["\u202a", "\u202b", "\u202c", "\u202d", "\u202e", "\u2066", "\u2067", "\u2068",
@@ -71,27 +71,12 @@ def test_every_name_route_refuses_direction_controls(srv):
         "full_name", RLO)
 
 
-async def hello(url: str, token: str, device: str) -> list[dict]:
-    answers = []
-    async with connect(url, additional_headers={"Authorization": f"Bearer {token}"}) as ws:
-        await ws.send(json.dumps({"type": "hello", "protocol": 1, "device": device,
-                                  "side": "right", "sensors": ["upper_arm"], "rate_hz": 100,
-                                  "nine_axis": False, "resume": None}))
-        try:
-            answers.append(json.loads(await asyncio.wait_for(ws.recv(), 30)))
-            if answers[-1]["type"] == "ready":  # taken: say bye
-                await ws.send(json.dumps({"type": "bye"}))
-            await asyncio.wait_for(ws.recv(), 30)
-        except ConnectionClosed as closed:
-            answers.append({"type": "closed", "code": closed.rcvd.code if closed.rcvd else None})
-    return answers
-
-
 def test_a_kit_hello_with_a_direction_control_in_its_device_name_is_refused(srv):
     api = srv.client("alice")
     patient = api.patient(name="Bidi kit")
     device = api.device(patient["id"])
-    answers = asyncio.run(hello(srv.ws_url, device["token"], f"phone{RLO}x"))
+    answers = asyncio.run(stream(srv.ws_url, device["token"],
+                                 hello_text(json.dumps(f"phone{RLO}x")), [], 0))
     print(answers)
     assert answers[0]["type"] == "error", answers
     assert "device" in answers[0]["reason"] and "U+202E" in answers[0]["reason"], answers

@@ -161,8 +161,8 @@ def test_a_migration_waits_for_another_writer_instead_of_failing(tmp_path):
     at_start = len(writes)
     try:
         for revision in ("0009", "head", "0008", "head"):
-            command.downgrade(alembic_config(engine), revision) if revision != "head" \
-                else command.upgrade(alembic_config(engine), revision)
+            move = command.upgrade if revision == "head" else command.downgrade
+            move(alembic_config(engine), revision)
     finally:
         stop.set()
         writer.join()
