@@ -3,6 +3,7 @@ range of motion, latency), its access rules, and a kit whose sensor never starts
 
 import asyncio
 import json
+import time
 
 import numpy as np
 import pytest
@@ -252,3 +253,52 @@ def test_an_encoded_pose_is_the_json_of_its_dict_and_reads_as_it():
     copy = pickle.loads(pickle.dumps(encoded, pickle.HIGHEST_PROTOCOL))
     assert copy.text == encoded.text and copy._parsed is None
     assert copy.warnings == encoded.warnings
+
+
+def test_a_pose_cut_off_by_a_lost_stream_is_not_reported_as_held(module_server, elbow):
+    """Left by the live page's fix (test_last_seen_browser): a kit cut off in the middle
+    of the N-pose (its ``end:npose`` never came) left ``GET /api/patients/{id}/live``
+    saying the pose was being held (``calibration.holding``) while the session was
+    interrupted. ``pose-cut-off/1`` (docs/extensions/pose-cut-off.md) says what is true:
+    ``holding_now`` null and the pose ``cut_off``; ``holding`` stays as clients read it."""
+    from armtrack.server.emulator import MessagePlan, hello_message
+
+    api = module_server.client("alice")
+    patient = api.patient("Cut Off In The Pose")
+    token = api.device(patient["id"])["token"]
+    plan = MessagePlan(elbow.recording)
+    sent = int(np.searchsorted(plan.times, 2.0))  # the N-pose is held from 0.5 to 3.0 s
+
+    def live() -> dict:
+        return api.http.get(f"/api/patients/{patient['id']}/live").json()
+
+    async def stream_into_the_pose() -> tuple[int, dict]:
+        async with connect(f"{module_server.ws_url}?token={token}") as ws:
+            await ws.send(json.dumps(hello_message(elbow.recording, "kit")))
+            ready = json.loads(await ws.recv())
+            for seq in range(sent):
+                await ws.send(plan.encode(seq))
+            async with asyncio.timeout(30):
+                while json.loads(await ws.recv()).get("seq") != sent - 1:
+                    pass  # until the last message is acked: stored
+            held = await asyncio.to_thread(live)
+        return ready["session"], held  # closed without a bye: the power gone
+
+    session, held = asyncio.run(stream_into_the_pose())
+    assert held["session"]["status"] == "live"
+    assert held["calibration"]["holding"]["name"] == "npose"
+    assert held["calibration"]["holding_now"]["name"] == "npose"
+    assert held["calibration"]["poses"][0]["cut_off"] is False
+    deadline = time.monotonic() + 30
+    while api.http.get(f"/api/sessions/{session}").json()["status"] != "interrupted":
+        assert time.monotonic() < deadline, "the session was not marked interrupted"
+        time.sleep(0.1)
+    after = live()
+    print(f"\nafter the cut: session {after['session']['status']}, calibration "
+          f"{ {k: after['calibration'][k] for k in ('holding_now', 'poses')} }")
+    assert after["session"]["status"] == "interrupted"
+    assert after["calibration"]["holding_now"] is None
+    (pose,) = after["calibration"]["poses"]
+    assert pose["name"] == "npose" and pose["end"] is None and pose["cut_off"] is True
+    # what clients read before: unchanged (the pose whose end has not come)
+    assert after["calibration"]["holding"]["name"] == "npose"

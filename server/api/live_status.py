@@ -153,11 +153,15 @@ def _verdict(db: DbSession, session_id: int, name: str, start: float, end: float
     return _verdicts[key]
 
 
-def calibration_progress(db: DbSession, session_id: int, now_t: float | None
-                         ) -> dict[str, Any]:
+def calibration_progress(db: DbSession, session_id: int, now_t: float | None,
+                         streaming: bool = True) -> dict[str, Any]:
     """The session's calibration poses so far: each with its verdict, and the one held
     now (``holding``) with how long and how still, and, an N-pose on a kit with a trunk
-    sensor, whether the hold has pinned the trunk's lean yet (``trunk``: ``trunk_guide``)."""
+    sensor, whether the hold has pinned the trunk's lean yet (``trunk``: ``trunk_guide``).
+    ``streaming``: the session is live. When it is not (its stream lost, or stopped by
+    the server), a pose whose end mark never came was cut off, not held: ``cut_off`` of
+    each pose and ``holding_now`` (null then) say so (``pose-cut-off/1``); ``holding``
+    keeps naming the pose whose end has not come, as clients read it before."""
     marks = db.execute(select(models.Mark.t, models.Mark.label)
                        .where(models.Mark.session_id == session_id)
                        .order_by(models.Mark.t, models.Mark.id)).all()
@@ -167,7 +171,7 @@ def calibration_progress(db: DbSession, session_id: int, now_t: float | None
     exercise_t = None
     for t, label in marks:
         if label in POSES:
-            pose = {"name": label, "start": t, "end": None}
+            pose = {"name": label, "start": t, "end": None, "cut_off": False}
             poses.append(pose)
             open_[label] = pose
         elif label.startswith("end:") and label[4:] in open_:
@@ -193,8 +197,11 @@ def calibration_progress(db: DbSession, session_id: int, now_t: float | None
                                                          GUIDED_HOLD_MAX_S), now_t, "trunk")
                     if "trunk" in trunk:
                         pose["trunk"] = trunk_guide(trunk["trunk"], pose["start"], now_t)
+            pose["cut_off"] = not streaming
             holding = pose
-    return {"poses": poses, "holding": holding, "instructions": POSES, "exercise": exercise,
+    return {"poses": poses, "holding": holding,
+            "holding_now": holding if streaming else None,
+            "instructions": POSES, "exercise": exercise,
             "exercise_since_s": exercise_t, "stream_time_s": now_t}
 
 
@@ -292,7 +299,7 @@ def live_status(svc: Services, db: DbSession, patient_id: int,
         if name in totals:
             now_t = max(now_t or -np.inf, totals[name]["t_last"])
     latest = svc.hub.latest.get(patient_id)
-    calibration = calibration_progress(db, session.id, now_t)
+    calibration = calibration_progress(db, session.id, now_t, session.status == "live")
     mark = ({"name": calibration["exercise"], "t": calibration["exercise_since_s"]}
             if calibration["exercise"] else None)
     return {
@@ -319,9 +326,10 @@ async def get_live_status(patient_id: Id, therapist: Therapist,
                           svc: Annotated[Services, Depends(get_services)]) -> dict[str, Any]:
     """The patient's newest live (or interrupted) session: per-sensor connection, samples
     per second, lost-sample rate, last seen, battery and signal; the calibration poses so
-    far and the one being held; the exercise going on (``exercise``: its name, in words,
-    and its repetitions so far, ``server/live/motion.py``). ``session`` is null when
-    nothing is streaming."""
+    far and the one being held (``holding_now``, null once the stream stopped: a pose it
+    cut off is ``cut_off``, docs/extensions/pose-cut-off.md); the exercise going on
+    (``exercise``: its name, in words, and its repetitions so far,
+    ``server/live/motion.py``). ``session`` is null when nothing is streaming."""
     streams = _snapshot(svc, patient_id)
 
     motion = watching(svc.hub, patient_id)  # started once the patient is known as theirs
