@@ -93,8 +93,8 @@ def test_a_mark_the_live_angles_have_not_reached_is_a_count_of_zero():
     watch.add(_pose(7, t, _elbow_cycles(t, 99.0)))
     found = current_exercise(watch, 7, {"name": "elbow_flexion", "t": 10.5})
     assert found == {"name": "elbow_flexion", "label": "Elbow flexion", "source": "marks",
-                     "since_s": 10.5, "repetitions": 0, "angle": None,
-                     "counted_to_s": None}
+                     "since_s": 10.5, "repetitions": 0, "repetitions_done": 0,
+                     "angle": None, "counted_to_s": None}
 
 
 def _live_processes(server_pid: int) -> list[int]:

@@ -32,6 +32,8 @@ from websockets.asyncio.client import connect
 
 SPEED = 2.0
 MARK_S = 10.5  # the simulator's exercise starts at 11 s
+#: after the first turn of a both-ways exercise, before the second (13.75-15.75 s, 18.25 s)
+FIRST_TURN_DONE_S = 17.5
 
 
 server = server_fixture("one_count", "alice")
@@ -60,8 +62,10 @@ def test_the_kit_the_live_page_and_the_report_give_one_count(server, exercise, t
     patient = api.patient(f"One count {exercise}")
     device = api.device(patient["id"], "phone")
     plan = MessagePlan(recording, rows_per_message=6)
+    both_ways = CATALOGUE[exercise].both_ways
     feedback: list[dict] = []
     page: list[dict] = []
+    halfway: list[dict] = []
 
     async def reader(ws):
         async for raw in ws:
@@ -81,8 +85,21 @@ def test_the_kit_the_live_page_and_the_report_give_one_count(server, exercise, t
             await ws.send(json.dumps(hello))
             ready = json.loads(await ws.recv())
             task = asyncio.create_task(reader(ws))
-            await send_paced(ws, plan, SPEED, hold_at_s=MARK_S - 0.1,
-                             until=lambda: bool(feedback))
+            # a both-ways exercise: paused after its first turn (palm down and back,
+            # 13.75-15.75 s; the turn up begins at 18.25 s), the live page's count
+            sent = await send_paced(ws, plan, SPEED, hold_at_s=MARK_S - 0.1,
+                                    until=lambda: bool(feedback),
+                                    stop_at_s=FIRST_TURN_DONE_S if both_ways else None)
+            if both_ways:
+                for _ in range(240):
+                    status = (await asyncio.to_thread(
+                        api.http.get, f"/api/patients/{patient['id']}/live")).json()
+                    if ((status.get("exercise") or {}).get("counted_to_s") or 0) >= \
+                            FIRST_TURN_DONE_S - 0.5:
+                        break
+                    await asyncio.sleep(0.25)
+                halfway.append(status.get("exercise") or {})
+                await send_paced(ws, plan, SPEED, first=sent)
             for _ in range(60):  # the live side catches up with the end of the stream
                 await asyncio.sleep(0.25)
                 live = await asyncio.to_thread(
@@ -111,6 +128,14 @@ def test_the_kit_the_live_page_and_the_report_give_one_count(server, exercise, t
     assert page[0].get("angle") == angle
     assert kit == reported
     assert live_page == reported
+    if both_ways:
+        # one turn made of the first repetition's two: the page shows none done yet
+        # (before: "1 repetition" at the first turn, the report's 1 of a session ended
+        # there, 2 turns early for the set); the field of before keeps its value
+        print(f"after the first turn: {halfway[0]}")
+        assert halfway[0].get("repetitions") == 1
+        assert halfway[0].get("repetitions_done") == 0
+    assert page[0].get("repetitions_done") == reported  # the count the page shows
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2, 7])

@@ -17,6 +17,9 @@ the live page is the count the report will give:
   going on (its last repetition less than ``GROUP_GAP_S`` ago), named as the report
   names it.
 
+``repetitions_done`` is that count less a both-ways repetition whose turn the other way
+is still to come (``_done``): the count the page shows.
+
 Angles [deg] as the poses carry them; times are the session's [s].
 """
 
@@ -157,7 +160,8 @@ def current_exercise(motion: MotionWatch, session_id: int, mark: dict[str, Any] 
     if sid != session_id or not len(t) or start >= t[-1]:
         # no angles yet after the mark: the live estimation has not caught up with it
         return ({"name": mark["name"], "label": words(mark["name"]), "source": "marks",
-                 "since_s": mark["t"], "repetitions": 0, "angle": None,
+                 "since_s": mark["t"], "repetitions": 0, "repetitions_done": 0,
+                 "angle": None,
                  "counted_to_s": None}
                 if mark else None)
     rad = np.deg2rad(angles)
@@ -176,7 +180,7 @@ def current_exercise(motion: MotionWatch, session_id: int, mark: dict[str, Any] 
                  else mark["name"] if mark["name"] in found else _leading(found))
         return {"name": mark["name"], "label": words(mark["name"]), "source": "marks",
                 "since_s": mark["t"], "angle": angle, "counted_to_s": counted_to,
-                "repetitions": _count(found, angle)}
+                "repetitions": _count(found, angle), "repetitions_done": _done(found, angle)}
     groups = detected_groups({k: v for k, v in found.items() if v})
     if not groups:
         return None
@@ -190,12 +194,33 @@ def current_exercise(motion: MotionWatch, session_id: int, mark: dict[str, Any] 
     angle = _leading({k: in_group[k] for k in moved})
     return {"name": name, "label": words(name), "source": "detected", "since_s": a,
             "angle": angle, "counted_to_s": counted_to,
-            "repetitions": _count(in_group, angle)}
+            "repetitions": _count(in_group, angle), "repetitions_done": _done(in_group, angle)}
 
 
 def _count(found: dict[str, Any], angle: str | None) -> int:
     """``angle``'s repetitions among its excursions ``found[angle]`` (the report's count)."""
     return count_repetitions(found.get(angle, ()), angle in BOTH_WAYS) if angle else 0
+
+
+def _done(found: dict[str, Any], angle: str | None) -> int:
+    """``angle``'s repetitions done so far (``repetitions_done``): the report's count
+    (``_count``) less a both-ways repetition that has made only its first turn. The
+    report counts such a repetition (its count is the larger side's turns: a session
+    that ends there has it), so the live count, which goes up with the first turn, was a
+    repetition ahead of the patient through every second turn. A repetition is under way
+    when the newest turn raised the count and follows a turn the other way (or none):
+    the patient alternates, and the turn back is still to come. After a turn to the same
+    side (a patient who rests at one end, or turns one side ×N then the other ×N) each
+    turn is a repetition of its own, as the report counts it, and none is under way."""
+    turns = tuple(found.get(angle, ())) if angle else ()
+    count = _count(found, angle)
+    if angle not in BOTH_WAYS or not turns:
+        return count
+    last, before = turns[-1], turns[:-1]
+    if (count_repetitions(before, True) < count
+            and (not before or before[-1].direction != last.direction)):
+        return count - 1
+    return count
 
 
 def _leading(found: dict[str, Any]) -> str | None:
