@@ -45,6 +45,12 @@ def note(**values: Any) -> None:
         current.update({k: v for k, v in values.items() if v is not None})
 
 
+def noted() -> dict[str, Any]:
+    """What the current request's audit note holds so far: the patient and session its
+    route reached (empty outside a request)."""
+    return dict(_note.get() or {})
+
+
 def action_of(method: str, route: str) -> str:
     if method == "DELETE" and route in ("/api/patients/{patient_id}",
                                         "/api/sessions/{session_id}"):

@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import io
 import json
+import socket
 import zipfile
 
 import httpx
@@ -248,3 +249,73 @@ def test_a_change_made_outside_the_server_closes_feeds_soon(tmp_path):
         assert asyncio.run(scenario()) == 4401
     finally:
         server.stop()
+
+
+#: Rows of the recording whose export is downloaded: its recording.csv (13.5 MB) is more
+#: than the buffers between the server and a client that stops reading (~5 MB here).
+DOWNLOAD_ROWS = 400_000
+
+
+def held_download(server, token: str, path: str) -> socket.socket:
+    """A GET of ``path`` on a socket with a receive buffer of 256 KiB, read up to its
+    status line and headers: the rest of the answer waits at the server, as for a client
+    that reads slowly (a large file, a slow line) or holds it unread."""
+    s = socket.socket()
+    s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 18)  # set before it connects
+    s.connect(("127.0.0.1", server.port))
+    s.settimeout(30)
+    s.sendall(f"GET {path} HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer {token}\r\n\r\n"
+              .encode())
+    head = b""
+    while b"\r\n\r\n" not in head:
+        head += s.recv(1)
+    assert head.startswith(b"HTTP/1.1 200"), head
+    return s
+
+
+def read_on(s: socket.socket) -> tuple[int, bool]:
+    """The bytes of the (chunked) body read to its end or the connection's, and whether
+    the body ended as a whole answer does (its last, empty chunk)."""
+    body = bytearray()
+    with s:
+        while not body.endswith(b"\r\n0\r\n\r\n"):
+            part = s.recv(1 << 20)
+            if not part:
+                break
+            body += part
+    return len(body), body.endswith(b"\r\n0\r\n\r\n")
+
+
+def test_a_download_under_way_stops_when_its_right_goes(module_server):
+    # an export is built once, then sent as fast as the client reads: one whose right went
+    # meanwhile (the patient reassigned, the account disabled, the sign-in ended) was sent
+    # whole all the same, however long its client took to read it
+    server = module_server
+    alice, bob = server.client("alice"), server.client("bob")
+    root = admin(server)
+    lines = ["# armtrack-recording: 1", "# side: right", "# height_m: 1.75",
+             "t,sensor,ax,ay,az,gx,gy,gz,mx,my,mz"]
+    lines += [f"{i * 0.01:.2f},hand,0,9.81,0,0,0,0,,," for i in range(DOWNLOAD_ROWS)]
+    recording = ("\n".join(lines) + "\n").encode()
+    sessions = {}
+    for name in ("Moves away", "Stays"):
+        patient = bob.patient(name)
+        answer = bob.http.post("/api/recordings", data={"patient_id": patient["id"],
+                                                        "wait": "false"},
+                               files={"file": ("long.csv", recording, "text/csv")})
+        assert answer.status_code == 202, answer.text
+        sessions[name] = patient["id"], answer.json()["id"]
+    held = {name: held_download(server, bob.token, f"/api/sessions/{sid}/recording.csv")
+            for name, (_, sid) in sessions.items()}
+    answer = root.http.post(f"/api/admin/patients/{sessions['Moves away'][0]}/reassign",
+                            json={"therapist_id": therapist_id(root, "alice")})
+    assert answer.status_code == 200, answer.text
+    moved_bytes, moved_whole = read_on(held["Moves away"])
+    kept_bytes, kept_whole = read_on(held["Stays"])
+    print(f"\nafter the reassignment bob read {moved_bytes / 1e6:.1f} MB of the moved "
+          f"patient's recording.csv (whole: {moved_whole}), {kept_bytes / 1e6:.1f} MB of "
+          "his own patient's")
+    assert kept_whole, "the download of bob's own patient was cut off"
+    assert not moved_whole, "the moved patient's recording was sent whole to bob"
+    assert moved_bytes < kept_bytes, (moved_bytes, kept_bytes)
+    assert alice.http.get(f"/api/sessions/{sessions['Moves away'][1]}").status_code == 200

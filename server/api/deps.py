@@ -7,7 +7,8 @@ as to another therapist; they cannot add patients, nor be given one."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+import contextlib
+from collections.abc import AsyncIterator, Callable, Iterator
 from datetime import UTC, datetime
 from typing import Annotated, Any, TypeVar
 
@@ -19,7 +20,7 @@ from sqlalchemy.orm import Session as DbSession
 from .. import audit
 from ..auth import DEMO_USER, hash_token
 from ..db import models
-from ..live.access import holds
+from ..live.access import Watch, holds
 from ..services import ExportUnwanted, Services
 from .spool import SpooledResponse
 
@@ -80,7 +81,10 @@ async def in_export_turn(request: Request, asker: models.Therapist,
     with the therapist of the request's token as it is then: a sign-in that ended or an
     account disabled while the export waited is 401, and the ownership ``fn`` checks is
     read then too. A request whose client goes away while it waits is not built. Turns
-    are shared fairly among the therapists asking (``asker``: as read when it came)."""
+    are shared fairly among the therapists asking (``asker``: as read when it came).
+    A built export is sent for as long as that right holds (``live.access``, as a live
+    feed): the patient erased or reassigned, the session erased, the account disabled
+    or the sign-in ended while its client reads, the rest is not sent."""
     token = await oauth2(request)
     services = request.app.state.services
     held = services.exports_held
@@ -97,7 +101,10 @@ async def in_export_turn(request: Request, asker: models.Therapist,
         else:
             held.pop(asker.id, None)
 
+    checked_at = [services.access.generation]
+
     def work(db: DbSession) -> T:
+        checked_at[0] = services.access.generation  # the rights are read after this
         return fn(db, current_therapist(db, token, request), *args)
     try:
         answer = await services.run_export(work, owner=asker.id, gone=_disconnected(request))
@@ -109,9 +116,30 @@ async def in_export_turn(request: Request, asker: models.Therapist,
         raise
     if isinstance(answer, SpooledResponse):
         answer.on_end = release  # its file waits on disk until the download ends
+        reached = audit.noted()  # the patient (and session) fn read, as own_* noted them
+        if reached.get("patient_id") is not None:
+            answer.guard = _right_held(services, hash_token(token or ""), asker.id,
+                                       reached["patient_id"], reached.get("session_id"),
+                                       checked_at[0])
     else:
         release()
     return answer
+
+
+def _right_held(services: Services, token_hash: str, therapist_id: int, patient_id: int,
+                session_id: int | None, checked_at: int):
+    """A download's guard (``SpooledResponse.guard``): its right (read at access
+    generation ``checked_at``) watched as a live feed's is, ``cut`` called once it is
+    gone."""
+    @contextlib.asynccontextmanager
+    async def guard(cut: Callable[[int, str], None]) -> AsyncIterator[None]:
+        watch = Watch(token_hash, therapist_id, patient_id, session_id, cut)
+        try:
+            await services.access.added(watch, checked_at)
+            yield
+        finally:
+            services.access.remove(watch)
+    return guard
 
 
 #: Exports one account may have being made or downloaded at once (a built one waits for
