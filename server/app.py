@@ -10,6 +10,7 @@ from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from datetime import UTC, datetime
 
+from armtrack.estimator.orientation import DEFAULT_FILTER
 from armtrack.web.pages import api_docs
 from armtrack.web.pages import routes as pages
 from armtrack.web.viewer import routes as viewer_routes
@@ -44,6 +45,7 @@ from .security import BodyLimit, SecurityHeaders, UntrustedProxyNotice, UploadGa
 from .services import Services
 from .settings import Settings
 from .store.processing import estimator_version
+from .store.silence import close_silent, silent_sessions
 
 log = logging.getLogger("armtrack.retention")
 
@@ -70,6 +72,42 @@ async def retention_loop(services: Services) -> None:
         await asyncio.sleep(settings.retention_check_s)
 
 
+async def close_silent_sessions(services: Services) -> list[int]:
+    """Close the interrupted sessions silent for ``ARMTRACK_CLOSE_INTERRUPTED_AFTER_HOURS``
+    (docs/extensions/closed-after-silence.md) and estimate them: the ones closed. Each
+    under the therapist's close's guard (``Services.closing``: a resume meanwhile is
+    refused as closed) and only if still interrupted (a resume that came first wins)."""
+    hours = services.settings.close_interrupted_after_hours
+    cutoff = datetime.now(UTC).timestamp() - 3600.0 * hours
+    closed = []
+    for session_id in await services.run_db(silent_sessions, cutoff):
+        if session_id in services.closing:
+            continue
+        services.closing.add(session_id)
+        try:
+            if not await services.run_db(close_silent, session_id, cutoff, hours):
+                continue
+            # no stream of it is open (a resume now is refused); a parked live side goes
+            await services.end_session_streams(session_id, "session closed after silence")
+        finally:
+            services.closing.discard(session_id)
+        logging.getLogger("armtrack.silence").info(
+            "session %s closed after %g h without data from its kit", session_id, hours)
+        closed.append(session_id)
+        services.process_later(session_id, DEFAULT_FILTER)
+    return closed
+
+
+async def silence_loop(services: Services) -> None:
+    """``close_silent_sessions`` now and then."""
+    while True:
+        try:
+            await close_silent_sessions(services)
+        except Exception:  # a failed round is tried again at the next one
+            log.exception("closing silent interrupted sessions failed")
+        await asyncio.sleep(services.settings.close_interrupted_check_s)
+
+
 def create_app(settings: Settings | None = None) -> FastAPI:
     settings = settings or Settings()
 
@@ -91,9 +129,15 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         heap.settle()  # what start-up loaded is out of the collector's way from now on
         retention = (asyncio.create_task(retention_loop(services))
                      if settings.retention_days else None)
+        silence = (asyncio.create_task(silence_loop(services))
+                   if settings.close_interrupted_after_hours else None)
         try:
             yield
         finally:
+            if silence is not None:
+                silence.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await silence
             if retention is not None:
                 retention.cancel()
                 with contextlib.suppress(asyncio.CancelledError):

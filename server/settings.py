@@ -132,6 +132,11 @@ class Settings(BaseSettings):
                                          "this long after they ended; unset: keep them")
     retention_check_s: float = Field(3600.0, gt=0,
                                      description="how often the retention task runs [s]")
+    close_interrupted_after_hours: float = Field(
+        168.0, ge=0, description="close an interrupted session whose kit sent nothing for "
+        "this long, and estimate it (docs/extensions/closed-after-silence.md); 0: never")
+    close_interrupted_check_s: float = Field(
+        600.0, gt=0, description="how often interrupted sessions are checked for that [s]")
     access_check_s: float = Field(5.0, gt=0, description="how often open live feeds and 3D "
                                   "views are checked against rights changed elsewhere (the "
                                   "command line, another instance) [s]")

@@ -223,7 +223,9 @@ def _actors(db: DbSession, rows: list[models.AuditEntry]) -> list[AuditOut]:
         actor = (names.get(("t", row.therapist_id)) if row.therapist_id is not None
                  else names.get(("d", row.device_id)) if row.device_id is not None else None)
         if actor is None and row.therapist_id is None and row.device_id is None:
-            actor = "armtrack (retention)"
+            # the server's own actions: retention's erasures, a silent session's close
+            actor = ("armtrack (kit silent)" if row.action == "closed_silence"
+                     else "armtrack (retention)")
         out.append(AuditOut.model_validate(row).model_copy(update={"actor": actor}))
     return out
 

@@ -156,6 +156,10 @@ class SessionOut(BaseModel):
     stopped_by_server: StoppedByServer | None = Field(
         None, description="the server stopped the session's stream: why, when and what "
         "to do (docs/extensions/stream-stopped.md); null when it never did")
+    closed_after_silence: dict[str, Any] | None = Field(
+        None, description="the server closed this interrupted session after its kit sent "
+        "nothing for a long time: when, the last data, the setting and what it means "
+        "(docs/extensions/closed-after-silence.md); null when it did not")
     carries_on: int | None = Field(
         None, description="the session of the same kit this one carries on (it was full or "
         "closed while the kit streamed; its calibration poses were held there): "

@@ -38,6 +38,7 @@ from ..store.recordings import (
     session_recording,
     upload_blocks,
 )
+from ..store.silence import closed_after_silence
 from ..store.stopped import stopped_by_server
 from .deps import (
     Db,
@@ -75,7 +76,8 @@ def session_out(session: models.Session) -> SessionOut:
         calibration=session.calibration,
         estimator=session.estimator, processing_error=session.processing_error,
         dated=dated_by(session), stopped_by_server=stopped_by_server(session),
-        carries_on=carried_on.carries_on(session))
+        carries_on=carried_on.carries_on(session),
+        closed_after_silence=closed_after_silence(session))
 
 
 @router.get("/patients/{patient_id}/sessions", response_model=list[SessionOut])

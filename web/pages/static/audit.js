@@ -6,7 +6,8 @@
 const AUDIT_PAGE = 50;
 const AUDIT_ACTIONS = {
   viewed: "Viewed", listed: "Listed patients", exported: "Exported", uploaded: "Uploaded",
-  erased: "Erased", erased_retention: "Erased (retention)", viewed_3d: "Opened the 3D view",
+  erased: "Erased", erased_retention: "Erased (retention)",
+  closed_silence: "Closed (kit silent)", viewed_3d: "Opened the 3D view",
   reassigned: "Reassigned", issued_device: "Issued a kit", revoked_device: "Revoked a kit",
   discharged: "Discharged", readmitted: "Readmitted",
   changed: "Changed", viewed_live: "Watched live", issued_reset: "Issued a password reset",

@@ -1,0 +1,91 @@
+"""An interrupted session closed by the server after a long silence
+(docs/extensions/closed-after-silence.md). A kit switched off without a ``bye`` leaves its
+session ``interrupted``: it may resume, so it is neither estimated nor flagged, and stayed
+so until the therapist closed it. After ``ARMTRACK_CLOSE_INTERRUPTED_AFTER_HOURS`` (168 h)
+with no data from it, the server closes it as the therapist's Close would: every stored
+sample stays (acked data are never touched), the session is estimated, and a late resume
+is refused as for any closed session (``ingest.md``'s error; with ``closed-session/1`` its
+``next_seq``, and the kit sends the rest as a new session). The session keeps what
+happened under its metadata's ``SILENCE_KEY`` (a dict: an upload's header values are text,
+so it cannot forge one)."""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+from typing import Any
+
+from sqlalchemy import select, update
+from sqlalchemy.orm import Session as DbSession
+
+from .. import audit, clock
+from ..db import models
+from ..ingest.writer import SEEN_PREFIX
+
+SILENCE_KEY = "closed_after_silence"
+#: The stored record's fields and their types (anything else is not such a record).
+FIELDS = {"at": str, "last_data_at": str, "after_hours": float}
+
+
+def last_data_at(db: DbSession, session: models.Session) -> float:
+    """When the session last stored data from its kit [s, Unix time]: the newest of its
+    streams' stored arrival times (``writer.SEEN_PREFIX``); for a session with none kept
+    (no row stored, or rows stored before they were kept), its start."""
+    started = session.started_at  # SQLite gives naive UTC back
+    newest = (started if started.tzinfo else started.replace(tzinfo=UTC)).timestamp()
+    for (last_t,) in db.execute(select(models.Stream.last_t)
+                                .where(models.Stream.session_id == session.id)):
+        for key, at in (last_t or {}).items():
+            if key.startswith(SEEN_PREFIX) and isinstance(at, int | float):
+                newest = max(newest, float(at))
+    return newest
+
+
+def silent_sessions(db: DbSession, cutoff: float) -> list[int]:
+    """The interrupted sessions with no data since ``cutoff`` [s, Unix time], oldest
+    first."""
+    sessions = db.scalars(select(models.Session).where(models.Session.status == "interrupted")
+                          .order_by(models.Session.id)).all()
+    return [s.id for s in sessions if last_data_at(db, s) < cutoff]
+
+
+def close_silent(db: DbSession, session_id: int, cutoff: float, hours: float) -> bool:
+    """Close session ``session_id`` if it is still interrupted and silent since ``cutoff``
+    [s, Unix time], keeping the record (committed): True when this closed it. One
+    conditional UPDATE: a resume that made it live first (any instance) keeps it live; a
+    resume after it finds it closed and is refused (``endpoint._reopened``)."""
+    session = db.get(models.Session, session_id)
+    if session is None or session.status != "interrupted":
+        return False
+    last = last_data_at(db, session)
+    if last >= cutoff:
+        return False
+    now = clock.now()
+    record = {"at": now.isoformat(), "after_hours": float(hours),
+              "last_data_at": datetime.fromtimestamp(last, now.tzinfo).isoformat()}
+    meta = {**(session.meta or {}), SILENCE_KEY: record}
+    changed = db.execute(update(models.Session)
+                         .where(models.Session.id == session_id,
+                                models.Session.status == "interrupted")
+                         .values(status="closed", ended_at=now, meta=meta)).rowcount
+    if changed:  # in the audit log, with the close, as the retention's erasures are
+        audit.record(db, action="closed_silence", route="silence",
+                     patient_id=session.patient_id, session_id=session_id, commit=False)
+    db.commit()
+    return bool(changed)
+
+
+def closed_after_silence(session: models.Session) -> dict[str, Any] | None:
+    """The session's record with ``message``, the therapist's words; None when the server
+    did not close it."""
+    record = (session.meta or {}).get(SILENCE_KEY)
+    if not isinstance(record, dict) or any(
+            not isinstance(record.get(k), kind if kind is not float else int | float)
+            for k, kind in FIELDS.items()):
+        return None
+    out = {k: record[k] for k in FIELDS}
+    out["message"] = (
+        f"The server closed this session: its kit sent nothing for {out['after_hours']:g} "
+        "hours after the stream broke off without a goodbye (switched off, or out of "
+        "reach). Everything it sent is stored and estimated. A kit that comes back with "
+        "more of this session sends it as a new session.")
+    return out

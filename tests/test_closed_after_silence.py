@@ -1,0 +1,87 @@
+"""closed-after-silence/1 (docs/extensions/closed-after-silence.md): a kit switched off
+without a goodbye left its session ``interrupted`` for ever — no estimate, no report, no
+flags — until the therapist closed it. The server now closes it after
+``ARMTRACK_CLOSE_INTERRUPTED_AFTER_HOURS`` without data (here 1.8 s, checked every 0.2 s):
+every acked sample kept, the session estimated, a late resume refused as closed (with
+``closed-session/1``, the ``next_seq`` the kit sends the rest from), a live session left
+alone. A real server, real WebSocket kits."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import time
+
+from armtrack.estimator.simulation import SimulationConfig, simulate
+from armtrack.server.emulator import MessagePlan, hello_message
+from server_support import server_fixture
+from websockets.asyncio.client import connect
+
+server = server_fixture("closed_after_silence", "alice", env={
+    "ARMTRACK_CLOSE_INTERRUPTED_AFTER_HOURS": "0.0005",
+    "ARMTRACK_CLOSE_INTERRUPTED_CHECK_S": "0.2"})
+
+
+def test_a_kit_gone_without_a_goodbye_has_its_session_closed_and_estimated(server):
+    api = server.client("alice")
+    recording = simulate(SimulationConfig(exercise="elbow_flexion", repetitions=2, seed=4)
+                         ).recording
+    plan = MessagePlan(recording)
+    sent = int(len(plan) * 0.6)
+    gone = api.patient("Switched Off")
+    gone_token = api.device(gone["id"], "kit")["token"]
+    quiet = api.patient("Connected Quiet")
+    quiet_token = api.device(quiet["id"], "kit")["token"]
+
+    async def hello(ws, **more) -> dict:
+        await ws.send(json.dumps({**hello_message(recording, "kit"), **more}))
+        return json.loads(await ws.recv())
+
+    async def scenario():
+        async with connect(f"{server.ws_url}?token={quiet_token}") as still_open:
+            quiet_session = (await hello(still_open))["session"]
+            async with connect(f"{server.ws_url}?token={gone_token}") as ws:
+                ready = await hello(ws)
+                for seq in range(sent):
+                    await ws.send(plan.encode(seq))
+                async with asyncio.timeout(30):
+                    while json.loads(await ws.recv()).get("seq") != sent - 1:
+                        pass  # until the last message is acked: stored
+            # the socket closed without a bye: the kit switched off
+            session = ready["session"]
+            deadline = time.monotonic() + 60
+            while (got := api.http.get(f"/api/sessions/{session}").json())["status"] != "closed":
+                assert time.monotonic() < deadline, f"still {got['status']}"
+                await asyncio.sleep(0.1)
+            # the kit comes back late: refused as for any closed session
+            async with connect(f"{server.ws_url}?token={gone_token}") as ws:
+                asked = await hello(ws, resume=ready["stream"],
+                                    extensions=["closed-session/1"])
+            async with connect(f"{server.ws_url}?token={gone_token}") as ws:
+                plain = await hello(ws, resume=ready["stream"])
+            quiet_now = api.http.get(f"/api/sessions/{quiet_session}").json()["status"]
+        return session, got, asked, plain, quiet_now
+
+    session, got, asked, plain, quiet_now = asyncio.run(scenario())
+    print(f"\nclosed: {got['closed_after_silence']}\nlate resume: {asked}\nwithout "
+          f"closed-session: {plain}\na connected quiet kit's session: {quiet_now}")
+    record = got["closed_after_silence"]
+    assert record["after_hours"] == 0.0005
+    assert "sent nothing for 0.0005 hours" in record["message"]
+    assert got["ended_at"] is not None
+    stored_rows = sum(plan.rows(seq) for seq in range(sent))
+    assert got["samples"] == stored_rows
+    assert asked["type"] == "error" and asked["next_seq"] == sent
+    assert "is closed" in asked["reason"]
+    assert plain["type"] == "error" and "is closed" in plain["reason"]
+    assert "next_seq" not in plain
+    assert quiet_now == "live"
+    processed = api.wait_processed(session, timeout=120)
+    assert processed["processed"] and processed["processing_error"] is None
+    assert api.http.get(f"/api/sessions/{session}/report").status_code == 200
+    assert "closed_after_silence" not in api.http.get(
+        f"/api/sessions/{session}/recording.csv").text
+    entries = api.http.get("/api/audit", params={"limit": 200}).json()
+    print(f"audit: {[e for e in entries if e.get('session_id') == session]}")
+    assert any(e["action"] == "closed_silence" and e["actor"] == "armtrack (kit silent)"
+               for e in entries if e.get("session_id") == session)
