@@ -8,6 +8,7 @@ views that it takes away, while those it leaves alone go on."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import io
 import json
 import socket
@@ -17,7 +18,9 @@ import httpx
 import msgspec
 import pytest
 from server_support import PASSWORD, ServerProcess
-from test_viewer import CAMERA, SUBPROTOCOL
+from test_security_limits import rss_mb
+from test_viewer import CAMERA, SUBPROTOCOL, decode
+from viser import _messages
 from websockets.asyncio.client import connect
 from websockets.exceptions import ConnectionClosed
 
@@ -47,16 +50,19 @@ async def open_live(server, token: str, patient_id: int):
     return ws
 
 
-async def open_viewer(server, api, patient_id: int, session_id: int | None = None):
+async def open_viewer(server, api, patient_id: int, session_id: int | None = None,
+                      first: list[dict] | None = None):
     """A 3D view through a one-time grant, as a browser opens it; returns once viser
-    has sent its first frame."""
+    has sent its first frame (its messages added to ``first``, if given)."""
     answer = await asyncio.to_thread(api.http.post, "/api/viewer", json={
         "patient_id": patient_id, "session_id": session_id})
     assert answer.status_code == 200, answer.text
     url = f"ws://127.0.0.1:{server.port}{answer.json()['url'].rstrip('/')}"
     ws = await connect(url, subprotocols=[SUBPROTOCOL], max_size=None)
     await ws.send(msgspec.msgpack.encode(CAMERA.as_serializable_dict()))
-    await asyncio.wait_for(ws.recv(), 15)
+    frame = await asyncio.wait_for(ws.recv(), 15)
+    if first is not None:
+        first += decode(frame)
     return ws
 
 
@@ -319,3 +325,41 @@ def test_a_download_under_way_stops_when_its_right_goes(module_server):
     assert not moved_whole, "the moved patient's recording was sent whole to bob"
     assert moved_bytes < kept_bytes, (moved_bytes, kept_bytes)
     assert alice.http.get(f"/api/sessions/{sessions['Moves away'][1]}").status_code == 200
+
+
+def test_a_3d_view_cannot_make_the_server_keep_or_pass_on_what_it_sends(module_server):
+    # viser answers a client's GuiFormDirtyMessage by broadcasting it to every other
+    # client, through its persistent buffer: each one with a new uuid was kept for good
+    # and replayed to every 3D view opened later, another therapist's too
+    server = module_server
+    alice, bob = server.client("alice"), server.client("bob")
+    mine, theirs = alice.patient("Alice's viewer"), bob.patient("Bob's viewer")
+    marker = "sent-by-alices-view-"
+
+    async def scenario() -> tuple[float, list[dict]]:
+        view = await open_viewer(server, alice, mine["id"])
+        rss = []
+        for k in range(48):  # each near the 1 MiB a message may be
+            if k % 24 == 0:  # the second 24 MB: what reading them costs is paid by then
+                await still_open(view, 1.0)
+                rss.append(rss_mb(server.process.pid))
+            await view.send(msgspec.msgpack.encode(_messages.GuiFormDirtyMessage(
+                uuid=f"{marker}{k}-" + "x" * 1_000_000).as_serializable_dict()))
+        await still_open(view, 1.0)
+        grown = rss_mb(server.process.pid) - rss[1]
+        seen: list[dict] = []
+        other = await open_viewer(server, bob, theirs["id"], first=seen)
+        with contextlib.suppress(TimeoutError):  # up to the end of viser's replay
+            async with asyncio.timeout(10.0):
+                while not any(m.get("type") == "ReplayDoneMessage" for m in seen):
+                    seen += decode(await other.recv())
+        await view.close()
+        await other.close()
+        return grown, seen
+
+    grown, seen = asyncio.run(scenario())
+    passed_on = [m for m in seen if str(m.get("uuid", "")).startswith(marker)]
+    print(f"\nthe server grew {grown:.0f} MB for the second 24 MB sent; bob's new 3D view "
+          f"got {len(passed_on)} of alice's view's messages")
+    assert passed_on == [], f"{len(passed_on)} of alice's messages reached bob's view"
+    assert grown < 12, f"the server kept what a 3D view sent: +{grown:.0f} MB of 24"

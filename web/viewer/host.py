@@ -97,6 +97,22 @@ def refuse_share_tunnel(server: viser.ViserServer) -> None:
                           "its internals differ from 1.1's") from exc
 
 
+def refuse_form_relay(server: viser.ViserServer) -> None:
+    """Take away viser's answer to a client's ``GuiFormDirtyMessage``: it passes the
+    message on to every other client through its broadcast buffer, which keeps it for
+    good (a new ``uuid`` each time is a new message) and replays it to every client
+    that connects later. Any therapist's 3D view could send them, up to 1 MiB each:
+    the server kept twice what was sent (48 MB sent: +100 MB, and on) and another
+    therapist's view opened later received them. armtrack's views have no forms (viser
+    1.1's ``_websock_server.unregister_handler``; each client's own handler sends to
+    nobody: the message is never sent back to its sender)."""
+    try:
+        server._websock_server.unregister_handler(_messages.GuiFormDirtyMessage)
+    except (AttributeError, AssertionError, KeyError) as exc:
+        raise ViewerError(f"cannot take away viser {viser.__version__}'s form-dirty relay: "
+                          "its internals differ from 1.1's") from exc
+
+
 def quiet_viser_server(port: int = 0) -> viser.ViserServer:
     """A ``ViserServer`` on 127.0.0.1:``port`` (0: any free one) that prints nothing."""
     with _viser_prints_to_log():
@@ -141,6 +157,7 @@ class ViewerHost:
         server = quiet_viser_server(self.requested_port)
         self.server = server
         refuse_share_tunnel(server)
+        refuse_form_relay(server)
         on_websocket_open(server, self._gate)
         server.on_client_connect(self._connect)
         server.on_client_disconnect(self._disconnect)
