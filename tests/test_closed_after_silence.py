@@ -12,14 +12,21 @@ import asyncio
 import json
 import time
 
+import test_pages_browser
 from armtrack.estimator.simulation import SimulationConfig, simulate
 from armtrack.server.emulator import MessagePlan, hello_message
+from browser_helpers import sign_in_as
 from server_support import server_fixture
+from test_pages_browser import sync_api
 from websockets.asyncio.client import connect
+from websockets.sync.client import connect as sync_connect
 
 server = server_fixture("closed_after_silence", "alice", env={
     "ARMTRACK_CLOSE_INTERRUPTED_AFTER_HOURS": "0.0005",
     "ARMTRACK_CLOSE_INTERRUPTED_CHECK_S": "0.2"})
+browser_context = test_pages_browser.browser_context
+page = test_pages_browser.page
+shots = test_pages_browser.shots
 
 
 def test_a_kit_gone_without_a_goodbye_has_its_session_closed_and_estimated(server):
@@ -85,3 +92,39 @@ def test_a_kit_gone_without_a_goodbye_has_its_session_closed_and_estimated(serve
     print(f"audit: {[e for e in entries if e.get('session_id') == session]}")
     assert any(e["action"] == "closed_silence" and e["actor"] == "armtrack (kit silent)"
                for e in entries if e.get("session_id") == session)
+
+
+def test_the_session_page_says_the_server_closed_it_after_silence(server, page, shots):
+    """The therapist's session page says the server closed the session, when, and why
+    (before, only the API said so: the page showed a finished session like any other)."""
+    api = server.client("alice")
+    recording = simulate(SimulationConfig(exercise="elbow_flexion", repetitions=1, seed=5)
+                         ).recording
+    plan = MessagePlan(recording)
+    patient = api.patient("Silent Page")
+    token = api.device(patient["id"], "kit")["token"]
+
+    # (playwright's sync API runs an event loop in this thread: a sync kit here)
+    with sync_connect(f"{server.ws_url}?token={token}") as ws:
+        ws.send(json.dumps(hello_message(recording, "kit")))
+        session = json.loads(ws.recv(timeout=30))["session"]
+        ws.send(plan.encode(0))
+        while json.loads(ws.recv(timeout=30)).get("seq") != 0:
+            pass  # until it is acked: stored
+    # gone without a bye
+    deadline = time.monotonic() + 60
+    while (got := api.session(session))["closed_after_silence"] is None:
+        assert time.monotonic() < deadline, f"still {got['status']}"
+        time.sleep(0.1)
+    sign_in_as(page, server.url, "alice")
+    for width in (390, 1280):
+        page.set_viewport_size({"width": width, "height": 900})
+        page.goto(f"{server.url}/sessions/{session}")
+        note = page.locator("#closed-after-silence")
+        sync_api.expect(note).to_contain_text("server closed", timeout=30_000)
+        page.screenshot(path=str(shots / f"closed-after-silence-{width}.png"), full_page=True)
+        text = note.inner_text()
+        print(f"session page at {width}: {text!r}")
+        assert got["closed_after_silence"]["message"] in text
+        wide = page.evaluate("document.documentElement.scrollWidth")
+        assert wide <= width, f"session page {wide} px wide at {width}"

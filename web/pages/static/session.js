@@ -441,6 +441,7 @@ async function finishLive() {
       el("div", { class: "how" }, "Estimating the whole session; the replay opens when it is ready."))));
   for (let i = 0; i < 600; i++) {
     const fresh = await api(`/api/sessions/${session.id}`);
+    showClosedAfterSilence(fresh.closed_after_silence);
     if (fresh.processed || fresh.processing_error) { location.reload(); return; }
     await new Promise((r) => setTimeout(r, 1000));
   }
@@ -616,6 +617,17 @@ function showStopped(stop) {
   box.hidden = false;
 }
 
+// The server closed this interrupted session after its kit's long silence
+// (closed_after_silence, docs/extensions/closed-after-silence.md): when, and its words.
+function showClosedAfterSilence(record) {
+  const box = document.getElementById("closed-after-silence");
+  if (!record) return;
+  clear(box, el("h2", {}, `The server closed this session · ${fmtDate(record.at)}`),
+    el("p", {}, record.message),
+    el("p", { class: "small muted" }, `The kit last sent data ${fmtDate(record.last_data_at)}.`));
+  box.hidden = false;
+}
+
 // ---------------------------------------------------------------- start
 /** The session turned live, interrupted or closed while the page is open: its badge, and
  * the day's strip, which names each session's state ("live now", "interrupted"). */
@@ -639,6 +651,7 @@ async function start() {
   document.title = `${patient.name} · session ${session.id} · armtrack`;
   setStatus();
   showStopped(session.stopped_by_server);
+  showClosedAfterSilence(session.closed_after_silence);
   LiveFollow.start(session);
   if (session.status === "closed") {
     openViewer("replay");
