@@ -16,7 +16,7 @@ from datetime import datetime
 from typing import Any, TypeVar
 
 from armtrack.web.viewer.host import ViewerHost
-from sqlalchemy import update
+from sqlalchemy import select, update
 
 from .db import models
 from .db.engine import make_engine, make_sessionmaker
@@ -154,6 +154,7 @@ class Services:
         #: each account's live feeds, 3D views and unused viewer grants (live/slots)
         self.feed_slots = FeedSlots(settings.max_live_feeds_per_user)
         self._access_task: asyncio.Task | None = None
+        self._kit_check_task: asyncio.Task | None = None
         self._budget_task: asyncio.Task | None = None
 
     def schema_problem(self) -> str | None:
@@ -204,6 +205,8 @@ class Services:
         await self.viewer.start()
         self._access_task = asyncio.create_task(
             self.access.run(self.settings.access_check_s), name="armtrack-access-check")
+        self._kit_check_task = asyncio.create_task(
+            self._check_kits(self.settings.access_check_s), name="armtrack-kit-check")
         # all kits together are read at least as fast as one kit may be: a lone kit is
         # never slowed by the others' budget, however busy the loop
         settings = self.settings
@@ -213,7 +216,7 @@ class Services:
                                                 name="armtrack-ingest-budget")
 
     async def stop(self) -> None:
-        for task in (self._access_task, self._budget_task):
+        for task in (self._access_task, self._kit_check_task, self._budget_task):
             if task is not None:
                 task.cancel()
                 await asyncio.gather(task, return_exceptions=True)
@@ -416,6 +419,36 @@ class Services:
         for stream_id, parked in list(self.parked_live.items()):
             if parked.worker.session_id == session_id:
                 self._drop_parked(stream_id)
+
+    async def _check_kits(self, every_s: float) -> None:
+        """Every ``every_s`` seconds, close the open streams (and parked live sides) of
+        kits revoked or erased since they opened: a revoke or an erase closes those of its
+        own instance at once, but another instance behind the same database (or a stream
+        whose hello was read just before the revoke) learns it only from the database.
+        Before, a kit revoked on one instance streamed on into the other, acked."""
+        while True:
+            await asyncio.sleep(every_s)
+            try:
+                await self.recheck_kits()
+            except Exception:  # the database busy: the next round tries again
+                log.exception("kit check failed")
+
+    async def recheck_kits(self) -> int:
+        """Close the streams of every open kit whose token no longer holds (revoked, or
+        the kit erased with its patient); their number of kits."""
+        open_kits = {c.device_id for c in self.connections.values()} \
+            | {p.device_id for p in self.parked_live.values() if p.device_id is not None}
+        if not open_kits:
+            return 0
+
+        def valid(db) -> set[int]:
+            return set(db.scalars(select(models.Device.id).where(
+                models.Device.id.in_(open_kits), models.Device.revoked_at.is_(None))))
+        gone = open_kits - await self.run_db(valid)
+        for device_id in gone:
+            log.info("kit %s was revoked or erased: closing its streams", device_id)
+            await self.revoke_device(device_id)
+        return len(gone)
 
     async def revoke_device(self, device_id: int) -> None:
         """Close every open stream of a device with 4401, and let go of its parked live

@@ -137,9 +137,10 @@ class Settings(BaseSettings):
         "this long, and estimate it (docs/extensions/closed-after-silence.md); 0: never")
     close_interrupted_check_s: float = Field(
         600.0, gt=0, description="how often interrupted sessions are checked for that [s]")
-    access_check_s: float = Field(5.0, gt=0, description="how often open live feeds and 3D "
-                                  "views are checked against rights changed elsewhere (the "
-                                  "command line, another instance) [s]")
+    access_check_s: float = Field(5.0, gt=0, description="how often open live feeds, 3D "
+                                  "views and downloads, and kits' streams, are checked "
+                                  "against rights changed elsewhere (the command line, "
+                                  "another instance) [s]")
     audit_repeat_s: float = Field(60.0, ge=0, description="a repeated view of the same data "
                                   "by the same person within this time is logged once [s]")
 

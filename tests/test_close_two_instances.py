@@ -89,3 +89,36 @@ def test_a_close_on_one_instance_ends_the_stream_on_another(two):
     assert closed is not None, "the kit's stream on B stayed open after the close on A"
     assert acked == 9, f"messages sent after the close were acked up to {acked}"
     assert closed == 1000 and stored == 1000, (closed, stored)
+
+
+def test_a_kit_revoked_on_one_instance_stops_streaming_to_another(two):
+    # a revoke closed the kit's streams of its own instance only: on the other, the
+    # revoked token went on streaming into the patient's record, acked, for good
+    a, b = two
+    api = a.client("alice")
+    patient = api.patient("Revoked elsewhere")
+    kit = api.device(patient["id"])
+
+    async def run() -> tuple[int | None, float]:
+        async with connect(f"{b.ws_url}?token={kit['token']}") as ws:
+            await ws.send(json.dumps(HELLO))
+            assert json.loads(await ws.recv())["type"] == "ready"
+            revoked = await asyncio.to_thread(api.http.delete, f"/api/devices/{kit['id']}")
+            assert revoked.status_code == 204, revoked.text
+            start = asyncio.get_running_loop().time()
+            try:  # B learns it at its next periodic check (ARMTRACK_ACCESS_CHECK_S, 5 s)
+                async with asyncio.timeout(8):
+                    for seq in range(10_000):
+                        await ws.send(_samples(seq))
+                        await asyncio.sleep(0.1)
+            except ConnectionClosed as exc:
+                return (exc.rcvd.code if exc.rcvd else None,
+                        asyncio.get_running_loop().time() - start)
+            except TimeoutError:
+                return None, asyncio.get_running_loop().time() - start
+        return None, 0.0
+
+    code, after_s = asyncio.run(run())
+    print(f"\nthe revoked kit's stream on the other instance: close {code} after "
+          f"{after_s:.1f} s")
+    assert code == 4401, f"the revoked kit streamed on for {after_s:.1f} s"
