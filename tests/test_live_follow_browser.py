@@ -11,6 +11,7 @@ to ``ARMTRACK_SCREENSHOTS`` (else a temporary folder, printed)."""
 from __future__ import annotations
 
 import itertools
+import json
 import re
 import threading
 
@@ -186,3 +187,53 @@ def test_the_live_page_names_counts_and_follows_the_patient(module_server, page,
     total = max(a["repetitions"] for a in report.json()["exercises"][0]["angles"])
     print(f"report: {total} repetitions; live page: {seen[-1]}")
     assert total == REPETITIONS == seen[-1]
+
+
+def test_a_both_ways_repetition_under_way_reads_whole_at_390_and_1280_px(
+        module_server, page, shots):
+    """A both-ways repetition with its first turn made (``repetitions`` 1,
+    ``repetitions_done`` 0, as test_one_repetition_count measures it on a real stream):
+    the page says "0 repetitions" and, apart, "one under way", on one line of its own at
+    390 px (before: one run of large text that broke "one under / way"). The live status
+    is the server's, its exercise set to that state (a real stream reaches it only after
+    ~17 s of live estimation)."""
+    from armtrack.estimator.simulation import SimulationConfig, simulate
+    from armtrack.server.emulator import MessagePlan, hello_message
+    from browser_helpers import sign_in_as
+    from websockets.sync.client import connect
+
+    api = module_server.client("alice")
+    recording = simulate(SimulationConfig(exercise="pronation", repetitions=1, seed=5)).recording
+    patient = api.patient("Palm Turner")
+    token = api.device(patient["id"], "kit")["token"]
+
+    def first_turn_made(route):
+        answer = route.fetch()
+        status = answer.json()
+        status["exercise"] = {
+            "name": "pronation", "label": "Turn the palm (pronation/supination)",
+            "source": "marks", "since_s": 0.0, "angle": "forearm_rotation",
+            "counted_to_s": (status.get("calibration") or {}).get("stream_time_s"),
+            "repetitions": 1, "repetitions_done": 0}
+        route.fulfill(response=answer, body=json.dumps(status))
+
+    with connect(f"{module_server.ws_url}?token={token}") as ws:
+        ws.send(json.dumps(hello_message(recording, "kit")))
+        session = json.loads(ws.recv(timeout=30))["session"]
+        ws.send(MessagePlan(recording).encode(0))
+        sign_in_as(page, module_server.url, "alice")
+        page.route(f"**/api/patients/{patient['id']}/live", first_turn_made)
+        page.set_viewport_size({"width": 390, "height": 844})
+        page.goto(f"{module_server.url}/sessions/{session}")
+        for width in (390, 1280):
+            page.set_viewport_size({"width": width, "height": 900})
+            under_way = page.locator("#exercise-reps .under-way")
+            sync_api.expect(under_way).to_have_text("one under way", timeout=30_000)
+            box = page.locator("#exercise-now")
+            box.screenshot(path=str(shots / f"live-under-way-{width}.png"))
+            print(f"at {width}: {box.inner_text()!r}")
+            assert page.locator("#exercise-reps").inner_text().startswith("0 repetitions")
+            lines = page.evaluate(  # at once: each poll renders the count anew
+                "document.querySelector('#exercise-reps .under-way').getClientRects().length")
+            assert lines == 1, f"'one under way' broken over {lines} lines at {width} px"
+            no_horizontal_overflow(page, f"live page at {width}")

@@ -54,8 +54,9 @@ const LiveFollow = (() => {
     // repetitions done (live-exercise.md): a both-ways repetition counts once its turn the
     // other way comes, not with its first turn (a server of before sends only repetitions)
     const done = typeof exercise.repetitions_done === "number" ? exercise.repetitions_done : exercise.repetitions;
-    reps.textContent = `${done} ${done === 1 ? "repetition" : "repetitions"}`
-      + (exercise.repetitions > done ? " · one under way" : "");
+    // "one under way" apart, smaller and whole: at 390 px the large count broke it in two
+    clear(reps, `${done} ${done === 1 ? "repetition" : "repetitions"}`,
+      exercise.repetitions > done ? [" ", el("span", { class: "under-way" }, "one under way")] : null);
     const streamT = status.calibration ? status.calibration.stream_time_s : null;
     const behind = exercise.counted_to_s === null || exercise.counted_to_s === undefined || streamT === null
       ? null : streamT - exercise.counted_to_s;
