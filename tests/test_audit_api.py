@@ -103,7 +103,11 @@ def test_dates_are_days_of_the_clinics_calendar(srv):
     yesterday, tomorrow = today - timedelta(days=1), today + timedelta(days=1)
     assert entries(alice, patient_id=patient["id"], to_date=yesterday.isoformat()) == []
     assert entries(alice, patient_id=patient["id"], from_date=tomorrow.isoformat()) == []
-    # paging
+    # paging, over entries this test makes itself (the module's other tests may have run
+    # in another process: pytest -n)
+    other = alice.patient("Paged Patient")
+    assert alice.http.get(f"/api/patients/{other['id']}").status_code == 200
+    assert entries_once(alice, bool, patient_id=other["id"])
     all_mine = entries(alice)
     assert len(all_mine) >= 2
     assert entries(alice, limit=1, offset=1) == all_mine[1:2]
