@@ -28,10 +28,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.integrate import cumulative_trapezoid
 from scipy.spatial.transform import Rotation
 from scipy.special import sici
-from scipy.stats import chi2
 
 from ..body import Side
 from ..calibration import (
@@ -349,6 +347,8 @@ def _tilt_bias(track: SensorTrack, start: float, end: float):
     t, acc, gyr = t[a:b], acc[a:b], gyr[a:b]
     unit = _unit_rows(acc)
     g = _up(unit)
+    from scipy.integrate import cumulative_trapezoid  # here: scipy.integrate is slow to import
+
     turned = cumulative_trapezoid(gyr, t, axis=0, initial=0.0)
     y = unit + np.cross(turned, g)
     y -= y.mean(axis=0)
@@ -607,6 +607,8 @@ def _sway_centre(t: np.ndarray, up: np.ndarray, confidence: float | None = None
     error = scatter * float(weights @ told @ weights)
     if confidence is not None:
         dof = expected**2 / max(float(np.sum(residual_covariance**2)), 1e-300)
+        from scipy.stats import chi2  # here: scipy.stats takes ~1 s to import
+
         error *= dof / chi2.ppf(1.0 - confidence, dof)
     norm = np.linalg.norm(centre)
     return centre / norm, error / norm**2

@@ -16,7 +16,6 @@ from .. import audit, clock
 from ..db import models
 from ..programs import adherence, catalogue, store
 from ..programs import fhir as program_fhir
-from ..programs import pdf as program_pdf
 from ..programs.calendar import clinic_zone, today
 from ..programs.schemas import CatalogueOut, PrescriptionIn, ProgramIn, ProgramOut, VersionOut
 from ..reports.targets import patient_targets
@@ -194,6 +193,8 @@ def get_progress_pdf(patient_id: Id, db: Db, therapist: Therapist,
     patient = own_patient(db, therapist, patient_id)
     programs = adherence.patient_programs_progress(db, patient, settings)
     zone = clinic_zone(settings.clinic_timezone)
+    from ..programs import pdf as program_pdf  # here: matplotlib is slow to import
+
     data = program_pdf.progress_pdf(patient, programs, today(zone), settings.clinic_timezone,
                                     clinic_name=settings.clinic_name,
                                     therapist=therapist.full_name or therapist.username)

@@ -16,11 +16,10 @@ from sqlalchemy.orm import Session as DbSession
 from ..db import models
 from ..programs.adherence import patient_programs_progress
 from ..programs.stream import followed_version
-from ..reports import content, fhir, opensim, pdf
+from ..reports import content, fhir, opensim
 from ..reports import csv as report_csv
 from ..reports import progress as progress_mod
 from ..reports.content import AngleName, NoEstimates, SessionReport, TargetOut
-from ..reports.pdf_summary import Letterhead
 from ..reports.targets import (
     TargetIn,
     current_targets,
@@ -107,6 +106,9 @@ def _report_pdf(db: DbSession, therapist: models.Therapist, session_id: int,
         data = content.load_session(db, session)
     except NoEstimates as exc:
         raise HTTPException(status.HTTP_409_CONFLICT, str(exc)) from None
+    from ..reports import pdf  # here: matplotlib takes ~0.5 s to import (server start)
+    from ..reports.pdf_summary import Letterhead
+
     report = content.session_report(db, session, data=data)
     patient = data.patient
     letterhead = Letterhead(
