@@ -10,6 +10,7 @@ sample rate (nothing to remove) or the stretch is too short for the filter's pad
 from __future__ import annotations
 
 import numpy as np
+from scipy.signal import butter, sosfiltfilt
 
 from ..errors import InvalidArgument
 
@@ -24,8 +25,6 @@ def lowpass(x: np.ndarray, rate_hz: float, cutoff_hz: float | None) -> np.ndarra
         return x.copy()
     if not cutoff_hz > 0:
         raise InvalidArgument(f"cutoff_hz must be > 0 or None, got {cutoff_hz!r}")
-    from scipy.signal import butter, sosfiltfilt  # here: scipy.signal takes ~1 s to import
-
     sos = butter(_ORDER, cutoff_hz, fs=rate_hz, output="sos")
     padlen = 3 * (2 * len(sos) + 1)
     if x.size <= padlen:

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 from scipy.special import sici
+from scipy.stats import chi2
 
 from ..body import Side
 from ..calibration import (
@@ -607,8 +608,6 @@ def _sway_centre(t: np.ndarray, up: np.ndarray, confidence: float | None = None
     error = scatter * float(weights @ told @ weights)
     if confidence is not None:
         dof = expected**2 / max(float(np.sum(residual_covariance**2)), 1e-300)
-        from scipy.stats import chi2  # here: scipy.stats takes ~1 s to import
-
         error *= dof / chi2.ppf(1.0 - confidence, dof)
     norm = np.linalg.norm(centre)
     return centre / norm, error / norm**2
