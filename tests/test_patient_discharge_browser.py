@@ -156,3 +156,30 @@ def test_the_admins_therapist_counts_say_in_care_and_discharged(module_server, w
         fits(page, tmp_path, "admin-counts", width)
         page.screenshot(path=str(tmp_path / f"admin-counts-{width}.png"), full_page=True)
         print(f"screenshots at {width} px: {tmp_path}")
+
+
+def test_readmit_clicked_while_the_page_still_loads_leaves_discharge_offered(module_server):
+    """Found by the CI-identical run (the 1280-px case above, a loaded machine): Readmit,
+    shown as soon as the patient was read, was clicked while the page's tools still loaded;
+    the record card was then built from the tools' own first read (still discharged) and
+    hid "Discharge…" on a patient in care. Here the targets' answer is held until after
+    the click."""
+    api = module_server.client("alice")
+    patient = api.patient("Readmitted Early")
+    api.http.post(f"/api/patients/{patient['id']}/discharge").raise_for_status()
+    held = []
+    with page_at(1280) as page:
+        sign_in_as(page, module_server.url, "alice")
+        page.route(f"**/api/patients/{patient['id']}/targets", lambda route: held.append(route))
+        page.goto(f"{module_server.url}/patients/{patient['id']}")
+        readmit = page.get_by_role("button", name="Readmit")
+        sync_api.expect(readmit).to_be_visible()
+        page.wait_for_function("() => true")  # the held request is on its way
+        assert held, "the targets' request was not held"
+        readmit.click()
+        sync_api.expect(page.locator("#discharged")).to_be_hidden()
+        assert api.http.get(f"/api/patients/{patient['id']}").json()["discharged_at"] is None
+        for route in held:
+            route.continue_()
+        sync_api.expect(page.locator("#record-card")).to_be_visible()
+        sync_api.expect(page.get_by_role("button", name="Discharge…")).to_be_visible()

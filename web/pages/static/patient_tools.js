@@ -226,7 +226,12 @@ const PatientTools = (() => {
 
   async function start(id) {
     patientId = id;
-    patient = await api(`/api/patients/${patientId}`);
+    // what the page changes while the tools load (Readmit clicked on the notice) is what
+    // the record card is built from, not this first read
+    let changed = false;
+    document.addEventListener("armtrack:patient", (event) => { patient = event.detail; changed = true; });
+    const first = await api(`/api/patients/${patientId}`);
+    if (!changed) patient = first;
     if (!document.getElementById("tools")) document.querySelector("main").append(el("div", { id: "tools" }));
     await Promise.all([interrupted(), progress(), targets()].map((p) => p.catch((e) => showError(document.querySelector("main"), e))));
     record();
