@@ -26,10 +26,15 @@ def imported_modules(*argv: str, cwd: Path | None = None, env: dict | None = Non
     done = subprocess.run([sys.executable, "-X", "importtime", "-m", "armtrack.server.cli",
                            *argv], capture_output=True, text=True, cwd=cwd, input=stdin,
                           env={**os.environ, **(env or {})}, timeout=120)
-    modules = set(re.findall(r"^import time:\s+\d+ \|\s+\d+ \| *(\S+)$", done.stderr,
+    return reported_modules(done.stderr), done
+
+
+def reported_modules(stderr: str) -> set[str]:
+    """The modules a ``-X importtime`` report (a process's stderr) lists."""
+    modules = set(re.findall(r"^import time:\s+\d+ \|\s+\d+ \| *(\S+)$", stderr,
                              re.MULTILINE))
-    assert modules, f"no -X importtime report:\n{done.stderr[-2000:]}"
-    return modules, done
+    assert modules, f"no -X importtime report:\n{stderr[-2000:]}"
+    return modules
 
 
 def heavy_in(modules: set[str], packages=HEAVY) -> list[str]:
@@ -124,8 +129,7 @@ def test_the_server_starts_without_what_only_reports_and_calibration_use():
     done = subprocess.run([sys.executable, "-X", "importtime", "-c",
                            "import armtrack.server.app"], capture_output=True, text=True,
                           timeout=120)
-    modules = set(re.findall(r"^import time:\s+\d+ \|\s+\d+ \| *(\S+)$", done.stderr,
-                             re.MULTILINE))
+    modules = reported_modules(done.stderr)
     assert "armtrack.server.app" in modules, done.stderr[-2000:]
     late = ("matplotlib", "scipy.integrate")
     assert sorted(m for m in late if m in modules) == []

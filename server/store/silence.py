@@ -20,6 +20,7 @@ from sqlalchemy.orm import Session as DbSession
 from .. import audit, clock
 from ..db import models
 from ..ingest.writer import SEEN_PREFIX
+from .meta_records import typed_record
 
 SILENCE_KEY = "closed_after_silence"
 #: The stored record's fields and their types (anything else is not such a record).
@@ -77,12 +78,9 @@ def close_silent(db: DbSession, session_id: int, cutoff: float, hours: float) ->
 def closed_after_silence(session: models.Session) -> dict[str, Any] | None:
     """The session's record with ``message``, the therapist's words; None when the server
     did not close it."""
-    record = (session.meta or {}).get(SILENCE_KEY)
-    if not isinstance(record, dict) or any(
-            not isinstance(record.get(k), kind if kind is not float else int | float)
-            for k, kind in FIELDS.items()):
+    out = typed_record(session, SILENCE_KEY, FIELDS)
+    if out is None:
         return None
-    out = {k: record[k] for k in FIELDS}
     out["message"] = (
         f"The server closed this session: its kit sent nothing for {out['after_hours']:g} "
         "hours after the stream broke off without a goodbye (switched off, or out of "

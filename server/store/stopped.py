@@ -13,6 +13,7 @@ from typing import Any
 from sqlalchemy.orm import Session as DbSession
 
 from ..db import models
+from .meta_records import typed_record
 
 STOPPED_KEY = "stopped_by_server"
 #: The stored record's fields and their types (anything else is not a stop record).
@@ -39,16 +40,13 @@ def stopped_by_server(session: models.Session) -> dict[str, Any] | None:
     server never stopped its stream. ``message`` holds only the server's words:
     ``last_refused`` quotes the kit's own values (an unknown message type, verbatim), so
     it stays apart, shown as the kit's."""
-    stop = (session.meta or {}).get(STOPPED_KEY)
-    if not isinstance(stop, dict) or any(
-            not isinstance(stop.get(k), kind if kind is not float else int | float)
-            for k, kind in FIELDS.items()):
+    out = typed_record(session, STOPPED_KEY, FIELDS)
+    if out is None:
         return None
-    out = {k: stop[k] for k in FIELDS}
-    out["at"] = datetime.fromisoformat(stop["at"]).isoformat()
+    out["at"] = datetime.fromisoformat(out["at"]).isoformat()
     out["message"] = (
         "The server stopped this kit's stream: it refused too many of the kit's messages "
-        f"(more than {stop['refused_limit']} within {stop['window_s']:g} s; the server's "
+        f"(more than {out['refused_limit']} within {out['window_s']:g} s; the server's "
         "answer to the last one is shown apart), so the kit's data are not usable as sent. "
         "The kit stopped sending and asks the patient to contact you; everything it sent "
         "before is stored, and a phone kit keeps what it did not send. Check the kit with "
