@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import contextvars
 import io
 import logging
 import tempfile
@@ -22,6 +23,24 @@ log = logging.getLogger("armtrack.access")
 SPOOL_BYTES = 1 << 20
 #: An answer is sent this many bytes at a time [B].
 CHUNK_BYTES = 1 << 20
+
+#: Set in the request's task once ``SpooledResponse`` cut its download on purpose: the
+#: server then leaves the answer unfinished, which uvicorn logs as an error
+#: (``DeliberateCutNotError`` keeps that line out).
+download_cut: contextvars.ContextVar[bool] = contextvars.ContextVar("download_cut",
+                                                                   default=False)
+
+#: uvicorn's words for an answer its application left unfinished.
+UNFINISHED_ANSWER = "ASGI callable returned without completing response."
+
+
+class DeliberateCutNotError(logging.Filter):
+    """For uvicorn's error logger: drops its "returned without completing response" line
+    when the answer was a download cut off on purpose (the ``armtrack.access`` line before
+    it says why); any other unfinished answer is still logged as the error it is."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not (record.msg == UNFINISHED_ANSWER and download_cut.get())
 
 
 def spooled(write: Callable[[BinaryIO], None], data_dir: Path, media_type: str,
@@ -96,8 +115,9 @@ class SpooledResponse(StreamingResponse):
             sending.result()  # sent whole (or failed on its own)
             return
         code, reason = gone.result()
-        log.info("cut off a download of %s: %s (%s); the rest is not sent",
-                 scope.get("path"), reason, code)
+        download_cut.set(True)  # read by DeliberateCutNotError in this request's task
+        log.info("cut off a download of %s: %s (%s); the rest is not sent and the "
+                 "connection is closed", scope.get("path"), reason, code)
 
 
 def as_text(write: Callable[[TextIO], None]) -> Callable[[BinaryIO], None]:

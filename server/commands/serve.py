@@ -139,6 +139,7 @@ def run(args: argparse.Namespace) -> int:
 
     one_blas_thread()  # before numpy's first import (docs/operator.md#cpu-threads)
     import uvicorn
+    from armtrack.server.api.spool import DeliberateCutNotError
     from armtrack.server.app import create_app
     from armtrack.server.security import trusted_proxies, unsafe_settings
 
@@ -180,5 +181,6 @@ def run(args: argparse.Namespace) -> int:
     server = uvicorn.Server(config)  # its logging is set up here, so the filter stays
     for name in ("uvicorn.access", "uvicorn.error"):
         logging.getLogger(name).addFilter(RedactTokens())
+    logging.getLogger("uvicorn.error").addFilter(DeliberateCutNotError())
     server.run(sockets=[sock])
     return 0 if server.started else 3
