@@ -72,13 +72,21 @@ async def retention_loop(services: Services) -> None:
         await asyncio.sleep(settings.retention_check_s)
 
 
-async def close_silent_sessions(services: Services) -> list[int]:
+async def close_silent_sessions(services: Services, up_since: float) -> list[int]:
     """Close the interrupted sessions silent for ``ARMTRACK_CLOSE_INTERRUPTED_AFTER_HOURS``
     (docs/extensions/closed-after-silence.md) and estimate them: the ones closed. Each
     under the therapist's close's guard (``Services.closing``: a resume meanwhile is
-    refused as closed) and only if still interrupted (a resume that came first wins)."""
+    refused as closed) and only if still interrupted (a resume that came first wins).
+
+    Silence counts only while this server could hear the kit: from its last data, but
+    not before ``up_since`` [s, Unix time], when this server began to serve. A server
+    down longer than the setting closed, as it started, the sessions streaming when it
+    stopped, before their kits could reconnect; now every kit has the full setting of
+    the server's hearing to come back after a restart."""
     hours = services.settings.close_interrupted_after_hours
     cutoff = datetime.now(UTC).timestamp() - 3600.0 * hours
+    if up_since > cutoff:  # not up that long: no session is silent for the setting yet
+        return []
     closed = []
     for session_id in await services.run_db(silent_sessions, cutoff):
         if session_id in services.closing:
@@ -99,10 +107,12 @@ async def close_silent_sessions(services: Services) -> list[int]:
 
 
 async def silence_loop(services: Services) -> None:
-    """``close_silent_sessions`` now and then."""
+    """``close_silent_sessions`` now and then (silence counted from this loop's start:
+    the server serves from about then)."""
+    up_since = datetime.now(UTC).timestamp()
     while True:
         try:
-            await close_silent_sessions(services)
+            await close_silent_sessions(services, up_since)
         except Exception:  # a failed round is tried again at the next one
             log.exception("closing silent interrupted sessions failed")
         await asyncio.sleep(services.settings.close_interrupted_check_s)

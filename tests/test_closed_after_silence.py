@@ -4,26 +4,45 @@ flags — until the therapist closed it. The server now closes it after
 ``ARMTRACK_CLOSE_INTERRUPTED_AFTER_HOURS`` without data (here 1.8 s, checked every 0.2 s):
 every acked sample kept, the session estimated, a late resume refused as closed (with
 ``closed-session/1``, the ``next_seq`` the kit sends the rest from), a live session left
-alone. A real server, real WebSocket kits."""
+alone; after an outage longer than the setting, the kits that were streaming resume (silence
+counts only while the server is up). A real server, real WebSocket kits."""
 
 from __future__ import annotations
 
 import asyncio
 import json
 import time
+from datetime import UTC, datetime, timedelta
 
+import pytest
 import test_pages_browser
 from armtrack.estimator.simulation import SimulationConfig, simulate
 from armtrack.server.emulator import MessagePlan, hello_message
 from browser_helpers import sign_in_as
-from server_support import server_fixture
+from server_support import Zygote, ZygoteServerProcess
 from test_pages_browser import sync_api
 from websockets.asyncio.client import connect
 from websockets.sync.client import connect as sync_connect
 
-server = server_fixture("closed_after_silence", "alice", env={
-    "ARMTRACK_CLOSE_INTERRUPTED_AFTER_HOURS": "0.0005",
-    "ARMTRACK_CLOSE_INTERRUPTED_CHECK_S": "0.2"})
+ENV = {"ARMTRACK_CLOSE_INTERRUPTED_AFTER_HOURS": "0.0005",
+       "ARMTRACK_CLOSE_INTERRUPTED_CHECK_S": "0.2"}
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    """The module's server, forked from a zygote: a restart takes about a second."""
+    zygote = Zygote()
+    process = ZygoteServerProcess(tmp_path_factory.mktemp("closed_after_silence"), zygote,
+                                  dict(ENV))
+    try:
+        process.create_user("alice")
+        process.start()
+        yield process
+        process.stop()
+    finally:
+        zygote.close()
+
+
 browser_context = test_pages_browser.browser_context
 page = test_pages_browser.page
 shots = test_pages_browser.shots
@@ -128,3 +147,65 @@ def test_the_session_page_says_the_server_closed_it_after_silence(server, page, 
         assert got["closed_after_silence"]["message"] in text
         wide = page.evaluate("document.documentElement.scrollWidth")
         assert wide <= width, f"session page {wide} px wide at {width}"
+
+
+def _stream_some(server, token: str, recording, count: int, *, kill: bool = False) -> dict:
+    """A kit's new stream: ``count`` messages of ``recording``, acked (stored); then the
+    socket drops without a bye — or, with ``kill``, the server is SIGKILLed under it.
+    The kit's ``ready``. (A sync client: after the page test, playwright's sync API
+    runs an event loop in this thread.)"""
+    plan = MessagePlan(recording)
+    with sync_connect(f"{server.ws_url}?token={token}") as ws:
+        ws.send(json.dumps(hello_message(recording, "kit")))
+        ready = json.loads(ws.recv(timeout=30))
+        for seq in range(count):
+            ws.send(plan.encode(seq))
+        while json.loads(ws.recv(timeout=30)).get("seq") != count - 1:
+            pass  # until the last is acked: stored
+        if kill:
+            server.kill()
+    return ready
+
+
+def _hello(server, token: str, recording, resume: str) -> dict:
+    """A kit's resume of stream ``resume``: the server's answer; the socket then drops."""
+    with sync_connect(f"{server.ws_url}?token={token}") as ws:
+        ws.send(json.dumps(hello_message(recording, "kit", resume=resume)))
+        return json.loads(ws.recv(timeout=30))
+
+
+def test_a_restart_after_a_long_outage_lets_the_kits_that_were_streaming_resume(server):
+    """A server that was down longer than the setting closed, as it started, the sessions
+    streaming when it stopped, before their kits could reconnect: their resumes were
+    refused. Silence is now counted from when this server could hear the kit (not before
+    it started), so the kit resumes. The outage: the server SIGKILLed under a streaming
+    kit and the stored times set back an hour; restarted with the setting at 36 s (the
+    module's 1.8 s is shorter than a loaded machine may take to reconnect), then as it was."""
+    api = server.client("alice")
+    recording = simulate(SimulationConfig(exercise="elbow_flexion", repetitions=1, seed=6)
+                         ).recording
+    token = api.device(api.patient("Streaming At Outage")["id"], "kit")["token"]
+    try:
+        ready = _stream_some(server, token, recording, 3, kill=True)
+        session = ready["session"]
+        hour_ago = datetime.now(UTC) - timedelta(hours=1)
+        server.sql("UPDATE sessions SET started_at = :t, created_at = :t WHERE id = :id",
+                   t=hour_ago.strftime("%Y-%m-%d %H:%M:%S.%f"), id=session)
+        for stream_id, last_t in server.sql(
+                "SELECT id, last_t FROM streams WHERE session_id = :id", id=session):
+            times = {k: (v - 3600 if k.startswith("~seen:") else v)
+                     for k, v in json.loads(last_t).items()}
+            server.sql("UPDATE streams SET last_t = :t WHERE id = :id",
+                       t=json.dumps(times), id=stream_id)
+        server.extra_env = {**ENV, "ARMTRACK_CLOSE_INTERRUPTED_AFTER_HOURS": "0.01"}
+        server.start()
+        up = time.monotonic()
+
+        answer = _hello(server, token, recording, ready["stream"])
+        print(f"\nresumed {time.monotonic() - up:.2f} s after the restart: {answer}")
+        assert answer["type"] == "ready" and answer["session"] == session, answer
+        assert answer["next_seq"] == 3
+    finally:
+        server.extra_env = dict(ENV)
+        server.kill()
+        server.start()
