@@ -420,3 +420,53 @@ def test_one_account_cannot_fill_the_disk_with_exports_it_does_not_read(server,
         time.sleep(0.5)
     again = alice.http.get(path, timeout=600)
     assert again.status_code == 200, "the account's exports were not given back"
+
+
+def test_a_burst_of_one_sessions_summaries_builds_it_once(server, recordings_dir):
+    # attack17: a session's summary, report and the patient's summaries list each built
+    # the session's report on a worker thread of its own when it was not kept yet: 20
+    # requests at once for one 90k-row session (a page reloaded, a script) built it 20
+    # times side by side: the server +585 MB (one: +48) and another therapist's plain
+    # request waited 7.6 s. Now one build per session at a time, the others take its
+    # result, and at most REPORT_BUILDS_AT_ONCE builds run at once
+    alice, carol = server.client("alice"), server.client("carol")
+    patient = alice.patient(name="Burst")
+    path = recordings_dir / "elbow_6axis_long.csv"
+    with path.open("rb") as f:
+        answer = alice.http.post("/api/recordings", data={"patient_id": patient["id"]},
+                                 files={"file": (path.name, f, "text/csv")}, timeout=900)
+    assert answer.status_code == 201, answer.text[:300]
+    session = answer.json()
+    own = carol.patient(name="Carol's own")
+    routes = [f"/api/sessions/{session['id']}/summary", f"/api/sessions/{session['id']}/report",
+              f"/api/patients/{patient['id']}/summaries?limit=200"] * 4
+    waits, done = [], threading.Event()
+
+    def other() -> None:
+        while not done.is_set():
+            start = time.monotonic()
+            assert carol.http.get(f"/api/patients/{own['id']}").status_code == 200
+            waits.append(time.monotonic() - start)
+            time.sleep(0.05)
+
+    async def burst() -> list[httpx.Response]:
+        limits = httpx.Limits(max_connections=len(routes), max_keepalive_connections=0)
+        async with httpx.AsyncClient(base_url=server.url, headers=alice.http.headers,
+                                     limits=limits, timeout=300) as http:
+            return await asyncio.gather(*(http.get(r) for r in routes))
+
+    answers = []
+    watcher = threading.Thread(target=other)
+    watcher.start()
+    try:
+        growth = peak_growth_mb(server.process.pid,
+                                lambda: answers.extend(asyncio.run(burst())))
+    finally:
+        done.set()
+        watcher.join()
+    print(f"\n{len(routes)} summaries and reports of one {session['samples']}-row session "
+          f"at once: server +{growth:.0f} MB; another therapist's request at most "
+          f"{max(waits):.2f} s")
+    assert [a.status_code for a in answers] == [200] * len(routes)
+    assert growth < 150, f"the server grew {growth:.0f} MB: the session was built many times"
+    assert max(waits) < 2.0, f"another therapist waited {max(waits):.1f} s"

@@ -17,6 +17,7 @@ from fastapi import APIRouter, Query
 from sqlalchemy import select
 from sqlalchemy.orm import Session as DbSession
 
+from ..builds import REPORTS
 from ..db import models
 from ..store.coverage import session_coverage
 from ..store.processing import stored_estimates
@@ -152,6 +153,15 @@ def summarise(db: DbSession, session: models.Session) -> dict[str, Any]:
     cached = _cache.get(session.id)
     if cached is not None and cached[0] == key and session.status == "closed":
         return cached[1]
+    # one build per session at a time (it reads the whole session's estimates): a request
+    # for it meanwhile takes this one's result
+    return REPORTS.get(("summary", session.id, key), lambda: _summarise(db, session, key))
+
+
+def _summarise(db: DbSession, session: models.Session, key: tuple) -> dict[str, Any]:
+    cached = _cache.get(session.id)
+    if cached is not None and cached[0] == key and session.status == "closed":
+        return cached[1]  # built while this one waited
     totals = block_totals(db, session.id)
     end_t = max((v["t_last"] for v in totals.values()), default=None)
     start_t = min((v["t_first"] for v in totals.values()), default=None)

@@ -51,6 +51,7 @@ from armtrack.estimator.recording import Recording
 from pydantic import BaseModel, Field
 from sqlalchemy.orm import Session as DbSession
 
+from ..builds import REPORTS
 from ..db import models
 from ..lru import BoundedLru
 from ..store.coverage import session_coverage
@@ -594,8 +595,13 @@ def session_report(db: DbSession, session: models.Session,
     key = report_key(session)
     base = _CACHE.get(key)
     if base is None:
-        base = build_report(data or load_session(db, session), {})
-        if not keep:
-            return with_targets(base, targets, current)
-        _CACHE.put(key, base)
+        def build() -> SessionReport:
+            # one build per session at a time: a request for it meanwhile takes this one
+            if (found := _CACHE.get(key)) is not None:  # built while this one waited
+                return found
+            made = build_report(data or load_session(db, session), {})
+            if keep:
+                _CACHE.put(key, made)
+            return made
+        base = REPORTS.get(("report", key), build)
     return with_targets(base, targets, current)
