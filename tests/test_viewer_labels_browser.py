@@ -16,6 +16,7 @@ import itertools
 import math
 import re
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -43,11 +44,17 @@ def words_width(png: bytes) -> tuple[int, int]:
 
     The label's text rows: the tallest block of rows, in the lower 60 % of the view (below
     the panel and the notices), with at least 8 changes between dark grey ink and
-    anything else along them. In those rows (ink: grey and darker than 170 of 255, the
-label's antialiased strokes) the label is the leftmost ink (it ends at
-    its point on the arm and runs outward, to the left for a right arm); its words end
-    where a gap of at least 0.35 × the rows' height has no ink (a space)."""
+    anything else along them. Ink: grey and darker than 170 of 255 (the label's
+    antialiased strokes); the label's own glyphs are the pieces of ink (8-connected) that
+    lie within those rows (0.35 × their height above or below at most) and are at least
+    half as tall as them. What lies behind the label is not counted: a grid line or the
+    arm's edge running through the rows reaches beyond them, and the lone grey pixel a
+    grid line leaves at the label's edge is too short (it read 41 px instead of 78 where
+    it lay left of "Elbow", tests/fixtures/viewer/labels-390-stray-ink.png). In those rows
+    the label is the leftmost glyph (it hangs below its point on the arm); its words end
+    where a gap of at least 0.35 × the rows' height has no glyph ink (a space)."""
     from PIL import Image
+    from scipy import ndimage
 
     rgb = np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
     grey = rgb.max(axis=2) - rgb.min(axis=2) < 40
@@ -61,13 +68,20 @@ label's antialiased strokes) the label is the leftmost ink (it ends at
     runs = np.split(rows, np.flatnonzero(np.diff(rows) > 2) + 1)
     band = max(runs, key=len)
     lo, hi = int(band[0]), int(band[-1])
-    ink = ((rgb[lo:hi + 1].max(axis=2) < 170) & grey[lo:hi + 1]).any(axis=0)
-    cols = np.flatnonzero(ink)
-    word_gap = math.ceil(0.35 * (hi - lo + 1))
-    ends = [int(a) for a, b in itertools.pairwise(cols) if b - a - 1 >= word_gap]
+    height = hi - lo + 1
+    margin = math.ceil(0.35 * height)
+    ink = (rgb.max(axis=2) < 170) & grey
+    pieces, _ = ndimage.label(ink, structure=np.ones((3, 3), dtype=int))
+    glyphs = np.zeros_like(ink)
+    for number, (rows_of, cols_of) in enumerate(ndimage.find_objects(pieces), start=1):
+        if (rows_of.start >= lo - margin and rows_of.stop - 1 <= hi + margin
+                and rows_of.stop - rows_of.start >= height / 2):
+            glyphs[rows_of, cols_of] |= pieces[rows_of, cols_of] == number
+    cols = np.flatnonzero(glyphs[lo:hi + 1].any(axis=0))
+    ends = [int(a) for a, b in itertools.pairwise(cols) if b - a - 1 >= margin]
     if len(ends) < 2:
-        return 0, hi - lo + 1
-    return ends[1] - int(cols[0]) + 1, hi - lo + 1
+        return 0, height
+    return ends[1] - int(cols[0]) + 1, height
 
 
 @pytest.fixture(scope="module")
@@ -108,6 +122,14 @@ def label_on_screen(page, shots, server, width: int, height: int) -> int:  # noq
     width_px, rows_px = words_width(png)
     print(f"\nat {width} px: 'Elbow flexion' {width_px} px wide (text rows {rows_px} px high)")
     return width_px
+
+
+def test_the_label_is_measured_from_its_own_glyphs():
+    """A view at 390 px where a grid line left one grey pixel in the label's rows, 4 px
+    left of "Elbow" (taken while the arm moved): the label is measured, not the line."""
+    png = (Path(__file__).parent / "fixtures" / "viewer" / "labels-390-stray-ink.png"
+           ).read_bytes()
+    assert words_width(png) == (78, 9)
 
 
 def test_the_angle_labels_read_on_a_phone(server, page, shots):  # noqa: F811
