@@ -174,6 +174,34 @@ def _hello(server, token: str, recording, resume: str) -> dict:
         return json.loads(ws.recv(timeout=30))
 
 
+def test_a_kit_heard_again_without_data_gets_the_full_silence_again(server):
+    """Silence was counted from the last stored data only: a kit that came back, said
+    hello (sending nothing else) and went again was closed at the next check, though the
+    server had just heard it. It now counts from when the kit's connection was lost:
+    here the kit resumes at once, stays connected and quiet for a second, and drops; the
+    close comes the setting (1.8 s) after that drop, not after its data."""
+    api = server.client("alice")
+    recording = simulate(SimulationConfig(exercise="elbow_flexion", repetitions=1, seed=7)
+                         ).recording
+    token = api.device(api.patient("Heard Again")["id"], "kit")["token"]
+    ready = _stream_some(server, token, recording, 2)
+    with sync_connect(f"{server.ws_url}?token={token}") as ws:
+        ws.send(json.dumps(hello_message(recording, "kit", resume=ready["stream"])))
+        resumed = json.loads(ws.recv(timeout=30))
+        time.sleep(1.0)  # connected, sending nothing
+    dropped = time.time()
+    assert resumed["type"] == "ready", resumed
+    deadline = time.monotonic() + 60
+    while (got := api.session(ready["session"]))["closed_after_silence"] is None:
+        assert time.monotonic() < deadline, f"still {got['status']}"
+        time.sleep(0.1)
+    record = got["closed_after_silence"]
+    closed_after = datetime.fromisoformat(record["at"]).timestamp() - dropped
+    print(f"\nclosed {closed_after:.2f} s after the kit's second drop: {record}")
+    assert closed_after >= 1.8, record
+    assert datetime.fromisoformat(record["last_data_at"]).timestamp() < dropped - 1.0
+
+
 def test_a_restart_after_a_long_outage_lets_the_kits_that_were_streaming_resume(server):
     """A server that was down longer than the setting closed, as it started, the sessions
     streaming when it stopped, before their kits could reconnect: their resumes were

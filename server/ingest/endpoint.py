@@ -53,6 +53,7 @@ from . import budget, carried_on, protocol
 from .feedback import FEEDBACK_EXTENSION, Band, FeedbackRunner, FeedbackTracker
 from .protocol import Hello, Refused
 from .writer import (
+    HEARD_KEY,
     MAX_PENDING_PER_STREAM,
     ORDINAL_BASE_KEY,
     T_OFFSET_KEY,
@@ -814,7 +815,10 @@ def _feedback_start(db: DbSession, patient_id: int, session_id: int
 def _interrupt_session(db: DbSession, session_id: int, stream_id: str | None = None,
                        next_seq: int | None = None) -> bool:
     """A stream that went away without ``bye``: its session may be resumed. Not when the
-    stream has gone on elsewhere (stored past ``next_seq``: resumed on another instance)."""
+    stream has gone on elsewhere (stored past ``next_seq``: resumed on another instance).
+    The stream keeps when (``HEARD_KEY``): its kit was heard until now, whether it sent
+    data or only a hello or marks, and its silence counts from here (``store/silence.py``)."""
+    stream = None
     if stream_id is not None:
         stream = db.get(models.Stream, stream_id)
         if stream is not None and stream.next_seq != next_seq:
@@ -822,6 +826,8 @@ def _interrupt_session(db: DbSession, session_id: int, stream_id: str | None = N
     session = db.get(models.Session, session_id)
     if session is not None and session.status == "live":
         session.status = "interrupted"
+        if stream is not None:
+            stream.last_t = {**(stream.last_t or {}), HEARD_KEY: time.time()}
         db.commit()
         return True
     return False

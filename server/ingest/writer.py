@@ -67,6 +67,9 @@ ORDINAL_BASE_KEY = "~ordinal_base"
 #: ``~seen:forearm``: the sensor table's "last seen" of a stream no page watched, true for
 #: a backlog sent later (and faster) than it was recorded (``api/live_status.py``).
 SEEN_PREFIX = "~seen:"
+#: ``last_t`` key of when the stream's connection was lost without a ``bye`` [s, Unix
+#: time]: the kit was heard until then, data or not (``store/silence.py``).
+HEARD_KEY = "~heard"
 
 _STREAMS = models.Stream.__table__
 _SESSIONS = models.Session.__table__

@@ -7,7 +7,9 @@ sample stays (acked data are never touched), the session is estimated, and a lat
 is refused as for any closed session (``ingest.md``'s error; with ``closed-session/1`` its
 ``next_seq``, and the kit sends the rest as a new session). The session keeps what
 happened under its metadata's ``SILENCE_KEY`` (a dict: an upload's header values are text,
-so it cannot forge one)."""
+so it cannot forge one). Silence is counted from when the server last heard the kit
+(``silent_since``: data, or a connection of it open) and only while the server is up
+(``app.close_silent_sessions``)."""
 
 from __future__ import annotations
 
@@ -19,12 +21,26 @@ from sqlalchemy.orm import Session as DbSession
 
 from .. import audit, clock
 from ..db import models
-from ..ingest.writer import SEEN_PREFIX
+from ..ingest.writer import HEARD_KEY, SEEN_PREFIX
 from .meta_records import typed_record
 
 SILENCE_KEY = "closed_after_silence"
 #: The stored record's fields and their types (anything else is not such a record).
 FIELDS = {"at": str, "last_data_at": str, "after_hours": float}
+
+
+def silent_since(db: DbSession, session: models.Session) -> float:
+    """When the server last heard the session's kit [s, Unix time]: its last stored data
+    (``last_data_at``) or, later, when a stream of it lost its connection without a
+    ``bye`` (``writer.HEARD_KEY``: a kit that resumed and sent only a hello or marks, or
+    kept its socket open sending nothing, was heard until then)."""
+    newest = last_data_at(db, session)
+    for (last_t,) in db.execute(select(models.Stream.last_t)
+                                .where(models.Stream.session_id == session.id)):
+        at = (last_t or {}).get(HEARD_KEY)
+        if isinstance(at, int | float):
+            newest = max(newest, float(at))
+    return newest
 
 
 def last_data_at(db: DbSession, session: models.Session) -> float:
@@ -42,24 +58,25 @@ def last_data_at(db: DbSession, session: models.Session) -> float:
 
 
 def silent_sessions(db: DbSession, cutoff: float) -> list[int]:
-    """The interrupted sessions with no data since ``cutoff`` [s, Unix time], oldest
-    first."""
+    """The interrupted sessions whose kit was not heard since ``cutoff`` [s, Unix time]
+    (``silent_since``), oldest first."""
     sessions = db.scalars(select(models.Session).where(models.Session.status == "interrupted")
                           .order_by(models.Session.id)).all()
-    return [s.id for s in sessions if last_data_at(db, s) < cutoff]
+    return [s.id for s in sessions if silent_since(db, s) < cutoff]
 
 
 def close_silent(db: DbSession, session_id: int, cutoff: float, hours: float) -> bool:
-    """Close session ``session_id`` if it is still interrupted and silent since ``cutoff``
-    [s, Unix time], keeping the record (committed): True when this closed it. One
-    conditional UPDATE: a resume that made it live first (any instance) keeps it live; a
-    resume after it finds it closed and is refused (``endpoint._reopened``)."""
+    """Close session ``session_id`` if it is still interrupted and its kit not heard since
+    ``cutoff`` [s, Unix time] (``silent_since``), keeping the record (committed): True
+    when this closed it. One conditional UPDATE: a resume that made it live first (any
+    instance) keeps it live; a resume after it finds it closed and is refused
+    (``endpoint._reopened``)."""
     session = db.get(models.Session, session_id)
     if session is None or session.status != "interrupted":
         return False
-    last = last_data_at(db, session)
-    if last >= cutoff:
+    if silent_since(db, session) >= cutoff:
         return False
+    last = last_data_at(db, session)
     now = clock.now()
     record = {"at": now.isoformat(), "after_hours": float(hours),
               "last_data_at": datetime.fromtimestamp(last, now.tzinfo).isoformat()}
