@@ -40,6 +40,7 @@ from .audit import AuditMiddleware
 from .db.errors import lacks_schema, told
 from .ingest import endpoint
 from .live import endpoint as live_endpoint
+from .periodic import every
 from .plain_text import database_failed, validation_error
 from .security import BodyLimit, SecurityHeaders, UntrustedProxyNotice, UploadGate
 from .services import Services
@@ -64,12 +65,9 @@ async def retention_loop(services: Services) -> None:
     """Erase closed sessions past ``ARMTRACK_RETENTION_DAYS`` now and then (audited)."""
     settings = services.settings
     assert settings.retention_days is not None
-    while True:
-        try:
-            await services.run_db(erase_expired, settings.retention_days)
-        except Exception:  # a failed round is tried again at the next one
-            log.exception("retention: erasing expired sessions failed")
-        await asyncio.sleep(settings.retention_check_s)
+    await every(settings.retention_check_s,
+                lambda: services.run_db(erase_expired, settings.retention_days),
+                log=log, failed="retention: erasing expired sessions failed", at_once=True)
 
 
 async def close_silent_sessions(services: Services, up_since: float) -> list[int]:
@@ -110,12 +108,9 @@ async def silence_loop(services: Services) -> None:
     """``close_silent_sessions`` now and then (silence counted from this loop's start:
     the server serves from about then)."""
     up_since = datetime.now(UTC).timestamp()
-    while True:
-        try:
-            await close_silent_sessions(services, up_since)
-        except Exception:  # a failed round is tried again at the next one
-            log.exception("closing silent interrupted sessions failed")
-        await asyncio.sleep(services.settings.close_interrupted_check_s)
+    await every(services.settings.close_interrupted_check_s,
+                lambda: close_silent_sessions(services, up_since), log=log,
+                failed="closing silent interrupted sessions failed", at_once=True)
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:

@@ -31,6 +31,7 @@ from .live.broker import make_hub
 from .live.estimation import make_estimation
 from .live.slots import FeedSlots
 from .live.worker import LiveBatcher, LiveWorker
+from .periodic import every
 from .settings import Settings
 from .store.background import SessionProcessing
 from .store.processing import process_in_background
@@ -426,12 +427,7 @@ class Services:
         own instance at once, but another instance behind the same database (or a stream
         whose hello was read just before the revoke) learns it only from the database.
         Before, a kit revoked on one instance streamed on into the other, acked."""
-        while True:
-            await asyncio.sleep(every_s)
-            try:
-                await self.recheck_kits()
-            except Exception:  # the database busy: the next round tries again
-                log.exception("kit check failed")
+        await every(every_s, self.recheck_kits, log=log, failed="kit check failed")
 
     async def recheck_kits(self) -> int:
         """Close the streams of every open kit whose token no longer holds (revoked, or

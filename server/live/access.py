@@ -11,7 +11,6 @@ command line, another server instance)."""
 
 from __future__ import annotations
 
-import asyncio
 import logging
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -23,6 +22,7 @@ from sqlalchemy.orm import Session as DbSession
 
 from ..auth import DEMO_USER
 from ..db import models
+from ..periodic import every
 
 log = logging.getLogger("armtrack.access")
 
@@ -131,9 +131,4 @@ class AccessWatch:
 
     async def run(self, every_s: float) -> None:
         """Recheck every ``every_s`` seconds until cancelled."""
-        while True:
-            await asyncio.sleep(every_s)
-            try:
-                await self.recheck()
-            except Exception:  # the database busy: the next round tries again
-                log.exception("access check failed")
+        await every(every_s, self.recheck, log=log, failed="access check failed")
