@@ -5,9 +5,12 @@ processing, instead of another ``python``) and their loop over the server's requ
 from __future__ import annotations
 
 import contextlib
+import logging
 import multiprocessing
+import os
 import signal
 import socket
+import sys
 from collections.abc import Callable, Iterator
 from multiprocessing.connection import Connection
 from multiprocessing.process import BaseProcess
@@ -33,6 +36,21 @@ def become_child(name: str) -> None:
     stops its children)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     name_this_process(name)
+
+
+def exit_child() -> None:
+    """A child's end once its loop is done (told to stop, or the server gone): its log
+    and output flushed, then ``os._exit(0)``, without the interpreter's teardown of every
+    module it loaded (numpy, numba, scipy, SQLAlchemy), which nothing uses again. That
+    teardown took the processing child (at ``nice`` 19) 1.1-2.5 s, up to 13 s, to end
+    after it was told to stop on a busy machine (one 2-core box running tests), and every
+    server's stop waited for it. What a child stores is committed before it answers the
+    job; what it holds (files, sockets, its database connections) the kernel closes."""
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(0)
 
 
 def requests(conn: Connection) -> Iterator[Any]:

@@ -38,7 +38,14 @@ from armtrack.estimator.recording.points import PointsFrame
 
 from .. import heap
 from ..ingest.protocol import ROW_WIDTH, MarkMessage, Samples
-from ..processes import LIVE_ESTIMATION, become_child, end_child, requests, spawn_child
+from ..processes import (
+    LIVE_ESTIMATION,
+    become_child,
+    end_child,
+    exit_child,
+    requests,
+    spawn_child,
+)
 from .encoded import EncodedPose
 from .estimator import LiveEstimator
 
@@ -370,9 +377,10 @@ class EstimationProcess:
 
 def serve(conn: Connection) -> None:
     """The live estimation process: batches in, outcomes out, until told to stop (None)
-    or the server is gone (the pipe closes)."""
+    or the server is gone (the pipe closes); then it ends at once (``processes.exit_child``)."""
     become_child(LIVE_ESTIMATION)
     heap.settle()
     estimators: dict[int, LiveEstimator] = {}
     for jobs, closed in requests(conn):
         conn.send(run_jobs(estimators, jobs, closed))
+    exit_child()

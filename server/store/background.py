@@ -48,7 +48,14 @@ from typing import Any
 
 from sqlalchemy.engine import make_url
 
-from ..processes import PROCESSING, become_child, end_child, requests, spawn_child
+from ..processes import (
+    PROCESSING,
+    become_child,
+    end_child,
+    exit_child,
+    requests,
+    spawn_child,
+)
 
 log = logging.getLogger("armtrack.processing")
 
@@ -220,7 +227,8 @@ class SessionProcessing:
 
 def serve(conn: Connection, database_url: str) -> None:
     """The processing child: (session id, filter) jobs in, None or a traceback out, one
-    at a time, until told to stop (None) or the server is gone (the pipe closes)."""
+    at a time, until told to stop (None) or the server is gone (the pipe closes); then it
+    ends at once (``processes.exit_child``)."""
     become_child(PROCESSING)
     with contextlib.suppress(OSError):
         os.nice(NICENESS)
@@ -243,7 +251,9 @@ def serve(conn: Connection, database_url: str) -> None:
         try:
             conn.send(answer)
         except OSError:
-            return
+            break
+    estimating.shutdown(wait=True)
+    exit_child()
 
 
 def _only_idle_cpu() -> None:
