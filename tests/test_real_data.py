@@ -119,12 +119,12 @@ def test_broad_meets_the_bars(shared_dir):
 #: Why RING's 9D seg4–seg5 pair is above VQF's (strict: remove when met). Measured with
 #: ``ring.sensor_headings`` (bench/README.md, ring.py): the field bends along the chain.
 RING_9D_SEG45 = (
-    "measured 9D seg4–seg5 26.51° (VQF 16.69°) on trial 1 and 23.82° (VQF 19.47°) on trial 2 "
+    "measured 9D seg4–seg5 23.56° (VQF 16.69°) on trial 1 and 22.49° (VQF 19.47°) on trial 2 "
     "(held out); the other four rigid hinge pairs are below VQF. The field read with the "
     "optical truth points +34/+37° off the chain's north at seg5 and +8/+11° at seg4, in both "
     "trials (−32…+37° from seg1 to seg5; a hard-iron fit turns seg5's field by under 2°, a "
     "soft- and hard-iron fit leaves 3.4–5.7 µT: a bent field, not a calibration a filter could "
-    "learn). qcf follows each sensor's field (seg4 −3.2/−0.7°, seg5 +21.2/+21.1° about its "
+    "learn). qcf follows each sensor's field (seg4 −1.0/+0.5°, seg5 +20.8/+20.8° about its "
     "north); VQF scores lower because it starts seg4 at the mean of its first 9 s (the "
     "disturbed start included: k ≥ 1/N for tauMag), then integrates its gyroscope alone until "
     "it first accepts seg4's field at 40.6/22.2 s (+13.8/+16.9°), erring the way seg5's field "

@@ -12,7 +12,12 @@ sensors need:
   field never tilts the estimate), and ignored while its norm or dip departs from the
   reference; the reference is the field that stayed put in the earth frame while the
   sensor turned (not the first sample's: kits start on tables, near laptops), so a field
-  disturbed from the first sample is replaced within seconds of moving;
+  disturbed from the first sample is replaced within seconds of moving; the heading
+  follows a clean field at ``tau_mag``, or faster where the heading's own uncertainty
+  (grown by the bias's σ about the vertical while the field was disturbed or not yet
+  trusted: ``bias_sigma`` until a rest has taught the bias) outweighs a reading's (the
+  field's accepted deviation, ``mag_norm_tolerance``, over its horizontal part, one
+  independent reading per ``tau_mag``): the Kalman gain of that heading, when larger;
 * the gyroscope bias estimated online: quickly whenever the sensor rests (rest detected
   from the low-passed gyroscope and accelerometer; half a second of stillness from the
   first sample already gives a provisional one, a sensor on foam or skin that vibrates
@@ -63,7 +68,8 @@ class QcfParams:
     tau_acc: float = 4.0
     #: The same at rest, and the longest used while the filter warms up [s].
     tau_acc_rest: float = 0.5
-    #: Time constant of the heading correction from the magnetometer [s].
+    #: Time constant of the heading correction from the magnetometer [s] (the longest: a
+    #: heading more uncertain than the field's reading follows it faster, see the module).
     tau_mag: float = 4.0
     #: Low-pass time constant of the rest detector [s].
     tau_lowpass: float = 0.5

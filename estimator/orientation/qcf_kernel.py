@@ -58,7 +58,9 @@ from its low-pass)² dt [rad²/s] · ``[157:160]`` the turn away from the low-pa
 path (its high-pass over ``tau_lp``) [rad] · ``[160]`` 1.0 when ``[161:167]`` hold the
 starting bias's covariance (p00, p11, p22, p01, p02, p12 [rad²/s²]: a prior known better
 than ``bias_sigma`` along some axis, ``QuaternionComplementaryFilter.gyr_bias_prior_cov``;
-the bias starts from it, and a still start taken back returns to it), 0.0: ``bias_sigma``².
+the bias starts from it, and a still start taken back returns to it), 0.0: ``bias_sigma``²
+· ``[167]`` the heading's own σ [rad]: grown by the bias's σ about the vertical, shrunk by
+each clean field reading as a Kalman step would (9-axis only).
 
 A kit whose gyroscope lags its accelerometer (``params[P_GYRO_DELAY]`` = d [s]: sample i's
 rates are those of ``t[i] − d``; 0 for most kits) is integrated over the accelerometer's
@@ -81,7 +83,7 @@ from ..jit import compiler
 from ..scalar_linalg import sym3_adjugate
 from ..scalar_rotations import quat_to_rows
 
-STATE_SIZE = 167
+STATE_SIZE = 168
 
 # Indices into the parameter vector, see QcfParams.as_array.
 (P_TAU_ACC, P_TAU_MAG, P_TAU_LP, P_REST_GYR, P_REST_ACC, P_REST_TIME,
@@ -296,6 +298,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     vx, vy, vz = state[24], state[25], state[26]
     ref_norm, ref_dip = state[27], state[28]
     disturbed_time = state[29]
+    sig_h = state[167]
     sx, sy, sz, count = state[30], state[31], state[32], state[33]
     px, py, pz, pending, pending_time = state[34], state[35], state[36], state[37], state[38]
     lwx, lwy, lwz = state[39], state[40], state[41]
@@ -831,6 +834,20 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
                     if abs(jump) > mag_restart:
                         t_mag_start = t[i]
                     disturbed_time = 0.0
+                # The heading's own uncertainty grows as the gyroscope drifts about the
+                # vertical: by the bias's σ along it, a MEMS bias's (bias_sigma) until a
+                # rest has taught it (the field-turning windows' covariance is
+                # overconfident where the field bends through space: RING's 9-axis bias
+                # about z 8-18 mrad/s off with σ ~2), the covariance's once one has.
+                if bias_known == 0.0:
+                    sig_h += math.sqrt(bias_var) * dt
+                else:
+                    vux = r00 * q20 + r10 * q21 + r20 * q22
+                    vuy = r01 * q20 + r11 * q21 + r21 * q22
+                    vuz = r02 * q20 + r12 * q21 + r22 * q22
+                    pu = (vux * vux * p00 + vuy * vuy * p11 + vuz * vuz * p22
+                          + 2.0 * (vux * vuy * p01 + vux * vuz * p02 + vuy * vuz * p12))
+                    sig_h += math.sqrt(max(pu, 0.0)) * dt
                 if disturbed:
                     # a window of the field's turning that the disturbance spoils is dropped
                     mw_time, m_started = 0.0, 0.0
@@ -927,7 +944,18 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
                     ref_dip += k_ref * (dip - ref_dip)
                     # warming up, the heading is the running mean of the first readings
                     tau_m = min(tau_mag, max(t[i] - t_mag_start, dt, 1e-3))
-                    step = dt / (tau_m + dt) * error
+                    k_h = dt / (tau_m + dt)
+                    # a heading whose drift since the field was last clean outweighs what
+                    # one reading tells (the field's accepted deviation over its horizontal
+                    # part, one independent reading per tau_mag) takes it at a Kalman gain
+                    r_h = ((mag_norm_tol / max(math.cos(ref_dip), 0.05)) ** 2
+                           * tau_mag / max(dt, 1e-6))
+                    v_h = sig_h * sig_h
+                    k_k = v_h / (v_h + r_h)
+                    if k_k > k_h:
+                        k_h = k_k
+                    sig_h = math.sqrt(v_h * (1.0 - k_h))
+                    step = k_h * error
                     delta += step
                     last_error, last_step = error, step
                     if not at_rest:
@@ -989,6 +1017,7 @@ def kernel_python(t, acc, gyr, mag, has_mag, params, state, out_q, out_bias, out
     state[24], state[25], state[26] = vx, vy, vz
     state[27], state[28] = ref_norm, ref_dip
     state[29] = disturbed_time
+    state[167] = sig_h
     state[30], state[31], state[32], state[33] = sx, sy, sz, count
     state[34], state[35], state[36], state[37], state[38] = px, py, pz, pending, pending_time
     state[39], state[40], state[41] = lwx, lwy, lwz
