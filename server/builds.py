@@ -8,6 +8,7 @@ therapist's plain request 7.6 s; tests/test_security_report_cost.py)."""
 from __future__ import annotations
 
 import threading
+from collections import deque
 from collections.abc import Callable, Hashable
 from concurrent.futures import Future
 from typing import TypeVar
@@ -18,12 +19,42 @@ T = TypeVar("T")
 REPORT_BUILDS_AT_ONCE = 2
 
 
+class Places:
+    """``count`` places, given in turn: a place given back goes to the thread that has
+    waited longest, never to one that asks again at once. (A semaphore let a request that
+    builds one session after another, as a patient's ``summaries?limit=200``, give its
+    place back and take it again ahead of those waiting: two such requests kept another
+    therapist's single build waiting while they built on; ``tests/test_builds.py``.)"""
+
+    def __init__(self, count: int):
+        self._free = count
+        self._lock = threading.Lock()
+        self._waiting: deque[threading.Event] = deque()
+
+    def acquire(self) -> None:
+        with self._lock:
+            if self._free and not self._waiting:
+                self._free -= 1
+                return
+            given = threading.Event()
+            self._waiting.append(given)
+        given.wait()  # the place was handed over by ``release``
+
+    def release(self) -> None:
+        with self._lock:
+            if self._waiting:
+                self._waiting.popleft().set()
+            else:
+                self._free += 1
+
+
 class Builds:
-    """One build per key at a time, at most ``at_once`` at once; a build that needs
-    another inside it (a summary needs the session's report) takes no second place."""
+    """One build per key at a time, at most ``at_once`` at once (the places given in
+    turn); a build that needs another inside it (a summary needs the session's report)
+    takes no second place."""
 
     def __init__(self, at_once: int):
-        self._places = threading.BoundedSemaphore(at_once)
+        self._places = Places(at_once)
         self._lock = threading.Lock()
         self._running: dict[Hashable, Future] = {}
         self._inside = threading.local()
