@@ -242,6 +242,7 @@ class EstimationProcess:
         self._writing = False  # waiting for the pipe to take more
         #: batches sent and not answered yet, oldest first: (future, keys of their jobs)
         self._waiting: deque[tuple[asyncio.Future, list[int]]] = deque()
+        self._given_work = False  # a batch was sent to the current child
 
     def start(self) -> None:
         """Start the child (on the event loop)."""
@@ -252,6 +253,7 @@ class EstimationProcess:
         process, ours = spawn_child(serve, name=f"armtrack-live-{self.index}")
         os.set_blocking(ours.fileno(), False)
         self._process, self._conn = process, ours
+        self._given_work = False  # no batch sent to this child yet
         self._out, self._in, self._writing = bytearray(), bytearray(), False
         self._waiting = deque()
         asyncio.get_running_loop().add_reader(ours.fileno(), self._readable, process)
@@ -260,6 +262,7 @@ class EstimationProcess:
         """Send a batch; the future gets its outcomes (on the event loop)."""
         if self._process is None:
             self._spawn()
+        self._given_work = True
         future = asyncio.get_running_loop().create_future()
         self._waiting.append((future, [key for key, _, _ in jobs]))
         payload = pickle.dumps((jobs, closed), pickle.HIGHEST_PROTOCOL)
@@ -368,9 +371,11 @@ class EstimationProcess:
         if process is None or conn is None:
             return
 
+        given_work = self._given_work
+
         def end() -> None:
             os.set_blocking(conn.fileno(), True)
-            end_child(process, conn, STOP_TIMEOUT_S)
+            end_child(process, conn, STOP_TIMEOUT_S, given_work=given_work)
 
         await asyncio.get_running_loop().run_in_executor(None, end)
 

@@ -103,6 +103,7 @@ class SessionProcessing:
         self._under_way: tuple[Future, int, str] | None = None
         self._process: multiprocessing.process.BaseProcess | None = None
         self._conn: Connection | None = None
+        self._given_work = False  # a job was sent to the current child
         self._stopped = False
 
     def start(self) -> None:
@@ -147,13 +148,15 @@ class SessionProcessing:
         with self._lock:
             process, conn = self._process, self._conn
             self._process = self._conn = None
+            given_work = self._given_work
         if process is not None and conn is not None:
-            end_child(process, conn, STOP_TIMEOUT_S)
+            end_child(process, conn, STOP_TIMEOUT_S, given_work=given_work)
 
     # -- the child and the pipe (under ``_lock``) -----------------------------------------
     def _spawn(self) -> None:
         process, ours = spawn_child(serve, self._url, name="armtrack-processing")
         self._process, self._conn = process, ours
+        self._given_work = False
         threading.Thread(target=self._read, args=(process, ours), daemon=True,
                          name="armtrack-processing-read").start()
 
@@ -167,6 +170,7 @@ class SessionProcessing:
             return
         self._under_way = job
         self._sent_at = time.monotonic()
+        self._given_work = True
         try:
             self._conn.send((job[1], job[2]))
         except OSError:  # the child died: its reader fails this job and starts another
