@@ -23,21 +23,25 @@ def _cpu(seconds: float) -> None:
 
 def test_a_waiting_build_gets_the_next_place_not_one_of_a_loop_that_holds_one():
     builds = Builds(2)
-    started, stop = [0], threading.Event()
+    started, busy, stop = [0], threading.Event(), threading.Event()
+
+    def build() -> None:
+        started[0] += 1
+        if started[0] >= 4:  # both places taken, over and over
+            busy.set()
+        _cpu(0.02)
 
     def loop(name: str) -> None:  # one session after another, as summaries?limit=200
         for i in range(10_000):
             if stop.is_set():
                 return
-            builds.get((name, i), lambda: started.__setitem__(0, started[0] + 1)
-                       or _cpu(0.02))
+            builds.get((name, i), build)
 
     loops = [threading.Thread(target=loop, args=(n,)) for n in ("first", "second")]
     for thread in loops:
         thread.start()
     try:
-        while started[0] < 4:  # both places taken, over and over
-            time.sleep(0.005)
+        assert busy.wait(30), "the loops' builds did not start"
         asked = started[0]
         began = time.perf_counter()
         seen = builds.get(("another", 0), lambda: started[0])
