@@ -369,3 +369,47 @@ def test_a_3d_view_cannot_make_the_server_keep_or_pass_on_what_it_sends(module_s
           f"got {len(passed_on)} of alice's view's messages")
     assert passed_on == [], f"{len(passed_on)} of alice's messages reached bob's view"
     assert grown < 12, f"the server kept what a 3D view sent: +{grown:.0f} MB of 24"
+
+
+def test_a_3d_views_gui_updates_of_any_value_write_nothing_to_the_log(module_server):
+    # attack17: viser takes a client's GuiUpdateMessage for any of its view's inputs with
+    # any property and any value: it sets them on the input (its callbacks list too) and
+    # calls armtrack's callbacks, whose errors it prints with their traceback to the
+    # server's output. One 3D view wrote 9.7 MB of tracebacks into the server's log in 3 s
+    # (92k messages), as long as it went on; a bad value could also stop its own replay
+    server = module_server
+    alice = server.client("alice")
+    mine = alice.patient("Alice's gui values")
+    log_before = server.log.stat().st_size
+
+    async def scenario() -> None:
+        first: list[dict] = []
+        view = await open_viewer(server, alice, mine["id"], first=first)
+        async with asyncio.timeout(15.0):  # the view's panels follow its first frame
+            while len(boxes := {m["props"]["label"]: m["uuid"] for m in first
+                                if m.get("type") == "GuiCheckboxMessage"}) < 2:
+                first += decode(await view.recv())
+
+        def update(label: str, **updates) -> bytes:
+            return msgspec.msgpack.encode(_messages.GuiUpdateMessage(
+                uuid=boxes[label], updates=updates).as_serializable_dict())
+        arcs = "Range-of-motion arcs"
+        await view.send(update(arcs, update_cb=5))  # its callbacks: no longer a list
+        await view.send(update(arcs, value={"not": "a bool"}))
+        for k in range(400):
+            await view.send(update(arcs, value=k % 2 == 0))
+        # what the page sends still works: the sensor frames shown
+        await view.send(update("Sensor frames", value=True))
+        async with asyncio.timeout(10.0):
+            while not any(m.get("type") == "SetSceneNodeVisibilityMessage" and m["visible"]
+                          for m in decode(await view.recv())):
+                pass
+        await view.close()
+
+    asyncio.run(scenario())
+    with server.log.open("rb") as f:
+        f.seek(log_before)
+        written = f.read().decode(errors="replace")
+    print(f"\n402 GUI updates of a 3D view wrote {len(written)} bytes to the server's log")
+    assert "Traceback" not in written, written[-2000:]
+    assert len(written) < 2000, written[-2000:]

@@ -14,6 +14,7 @@ import asyncio
 import contextlib
 import io
 import logging
+import math
 import threading
 from concurrent.futures import Future
 from typing import Any
@@ -113,6 +114,54 @@ def refuse_form_relay(server: viser.ViserServer) -> None:
                           "its internals differ from 1.1's") from exc
 
 
+def valid_update(handle: Any, updates: Any) -> bool:
+    """Whether a client's ``GuiUpdateMessage`` for ``handle`` (one of its view's inputs)
+    is what viser's page sends: its ``value`` alone, of the input's kind (a button's or
+    checkbox's a bool, a dropdown's one of its options, a slider's a finite number within
+    its range)."""
+    if not isinstance(updates, dict) or list(updates) != ["value"]:
+        return False
+    value, current = updates["value"], handle._impl.value
+    if handle._impl.is_button or isinstance(current, bool):
+        return isinstance(value, bool)
+    if isinstance(current, str):
+        return isinstance(value, str) and value in tuple(getattr(handle, "options", ()))
+    if isinstance(current, int | float):
+        low, high = getattr(handle, "min", None), getattr(handle, "max", None)
+        return (isinstance(value, int | float) and not isinstance(value, bool)
+                and math.isfinite(value) and low is not None and high is not None
+                and low <= value <= high)
+    return False
+
+
+def accept_valid_updates(client: viser.ClientHandle) -> None:
+    """Let through only ``valid_update``s of ``client``'s inputs; others are ignored,
+    the first of each client named in the log. viser takes any property with any value
+    (``update_cb``, the input's callbacks, too), then calls armtrack's callbacks, whose
+    errors it prints with their traceback: one 3D view wrote 9.7 MB of them into the
+    server's log in 3 s. Called before the view's inputs exist (viser 1.1's per-client
+    ``gui._websock_interface`` and ``_handle_gui_updates``)."""
+    gui = client.gui
+    try:
+        interface, original = gui._websock_interface, gui._handle_gui_updates
+        inputs = gui._gui_input_handle_from_uuid
+        interface.unregister_handler(_messages.GuiUpdateMessage, original)
+    except (AttributeError, AssertionError, ValueError) as exc:
+        raise ViewerError(f"cannot check viser {viser.__version__}'s GUI updates: its "
+                          "internals differ from 1.1's") from exc
+    named = [False]
+
+    async def checked(client_id: int, message: _messages.GuiUpdateMessage) -> None:
+        handle = inputs.get(message.uuid)
+        if handle is not None and valid_update(handle, message.updates):
+            await original(client_id, message)
+        elif handle is not None and not named[0]:
+            named[0] = True
+            log.warning("3D view client %s sent a value its view's inputs do not take; "
+                        "ignored (and any more it sends)", client_id)
+    interface.register_handler(_messages.GuiUpdateMessage, checked)
+
+
 def quiet_viser_server(port: int = 0) -> viser.ViserServer:
     """A ``ViserServer`` on 127.0.0.1:``port`` (0: any free one) that prints nothing."""
     with _viser_prints_to_log():
@@ -198,6 +247,7 @@ class ViewerHost:
             self._close(client.client_id, "no valid viewer grant")
             return
         try:
+            accept_valid_updates(client)  # before its inputs exist
             driver = self._build(client, grant)
         except Exception:
             log.exception("viewer of patient %s", grant.patient_id)
