@@ -5,6 +5,8 @@ processing, instead of another ``python``) and their loop over the server's requ
 from __future__ import annotations
 
 import contextlib
+import ctypes
+import importlib
 import logging
 import multiprocessing
 import os
@@ -56,6 +58,7 @@ def exit_child() -> None:
 def requests(conn: Connection) -> Iterator[Any]:
     """The server's requests to a child over ``conn``, until it says stop (None) or is
     gone (the pipe closes: also when the server was killed)."""
+    _die_with_parent(0)  # ready: from now on a killed server's child ends its job first
     while True:
         try:
             message = conn.recv()
@@ -80,10 +83,37 @@ def spawn_child(target: Callable[..., None], *args: Any, name: str
                 end.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, PIPE_BUFFER_BYTES)
             finally:
                 end.detach()  # the fd stays the connection's
-    process = context.Process(target=target, args=(theirs, *args), daemon=True, name=name)
+    process = context.Process(
+        target=_child_main, daemon=True, name=name,
+        args=(os.getpid(), target.__module__, target.__qualname__, theirs, *args))
     process.start()
     theirs.close()
     return process, ours
+
+
+#: Linux's prctl option: the signal this process gets when its parent (the thread of it
+#: that started this process) ends.
+PR_SET_PDEATHSIG = 1
+
+
+def _child_main(parent: int, module: str, name: str, conn: Connection, *args: Any) -> None:
+    """A spawned child's start, before it imports ``module`` (numpy, numba, the estimator:
+    1-3 s of CPU): while it imports, it ends with the server (Linux ``PR_SET_PDEATHSIG``).
+    A killed server's children otherwise went on importing for seconds, beside the next
+    server's, before they could see the pipe close. Once ready for requests
+    (``requests``) it no longer does: a job under way when the server is killed is
+    finished and stored, as before."""
+    _die_with_parent(signal.SIGTERM)
+    if os.getppid() != parent:  # the server ended before we asked
+        os._exit(0)
+    getattr(importlib.import_module(module), name)(conn, *args)
+
+
+def _die_with_parent(sig: int) -> None:
+    """Ask for ``sig`` when the parent ends (0: nothing); elsewhere than Linux, nothing."""
+    if sys.platform.startswith("linux"):
+        with contextlib.suppress(OSError, AttributeError):
+            ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, int(sig), 0, 0, 0)
 
 
 def end_child(process: BaseProcess, conn: Connection, timeout_s: float, *,
