@@ -12,6 +12,7 @@ import contextlib
 import io
 import json
 import socket
+import time
 import zipfile
 
 import httpx
@@ -413,3 +414,53 @@ def test_a_3d_views_gui_updates_of_any_value_write_nothing_to_the_log(module_ser
     print(f"\n402 GUI updates of a 3D view wrote {len(written)} bytes to the server's log")
     assert "Traceback" not in written, written[-2000:]
     assert len(written) < 2000, written[-2000:]
+
+
+def test_a_3d_view_sending_as_fast_as_it_can_is_paced(module_server):
+    # attack17: one view sending valid checkbox toggles as fast as it could (18k a second,
+    # each a redraw in viser's process) took another therapist's request from ~0.1 s to
+    # 2.5-2.8 s. The proxy now passes a view's messages at a page's pace at most
+    # (VIEW_MESSAGES_PER_S, a second's worth at once): past it TCP makes the page wait.
+    # Asserted on the cause, which load cannot fake: a burst of toggles, then one
+    # distinctive toggle, whose answer comes no sooner than the pace allows
+    from armtrack.web.viewer.proxy import VIEW_MESSAGES_PER_S
+    server = module_server
+    alice = server.client("alice")
+    mine = alice.patient("Alice's paced view")
+    burst = int(5 * VIEW_MESSAGES_PER_S)
+
+    async def scenario() -> float:
+        first: list[dict] = []
+        view = await open_viewer(server, alice, mine["id"], first=first)
+        async with asyncio.timeout(15.0):  # the view's panels follow its first frame
+            while len(boxes := {m["props"]["label"]: m["uuid"] for m in first
+                                if m.get("type") == "GuiCheckboxMessage"}) < 2:
+                first += decode(await view.recv())
+
+        def update(label: str, value: bool) -> bytes:
+            return msgspec.msgpack.encode(_messages.GuiUpdateMessage(
+                uuid=boxes[label], updates={"value": value}).as_serializable_dict())
+        shown = asyncio.get_running_loop().create_future()
+
+        async def read() -> None:
+            while True:
+                for m in decode(await view.recv()):
+                    if (m.get("type") == "SetSceneNodeVisibilityMessage" and m["visible"]
+                            and "/sensors/" in m.get("name", "")):
+                        shown.done() or shown.set_result(time.monotonic())
+        reading = asyncio.create_task(read())
+        start = time.monotonic()
+        for k in range(burst):  # toggles of the arcs, ending off
+            await view.send(update("Range-of-motion arcs", k % 2 == 0))
+        await view.send(update("Sensor frames", True))  # the last: the frames shown
+        async with asyncio.timeout(30.0):
+            took = await shown - start
+        reading.cancel()
+        await view.close()
+        return took
+
+    took = asyncio.run(scenario())
+    least = (burst + 1 - VIEW_MESSAGES_PER_S) / VIEW_MESSAGES_PER_S
+    print(f"\n{burst + 1} GUI messages sent at once: the last one's answer after {took:.2f} s "
+          f"(the pace allows it after {least:.2f} s at the soonest)")
+    assert took >= 0.9 * least, f"a view's {burst + 1} messages were taken in {took:.2f} s"

@@ -16,6 +16,12 @@ from websockets.typing import Subprotocol
 
 #: Close code when the viewer server cannot be reached.
 CLOSE_UPSTREAM_DOWN = 1011
+#: Most messages a 3D view's page is passed on a second, a second's worth at once (its
+#: camera while dragged sends one a frame): past it the proxy reads the page's next
+#: message later, TCP makes the page wait, nothing dropped. Without it one view sent 18k
+#: valid checkbox toggles a second, each a redraw: another therapist's request 6 ms ->
+#: 2.8 s at worst.
+VIEW_MESSAGES_PER_S = 240.0
 
 
 async def proxy(websocket: WebSocket, upstream_url: str,
@@ -42,7 +48,9 @@ async def proxy(websocket: WebSocket, upstream_url: str,
                 else:
                     await websocket.send_text(message)
 
-    async def up() -> None:  # browser → viser
+    async def up() -> None:  # browser → viser, at most VIEW_MESSAGES_PER_S
+        loop = asyncio.get_running_loop()
+        allowed, last = VIEW_MESSAGES_PER_S, loop.time()
         with contextlib.suppress(ConnectionClosed, WebSocketDisconnect):
             while True:
                 message = await websocket.receive()
@@ -52,6 +60,12 @@ async def proxy(websocket: WebSocket, upstream_url: str,
                     await upstream.send(message["bytes"])
                 elif message.get("text") is not None:
                     await upstream.send(message["text"])
+                now = loop.time()
+                allowed = min(VIEW_MESSAGES_PER_S,
+                              allowed + (now - last) * VIEW_MESSAGES_PER_S) - 1
+                last = now
+                if allowed < 0:
+                    await asyncio.sleep(-allowed / VIEW_MESSAGES_PER_S)
 
     tasks = [asyncio.create_task(down()), asyncio.create_task(up())]
     waited = [*tasks, revoked] if revoked is not None else tasks
