@@ -13,6 +13,7 @@ import os
 import signal
 import socket
 import sys
+import threading
 from collections.abc import Callable, Iterator
 from multiprocessing.connection import Connection
 from multiprocessing.process import BaseProcess
@@ -83,9 +84,15 @@ def spawn_child(target: Callable[..., None], *args: Any, name: str
                 end.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, PIPE_BUFFER_BYTES)
             finally:
                 end.detach()  # the fd stays the connection's
+    # Linux's parent-death signal comes when the *thread* that started the child ends:
+    # asked for only when that is the main thread (the server's event loop, which lives as
+    # long as the server), never when a worker or reader thread (which may end while the
+    # child still imports) starts it
+    with_parent = threading.current_thread() is threading.main_thread()
     process = context.Process(
         target=_child_main, daemon=True, name=name,
-        args=(os.getpid(), target.__module__, target.__qualname__, theirs, *args))
+        args=(os.getpid() if with_parent else 0, target.__module__, target.__qualname__,
+              theirs, *args))
     process.start()
     theirs.close()
     return process, ours
@@ -98,14 +105,17 @@ PR_SET_PDEATHSIG = 1
 
 def _child_main(parent: int, module: str, name: str, conn: Connection, *args: Any) -> None:
     """A spawned child's start, before it imports ``module`` (numpy, numba, the estimator:
-    1-3 s of CPU): while it imports, it ends with the server (Linux ``PR_SET_PDEATHSIG``).
+    1-3 s of CPU): while it imports, it ends with the server (Linux ``PR_SET_PDEATHSIG``)
+    if the server's main thread started it (``parent`` its pid; 0: not asked, since the
+    signal comes when the thread that started the child ends, not the process).
     A killed server's children otherwise went on importing for seconds, beside the next
     server's, before they could see the pipe close. Once ready for requests
     (``requests``) it no longer does: a job under way when the server is killed is
     finished and stored, as before."""
-    _die_with_parent(signal.SIGTERM)
-    if os.getppid() != parent:  # the server ended before we asked
-        os._exit(0)
+    if parent:  # started by the server's main thread (0: by another thread)
+        _die_with_parent(signal.SIGTERM)
+        if os.getppid() != parent:  # the server ended before we asked
+            os._exit(0)
     getattr(importlib.import_module(module), name)(conn, *args)
 
 

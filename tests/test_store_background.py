@@ -10,6 +10,7 @@ import statistics
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 from pathlib import Path
 
@@ -178,3 +179,24 @@ def test_the_child_ends_when_the_server_is_killed(database, tmp_path):
     finally:
         if server.poll() is None:
             server.kill()
+
+
+
+def test_a_child_outlives_the_thread_that_started_it(database):
+    """The child is started when a job comes (``submit``), often from a worker thread
+    that ends soon after, while the child still imports (a second or more). The child
+    must live on and do the job: one that asked to end with its parent (Linux's
+    PR_SET_PDEATHSIG means the thread that started it, not the process) died with that
+    thread and failed the job."""
+    url, engine, (_, _, third) = database
+    processing = SessionProcessing(url, 1, 1, lambda *_: None)
+    given: list = []
+    try:
+        starter = threading.Thread(target=lambda: given.append(
+            processing.submit(third, "qcf")) or time.sleep(0.3))
+        starter.start()
+        starter.join()  # it ends while the child it started still imports
+        given[0].result(timeout=120)
+        assert len(_estimates(engine, third)[1]) > 1000
+    finally:
+        processing.stop()
