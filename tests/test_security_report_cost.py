@@ -429,7 +429,8 @@ def test_a_burst_of_one_sessions_summaries_builds_it_once(server, recordings_dir
     # times side by side: the server +585 MB (one: +48) and another therapist's plain
     # request waited 7.6 s. Now one build per session at a time, the others take its
     # result, and at most REPORT_BUILDS_AT_ONCE builds run at once
-    alice, carol = server.client("alice"), server.client("carol")
+    server.create_user("fay")  # carol may be disabled by a test before
+    alice, fay = server.client("alice"), server.client("fay")
     patient = alice.patient(name="Burst")
     path = recordings_dir / "elbow_6axis_long.csv"
     with path.open("rb") as f:
@@ -437,16 +438,16 @@ def test_a_burst_of_one_sessions_summaries_builds_it_once(server, recordings_dir
                                  files={"file": (path.name, f, "text/csv")}, timeout=900)
     assert answer.status_code == 201, answer.text[:300]
     session = answer.json()
-    own = carol.patient(name="Carol's own")
+    own = fay.patient(name="Fay's own")
     routes = [f"/api/sessions/{session['id']}/summary", f"/api/sessions/{session['id']}/report",
               f"/api/patients/{patient['id']}/summaries?limit=200"] * 4
     waits, codes, done = [], [], threading.Event()
 
-    def other() -> None:  # what carol sees, asserted below (an assert here would only warn)
+    def other() -> None:  # what fay sees, asserted below (an assert here would only warn)
         while not done.is_set():
             start = time.monotonic()
             try:
-                codes.append(carol.http.get(f"/api/patients/{own['id']}").status_code)
+                codes.append(fay.http.get(f"/api/patients/{own['id']}").status_code)
             except httpx.HTTPError as exc:  # a timeout: a wait too, and not a 200
                 codes.append(repr(exc))
             waits.append(time.monotonic() - start)
