@@ -67,6 +67,22 @@ async def open_viewer(server, api, patient_id: int, session_id: int | None = Non
     return ws
 
 
+async def open_view_with_checkboxes(server, api, patient_id: int):
+    """A 3D view (``open_viewer``) once its panels are there: (the view, a function
+    giving a checkbox's ``GuiUpdateMessage`` by its label, ``update(label, **props)``)."""
+    first: list[dict] = []
+    view = await open_viewer(server, api, patient_id, first=first)
+    async with asyncio.timeout(15.0):  # the view's panels follow its first frame
+        while len(boxes := {m["props"]["label"]: m["uuid"] for m in first
+                            if m.get("type") == "GuiCheckboxMessage"}) < 2:
+            first += decode(await view.recv())
+
+    def update(label: str, **updates) -> bytes:
+        return msgspec.msgpack.encode(_messages.GuiUpdateMessage(
+            uuid=boxes[label], updates=updates).as_serializable_dict())
+    return view, update
+
+
 async def still_open(ws, seconds: float = 0.3) -> None:
     """Fails if ``ws`` closes within ``seconds`` (messages meanwhile are read away)."""
     try:
@@ -384,16 +400,7 @@ def test_a_3d_views_gui_updates_of_any_value_write_nothing_to_the_log(module_ser
     log_before = server.log.stat().st_size
 
     async def scenario() -> None:
-        first: list[dict] = []
-        view = await open_viewer(server, alice, mine["id"], first=first)
-        async with asyncio.timeout(15.0):  # the view's panels follow its first frame
-            while len(boxes := {m["props"]["label"]: m["uuid"] for m in first
-                                if m.get("type") == "GuiCheckboxMessage"}) < 2:
-                first += decode(await view.recv())
-
-        def update(label: str, **updates) -> bytes:
-            return msgspec.msgpack.encode(_messages.GuiUpdateMessage(
-                uuid=boxes[label], updates=updates).as_serializable_dict())
+        view, update = await open_view_with_checkboxes(server, alice, mine["id"])
         arcs = "Range-of-motion arcs"
         await view.send(update(arcs, update_cb=5))  # its callbacks: no longer a list
         await view.send(update(arcs, value={"not": "a bool"}))
@@ -430,16 +437,7 @@ def test_a_3d_view_sending_as_fast_as_it_can_is_paced(module_server):
     burst = int(5 * VIEW_MESSAGES_PER_S)
 
     async def scenario() -> float:
-        first: list[dict] = []
-        view = await open_viewer(server, alice, mine["id"], first=first)
-        async with asyncio.timeout(15.0):  # the view's panels follow its first frame
-            while len(boxes := {m["props"]["label"]: m["uuid"] for m in first
-                                if m.get("type") == "GuiCheckboxMessage"}) < 2:
-                first += decode(await view.recv())
-
-        def update(label: str, value: bool) -> bytes:
-            return msgspec.msgpack.encode(_messages.GuiUpdateMessage(
-                uuid=boxes[label], updates={"value": value}).as_serializable_dict())
+        view, update = await open_view_with_checkboxes(server, alice, mine["id"])
         shown = asyncio.get_running_loop().create_future()
 
         async def read() -> None:
@@ -451,8 +449,8 @@ def test_a_3d_view_sending_as_fast_as_it_can_is_paced(module_server):
         reading = asyncio.create_task(read())
         start = time.monotonic()
         for k in range(burst):  # toggles of the arcs, ending off
-            await view.send(update("Range-of-motion arcs", k % 2 == 0))
-        await view.send(update("Sensor frames", True))  # the last: the frames shown
+            await view.send(update("Range-of-motion arcs", value=k % 2 == 0))
+        await view.send(update("Sensor frames", value=True))  # the last: the frames shown
         async with asyncio.timeout(30.0):
             took = await shown - start
         reading.cancel()

@@ -31,30 +31,30 @@ FIELDS = {"at": str, "last_data_at": str, "after_hours": float}
 
 def silent_since(db: DbSession, session: models.Session) -> float:
     """When the server last heard the session's kit [s, Unix time]: its last stored data
-    (``last_data_at``) or, later, when a stream of it lost its connection without a
+    or, later, when a stream of it lost its connection without a
     ``bye`` (``writer.HEARD_KEY``: a kit that resumed and sent only a hello or marks, or
     kept its socket open sending nothing, was heard until then)."""
-    newest = last_data_at(db, session)
-    for (last_t,) in db.execute(select(models.Stream.last_t)
-                                .where(models.Stream.session_id == session.id)):
-        at = (last_t or {}).get(HEARD_KEY)
-        if isinstance(at, int | float):
-            newest = max(newest, float(at))
-    return newest
+    return last_times(db, session)[1]
 
 
-def last_data_at(db: DbSession, session: models.Session) -> float:
-    """When the session last stored data from its kit [s, Unix time]: the newest of its
-    streams' stored arrival times (``writer.SEEN_PREFIX``); for a session with none kept
-    (no row stored, or rows stored before they were kept), its start."""
+def last_times(db: DbSession, session: models.Session) -> tuple[float, float]:
+    """(when the session last stored data from its kit, ``silent_since``) [s, Unix time],
+    from one read of its streams: the data's time is the newest of its streams' stored
+    arrival times (``writer.SEEN_PREFIX``); for a session with none kept (no row stored,
+    or rows stored before they were kept), its start."""
     started = session.started_at  # SQLite gives naive UTC back
-    newest = (started if started.tzinfo else started.replace(tzinfo=UTC)).timestamp()
+    data = (started if started.tzinfo else started.replace(tzinfo=UTC)).timestamp()
+    heard = data
     for (last_t,) in db.execute(select(models.Stream.last_t)
                                 .where(models.Stream.session_id == session.id)):
         for key, at in (last_t or {}).items():
-            if key.startswith(SEEN_PREFIX) and isinstance(at, int | float):
-                newest = max(newest, float(at))
-    return newest
+            if not isinstance(at, int | float):
+                continue
+            if key.startswith(SEEN_PREFIX):
+                data = max(data, float(at))
+            elif key == HEARD_KEY:
+                heard = max(heard, float(at))
+    return data, max(data, heard)
 
 
 def silent_sessions(db: DbSession, cutoff: float) -> list[int]:
@@ -74,9 +74,9 @@ def close_silent(db: DbSession, session_id: int, cutoff: float, hours: float) ->
     session = db.get(models.Session, session_id)
     if session is None or session.status != "interrupted":
         return False
-    if silent_since(db, session) >= cutoff:
+    last, heard = last_times(db, session)
+    if heard >= cutoff:
         return False
-    last = last_data_at(db, session)
     now = clock.now()
     record = {"at": now.isoformat(), "after_hours": float(hours),
               "last_data_at": datetime.fromtimestamp(last, now.tzinfo).isoformat()}
