@@ -69,7 +69,8 @@ class Builds:
             running = self._running.get(key)
         if running is not None:
             return running.result()
-        if depth == 0:
+        held = depth == 0  # a build inside another takes no place of its own
+        if held:
             self._places.acquire()
         try:
             with self._lock:
@@ -77,24 +78,24 @@ class Builds:
                 if running is None:
                     mine = self._running[key] = Future()
             if running is not None:  # begun while this one waited for its place
-                if depth == 0:
+                if held:
                     self._places.release()
-                    depth = -1  # released
+                    held = False
                 return running.result()
-            self._inside.depth = max(depth, 0) + 1
+            self._inside.depth = depth + 1
             try:
                 value = build()
             except BaseException as exc:
                 mine.set_exception(exc)
                 raise
             finally:
-                self._inside.depth = max(depth, 0)
+                self._inside.depth = depth
                 with self._lock:
                     del self._running[key]
             mine.set_result(value)
             return value
         finally:
-            if depth == 0:
+            if held:
                 self._places.release()
 
 
