@@ -287,3 +287,30 @@ def test_progress_shows_each_session_against_the_target_with_a_trend(
     assert rows[0][:4] == ["session_id", "started_at", "status", "angle"]
     assert {r[0] for r in rows[1:]} == {str(s["session_id"]) for s in sessions}
     assert datetime.now(UTC) - started[-1] < timedelta(hours=1)
+
+
+def test_a_straight_arm_raise_is_not_counted_as_elbow_repetitions(module_server, alice):
+    """A phone on the forearm alone (6-axis at 60 Hz, phone-like errors): five elbow
+    flexions are five elbow repetitions; five forward raises of the straight arm turn the
+    forearm the same way (the elbow angle reads 150°) but about the shoulder, and count as
+    none, the report saying why in words (``estimator/metrics/elbow_pivot.py``)."""
+    from test_phone_kit_accuracy import phone_like
+
+    for exercise, expected in (("elbow_flexion", 5), ("shoulder_flexion", 0)):
+        recording, _, _ = phone_like(exercise, "forearm", 0, 5)
+        patient = alice.patient(f"forearm phone {exercise}", "right", 1.75)
+        token = alice.device(patient["id"], "phone")["token"]
+        session_id = stream(module_server, token, recording)
+        assert alice.wait_processed(session_id)["processing_error"] is None
+        report = alice.http.get(f"/api/sessions/{session_id}/report").json()
+        counted = sum(a["repetitions"] for e in report["exercises"] for a in e["angles"]
+                      if a["angle"] == "elbow_flexion")
+        warnings = report["quality"]["warnings"]
+        print(exercise, "elbow repetitions", counted, warnings)
+        assert counted == expected, (exercise, counted)
+        refused = [w for w in warnings if "not counted as elbow" in w]
+        if expected:
+            assert not refused, refused
+        else:
+            assert len(refused) == 1 and "5 movements" in refused[0] \
+                and "shoulder" in refused[0], warnings

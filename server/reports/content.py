@@ -47,6 +47,7 @@ from armtrack.estimator.metrics import (
     range_of_motion_table,
     repetition_smoothness,
 )
+from armtrack.estimator.metrics.elbow_pivot import split_elbow_repetitions, y_up_of_quats
 from armtrack.estimator.recording import Recording
 from pydantic import BaseModel, Field
 from sqlalchemy.orm import Session as DbSession
@@ -286,6 +287,34 @@ class SessionData:
         """``angles`` in [rad], made once."""
         return {k: np.deg2rad(v) for k, v in self.angles.items()}
 
+    @functools.cached_property
+    def forearm_turns(self) -> tuple[np.ndarray, ...] | None:
+        """A forearm-only kit's forearm sensor ``(t, acc, gyr, y_up)`` (its readings and
+        its long axis's upward component at their times, ``estimator/metrics/
+        elbow_pivot.py``); None for any other kit."""
+        sensors = self.recording.sensors
+        if "forearm" not in sensors or "upper_arm" in sensors \
+                or "forearm" not in self.quats or len(self.t) < 2:
+            return None
+        stream = sensors["forearm"]
+        y_up = np.interp(stream.t, self.t, y_up_of_quats(self.quats["forearm"]))
+        return stream.t, stream.acc, stream.gyr, y_up
+
+    def elbow_split(self, reps: Sequence[Repetition]
+                    ) -> tuple[list[Repetition], list[tuple[Repetition, float]]]:
+        """The elbow flexion's repetitions ``reps`` of a forearm-only kit split into the
+        elbow's own and the straight arm's raises about the shoulder, with their radius
+        [m] (``split_elbow_repetitions``); every one kept on any other kit."""
+        turns = self.forearm_turns
+        if turns is None:
+            return list(reps), []
+        return split_elbow_repetitions(reps, *turns)
+
+    def credited(self, angle: str, reps: Sequence[Repetition]) -> Sequence[Repetition]:
+        """``angle``'s repetitions that count: on a forearm-only kit an elbow flexion
+        made about the shoulder (the arm raised straight) is not the elbow's."""
+        return self.elbow_split(reps)[0] if angle == "elbow_flexion" else reps
+
 
 def span(t: np.ndarray, start_s: float, end_s: float, closed: bool = False) -> slice:
     """The samples of ``t`` [s] (non-decreasing) in ``[start_s, end_s)`` (``closed``:
@@ -462,15 +491,17 @@ def exercises(data: SessionData, moved: Sequence[str],
             angles = []
             inside = span(data.t, start, end)
             for angle in rom:
-                reps = detect_repetitions(rad[angle][inside], data.t[inside],
-                                          include=[(start, end)], exclude=exclude)
+                reps = data.credited(angle, detect_repetitions(
+                    rad[angle][inside], data.t[inside], include=[(start, end)],
+                    exclude=exclude))
                 if reps:
                     angles.append(angle_exercise(angle, rad[angle], data.t, reps))
             out.append(Exercise(name=name, source="marks", start_s=finite(start),
                                 end_s=finite(end), rom=rom, angles=angles))
         return out
     # detected: every moved angle's repetitions, grouped in time
-    found = {a: detect_repetitions(rad[a], data.t, exclude=exclude) for a in moved}
+    found = {a: data.credited(a, detect_repetitions(rad[a], data.t, exclude=exclude))
+             for a in moved}
     for a, b in detected_groups(found):
         angles = []
         for angle in moved:

@@ -19,6 +19,7 @@ disturbances, the calibration used and the warnings.
 from __future__ import annotations
 
 import numpy as np
+from armtrack.estimator.metrics import detect_repetitions
 from armtrack.estimator.metrics.timebase import runs
 from armtrack.estimator.sampling import packets, sample_interval_s, summarise_sampling
 
@@ -131,4 +132,26 @@ def quality(data: SessionData) -> Quality:
             final_time_s=finite(calibration.get("final_time_s")), poses=poses,
             excluded=excluded),
         estimator={str(k): str(v) for k, v in (session.estimator or {}).items()},
-        warnings=list(calibration.get("warnings") or []) + warnings)
+        warnings=list(calibration.get("warnings") or []) + warnings
+        + shoulder_turn_warnings(data))
+
+
+def shoulder_turn_warnings(data: SessionData) -> list[str]:
+    """A sentence when a forearm-only kit's elbow flexion went out and back about the
+    shoulder (the straight arm raised, ``estimator/metrics/elbow_pivot.py``): those
+    movements are not counted as elbow repetitions."""
+    if data.forearm_turns is None or "elbow_flexion" not in data.angles:
+        return []
+    reps = detect_repetitions(data.angles_rad["elbow_flexion"], data.t,
+                              exclude=data.exclude or None)
+    refused = data.elbow_split(reps)[1]
+    if not refused:
+        return []
+    low, high = (f"{f(radius for _, radius in refused):.2f}" for f in (min, max))
+    n = len(refused)
+    return [f"{n} movement{'s' if n != 1 else ''} of the forearm phone (from "
+            f"{refused[0][0].start_s:.1f} s) {'were' if n != 1 else 'was'} not counted as "
+            f"elbow repetitions: the forearm turned about a point "
+            f"{low if low == high else low + '–' + high} m away, the shoulder rather than "
+            "the elbow (the arm raised straight). A phone on the forearm counts the "
+            "elbow's bending only; for shoulder raises the phone goes on the upper arm"]
