@@ -5,10 +5,11 @@ scrolls inside its card instead, but the patients list, a patient's sessions, th
 sensor table (the live page's and the patient page's stream banner, "Last seen" in its
 card), the live page's joint angles, a session's ranges, the audit log and the accounts
 stack to fit it (inside the card's padding); at 1366 px the range tables fit their card,
-"% normal" column included. Pages: sign-in, patients, the patient page (sessions, kits,
-progress, programs and the programs editor; its stream banner), a finished session (range
-table), the live page during a stream, the audit log, the therapist's own account and the
-admin's accounts.
+"% normal" column included, and at 1280 and 1366 px a session's exercise figures (two
+marked sets) are inside their card, no column past its edge. Pages: sign-in, patients,
+the patient page (sessions, kits, progress, programs and the programs editor; its stream
+banner), a finished session (range table, exercise figures), the live page during a
+stream, the audit log, the therapist's own account and the admin's accounts.
 Real server, real uploads and a kit streaming at real pace, real headless chromium;
 screenshots to the printed folder."""
 
@@ -61,8 +62,11 @@ def demo_like_data(server: ServerProcess):
         api.patient(extra)
     sessions = []
     for seed, exercise in ((1, "elbow_flexion"), (2, "shoulder_flexion")):
-        text = format_recording(simulate(SimulationConfig(exercise=exercise, rate_hz=50.0,
-                                                          repetitions=3, seed=seed)).recording)
+        recording = simulate(SimulationConfig(exercise=exercise, rate_hz=50.0,
+                                              repetitions=3, seed=seed)).recording
+        if exercise == "elbow_flexion":  # two sets, each marked, as the phone kit marks them
+            recording = two_marked_sets(recording, exercise)
+        text = format_recording(recording)
         answer = api.http.post("/api/recordings", data={"patient_id": patient["id"]},
                                files={"file": (f"{exercise}.csv", text)})
         assert answer.status_code == 201, answer.text
@@ -78,6 +82,24 @@ def demo_like_data(server: ServerProcess):
     assert made.status_code == 201, made.text
     api.device(patient["id"], "home kit")
     return api, patient, sessions
+
+
+def two_marked_sets(recording, exercise: str):
+    """``recording`` with its exercise marked as two sets (the phone kit marks each set as
+    an exercise of its own): the session's exercise figures then name each set's exercise
+    beside its angle, the widest that table gets."""
+    import dataclasses
+
+    from armtrack.estimator.recording import Mark
+    from armtrack.estimator.simulation.scenarios import EXERCISE_START_S
+
+    end = min(float(s.t[-1]) for s in recording.sensors.values()) - 0.5
+    middle = (EXERCISE_START_S + end) / 2
+    return dataclasses.replace(recording, marks=(
+        Mark(EXERCISE_START_S - 0.5, f"exercise:{exercise}"),
+        Mark(middle, f"end:exercise:{exercise}"),
+        Mark(middle + 0.02, f"exercise:{exercise}"),
+        Mark(end, f"end:exercise:{exercise}")))
 
 
 def long_exercise(seed: int = 4):
@@ -157,6 +179,23 @@ def fits(page, shots, name: str, width: int) -> None:  # noqa: F811
     assert not cut, f"{name} at {width} px: hints cut off in their fields: {cut}"
 
 
+def cells_inside_card(page, table: str) -> None:  # noqa: F811
+    """Every cell of ``table`` is inside its card's padding and the card does not scroll
+    sideways: no column hidden past the card's edge (at 1280 px the exercise figures'
+    "Smoothness" was, the card scrolling 44 px for it)."""
+    place = page.evaluate("""(sel) => {
+      const table = document.querySelector(sel);
+      const card = table.closest('.card');
+      const c = card.getBoundingClientRect();
+      const inner = c.right - parseFloat(getComputedStyle(card).paddingRight);
+      const cells = [...table.querySelectorAll('th, td')].filter((x) => x.offsetParent);
+      return { right: Math.max(...cells.map((x) => x.getBoundingClientRect().right)),
+               inner, cells: cells.length, scroll: card.scrollWidth, client: card.clientWidth };
+    }""", table)
+    assert place["cells"] > 0, place
+    assert place["right"] <= place["inner"] + 0.5 and place["scroll"] <= place["client"], place
+
+
 def percent_column_inside(page, table: str) -> None:  # noqa: F811
     """At a laptop's width the whole range table, "% normal" included, is inside its card."""
     place = page.evaluate("""(sel) => {
@@ -198,6 +237,12 @@ def test_the_therapists_pages_fit(world, page, shots, width, height):  # noqa: F
     fits(page, shots, "session", width)
     if width >= 1366:
         percent_column_inside(page, "#rom-table")
+        # a smaller laptop's 1280 px: the exercise figures of two marked sets, whole
+        page.set_viewport_size({"width": 1280, "height": height})
+        expect(page.locator("#exercise-figures tbody tr")).to_have_count(2)
+        fits(page, shots, "session", 1280)
+        cells_inside_card(page, "#exercise-figures")
+        page.set_viewport_size({"width": width, "height": height})
 
     page.goto(base + "/audit")
     expect(page.locator("#audit-table tbody tr").first).to_be_visible()
