@@ -37,6 +37,7 @@ from .api import (
 )
 from .api.erase import erase_expired
 from .audit import AuditMiddleware
+from .builds import RETRY_AFTER_S, BuildsBusy
 from .db.errors import lacks_schema, told
 from .ingest import endpoint
 from .live import endpoint as live_endpoint
@@ -149,6 +150,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                     await retention
             await services.stop()
 
+    async def builds_busy(_request: Request, exc: BuildsBusy) -> JSONResponse:
+        # too many requests building or waiting for a report or summary (server/builds.py)
+        return JSONResponse(status_code=exc.status, content={"detail": exc.detail},
+                            headers={"Retry-After": str(RETRY_AFTER_S)})
+
     app = FastAPI(title="armtrack", version=estimator_version(), lifespan=lifespan,
                   docs_url=None, redoc_url=None,  # api_docs serves them, CDN-free
                   description="Remote arm rehabilitation: IMU streams in (`/ws/ingest`, "
@@ -158,6 +164,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_exception_handler(RequestValidationError, validation_error)
     app.add_exception_handler(OperationalError, database_failed)
     app.add_exception_handler(ProgrammingError, database_failed)
+    app.add_exception_handler(BuildsBusy, builds_busy)
     app.include_router(auth_routes.router)
     app.include_router(patients.router)
     app.include_router(device.router)

@@ -18,6 +18,7 @@ from typing import Any, TypeVar
 from armtrack.web.viewer.host import ViewerHost
 from sqlalchemy import select, update
 
+from .builds import UNCOUNTED
 from .db import models
 from .db.engine import make_engine, make_sessionmaker
 from .db.errors import NOT_UPGRADED
@@ -335,6 +336,8 @@ class Services:
         ``gone``: done once nobody wants the export any more; while it waits, raises
         ``ExportUnwanted`` then."""
         def call() -> T:
+            # its report builds are bounded by the export turns, not counted as a request's
+            UNCOUNTED.set(True)
             with self.db() as db:
                 return fn(db, *args)
         context = contextvars.copy_context()  # what fn notes for the audit log

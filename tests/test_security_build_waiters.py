@@ -1,0 +1,136 @@
+"""Requests waiting for a session's report or summary build cannot take the server's
+worker threads and (PostgreSQL) database connections from everyone else.
+
+The finding (att18): a request for a summary or report not kept yet waits for its build
+(``server/builds.py``: one per session, two at once), holding one of the 40 worker threads
+and, on PostgreSQL, its database connection (pool 5 + 10) while it waits. One therapist's
+45 requests for one session's summary, its build slow, held them all: another therapist's
+plain ``GET /api/patients`` waited for the whole build (and, past the pool's 30-s wait,
+failed). A test hook holds the build (``_summarise``) until the test lets it go, so the
+waiters are certain however fast the machine."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import tempfile
+import time
+from pathlib import Path
+
+import httpx
+import pytest
+from armtrack.estimator.recording import format_recording
+from armtrack.estimator.simulation import SimulationConfig, simulate
+from conftest import fresh_postgres_database
+from server_support import ServerProcess
+
+#: While ``BUILD_GATE/hold-<session id>`` exists, that session's summary build says so
+#: (``reached-<session id>``) and waits until the file is gone.
+BUILD_GATE = Path(tempfile.mkdtemp(prefix="armtrack-build-gate-"))
+GATE_HOOK = """
+import os as _os, sys as _sys, threading as _threading, time as _time
+from pathlib import Path as _Path
+
+
+def _install(gate):
+    while True:
+        module = _sys.modules.get("armtrack.server.api.session_summary")
+        if module is not None and hasattr(module, "_summarise"):
+            break
+        _time.sleep(0.1)
+    original = module._summarise
+
+    def gated(db, session, key):
+        hold = gate / f"hold-{session.id}"
+        if hold.exists():
+            (gate / f"reached-{session.id}").touch()
+            deadline = _time.monotonic() + 120
+            while hold.exists() and _time.monotonic() < deadline:
+                _time.sleep(0.01)
+        return original(db, session, key)
+    module._summarise = gated
+
+
+if _os.environ.get("TEST_BUILD_GATE"):
+    _threading.Thread(target=_install, args=(_Path(_os.environ["TEST_BUILD_GATE"]),),
+                      daemon=True).start()
+"""
+(BUILD_GATE / "hook").mkdir()
+(BUILD_GATE / "hook" / "sitecustomize.py").write_text(GATE_HOOK)
+
+#: Requests of one account at once for a summary being built: more than the 40 threads.
+FLOOD = 45
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory, postgres_url):
+    process = ServerProcess(tmp_path_factory.mktemp("build_waiters"), {
+        "ARMTRACK_DATABASE_URL": fresh_postgres_database(postgres_url),
+        "TEST_BUILD_GATE": str(BUILD_GATE),
+        "PYTHONPATH": os.pathsep.join(filter(None, [str(BUILD_GATE / "hook"),
+                                                    os.environ.get("PYTHONPATH")]))})
+    for user in ("alice", "carol"):
+        process.create_user(user)
+    process.start()
+    yield process
+    process.stop()
+
+
+def _session(api) -> dict:
+    patient = api.patient(name="Waits")
+    recording = simulate(SimulationConfig(exercise="elbow_flexion", repetitions=1)).recording
+    answer = api.http.post("/api/recordings", data={"patient_id": patient["id"]},
+                           files={"file": ("s.csv", format_recording(recording), "text/csv")})
+    assert answer.status_code == 201, answer.text
+    return answer.json()
+
+
+def test_one_accounts_waiting_builds_leave_threads_and_connections_to_others(server):
+    alice, carol = server.client("alice"), server.client("carol")
+    held, own = _session(alice), _session(carol)
+    hold = BUILD_GATE / f"hold-{held['id']}"
+
+    async def run() -> tuple[list[httpx.Response], float, httpx.Response, float, int]:
+        limits = httpx.Limits(max_connections=FLOOD + 5, max_keepalive_connections=FLOOD + 5)
+        async with httpx.AsyncClient(base_url=server.url, timeout=120, limits=limits,
+                                     headers={"Authorization": f"Bearer {alice.token}"}
+                                     ) as http, \
+                httpx.AsyncClient(base_url=server.url, timeout=60, headers={
+                    "Authorization": f"Bearer {carol.token}"}) as other:
+            hold.touch()
+            try:
+                flood = [asyncio.ensure_future(http.get(f"/api/sessions/{held['id']}/summary"))
+                         for _ in range(FLOOD)]
+                deadline = time.monotonic() + 30
+                while not (BUILD_GATE / f"reached-{held['id']}").exists():
+                    assert time.monotonic() < deadline, "the held build never began"
+                    await asyncio.sleep(0.02)
+                # the refused come back at once; before, none did: wait for them (or 3 s)
+                deadline = time.monotonic() + 3
+                while sum(f.done() for f in flood) < FLOOD - 4 and time.monotonic() < deadline:
+                    await asyncio.sleep(0.02)
+                answered_early = sum(f.done() for f in flood)
+                began = time.monotonic()
+                plain = await other.get("/api/patients")
+                plain_s = time.monotonic() - began
+                began = time.monotonic()
+                summary = await other.get(f"/api/sessions/{own['id']}/summary")
+                summary_s = time.monotonic() - began
+            finally:
+                hold.unlink()
+            return await asyncio.gather(*flood), plain_s, summary, summary_s, answered_early, \
+                plain
+    answers, plain_s, summary, summary_s, early, plain = asyncio.run(run())
+    statuses = sorted(a.status_code for a in answers)
+    print(f"\n{FLOOD} of alice's summary requests waiting: {early} answered at once "
+          f"({statuses.count(429)} 429); carol's patients list {plain_s:.2f} s, "
+          f"her own summary {summary_s:.2f} s")
+    assert plain.status_code == 200, plain.text
+    assert summary.status_code == 200, summary.text
+    assert plain_s < 2 and summary_s < 5, (plain_s, summary_s)
+    refused = [a for a in answers if a.status_code == 429]
+    assert refused and set(statuses) == {200, 429}, statuses
+    assert refused[0].headers["Retry-After"].isdigit()
+    assert "at once" in refused[0].json()["detail"], refused[0].text
+    # once the build is done, the account's summary is there as for anyone
+    assert alice.http.get(f"/api/sessions/{held['id']}/summary").status_code == 200
