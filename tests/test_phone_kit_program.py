@@ -120,6 +120,8 @@ def test_the_patient_follows_the_program_on_the_phone(kit_server, phone, shots):
         assert [i.split("\n")[0] for i in items] == ["Bend the elbow", "Turn the palm"]
         assert ("2 sets of 3 · hold 1 second · rest 5 seconds between sets" in items[0]
                 and "2 times" in items[1])
+        # how often: the patient at home is told the prescribed days a week
+        assert "5 days a week" in items[0] and "3 days a week" in items[1], items
         phone.screenshot(path=str(shots / "p1-program-welcome.png"), full_page=True)
         phone.click("#start")
         phone.click("#segment-forearm")

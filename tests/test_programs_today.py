@@ -47,6 +47,7 @@ def test_the_program_in_force_today_is_what_the_kit_guides(db):
     assert (elbow["sets"], elbow["repetitions"], elbow["angle"], elbow["sensor"]) == (
         2, 10, "elbow_flexion", "forearm")
     assert elbow["target"] == {"min_deg": 5, "max_deg": 110, "from": "program"}
+    assert [e["days_per_week"] for e in today["exercises"]] == [5, 3]  # how often
     store.change_program(db, program, PrescriptionIn(
         start_date=date(2026, 12, 1), exercises=[{**ELBOW, "sets": 3}]), therapist_id=1)
     today = stream.device_today(db, patient, date(2026, 12, 2))

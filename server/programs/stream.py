@@ -197,18 +197,21 @@ def device_today(db: DbSession, patient: models.Patient, today: date) -> dict[st
     ``docs/extensions/device-today.md``) answers when a program is in force: ``source``
     ``program``, the program's id, name and version (the kit names it in ``hello``,
     ``programs-hello.md``), and its exercises in order, each the catalogue's fields with
-    the dose, the target band and what a phone measures it on
-    (``catalogue.phone_fields``); None without a program in force."""
+    the dose (and the days a week it is prescribed), the target band and what a phone
+    measures it on (``catalogue.phone_fields``); None without a program in force."""
     program = todays_program(db, patient.id, today)
     if program is None:
         return None
-    ready = ready_program(db, program.versions[-1])
+    version = program.versions[-1]
+    ready = ready_program(db, version)
     exercises = []
-    for e in ready["exercises"]:
+    # how often, for the patient's welcome ("5 days a week"); `ready` has no need of it
+    for e, prescribed in zip(ready["exercises"], version.exercises, strict=True):
         entry = catalogue.CATALOGUE[e["name"]]
-        exercises.append({**entry.as_dict(), **e, **catalogue.phone_fields(entry)})
+        exercises.append({**entry.as_dict(), **e, **catalogue.phone_fields(entry),
+                          "days_per_week": prescribed.days_per_week})
     return {"source": "program", "side": patient.side,
             "program": {"id": program.id, "name": program.name,
                         "version": ready["version"], "note": ready["note"],
-                        "changed_at": aware(program.versions[-1].created_at)},
+                        "changed_at": aware(version.created_at)},
             "exercises": exercises}

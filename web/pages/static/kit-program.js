@@ -24,6 +24,14 @@ const KitProgram = {
     return parts.join(" · ");
   },
 
+  /** How often the therapist prescribed `ex`: "5 days a week", "every day"; null without
+   * a program (or from an older server, which did not say). */
+  often(ex) {
+    const days = ex.days_per_week;
+    if (!days) return null;
+    return days === 7 ? "every day" : `${days} ${days === 1 ? "day" : "days"} a week`;
+  },
+
   /** Whether a phone on `segment` measures exercise `ex` (device-today's measured_by;
    * an older server's answer: the exercise's sensor). */
   measuredOn(ex, segment) {
@@ -61,7 +69,8 @@ const KitProgram = {
       program.note ? el("p", { class: "lead", id: "program-note" }, program.note) : null,
       el("ol", { class: "program", id: "program-list" }, exercises.map((ex) =>
         el("li", {}, el("span", { class: "title" }, ex.title),
-          el("span", { class: "dose" }, `${KitProgram.dose(ex)} · ${KitProgram.where(ex)}`)))),
+          el("span", { class: "dose" }, [KitProgram.dose(ex), KitProgram.often(ex),
+            KitProgram.where(ex)].filter(Boolean).join(" · "))))),
     ];
   },
 
