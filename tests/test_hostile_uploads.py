@@ -247,3 +247,39 @@ def test_a_recordings_header_holds_a_bounded_metadata(module_server, alice, reco
     assert "header" in answer.json()["detail"], answer.text
     assert module_server.sql("SELECT COUNT(*) FROM sessions WHERE patient_id = :p",
                              p=patient["id"])[0][0] == 0
+
+
+@pytest.mark.parametrize("marks", ["too_many", "too_long"])
+def test_a_recordings_marks_are_bounded_as_a_streams(module_server, alice, marks):
+    # att18: a stream's session keeps 1,000 marks of labels up to 100 characters, but an
+    # upload's `marks` header was kept whole: a kit's 47 MB upload of 200,000 marks (200-
+    # character labels) took 25.5 s to store, its first summary 31 s and +347 MB of the
+    # server, and the summary (100,000 exercises) 29 MB, every time the session page opens
+    from dataclasses import replace
+
+    from armtrack.estimator.recording import Mark, format_recording
+    from armtrack.estimator.simulation import SimulationConfig, simulate
+
+    patient = alice.patient(f"Marks {marks}")
+    kit = alice.device(patient["id"])["token"]
+    rec = simulate(SimulationConfig(rate_hz=30.0, repetitions=1, seed=2)).recording
+    many, label = (1001, "exercise:x") if marks == "too_many" else (2, "exercise:" + "x" * 91)
+    kept = [Mark(0.001 * i, f"{label}{i % 10}") for i in range(many)]
+    answer = httpx.post(module_server.url + "/api/recordings", timeout=60,
+                        headers={"Authorization": f"Bearer {kit}"},
+                        files={"file": ("marks.csv", format_recording(
+                            replace(rec, marks=tuple(kept))), "text/csv")})
+    print(f"\n{marks}: {answer.status_code} {answer.text[:200]}")
+    assert answer.status_code == 422, answer.status_code
+    detail = answer.json()["detail"]
+    assert detail.startswith("marks.csv: ") and ("1,001 marks" in detail if marks == "too_many"
+                                                 else "101 characters" in detail), detail
+    assert module_server.sql("SELECT COUNT(*) FROM sessions WHERE patient_id = :p",
+                             p=patient["id"])[0][0] == 0
+    # at the limits (as a stream's: 1,000 marks, labels of 100 characters) it is stored
+    at_limit = [Mark(0.001 * i, "exercise:" + "x" * 91) for i in range(1000)]
+    stored = httpx.post(module_server.url + "/api/recordings", timeout=60,
+                        headers={"Authorization": f"Bearer {kit}"},
+                        data={"wait": "false"}, files={"file": ("ok.csv", format_recording(
+                            replace(rec, marks=tuple(at_limit))), "text/csv")})
+    assert stored.status_code == 202, stored.text
