@@ -293,6 +293,12 @@ def test_replay_of_a_stored_session(module_server, page, shots):
     sync_api.expect(row).to_contain_text("shoulder abduction")
     sync_api.expect(row).to_contain_text("Good data")
     page.screenshot(path=str(shots / "patient-sessions.png"), full_page=True)
+    # the progress over sessions the guide names (progress.csv), from the page too
+    with page.expect_download() as download:
+        page.locator('#progress-card [data-export$="/progress.csv"]').click()
+    assert download.value.suggested_filename == f"patient-{patient['id']}-progress.csv"
+    progress = Path(download.value.path()).read_text().splitlines()
+    assert progress[0].startswith("session_id,") and len(progress) > 1, progress[:2]
     row.click()
     page.wait_for_url(re.compile(rf".*/sessions/{session['id']}$"))
     rom = page.locator('#rom-table tr[data-angle="shoulder_abduction"]')

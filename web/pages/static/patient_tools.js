@@ -84,11 +84,28 @@ const PatientTools = (() => {
             + (trend.slope_deg_per_week !== null ? `, ${trend.slope_deg_per_week.toFixed(1)}°/week` : "") : "")),
         chart(a, rows, normals[a], today[a]));
     }) : el("p", { class: "muted" }, "No estimated session yet.");
+    // the same figures as a file (docs/therapist.md, "Reviewing sessions")
+    const csv = `/api/patients/${patientId}/progress.csv`;
+    const exportCsv = angles.length ? el("p", { class: "progress-export" },
+      el("button", { class: "secondary", dataset: { export: csv }, onclick: async (event) => {
+        const button = event.currentTarget;
+        button.disabled = true;
+        try {
+          const answer = await fetch(csv, { headers: { Authorization: "Bearer " + token() } });
+          if (!answer.ok) throw new Error((await answer.json()).detail);
+          const url = URL.createObjectURL(await answer.blob());
+          const a = el("a", { href: url, download: `patient-${patientId}-progress.csv` });
+          document.body.append(a); a.click(); a.remove();
+          setTimeout(() => URL.revokeObjectURL(url), 10000);
+        } catch (error) { showError(document.getElementById("progress-card"), error); }
+        button.disabled = false;
+      } }, "⬇ progress.csv"),
+      el("span", { class: "muted small" }, " each session's range per joint, % of normal, target and repetitions")) : null;
     card("progress-card", "Progress", el("div", { class: "legend" },
       el("span", {}, el("i", { style: "background:var(--accent)" }), "range of each session"),
       el("span", {}, el("i", { style: "background:#d6dde5" }), "normal range"),
       el("span", {}, el("i", { style: "background:#1d2733;height:3px" }), "target then"),
-      el("span", {}, el("i", { style: "background:#e8590c;height:3px" }), "today's target")), body);
+      el("span", {}, el("i", { style: "background:#e8590c;height:3px" }), "today's target")), body, exportCsv);
   }
 
   // ------------------------------------------------------------ targets
