@@ -4,7 +4,8 @@
 Before, a program's header said "version 1, from 2026-11-16 to 2026-11-29" and its
 adherence rows "2026-W47" (an ISO week number) beside sessions dated "Thu, Dec 3, 2026":
 a therapist had to work out which week W47 is. Now "from Nov 16, 2026 to Nov 29, 2026"
-and "week of Nov 16, 2026" (the ISO week stays in the row's title). Skips with the
+and "week of Nov 16, 2026" (the ISO week stays in the row's title). And a program's
+PDF or FHIR the server refuses is not saved as a file: the card says why. Skips with the
 reason when chromium or Playwright is absent."""
 
 from __future__ import annotations
@@ -110,3 +111,29 @@ def test_the_pain_and_effort_line_dates_read_as_dates(module_server, width):
     assert not re.search(r"\d{4}-\d\d-\d\d", text), text
     day = date.today()  # the clinic's day (its zone unset: UTC, as this machine's)
     assert f"{day:%b} {day.day}, {day.year}: pain 3, effort 4" in text, text
+
+
+def test_a_program_report_the_server_refuses_is_not_saved_as_a_file(module_server, tmp_path):
+    """The program's PDF (and FHIR) buttons saved whatever the server answered: with the
+    patient gone meanwhile (erased or handed to a colleague in another tab) the therapist
+    got "patient-N-progress.pdf" holding the JSON of a 404, a file no reader opens, and no
+    word on the page. Now nothing is saved and the card says the server's words."""
+    api = module_server.client("alice")
+    patient = api.patient("Refused Report Patient")
+    made = api.http.post(f"/api/patients/{patient['id']}/programs", json=PROGRAM)
+    assert made.status_code == 201, made.text
+    with page_at(390) as page:
+        sign_in_as(page, module_server.url, "alice")
+        page.goto(f"{module_server.url}/patients/{patient['id']}")
+        card = page.locator(f'.program[data-program="{made.json()["id"]}"]')
+        sync_api.expect(card).to_contain_text("Elbow after the fracture")
+        saved = []
+        page.on("download", lambda download: saved.append(download))
+        assert api.http.delete(f"/api/patients/{patient['id']}").status_code == 204
+        for button in ("PDF", "FHIR"):
+            card.get_by_role("button", name=button, exact=True).click()
+            sync_api.expect(page.locator("#programs .error").first).to_contain_text(
+                f"no patient {patient['id']}" if button == "PDF" else "no program")
+        page.screenshot(path=str(tmp_path / "refused-report-390.png"))
+        print(f"\n{tmp_path}")
+        assert saved == [], [d.suggested_filename for d in saved]

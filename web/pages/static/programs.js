@@ -101,11 +101,29 @@ function uncountedNote(n) {
     + "The phone kit follows it; for a sensor kit, see docs/programs.md.");
 }
 
-function download(path, filename) {
-  fetch(path, { headers: { Authorization: "Bearer " + token() } }).then((r) => r.blob()).then((blob) => {
-    const a = el("a", { href: URL.createObjectURL(blob), download: filename });
+/** Saves the server's answer as `filename` only when it is the file: a refusal (the
+ * patient handed to a colleague or erased meanwhile, too many reports at once) is said in
+ * the programs card in the server's words, and a sign-in that ended goes to the sign-in
+ * page, as `api` does; before, the refusal's JSON was saved under the PDF's name. */
+async function download(path, filename) {
+  const where = document.getElementById("programs-card") || document.querySelector("main");
+  try {
+    const answer = await fetch(path, { headers: { Authorization: "Bearer " + token() } });
+    if (answer.status === 401) {
+      sessionStorage.removeItem(TOKEN_KEY);
+      location.href = "/signin?next=" + encodeURIComponent(location.pathname);
+      return;
+    }
+    if (!answer.ok) {
+      let detail = answer.statusText;
+      try { detail = (await answer.json()).detail || detail; } catch (_) { /* not JSON */ }
+      throw new Error(`${filename} was not made: ${detail}`);
+    }
+    const url = URL.createObjectURL(await answer.blob());
+    const a = el("a", { href: url, download: filename });
     document.body.append(a); a.click(); a.remove();
-  });
+    setTimeout(() => URL.revokeObjectURL(url), 10000);
+  } catch (error) { showError(where, error); }
 }
 
 // The range of each session (dots and line) against the target band, oldest left.
