@@ -8,6 +8,7 @@ as to another therapist; they cannot add patients, nor be given one."""
 from __future__ import annotations
 
 import contextlib
+import threading
 from collections.abc import AsyncIterator, Callable, Iterator
 from datetime import UTC, datetime
 from typing import Annotated, Any, TypeVar
@@ -174,6 +175,46 @@ def current_admin(therapist: Therapist) -> models.Therapist:
 
 
 Admin = Annotated[models.Therapist, Depends(current_admin)]
+
+
+#: A list asked for with a ``limit`` over this is long (``long_list``).
+LONG_LIST = 100
+#: One account's long lists of sessions or summaries being made at once, all its sign-ins
+#: together, in one server process.
+LONG_LISTS_AT_ONCE = 2
+_long_lists: dict[int, int] = {}
+_long_lists_lock = threading.Lock()
+
+
+@contextlib.contextmanager
+def long_list(therapist: models.Therapist, limit: int) -> Iterator[None]:
+    """Make a list of ``limit`` rows: past ``LONG_LIST`` rows, at most
+    ``LONG_LISTS_AT_ONCE`` of one account's at once, the next ``429`` at once. A patient's
+    sessions list carries each session's metadata (up to 16,000 characters): 1,000 of
+    them are 16.9 MB of JSON, +27-40 MB of the server while made; one account's 30 at once
+    took it +892 MB and another therapist's request 8.8 s (att18,
+    tests/test_security_long_lists.py)."""
+    if limit <= LONG_LIST:
+        yield
+        return
+    with _long_lists_lock:
+        held = _long_lists.get(therapist.id, 0)
+        if held >= LONG_LISTS_AT_ONCE:
+            raise HTTPException(
+                status.HTTP_429_TOO_MANY_REQUESTS,
+                f"this account has {LONG_LISTS_AT_ONCE} lists of more than {LONG_LIST} "
+                "rows being made at once, the most it may: ask again in 2 s, or ask for "
+                f"at most {LONG_LIST} rows at a time (limit, offset)",
+                headers={"Retry-After": "2"})
+        _long_lists[therapist.id] = held + 1
+    try:
+        yield
+    finally:
+        with _long_lists_lock:
+            if (left := _long_lists[therapist.id] - 1) > 0:
+                _long_lists[therapist.id] = left
+            else:
+                del _long_lists[therapist.id]
 
 
 class Page:

@@ -21,7 +21,7 @@ from ..builds import REPORTS
 from ..db import models
 from ..store.coverage import session_coverage
 from ..store.processing import stored_estimates
-from .deps import Db, Therapist, own_patient, own_session
+from .deps import Db, Therapist, long_list, own_patient, own_session
 from .live_status import block_totals, lost_fraction
 from .schemas import Id
 
@@ -225,8 +225,11 @@ def list_summaries(patient_id: Id, db: Db, therapist: Therapist,
                    offset: Annotated[int, Query(ge=0, le=2**31 - 1)] = 0) -> list[dict[str, Any]]:
     """The summaries of a patient's sessions, newest first."""
     own_patient(db, therapist, patient_id)
-    sessions = db.scalars(select(models.Session).where(models.Session.patient_id == patient_id)
-                          .order_by(models.Session.started_at.desc(), models.Session.id.desc())
-                          .limit(limit).offset(offset))
-    return [summarise(db, s) for s in sessions]
+    with long_list(therapist, limit):
+        sessions = db.scalars(select(models.Session)
+                              .where(models.Session.patient_id == patient_id)
+                              .order_by(models.Session.started_at.desc(),
+                                        models.Session.id.desc())
+                              .limit(limit).offset(offset))
+        return [summarise(db, s) for s in sessions]
 

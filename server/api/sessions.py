@@ -13,6 +13,7 @@ from armtrack.estimator.orientation import DEFAULT_FILTER
 from armtrack.estimator.recording import parse_recording, write_recording_to
 from fastapi import APIRouter, Depends, Form, HTTPException, Request, UploadFile, status
 from fastapi.responses import Response
+from pydantic import TypeAdapter
 from sqlalchemy import select
 from sqlalchemy.orm import Session as DbSession
 from sqlalchemy.orm import object_session
@@ -47,6 +48,7 @@ from .deps import (
     Therapist,
     current_therapist,
     in_export_turn,
+    long_list,
     oauth2,
     own_patient,
     own_session,
@@ -81,15 +83,23 @@ def session_out(session: models.Session) -> SessionOut:
         closed_after_silence=closed_after_silence(session))
 
 
+_SESSIONS_JSON = TypeAdapter(list[SessionOut])
+
+
 @router.get("/patients/{patient_id}/sessions", response_model=list[SessionOut])
 def list_sessions(patient_id: Id, db: Db, therapist: Therapist,
-                  page: Annotated[Page, Depends()]) -> list[SessionOut]:
+                  page: Annotated[Page, Depends()]) -> Response:
     """A patient's sessions, newest first."""
     own_patient(db, therapist, patient_id)
-    sessions = db.scalars(select(models.Session).where(models.Session.patient_id == patient_id)
-                          .order_by(models.Session.started_at.desc(), models.Session.id.desc())
-                          .limit(page.limit).offset(page.offset))
-    return [session_out(s) for s in sessions]
+    with long_list(therapist, page.limit):
+        sessions = db.scalars(select(models.Session)
+                              .where(models.Session.patient_id == patient_id)
+                              .order_by(models.Session.started_at.desc(),
+                                        models.Session.id.desc())
+                              .limit(page.limit).offset(page.offset))
+        # written as JSON here, while the list counts as the account's
+        return Response(_SESSIONS_JSON.dump_json([session_out(s) for s in sessions]),
+                        media_type="application/json")
 
 
 @router.get("/sessions/{session_id}", response_model=SessionOut)
