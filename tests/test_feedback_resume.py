@@ -30,10 +30,11 @@ CUT_AT_S = 20.5  # recording time: after the second repetition's return
 server = server_fixture("resume", "alice")
 
 
-def _simulation(seed: int = 1, repetitions: int = REPS):
-    """A forearm phone's elbow flexions, marked as an exercise from 10.5 s to its end:
-    (the simulation, its recording with the marks)."""
-    config = SimulationConfig(exercise="elbow_flexion", sensors=("forearm",), rate_hz=60.0,
+def _simulation(seed: int = 1, repetitions: int = REPS, exercise: str = "elbow_flexion"):
+    """A forearm phone's elbow flexions (``exercise``: what the arm does), marked as the
+    elbow flexion exercise from 10.5 s to its end: (the simulation, its recording with the
+    marks)."""
+    config = SimulationConfig(exercise=exercise, sensors=("forearm",), rate_hz=60.0,
                               nine_axis=False, seed=seed, jitter_s=0.003,
                               repetitions=repetitions,
                               errors=ImuErrors(gyro_noise=0.01, acc_noise=0.1),
@@ -156,3 +157,43 @@ def test_a_count_runs_from_its_mark_or_from_the_first_estimate_after_a_lost_stat
     lost.mark(40.0, "end:exercise:elbow_flexion")
     message = lost.pose(pose(36.0, up=False), 2.0)
     assert (message["exercise"], message["count_from"]) == (None, None)
+
+
+def test_a_straight_arm_raise_is_not_counted_on_the_phone(server):
+    """The phone on the forearm shows the elbow exercise; the patient raises the straight
+    arm forward 5 times instead (the elbow angle reads 150° each time): the phone counts
+    none and is told, per counting run, how many movements were not the elbow's
+    (``not_elbow_movements``, ``estimator/metrics/elbow_pivot.py``). Streamed at 4× real
+    time, the exercise held until the first feedback."""
+    api = server.client("alice")
+    patient = api.patient("Raised the arm")
+    device = api.device(patient["id"], "phone")
+    recording = _simulation(exercise="shoulder_flexion")[1]
+    plan = MessagePlan(recording, rows_per_message=12)
+    feedback: list[dict] = []
+
+    async def run():
+        async with connect(f"{server.ws_url}?token={device['token']}") as ws:
+            await ws.send(json.dumps({**hello_message(recording, "phone"),
+                                      "extensions": ["feedback/1"]}))
+            json.loads(await ws.recv())
+
+            async def reader():
+                async for raw in ws:
+                    message = json.loads(raw)
+                    if message["type"] == "feedback":
+                        feedback.append(message)
+
+            task = asyncio.create_task(reader())
+            await send_paced(ws, plan, 4.0, hold_at_s=10.4, until=lambda: bool(feedback))
+            await asyncio.sleep(1.5)
+            await ws.send(json.dumps({"type": "bye"}))
+            await asyncio.wait_for(task, 30)
+
+    asyncio.run(run())
+    counted = [m for m in feedback if m["exercise"] == "elbow_flexion"]
+    last = counted[-1] if counted else {}
+    print(f"\n{len(counted)} feedback messages; the last: repetitions "
+          f"{last.get('repetitions')}, not_elbow_movements {last.get('not_elbow_movements')}")
+    assert counted and max(m["repetitions"] for m in counted) == 0
+    assert last.get("not_elbow_movements") == REPS

@@ -60,13 +60,14 @@ def test_the_trail_keeps_one_estimate_per_slot_of_the_stream_clock():
     radians = np.deg2rad(np.column_stack([t] * len(REPORTED_ANGLES)))
     for a, b in ((0, 7), (7, 8), (8, 120), (120, 200)):
         trail.add(t[a:b], radians[a:b])
-    times, rows = trail.take()
+    times, rows, turns = trail.take()
+    assert turns is None  # not a forearm-only kit's
     assert len(times) == 50  # 2 s at 25 Hz
     assert np.allclose(np.diff(times), 0.04)
     assert np.allclose([r[0] for r in rows], times)  # degrees, rounded to 0.01
-    assert trail.take() == ([], [])  # taken once
+    assert trail.take() == ([], [], None)  # taken once
     trail.add(t[199:], radians[199:])  # the same slot again: nothing new
-    assert trail.take() == ([], [])
+    assert trail.take() == ([], [], None)
 
 
 def test_the_count_reads_the_trail_when_poses_are_far_apart():

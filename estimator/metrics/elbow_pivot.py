@@ -49,14 +49,24 @@ def turn_radius(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, y_up: np.ndarra
     lo, hi = np.searchsorted(t, start_s, "left"), np.searchsorted(t, end_s, "right")
     if hi - lo < 3:
         return None
-    g = gyr[lo:hi]
-    across = g[:, 0] ** 2 + g[:, 2] ** 2  # ω⊥²
-    ok = np.isfinite(across) & np.isfinite(acc[lo:hi, 1]) & np.isfinite(y_up[lo:hi])
-    if not ok.any() or float(np.sqrt(across[ok].max())) < MIN_RATE:
+    return fit_radius(*turn_terms(acc[lo:hi, 1], gyr[lo:hi], y_up[lo:hi]))
+
+
+def turn_terms(acc_y: np.ndarray, gyr: np.ndarray, y_up: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Per sample, the pull along the forearm that is not gravity ``a_y − g · Y_up``
+    [m/s²] and the squared rate across it ``ω⊥²`` [rad²/s²] (``fit_radius``'s terms)."""
+    return acc_y - G * y_up, gyr[:, 0] ** 2 + gyr[:, 2] ** 2
+
+
+def fit_radius(pull: np.ndarray, across: np.ndarray) -> float | None:
+    """The least-squares radius [m] of samples' ``pull`` [m/s²] against ``across``
+    (``ω⊥²``, [rad²/s²]); None when fewer than 3 or the peak rate is under ``MIN_RATE``."""
+    ok = np.isfinite(pull) & np.isfinite(across)
+    if np.count_nonzero(ok) < 3 or float(np.sqrt(across[ok].max())) < MIN_RATE:
         return None
-    pull = acc[lo:hi, 1][ok] - G * y_up[lo:hi][ok]
     w2 = across[ok]
-    return float(np.sum(pull * w2) / np.sum(w2 * w2))
+    return float(np.sum(pull[ok] * w2) / np.sum(w2 * w2))
 
 
 def split_elbow_repetitions(reps: Sequence[Repetition], t: np.ndarray, acc: np.ndarray,

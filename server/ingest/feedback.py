@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 from armtrack.estimator.arm.joints import REPORTED_ANGLES
 from armtrack.estimator.metrics import BOTH_WAYS, Repetition, count_repetitions, detect_repetitions
+from armtrack.estimator.metrics.elbow_pivot import PIVOT_M, fit_radius
 
 log = logging.getLogger("armtrack.ingest")
 
@@ -78,21 +79,45 @@ class RepetitionCounter:
         #: on a both-ways angle, the turns the side that leads is ahead by (0: each turn
         #: has its turn the other way; the count is complete), else 0
         self.unpaired = 0
+        #: movements of the elbow's angle the forearm made about the shoulder (the arm
+        #: raised straight, ``elbow_pivot``): not counted (a forearm-only kit's elbow)
+        self.not_elbow = 0
+        self._not_elbow_committed = 0
         self._t: list[float] = []
         self._deg: list[float] = []
+        self._turn: list[tuple[float, float]] = []  # (pull, ω⊥²) per sample, NaN: none
         self._committed: list[Repetition] = []  # excursions of samples already let go
         self._stale = False
 
-    def add(self, t: np.ndarray, deg: np.ndarray) -> None:
-        """Estimates at stream times ``t`` [s] (n,), the angle [deg] (n,) (NaN: none);
-        times not after the last one kept are ignored."""
+    def add(self, t: np.ndarray, deg: np.ndarray, turn: np.ndarray | None = None) -> None:
+        """Estimates at stream times ``t`` [s] (n,), the angle [deg] (n,) (NaN: none),
+        a forearm-only kit's turn terms ``turn`` (n, 2) or None; times not after the
+        last one kept are ignored."""
         keep = np.isfinite(deg) & np.isfinite(t)
         if self._t:
             keep &= t > self._t[-1]
         if keep.any():
             self._t.extend(t[keep].tolist())
             self._deg.extend(deg[keep].tolist())
+            terms = (np.asarray(turn, dtype=float)[keep] if turn is not None
+                     else np.full((int(keep.sum()), 2), np.nan))
+            self._turn.extend(map(tuple, terms.tolist()))
             self._stale = True
+
+    def _split(self, t: np.ndarray, reps: tuple[Repetition, ...]
+               ) -> tuple[list[Repetition], list[Repetition]]:
+        """The elbow's repetitions and those the forearm turned about the shoulder
+        (``elbow_pivot``: the report's rule); every one the elbow's on another angle or
+        without turn terms."""
+        if self.band.angle != "elbow_flexion" or not reps:
+            return list(reps), []
+        turn = np.asarray(self._turn, dtype=float)
+        kept, refused = [], []
+        for rep in reps:
+            a, b = np.searchsorted(t, rep.start_s, "left"), np.searchsorted(t, rep.end_s, "right")
+            radius = fit_radius(turn[a:b, 0], turn[a:b, 1])
+            (refused if radius is not None and radius > PIVOT_M else kept).append(rep)
+        return kept, refused
 
     def recount(self) -> int:
         """The repetitions so far (the report's rule on the samples kept)."""
@@ -101,10 +126,12 @@ class RepetitionCounter:
         self._stale = False
         t = np.asarray(self._t)
         reps = detect_repetitions(np.deg2rad(np.asarray(self._deg)), t)
-        turns = (*self._committed, *reps)
+        kept, refused = self._split(t, reps)
+        turns = (*self._committed, *kept)
         both_ways = self.band.angle in BOTH_WAYS
         self.count = max(self.count, count_repetitions(turns, both_ways))
         self.unpaired = (abs(sum(r.direction for r in turns)) if both_ways else 0)
+        self.not_elbow = max(self.not_elbow, self._not_elbow_committed + len(refused))
         if t[-1] - t[0] < 2 * KEEP_S:
             return self.count
         done = [r for r in reps if r.end_s < t[-1] - KEEP_S]
@@ -112,8 +139,9 @@ class RepetitionCounter:
             # the rest between it and the next (so that the next starts from rest)
             after = reps[len(done)].start_s if len(reps) > len(done) else t[-1] - KEEP_S
             cut = int(np.searchsorted(t, 0.5 * (done[-1].end_s + after)))
-            self._committed.extend(done)
-            del self._t[:cut], self._deg[:cut]
+            self._committed.extend(r for r in done if r not in refused)
+            self._not_elbow_committed += sum(r in refused for r in done)
+            del self._t[:cut], self._deg[:cut], self._turn[:cut]
         return self.count
 
 
@@ -156,8 +184,10 @@ class FeedbackTracker:
             elif self.exercise is not None and label == f"end:exercise:{self.exercise}":
                 self.exercise, self.counter, self.count_from = None, None, None
 
-    def _count(self, times: np.ndarray, series: Mapping[str, Any], a: int, b: int) -> None:
-        """Give the current count the estimates ``a:b`` of ``series`` at ``times``."""
+    def _count(self, times: np.ndarray, series: Mapping[str, Any], a: int, b: int,
+               turn: np.ndarray | None = None) -> None:
+        """Give the current count the estimates ``a:b`` of ``series`` at ``times`` (and
+        of a forearm-only kit's turn terms ``turn``, (n, 2), or None)."""
         band = self.bands.get(self.exercise) if self.exercise else None
         if self.counter is None or band is None or band.angle not in series:
             return
@@ -167,7 +197,7 @@ class FeedbackTracker:
             return
         if self.count_from is None:
             self.count_from = float(times[finite[0]])
-        self.counter.add(times, deg)
+        self.counter.add(times, deg, None if turn is None else turn[a:b])
 
     def apply(self, events: list[tuple], now: float) -> dict[str, Any] | None:
         """Queued ``("mark", t, label, stored)`` and ``("pose", pose)`` events in the order
@@ -198,10 +228,15 @@ class FeedbackTracker:
         table = np.array(rows, dtype=float).reshape(-1, len(REPORTED_ANGLES))  # null: NaN
         series = ({name: table[:, i] for i, name in enumerate(REPORTED_ANGLES)}
                   if rows else {})
+        turn_rows = trail.get("forearm_turn")  # a forearm-only kit's (live/estimator.py)
+        turn = (np.array(turn_rows, dtype=float).reshape(-1, 2)
+                if rows and turn_rows and len(turn_rows) == len(rows) else None)
         t = float(pose["t"])
         angles = pose.get("angles_deg") or {}
         # the trail, then the pose itself (when it is newer), cut at the marks they pass
         if not times.size or t > times[-1]:
+            if turn is not None:
+                turn = np.vstack([turn, [[np.nan, np.nan]]])
             times = np.append(times, t)
             series = {k: np.append(series[k] if k in series else np.full(times.size - 1,
                                                                          np.nan),
@@ -216,7 +251,7 @@ class FeedbackTracker:
                 upto = (int(np.searchsorted(times, self._marks[0][0], side="left"))
                         if self._marks else times.size)
                 upto = max(upto, first + 1)
-            self._count(times[first:upto], series, first, upto)
+            self._count(times[first:upto], series, first, upto, turn)
             first = upto
         self._pass_marks(t)
 
@@ -236,6 +271,7 @@ class FeedbackTracker:
             "target": None if band is None else [band.min_deg, band.max_deg],
             "repetitions": 0 if self.counter is None else self.counter.recount(),
             "unpaired_turns": 0 if self.counter is None else self.counter.unpaired,
+            "not_elbow_movements": 0 if self.counter is None else self.counter.not_elbow,
             "count_from": self.count_from if self.exercise is not None else None,
             "angles_deg": {k: v for k, v in angles.items() if k in self.measured
                            and v is not None and math.isfinite(v)},

@@ -11,6 +11,7 @@ import numpy as np
 from armtrack.estimator.arm.forward import POINTS
 from armtrack.estimator.arm.joints import REPORTED_ANGLES, SEGMENTS
 from armtrack.estimator.jit import compiler
+from armtrack.estimator.metrics.elbow_pivot import turn_terms
 from armtrack.estimator.metrics.rom import CALIBRATION_TAIL_S
 from armtrack.estimator.pipeline import EstimateArrays, Pipeline, PipelineConfig
 from armtrack.estimator.recording import Mark
@@ -37,6 +38,12 @@ TRAIL_DECIMALS = 2
 #: ``TRAIL_HZ``, for a backlog sent at once after a lost link (the kit's feedback counts
 #: its repetitions on the trail too, so a backlog counts like a live stream).
 TRAIL_MAX = 3000
+#: Decimals of the trail's forearm turn terms (pull [m/s²], ω⊥² [rad²/s²]).
+TURN_DECIMALS = 3
+#: A forearm-only kit's readings kept to meet their estimates [s] (``_forearm_turns``).
+RAW_KEEP_S = 5.0
+#: The forearm's index in ``SEGMENTS`` (``R_world_segment``'s second axis).
+FOREARM = SEGMENTS.index("forearm")
 
 
 class RunningRange:
@@ -111,10 +118,14 @@ class AngleTrail:
         self._last_slot = -np.inf
         self._t: list[np.ndarray] = []
         self._angles: list[np.ndarray] = []
+        self._turns: list[np.ndarray] = []  # a forearm-only kit's (n, 2) turn terms
         self._count = 0
 
-    def add(self, t: np.ndarray, radians: np.ndarray) -> None:
-        """Estimates at times ``t`` [s] (n,), angles ``radians`` (n, len(REPORTED_ANGLES))."""
+    def add(self, t: np.ndarray, radians: np.ndarray, turn: np.ndarray | None = None
+            ) -> None:
+        """Estimates at times ``t`` [s] (n,), angles ``radians`` (n, len(REPORTED_ANGLES));
+        ``turn``: a forearm-only kit's (n, 2) pull and ``ω⊥²`` at those times
+        (``elbow_pivot.turn_terms``), else None."""
         slots = np.floor(np.asarray(t) * self._rate + 1e-6)  # a stamp on a boundary opens it
         keep = np.empty(len(slots), dtype=bool)
         keep[:1] = slots[:1] > self._last_slot
@@ -122,21 +133,28 @@ class AngleTrail:
         if keep.any():
             self._t.append(np.asarray(t)[keep])
             self._angles.append(radians[keep])
+            if turn is not None:
+                self._turns.append(turn[keep])
             self._last_slot = float(slots[keep][-1])
             self._count += int(keep.sum())
             while self._count > TRAIL_MAX and len(self._t) > 1:
                 self._count -= self._t.pop(0).size
                 self._angles.pop(0)
+                if self._turns:
+                    self._turns.pop(0)
 
-    def take(self) -> tuple[list[float], list[list[float | None]]]:
-        """The kept times [s] and angles [deg] (rows in ``REPORTED_ANGLES`` order; a NaN
-        stays NaN, which the pose's JSON writes as null), then forgets them."""
+    def take(self) -> tuple[list[float], list[list[float | None]], list[list[float]] | None]:
+        """The kept times [s], angles [deg] (rows in ``REPORTED_ANGLES`` order; a NaN
+        stays NaN, which the pose's JSON writes as null) and the forearm's turn terms (or
+        None: not a forearm-only kit), then forgets them."""
         if not self._t:
-            return [], []
+            return [], [], None
         t = np.concatenate(self._t)[-TRAIL_MAX:]
         angles = np.vstack(self._angles)[-TRAIL_MAX:]
-        self._t, self._angles, self._count = [], [], 0
-        return t.tolist(), np.round(np.rad2deg(angles), TRAIL_DECIMALS).tolist()
+        turns = (np.round(np.vstack(self._turns)[-TRAIL_MAX:], TURN_DECIMALS).tolist()
+                 if self._turns else None)
+        self._t, self._angles, self._turns, self._count = [], [], [], 0
+        return t.tolist(), np.round(np.rad2deg(angles), TRAIL_DECIMALS).tolist(), turns
 
 
 #: ``LiveEstimator.process``'s answer when the newest estimates wait for the pose rate.
@@ -163,6 +181,10 @@ class LiveEstimator:
         self._last_pose = -np.inf  # monotonic time the last pose was returned
         self._unshown: EstimateArrays | None = None  # the newest estimates not yet a pose
         self._trail = AngleTrail(TRAIL_HZ)
+        #: a forearm-only kit (elbow flexion may be the straight arm raised): its forearm
+        #: readings (t, a_y, g_x, g_z) kept to meet the estimates (``_forearm_turns``)
+        self._forearm_only = "forearm" in config.sensors and "upper_arm" not in config.sensors
+        self._forearm_rows: list[np.ndarray] = []
 
     def _drop_silent(self, t: float) -> None:
         if t - self._first_t < SILENT_SENSOR_S or self.pipeline.calibration is not None:
@@ -172,6 +194,22 @@ class LiveEstimator:
             self._dropped.add(sensor)
             self.warnings.append(f"sensor {sensor} sent nothing in {SILENT_SENSOR_S:g} s: "
                                  "the live view goes on without it")
+
+    def _forearm_turns(self, estimates: EstimateArrays) -> np.ndarray | None:
+        """A forearm-only kit's turn terms at the estimates' times (n, 2): the forearm's
+        pull along its axis that is not gravity and ``ω⊥²`` (``elbow_pivot.turn_terms``),
+        from its readings (the estimates' times are its own) and the estimated forearm's
+        upward axis; None for any other kit or without readings."""
+        if not self._forearm_only or not self._forearm_rows:
+            return None
+        rows = np.vstack(self._forearm_rows)
+        t = estimates.t
+        ay = np.interp(t, rows[:, 0], rows[:, 1])
+        gyr = np.column_stack([np.interp(t, rows[:, 0], rows[:, 2]), np.zeros(len(t)),
+                               np.interp(t, rows[:, 0], rows[:, 3])])
+        pull, across = turn_terms(ay, gyr, estimates.R_world_segment[:, FOREARM, 2, 1])
+        self._forearm_rows = [rows[rows[:, 0] >= t[-1] - RAW_KEEP_S]]
+        return np.column_stack([pull, across])
 
     def process(self, items: list[Samples | MarkMessage]) -> EncodedPose | str | None:
         """Feed, poll, and the newest pose, encoded; None when nothing is new, ``HELD``
@@ -192,6 +230,8 @@ class LiveEstimator:
                 if first < self._first_t:
                     self._first_t = first
                 pipeline.feed_rows(item.sensor, rows)
+                if self._forearm_only and item.sensor == "forearm":
+                    self._forearm_rows.append(np.asarray(rows, dtype=float)[:, [0, 2, 4, 6]])
                 if pipeline.calibration is None:
                     self._drop_silent(float(rows[-1, 0]))
             else:
@@ -204,7 +244,7 @@ class LiveEstimator:
         if estimates is not None:
             self.estimates += len(estimates.t)
             self.rom.update(estimates.t, estimates.angles)
-            self._trail.add(estimates.t, estimates.angles)
+            self._trail.add(estimates.t, estimates.angles, self._forearm_turns(estimates))
             self._unshown = estimates
         estimates = self._unshown
         if estimates is None:
@@ -214,7 +254,7 @@ class LiveEstimator:
             return HELD  # published recently enough: the range of motion is kept all the same
         self._last_pose = now
         self._unshown = None
-        trail_t, trail_deg = self._trail.take()
+        trail_t, trail_deg, trail_turns = self._trail.take()
         segments = estimates.R_world_segment[-1].reshape(len(SEGMENTS), 9).tolist()
         return EncodedPose.encode({
             "kind": "pose", "session_id": self.session_id, "t": float(estimates.t[-1]),
@@ -226,6 +266,7 @@ class LiveEstimator:
             "rom_deg": self.rom.as_dict(),
             "estimates": self.estimates,
             "warnings": list(self.warnings),
-            "trail": {"t": trail_t, "angles_deg": trail_deg},
+            "trail": {"t": trail_t, "angles_deg": trail_deg,
+                      **({"forearm_turn": trail_turns} if trail_turns is not None else {})},
             **({"elbow_source": pipeline.elbow_source} if pipeline.gamma is not None else {}),
         })

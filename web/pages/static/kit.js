@@ -39,6 +39,12 @@ const MOTION_WAIT_MS = 8000;
  * waits first for the last turn the other way (feedback's unpaired_turns back to 0), at
  * most RETURN_WAIT_MS. */
 const RETURN_FRACTION = 0.15, SETTLE_MS = 1200, RETURN_WAIT_MS = 7000;
+// A forearm phone's elbow movement the server found made about the shoulder (the straight
+// arm raised: feedback's not_elbow_movements, docs/extensions/kit-feedback.md) is not
+// counted; the patient is told why, for NOT_ELBOW_MS.
+const NOT_ELBOW_MS = 8000;
+const NOT_ELBOW_WORDS = "That moved your whole arm from the shoulder, so it did not count. "
+  + "Keep your upper arm still against your side and bend only at the elbow.";
 /** A session kept on the phone whose last reading is older than this [s] when the page
  * opens is not carried on: the page was closed or the battery died, and after so long the
  * phone has most likely been off the arm (charged, put away), so the poses it was
@@ -561,6 +567,7 @@ function exercise(index, set = 0, resumed = false) {
   let run = kept.run, base = kept.run !== undefined ? (kept.runBase || 0) : (kept.reps || 0);
   let done = false, spoken = kept.reps || 0, shown = kept.reps || 0, reachedAt = null, backAt = null;
   let pairedAt = null;  // a both-ways set: when its last turn had its turn the other way
+  let notElbow = null, notElbowAt = null;  // this run's movements not the elbow's; told when
   // the set's end: the next set after a rest, else well done and how it was
   const after = () => (set + 1 < sets ? restBetweenSets(index, set + 1) : wellDone(index));
   const end = () => {
@@ -583,7 +590,15 @@ function exercise(index, set = 0, resumed = false) {
       if (f.count_from !== run) {
         if (run !== undefined) base = shown;
         run = f.count_from;
+        notElbow = null;
       }
+      const refused = f.not_elbow_movements || 0;
+      if (notElbow !== null && refused > notElbow) {
+        notElbowAt = Date.now();
+        buzz([60, 80, 60]);
+        say("That did not count. Bend only at the elbow.");
+      }
+      notElbow = refused;
       const n = Math.max(shown, base + f.repetitions);
       shown = n;
       reps.textContent = `${n} of ${ex.repetitions}`;
@@ -594,7 +609,10 @@ function exercise(index, set = 0, resumed = false) {
         if (n < ex.repetitions) say(String(n));
         saveStep("exercise", index, { set, markT, started, reps: n, run, runBase: base });
       }
-      if (reachedAt === null) note.textContent = f.warnings && f.warnings.length ? f.warnings[f.warnings.length - 1] : "";
+      if (reachedAt === null) {
+        note.textContent = notElbowAt !== null && Date.now() - notElbowAt < NOT_ELBOW_MS ? NOT_ELBOW_WORDS
+          : f.warnings && f.warnings.length ? f.warnings[f.warnings.length - 1] : "";
+      }
       if (n >= ex.repetitions) {
         // the last repetition is counted on the way up: the set ends once the arm is back
         // (RETURN_FRACTION, SETTLE_MS above)
