@@ -86,6 +86,26 @@ def test_the_count_reads_the_trail_when_poses_are_far_apart():
     assert found["counted_to_s"] == pytest.approx(t[-1])
 
 
+@pytest.mark.parametrize(("radius_m", "counted"), [(0.15, 5), (0.5, 0)])
+def test_the_live_page_counts_the_elbow_only_when_the_forearm_turned_about_it(radius_m,
+                                                                              counted):
+    """A forearm-only kit's trail carries its turn terms (``forearm_turn``: the pull along
+    the forearm less gravity, and the squared rate across it): the forearm turning about a
+    point 0.15 m away is the elbow (5 counted); 0.5 m away it is the straight arm raised
+    about the shoulder, and the live page counts none, as the report and the phone do."""
+    watch = MotionWatch(hub=None, patient_id=1)
+    t = np.arange(0.0, 30.0, 0.04)
+    degrees = _elbow_cycles(t, start_s=10.0)
+    rate = np.gradient(np.deg2rad(degrees[:, REPORTED_ANGLES.index("elbow_flexion")]), t)
+    turn = np.column_stack([rate ** 2 * radius_m, rate ** 2])
+    for chunk in np.array_split(np.arange(len(t)), 20):
+        pose = _pose(7, t[chunk], degrees[chunk])
+        pose["trail"]["forearm_turn"] = turn[chunk].tolist()
+        watch.add(pose)
+    found = current_exercise(watch, 7, {"name": "elbow_flexion", "t": 9.5})
+    assert found["repetitions"] == counted
+
+
 def test_a_mark_the_live_angles_have_not_reached_is_a_count_of_zero():
     """A busy server: the kit's exercise mark (stored at once) is ahead of the live
     angles. The poll answered 500 ('a window must start before it ends')."""

@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 from armtrack.estimator.arm.joints import REPORTED_ANGLES
 from armtrack.estimator.metrics import BOTH_WAYS, count_repetitions, detect_repetitions
+from armtrack.estimator.metrics.elbow_pivot import PIVOT_M, fit_radius
 
 from ..programs.catalogue import exercise as catalogue_exercise
 from ..reports.words import exercise_words as words
@@ -57,7 +58,9 @@ class MotionWatch:
         self.calibrated_from: float | None = None
         self._t: deque[float] = deque()
         self._angles: deque[np.ndarray] = deque()
-        self._lock = threading.Lock()
+        #: a forearm-only kit's turn terms per kept estimate (pull, ω⊥²; NaN: none)
+        self._turns: deque[np.ndarray] = deque()
+        self._lock = threading.RLock()  # series_and_turns reads series under it
         self.last_poll = time.monotonic()
         self.task: asyncio.Task | None = None
 
@@ -80,11 +83,15 @@ class MotionWatch:
                               for k in REPORTED_ANGLES]])
         if rows.ndim != 2 or rows.shape != (len(times), len(REPORTED_ANGLES)):
             return
+        turn = (trail or {}).get("forearm_turn")
+        turns = (np.array(turn, dtype=float) if turn and len(turn) == len(times)
+                 else np.full((len(times), 2), np.nan))
         with self._lock:
             if session_id != self.session_id:
                 self.session_id, self.calibrated_from = session_id, None
                 self._t.clear()
                 self._angles.clear()
+                self._turns.clear()
             newer = times > (self._t[-1] if self._t else -np.inf)
             if not newer.any():
                 return
@@ -92,9 +99,11 @@ class MotionWatch:
                 self.calibrated_from = t_pose  # the running range starts after the poses
             self._t.extend(times[newer].tolist())
             self._angles.extend(rows[newer])
+            self._turns.extend(turns[newer])
             while self._t and self._t[0] < t_pose - BUFFER_S:
                 self._t.popleft()
                 self._angles.popleft()
+                self._turns.popleft()
 
     def series(self) -> tuple[int | None, float | None, np.ndarray, np.ndarray]:
         """A copy: session id, calibrated-from time, t (N,) [s], angles (N, A) [deg]."""
@@ -103,6 +112,14 @@ class MotionWatch:
             angles = (np.vstack(self._angles) if self._angles
                       else np.empty((0, len(REPORTED_ANGLES))))
             return self.session_id, self.calibrated_from, t, angles
+
+    def series_and_turns(self) -> tuple[int | None, float | None, np.ndarray, np.ndarray,
+                                        np.ndarray]:
+        """``series`` and, read with it, the kept estimates' forearm turn terms (N, 2),
+        NaN where none."""
+        with self._lock:
+            turns = np.vstack(self._turns) if self._turns else np.empty((0, 2))
+            return (*self.series(), turns)
 
     async def run(self) -> None:
         with self.hub.subscribe(self.patient_id) as subscription:
@@ -154,7 +171,7 @@ def current_exercise(motion: MotionWatch, session_id: int, mark: dict[str, Any] 
     busy; null before the first angle after the mark)."""
     from ..reports.content import GROUP_GAP_S, detected_groups, detected_name
 
-    sid, calibrated_from, t, angles = motion.series()
+    sid, calibrated_from, t, angles, turns = motion.series_and_turns()
     start = (mark["t"] if mark else calibrated_from if calibrated_from is not None
              else t[0] if len(t) else None)
     if sid != session_id or not len(t) or start >= t[-1]:
@@ -174,6 +191,8 @@ def current_exercise(motion: MotionWatch, session_id: int, mark: dict[str, Any] 
         if not np.isfinite(column).any():
             continue
         found[angle] = detect_repetitions(column, t, include=include)
+    if found.get("elbow_flexion"):  # a forearm-only kit's raise about the shoulder: not
+        found["elbow_flexion"] = _elbows(found["elbow_flexion"], t, turns)
     if mark:
         entry = catalogue_exercise(mark["name"])
         angle = (entry.angle if entry is not None and entry.angle in found
@@ -195,6 +214,22 @@ def current_exercise(motion: MotionWatch, session_id: int, mark: dict[str, Any] 
     return {"name": name, "label": words(name), "source": "detected", "since_s": a,
             "angle": angle, "counted_to_s": counted_to,
             "repetitions": _count(in_group, angle), "repetitions_done": _done(in_group, angle)}
+
+
+def _elbows(reps: Any, t: np.ndarray, turns: np.ndarray) -> tuple:
+    """The elbow flexion's repetitions ``reps`` less those a forearm-only kit's forearm
+    turned about a point further than ``PIVOT_M`` (the straight arm raised about the
+    shoulder; ``estimator/metrics/elbow_pivot.py``, the report's and the phone's rule);
+    all of them when the trail carried no turn terms."""
+    if len(turns) != len(t) or not np.isfinite(turns).any():
+        return reps
+    kept = []
+    for rep in reps:
+        a, b = np.searchsorted(t, rep.start_s, "left"), np.searchsorted(t, rep.end_s, "right")
+        radius = fit_radius(turns[a:b, 0], turns[a:b, 1])
+        if radius is None or radius <= PIVOT_M:
+            kept.append(rep)
+    return tuple(kept)
 
 
 def _count(found: dict[str, Any], angle: str | None) -> int:
