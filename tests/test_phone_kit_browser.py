@@ -50,6 +50,8 @@ class CuttableProxy:
         self.connections: set[socket.socket] = set()
         self.lock = threading.Lock()
         self.cut_now = False
+        #: connections refused since the last ``cut()`` (a reconnect met the lost network)
+        self.refused = 0
         self.running = True
         threading.Thread(target=self._accept, daemon=True).start()
 
@@ -61,6 +63,7 @@ class CuttableProxy:
                 return
             if self.cut_now:
                 client.close()
+                self.refused += 1
                 continue
             try:
                 upstream = socket.create_connection(("127.0.0.1", self.target_port))
@@ -89,6 +92,7 @@ class CuttableProxy:
                 s.close()
 
     def cut(self) -> None:
+        self.refused = 0
         self.cut_now = True
         with self.lock:
             open_now = list(self.connections)

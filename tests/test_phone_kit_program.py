@@ -17,7 +17,6 @@ rest between sets, and the effort/pain screen."""
 from __future__ import annotations
 
 import dataclasses
-import time
 from datetime import UTC, datetime
 
 import numpy as np
@@ -183,7 +182,8 @@ def test_the_patient_follows_the_program_on_the_phone(kit_server, phone, shots):
         phone.screenshot(path=str(shots / "p6-finished-offline.png"), full_page=True)
         # a new session would start a new outbox: not before all of this one is sent
         assert phone.locator("#again").is_disabled()
-        time.sleep(3)
+        # the page has tried to reconnect and met the lost network (was a 3-s sleep)
+        _wait(lambda: proxy.refused > 0, 30, "a reconnect refused while the link is cut")
         proxy.restore()
         sync_api.expect(phone.locator("#sent")).to_contain_text("All sent", timeout=60_000)
         assert phone.evaluate("kit.stream.state.ratings.length") == 0
