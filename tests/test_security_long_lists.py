@@ -80,3 +80,42 @@ def test_one_accounts_burst_of_long_lists_is_bounded(server):
     assert codes and set(codes) == {200}, codes
     assert growth < 200, f"the server grew {growth:.0f} MB"
     assert max(waits) < 2.0, f"another therapist waited {max(waits):.1f} s"
+
+
+def test_kept_summaries_of_many_marked_sessions_stay_bounded(server):
+    # the summaries the server keeps were bounded by count only (2,000): a session of
+    # 1,000 marks (the most it keeps) has 500 exercises, ~190 KB of summary kept, so one
+    # account's sessions could keep ~380 MB in the server for good
+    from armtrack.estimator.recording import Mark
+    from test_security_limits import rss_mb
+
+    alice = server.client("alice")
+    patient = alice.patient(name="Marked")
+    rec = simulate(SimulationConfig(exercise="elbow_flexion", repetitions=1)).recording
+    marks = [Mark(0.001 * i, ("end:" if i % 2 else "") + "exercise:" + "x" * 84 + f"{i // 2:03d}")
+             for i in range(1000)]
+    answer = alice.http.post("/api/recordings", data={"patient_id": patient["id"]},
+                             files={"file": ("m.csv", format_recording(
+                                 replace(rec, marks=tuple(marks))), "text/csv")})
+    assert answer.status_code == 201, answer.text
+    first = answer.json()["id"]
+    columns = [r[1] for r in server.sql("PRAGMA table_info(sessions)")
+               if r[1] not in ("id", "estimate_columns")]
+    names = ", ".join(columns)
+    server.sql(f"INSERT INTO sessions ({names}) SELECT {names} FROM sessions "
+               "JOIN (WITH RECURSIVE n(i) AS (SELECT 1 UNION ALL SELECT i + 1 FROM n "
+               "WHERE i < 599) SELECT i FROM n) WHERE id = :id", id=first)
+    server.sql("INSERT INTO marks (session_id, t, label) SELECT s.id, m.t, m.label "
+               "FROM sessions s JOIN marks m ON m.session_id = :id "
+               "WHERE s.patient_id = :p AND s.id != :id", id=first, p=patient["id"])
+    before = rss_mb(server.process.pid)
+    began = time.monotonic()
+    for offset in range(0, 601, 50):  # pages of 50: little held at once besides what is kept
+        page = alice.http.get(f"/api/patients/{patient['id']}/summaries"
+                              f"?limit=50&offset={offset}", timeout=300)
+        assert page.status_code == 200, page.text
+        assert all(len(s["exercises"]) == 500 for s in page.json())
+    kept = rss_mb(server.process.pid) - before
+    print(f"\nsummaries of 601 sessions of 500 exercises: {time.monotonic() - began:.1f} s, "
+          f"the server keeps +{kept:.0f} MB")
+    assert kept < 60, f"the server keeps {kept:.0f} MB more"

@@ -7,6 +7,8 @@ kept in memory per session until its data or estimates change."""
 
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
 from typing import Annotated, Any
 
 import numpy as np
@@ -34,7 +36,39 @@ LOST_FAIR, LOST_POOR = 0.01, 0.05
 #: "good data").
 SHORT_S = 30.0
 
-_cache: dict[int, tuple[tuple, dict[str, Any]]] = {}
+
+class KeptSummaries:
+    """Summaries of closed sessions, by session id, with the key they were made for: at
+    most ``entries`` of them and ``parts`` exercises and calibration poses in all, the
+    least recently kept going first. (Bounded by count alone, 2,000: a session keeps up
+    to 1,000 marks, a summary then ~190 KB of 500 exercises, and 601 such summaries kept
+    the server +121 MB for good, 2,000 ~400 MB; att18,
+    tests/test_security_long_lists.py.) Thread-safe."""
+
+    def __init__(self, entries: int, parts: int):
+        self.entries, self.parts = entries, parts
+        self._kept: OrderedDict[int, tuple[tuple, dict[str, Any], int]] = OrderedDict()
+        self._parts = 0
+        self._lock = threading.Lock()
+
+    def get(self, session_id: int) -> tuple[tuple, dict[str, Any]] | None:
+        with self._lock:
+            found = self._kept.get(session_id)
+        return None if found is None else (found[0], found[1])
+
+    def put(self, session_id: int, key: tuple, summary: dict[str, Any]) -> None:
+        weight = 1 + len(summary["exercises"]) + len(summary["calibration_poses"])
+        with self._lock:
+            if (old := self._kept.pop(session_id, None)) is not None:
+                self._parts -= old[2]
+            self._kept[session_id] = (key, summary, weight)
+            self._parts += weight
+            while self._kept and (len(self._kept) > self.entries or self._parts > self.parts):
+                self._parts -= self._kept.popitem(last=False)[1][2]
+
+
+#: Kept summaries: a usual session's has a few exercises, so ~2,000 of them (a few MB).
+_cache = KeptSummaries(entries=2000, parts=50_000)
 
 
 def _marks(db: DbSession, session_id: int) -> list[tuple[float, str]]:
@@ -205,9 +239,7 @@ def _summarise(db: DbSession, session: models.Session, key: tuple) -> dict[str, 
                     "calibration_method": (session.calibration or {}).get("method")},
     }
     if session.status == "closed":
-        _cache[session.id] = (key, summary)
-        if len(_cache) > 2000:
-            _cache.clear()
+        _cache.put(session.id, key, summary)
     return summary
 
 
