@@ -383,3 +383,55 @@ def test_a_bad_setting_is_named_without_a_traceback(tmp_path, name, value, words
     assert done.returncode == 2, (done.returncode, done.stderr[-500:])
     assert "Traceback" not in done.stderr
     assert name in done.stderr and repr(value) in done.stderr and words in done.stderr
+
+
+def _at_a_terminal(args: list[str], answers: list[bytes], timeout: float = 60.0
+                   ) -> tuple[int, str]:
+    """Runs ``armtrack ARGS`` on a pseudo-terminal (as an operator types at one): each of
+    ``answers`` is typed once the output so far ends with a prompt (": "). Its exit code
+    and everything it wrote."""
+    import os
+    import pty
+    import select
+    import sys
+    import time
+
+    pid, fd = pty.fork()
+    if pid == 0:  # the child: the command, on the terminal
+        os.execv(sys.executable, [sys.executable, "-m", "armtrack.server.cli", *args])
+    out, pending, deadline = b"", list(answers), time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if pending and out.rstrip(b" ").endswith(b":") and out.endswith(b" "):
+            os.write(fd, pending.pop(0))
+            out += b"\n"  # the typed line (not echoed: a password)
+        ready, _, _ = select.select([fd], [], [], 0.1)
+        if ready:
+            try:
+                chunk = os.read(fd, 4096)
+            except OSError:  # the command ended, the terminal closed
+                break
+            if not chunk:
+                break
+            out += chunk
+    _, status = os.waitpid(pid, 0)
+    return os.waitstatus_to_exitcode(status), out.decode(errors="replace")
+
+
+def test_create_user_at_a_terminal_asks_the_password_twice(tmp_path):
+    """`armtrack create-user alice` at a terminal (docs/operator.md, "asks for the
+    password") asked once, unseen: a slip of the finger made an account whose password
+    nobody knew; and Ctrl-D at the prompt ended in a Python traceback. Now it asks again,
+    refuses two that differ and says what to do, and Ctrl-D creates nothing, in words."""
+    data = ["--data-dir", str(tmp_path / "data")]
+    code, out = _at_a_terminal(["create-user", "ann", *data],
+                               [b"first-password-1\n", b"first-pasword-1\n"])
+    print(out)
+    assert code == 2 and "again" in out and "Traceback" not in out, out
+    assert "the two passwords differ: no account was created; run it again" in out, out
+    code, out = _at_a_terminal(["create-user", "ann", *data], [b"\x04"])
+    print(out)
+    assert code == 2 and "Traceback" not in out, out
+    assert "no password given: no account was created" in out, out
+    code, out = _at_a_terminal(["create-user", "ann", *data],
+                               [b"first-password-1\n", b"first-password-1\n"])
+    assert code == 0 and "created therapist 'ann'" in out, out

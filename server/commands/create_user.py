@@ -1,7 +1,7 @@
-"""``armtrack create-user NAME``: a therapist account (password from ``--password`` or
-standard input), in the database the settings point at (migrated first). ``--admin``
-makes a clinic admin; ``--disable`` disables an existing account (its tokens stop
-working)."""
+"""``armtrack create-user NAME``: a therapist account (password from ``--password``, asked
+twice at a terminal, or a line of standard input), in the database the settings point at
+(migrated first). ``--admin`` makes a clinic admin; ``--disable`` disables an existing
+account (its tokens stop working)."""
 
 from __future__ import annotations
 
@@ -14,13 +14,14 @@ from .serve import add_database_arguments, settings_from
 MIN_PASSWORD = 8
 
 HELP = "make a therapist account"
-DESCRIPTION = ("Creates a therapist who can sign in; the password comes from --password or "
-               "standard input.")
+DESCRIPTION = ("Creates a therapist who can sign in; the password comes from --password, "
+               "else is asked twice at a terminal, else is a line of standard input.")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("name", help="the therapist's user name")
-    parser.add_argument("--password", help="the password (default: read from standard input)")
+    parser.add_argument("--password", help="the password (default: asked twice at a "
+                        "terminal, else read from standard input)")
     parser.add_argument("--full-name", help="the name reports print (\"Dr Jane Doe\")")
     parser.add_argument("--admin", action="store_true",
                         help="a clinic admin (manages therapists, reassigns patients)")
@@ -52,9 +53,22 @@ def run(args: argparse.Namespace) -> int:
     if args.disable:
         return _disable(args)
     password = args.password
-    if password is None:
-        password = (getpass.getpass("password: ") if sys.stdin.isatty()
-                    else sys.stdin.readline().rstrip("\r\n"))
+    if password is None and sys.stdin.isatty():
+        # typed unseen: asked twice, so a slip of the finger makes no account whose
+        # password nobody knows; Ctrl-D (or Ctrl-C) at the prompt creates nothing
+        try:
+            password = getpass.getpass("password: ")
+            again = getpass.getpass("the same password again: ")
+        except (EOFError, KeyboardInterrupt):
+            print("\narmtrack create-user: no password given: no account was created",
+                  file=sys.stderr)
+            return 2
+        if password != again:
+            print("armtrack create-user: the two passwords differ: no account was created; "
+                  "run it again", file=sys.stderr)
+            return 2
+    elif password is None:
+        password = sys.stdin.readline().rstrip("\r\n")
     if len(password) < MIN_PASSWORD:
         print(f"armtrack create-user: the password needs at least {MIN_PASSWORD} characters",
               file=sys.stderr)
