@@ -119,3 +119,30 @@ def test_kept_summaries_of_many_marked_sessions_stay_bounded(server):
     print(f"\nsummaries of 400 sessions of 500 exercises: {time.monotonic() - began:.1f} s, "
           f"the server keeps +{kept:.0f} MB")
     assert kept < 45, f"the server keeps {kept:.0f} MB more"
+
+
+def test_a_report_pdf_of_the_most_marks_a_session_keeps_costs_little_more(server):
+    # page 3 measured each exercise band's label (12 ms each): a kit's session of 1,000
+    # marks (500 exercises, the most a session keeps) took its report.pdf from 0.8 to
+    # 12 s of an export turn, holding the GIL
+    from armtrack.estimator.recording import Mark
+
+    alice = server.client("alice")
+    patient = alice.patient(name="Banded")
+    rec = simulate(SimulationConfig(exercise="elbow_flexion", repetitions=1)).recording
+    took = {}
+    for count in (2, 1000):
+        marks = [Mark(0.02 * i, ("end:" if i % 2 else "") + "exercise:" + "x" * 84
+                      + f"{i // 2:03d}") for i in range(count)]
+        answer = alice.http.post("/api/recordings", data={"patient_id": patient["id"]},
+                                 files={"file": ("m.csv", format_recording(
+                                     replace(rec, marks=tuple(marks))), "text/csv")})
+        assert answer.status_code == 201, answer.text
+        path = f"/api/sessions/{answer.json()['id']}/report.pdf"
+        assert alice.http.get(f"/api/sessions/{answer.json()['id']}/report").status_code == 200
+        began = time.monotonic()
+        pdf = alice.http.get(path, timeout=120)
+        took[count] = time.monotonic() - began
+        assert pdf.status_code == 200 and pdf.content.startswith(b"%PDF"), pdf.text[:200]
+    print(f"\nreport.pdf: 1 exercise {took[2]:.1f} s, 500 exercises {took[1000]:.1f} s")
+    assert took[1000] < 4 * took[2] + 1.0, took
