@@ -283,3 +283,26 @@ def test_a_recordings_marks_are_bounded_as_a_streams(module_server, alice, marks
                         data={"wait": "false"}, files={"file": ("ok.csv", format_recording(
                             replace(rec, marks=tuple(at_limit))), "text/csv")})
     assert stored.status_code == 202, stored.text
+
+
+def test_a_recordings_header_text_with_a_direction_control_is_refused(module_server, alice):
+    # an uploaded header's values are text the pages, reports and exports show: a
+    # direction control (U+202E) makes one show in another order than it is written
+    # ("Trojan Source", test_security_bidi). A name or a kit's hello holding one is
+    # refused; an upload's header was stored (201) and only shown written out ("[U+202E]")
+    from dataclasses import replace
+
+    from armtrack.estimator.recording import format_recording
+    from armtrack.estimator.simulation import SimulationConfig, simulate
+
+    patient = alice.patient("Direction header")
+    rec = simulate(SimulationConfig(rate_hz=30.0, repetitions=1, seed=2)).recording
+    rec = replace(rec, metadata={**rec.metadata, "kit_note": "left\u202ethgir"})
+    answer = alice.http.post("/api/recordings", data={"patient_id": str(patient["id"])},
+                             files={"file": ("bidi.csv", format_recording(rec), "text/csv")})
+    print(f"\n{answer.status_code} {answer.text[:300]}")
+    assert answer.status_code == 422, answer.text[:300]
+    detail = answer.json()["detail"]
+    assert detail.startswith("bidi.csv: header 'kit_note' ") and "U+202E" in detail, detail
+    assert module_server.sql("SELECT COUNT(*) FROM sessions WHERE patient_id = :p",
+                             p=patient["id"])[0][0] == 0

@@ -35,6 +35,7 @@ from ..store.processing import (
 from ..store.recordings import (
     add_recording,
     dated_by,
+    header_text_problem,
     marks_problem,
     metadata_problem,
     session_recording,
@@ -287,7 +288,8 @@ def _count_and_store(db, svc: Services, patient: models.Patient, device_id: int 
         recording = imports.import_upload(files, sensors, patient, format, calibration,
                                           side, height_m, options,
                                           svc.settings.max_upload_bytes)
-    if (why := metadata_problem(recording) or marks_problem(recording)) is not None:
+    if (why := metadata_problem(recording) or marks_problem(recording)
+            or header_text_problem(recording)) is not None:
         name = (file.filename if file is not None else None) or "the files"
         raise HTTPException(status.HTTP_422_UNPROCESSABLE_CONTENT, f"{name}: {why}")
     held = sum(len(s) for s in recording.sensors.values()) \

@@ -72,6 +72,20 @@ def marks_problem(recording: Recording) -> str | None:
     return None
 
 
+def header_text_problem(recording: Recording) -> str | None:
+    """What is wrong with the text of ``recording``'s header metadata values, or None: each
+    is one line of text the pages, reports and exports show, so it holds no control
+    character and no direction control (``plain_text.text_problem``: "left\u202ethgir"
+    shows as "leftright"), as a name or a kit's hello may not. (Mark labels are held to
+    ``npose``, ``tpose``, ``exercise:<name>`` and ``end:<label>`` by the reader.)"""
+    from ..plain_text import text_problem
+
+    for key, value in recording.metadata.items():
+        if (problem := text_problem(str(value))) is not None:
+            return f"header {key!r} must be valid text: {problem}"
+    return None
+
+
 def recorded_start(recording: Recording) -> datetime | None:
     """When the recording's ``t = 0`` was, from its ``start_time`` header (ISO 8601 with a
     time zone; ``docs/extensions/start-time.md``), in UTC; ``None`` without the header.
