@@ -162,3 +162,78 @@ def test_one_program_session_is_one_session_in_words(module_server, tmp_path):
         page.goto(f"{module_server.url}/patients/{patient['id']}")
         sync_api.expect(page.locator("#progress-card")).to_contain_text(
             "1 session, change")
+
+
+@pytest.fixture(scope="module")
+def two_sets_session(module_server):
+    """A stored session whose kit marked two sets of elbow flexion: the first of one
+    repetition, the second started and ended at once (the patient tapped through it)."""
+    import dataclasses
+
+    from armtrack.estimator.recording import Mark, format_recording
+
+    recording = _exercise("elbow_flexion", repetitions=1)
+    start, end = (m.t for m in recording.marks)
+    label = "exercise:elbow_flexion"
+    recording = dataclasses.replace(recording, marks=(
+        Mark(start, label), Mark(end - 0.6, "end:" + label),
+        Mark(end - 0.4, label), Mark(end - 0.2, "end:" + label)))
+    api = module_server.client("alice")
+    patient = api.patient("Two Sets Patient")
+    answer = api.http.post("/api/recordings", data={"patient_id": str(patient["id"])},
+                           files={"file": ("sets.csv", format_recording(recording))})
+    answer.raise_for_status()
+    session = api.wait_processed(answer.json()["id"], timeout=120)
+    report = api.http.get(f"/api/sessions/{session['id']}/report").json()
+    # the report's contract (docs/spec/api.md) keeps each set's name as the kit marked it
+    assert [e["name"] for e in report["exercises"]] == ["elbow_flexion"] * 2, report
+    return patient, session, report
+
+
+SET_1 = "Elbow flexion — set 1"
+SET_2 = "Elbow flexion — set 2"
+
+
+@pytest.mark.parametrize("width", [390, 1280])
+def test_two_sets_of_one_exercise_read_apart(module_server, two_sets_session, width,
+                                             tmp_path):
+    """user18: two marked sets of the same exercise read "Elbow flexion: Elbow flexion"
+    twice in the figures and "Elbow flexion × 1, Elbow flexion × 0" in the chips: nothing
+    told set 1 from set 2. Each is named by its set, on the session page and in the
+    patient's sessions list."""
+    patient, session, _ = two_sets_session
+    with page_at(width) as page:
+        sign_in_as(page, module_server.url, "alice")
+        page.goto(f"{module_server.url}/patients/{patient['id']}")
+        row = page.locator(f'#sessions [data-session="{session["id"]}"]')
+        sync_api.expect(row).to_contain_text(f"{SET_1} × 1")
+        sync_api.expect(row).to_contain_text(SET_2)
+        page.goto(f"{module_server.url}/sessions/{session['id']}")
+        chips = page.locator("#exercises .chip")
+        sync_api.expect(chips).to_have_count(2)
+        sync_api.expect(chips.nth(0)).to_contain_text(f"{SET_1} × 1 · ")
+        sync_api.expect(chips.nth(1)).to_contain_text(SET_2)
+        figures = page.locator('#exercise-figures tr[data-angle="elbow_flexion"] td.name')
+        sync_api.expect(figures.first).to_have_text(f"{SET_1}: Elbow flexion")
+        page.screenshot(path=str(tmp_path / f"sets-{width}.png"), full_page=True)
+        print(f"\nscreenshot at {width} px: {tmp_path}")
+
+
+def test_two_sets_of_one_exercise_read_apart_in_the_pdf(module_server, two_sets_session,
+                                                       tmp_path):
+    """The session PDF names the sets as the page does (its summary and its page of
+    repetitions)."""
+    import subprocess
+
+    if not shutil.which("pdftotext"):
+        pytest.skip("needs poppler-utils (pdftotext)")
+    api = module_server.client("alice")
+    _, session, _ = two_sets_session
+    pdf = api.http.get(f"/api/sessions/{session['id']}/report.pdf")
+    assert pdf.status_code == 200, pdf.text[:300]
+    (tmp_path / "report.pdf").write_bytes(pdf.content)
+    text = subprocess.run(["pdftotext", "-layout", str(tmp_path / "report.pdf"), "-"],
+                          capture_output=True, text=True, check=True).stdout
+    assert f"{SET_1}: 1 repetition " in text, text[:2000]
+    assert f"{SET_2}: " in text, text[:2000]
+    assert f"1. {SET_1}" in text, text

@@ -29,7 +29,7 @@ from matplotlib.textpath import TextPath
 
 from .content import Exercise, SessionData, SessionReport
 from .pdf_summary import DATED_WORDS, Letterhead, local, style_table, summary_page
-from .words import ANGLE_WORDS, calibration_words, duration_words, exercise_words
+from .words import ANGLE_WORDS, calibration_words, duration_words, set_words
 
 # Names and notes are a user's text: "$…$" in a patient's name is no formula (mathtext made
 # such a name fail the whole PDF, issue 17). Set once for the process, not per call with
@@ -191,7 +191,7 @@ CHART_WIDTH = 0.79
 BAND_FONT = 7.0
 
 
-def _band_label(ax, number: int, exercise: Exercise, t: np.ndarray) -> None:
+def _band_label(ax, number: int, exercise: Exercise, name: str, t: np.ndarray) -> None:
     """Above an exercise's band: "3. Elbow flexion" where the band holds it, else "3."
     (page 4 numbers the exercises alike); nothing for a band outside the chart."""
     t0, t1 = (float(t[0]), float(t[-1])) if t.size > 1 else (0.0, 1.0)
@@ -199,7 +199,7 @@ def _band_label(ax, number: int, exercise: Exercise, t: np.ndarray) -> None:
     if end <= start:
         return
     band_pt = (end - start) / (t1 - t0) * CHART_WIDTH * A4[0] * 72
-    text = f"{number}. {exercise_words(exercise.name)}"
+    text = f"{number}. {name}"
     # measured only where it may fit (a glyph is 0.2 em wide at least): measuring took
     # 12 ms a label, 6 s of a 500-exercise session's report (a kit's 1,000 marks), whose
     # bands are far too narrow for their names (att18)
@@ -224,6 +224,7 @@ def _angles_page(fig: Figure, report: SessionReport, data: SessionData) -> None:
         for a in exercise.angles:
             for d in a.details:
                 peaks.setdefault(a.angle, []).append((d.peak_s, d.direction))
+    set_names = set_words([e.name for e in report.exercises])
     for i, angle in enumerate(names):
         # the angle's name and ticks left of the axes, inside the page's text frame
         ax = fig.add_axes((0.15, top - (i + 1) * height + 0.012, CHART_WIDTH,
@@ -233,11 +234,11 @@ def _angles_page(fig: Figure, report: SessionReport, data: SessionData) -> None:
         if excluded is not None:
             ax.axvspan(excluded.start_s, excluded.end_s, color="#cccccc", alpha=0.5,
                        linewidth=0)
-        for k, exercise in enumerate(report.exercises):
+        for k, (exercise, name) in enumerate(zip(report.exercises, set_names, strict=True)):
             ax.axvspan(exercise.start_s, exercise.end_s, color=COLOURS[k % len(COLOURS)],
                        alpha=0.12, linewidth=0)
             if i == 0:
-                _band_label(ax, k + 1, exercise, t)
+                _band_label(ax, k + 1, exercise, name, t)
         if peaks.get(angle):
             pt = np.array([p for p, _ in peaks[angle]])
             ax.plot(pt, np.interp(pt, t, values), "v", color="#C44E52", markersize=3)
@@ -265,8 +266,9 @@ def _details_page(fig: Figure, report: SessionReport) -> None:
     header = ["Exercise", "Angle", "Reps", "Amplitude", "Move time", "Peak vel.",
               "SPARC", "LDLJ", "CV ampl.", "CV time"]
     rows = []
-    for k, exercise in enumerate(report.exercises, 1):
-        name = "\n".join(textwrap.wrap(f"{k}. {exercise_words(exercise.name)}", NAME_CHARS))
+    set_names = set_words([e.name for e in report.exercises])
+    for k, (exercise, words) in enumerate(zip(report.exercises, set_names, strict=True), 1):
+        name = "\n".join(textwrap.wrap(f"{k}. {words}", NAME_CHARS))
         for a in exercise.angles:
             main = max(a.consistency, key=lambda c: c.repetitions, default=None)
             rows.append([name, _angle(a.angle, ANGLE_CHARS), str(a.repetitions),

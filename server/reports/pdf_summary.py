@@ -15,7 +15,7 @@ from zoneinfo import ZoneInfo
 from matplotlib.figure import Figure
 
 from .content import RomEntry, SessionReport
-from .words import ANGLE_WORDS, day_words, duration_words, exercise_words
+from .words import ANGLE_WORDS, day_words, duration_words, exercise_words, set_words
 
 LABELS = ANGLE_WORDS
 #: A change of range smaller than this [deg] is "about the same" (within what one
@@ -89,10 +89,11 @@ def _percent(x: float | None) -> str:
 def done_lines(report: SessionReport) -> list[str]:
     """What was done: each exercise with its repetitions and times."""
     lines = []
-    for e in report.exercises:
+    names = set_words([e.name for e in report.exercises])
+    for e, name in zip(report.exercises, names, strict=True):
         reps = max((a.repetitions for a in e.angles), default=0)
         how = "marked by the kit" if e.source == "marks" else "recognised in the movement"
-        lines.append(f"{words(e.name)}: {reps} repetition{'s' if reps != 1 else ''} "
+        lines.append(f"{name}: {reps} repetition{'s' if reps != 1 else ''} "
                      f"({e.start_s:.0f}–{e.end_s:.0f} s into the session, {how})")
     return lines or ["No repeated exercise was found (the range below is over the whole "
                      "session, calibration poses left out)."]

@@ -6,6 +6,8 @@ heavy import: the live page, the 3D view's replay and the PDF use them alike."""
 from __future__ import annotations
 
 import math
+from collections import Counter
+from collections.abc import Sequence
 from datetime import date
 
 #: Angles (``REPORTED_ANGLES``) in words.
@@ -26,6 +28,23 @@ def exercise_words(name: str) -> str:
     parts = [p.strip() for p in name.split("+")]
     text = " + ".join(ANGLE_WORDS.get(p, p.replace("_", " ")) for p in parts)
     return text[:1].upper() + text[1:]
+
+
+def set_words(names: Sequence[str]) -> list[str]:
+    """A session's exercises' names in words, in their order; where the kit marked the
+    same exercise more than once, each says its set ("Elbow flexion — set 1", "Elbow
+    flexion — set 2"), as the pages do (``exerciseNames`` in web/pages/static/app.js).
+    The report's names (its JSON and CSV) stay the kit's."""
+    total = Counter(names)
+    seen: Counter[str] = Counter()
+    out = []
+    for name in names:
+        text = exercise_words(name)
+        if total[name] > 1:
+            seen[name] += 1
+            text += f" — set {seen[name]}"
+        out.append(text)
+    return out
 
 
 def mark_words(label: str) -> str:

@@ -254,11 +254,27 @@ function exerciseLabel(name) {
   return name.replace(/_/g, " ").replace(/^./, (c) => c.toUpperCase());
 }
 
-// An exercise of a summary: its name in words, with the repetitions the report found.
-function exerciseChipText(e) {
-  const name = e.name.split(" + ").map(exerciseLabel).join(" + ");
-  return typeof e.repetitions === "number" && (e.source !== "detected" || e.repetitions)
-    ? `${name} × ${e.repetitions}` : name;
+// A session's exercises' names in words, in their order; where the kit marked the same
+// exercise more than once, each set says which it is ("Elbow flexion — set 1", "— set 2"),
+// as the PDF does (server/reports/words.py set_words). The report's names stay the kit's.
+function exerciseNames(exercises) {
+  const total = new Map();
+  for (const e of exercises) total.set(e.name, (total.get(e.name) || 0) + 1);
+  const seen = new Map();
+  return exercises.map((e) => {
+    const name = e.name.split(" + ").map(exerciseLabel).join(" + ");
+    if (total.get(e.name) < 2) return name;
+    seen.set(e.name, (seen.get(e.name) || 0) + 1);
+    return `${name} — set ${seen.get(e.name)}`;
+  });
+}
+
+// A session's exercises as chips say them: each one's name (its set where there are
+// several), with the repetitions the report found.
+function exerciseChipTexts(exercises) {
+  const names = exerciseNames(exercises);
+  return exercises.map((e, k) => typeof e.repetitions === "number" && (e.source !== "detected" || e.repetitions)
+    ? `${names[k]} × ${e.repetitions}` : names[k]);
 }
 
 function qualityBadge(quality) {

@@ -127,7 +127,7 @@ const LiveFollow = (() => {
           href: s.id === current.id ? null : "/sessions/" + s.id, dataset: { session: s.id } },
         times[k].replace(/^.*?(\d{1,2}:\d{2}.*)$/, "$1"), " · ",
         s.status === "live" ? "live now" : s.status === "interrupted" ? "interrupted"
-          : (s.exercises.length ? s.exercises.map(exerciseChipText).join(", ") : fmtDuration(s.duration_s))))));
+          : (s.exercises.length ? exerciseChipTexts(s.exercises).join(", ") : fmtDuration(s.duration_s))))));
   }
 
   // ------------------------------------------------------------ the next session

@@ -507,12 +507,13 @@ function exerciseFigures(report) {
   const rows = report.exercises.flatMap((e) => e.angles.map((a) => [e, a]));
   if (!rows.length) return null;
   const several = report.exercises.length > 1;
+  const names = new Map(report.exercises.map((e, k) => [e, exerciseNames(report.exercises)[k]]));
   return [el("table", { id: "exercise-figures" },
     el("thead", {}, el("tr", {}, el("th", {}, "Angle"), el("th", { class: "num" }, "Reps"),
       el("th", { class: "num" }, "Move time"), el("th", { class: "num" }, "Peak speed"),
       el("th", { class: "num" }, "Smoothness"))),
     el("tbody", {}, rows.map(([e, a]) => el("tr", { dataset: { angle: a.angle, exercise: e.name } },
-      el("td", { class: "name" }, (several ? exerciseChipText({ name: e.name }) + ": " : "") + (ANGLE_LABELS[a.angle] || a.angle)),
+      el("td", { class: "name" }, (several ? names.get(e) + ": " : "") + (ANGLE_LABELS[a.angle] || a.angle)),
       el("td", { class: "num" }, String(a.repetitions)),
       el("td", { class: "num" }, a.mean_movement_time_s === null ? "—" : a.mean_movement_time_s.toFixed(1) + " s"),
       el("td", { class: "num" }, a.peak_velocity_deg_s === null ? "—" : Math.round(a.peak_velocity_deg_s) + "°/s"),
@@ -554,8 +555,8 @@ async function showReplay() {
   card.hidden = false;
   clear(card,
     el("h2", {}, "Exercises"),
-    summary.exercises.length ? el("div", { id: "exercises" }, summary.exercises.map((e) => el("span", { class: "chip" },
-      exerciseChipText(e) + ` · ${e.start.toFixed(0)}–${e.end === null ? "…" : e.end.toFixed(0)} s`)))
+    summary.exercises.length ? el("div", { id: "exercises" }, exerciseChipTexts(summary.exercises).map((text, k) => el("span", { class: "chip" },
+      text + ` · ${summary.exercises[k].start.toFixed(0)}–${summary.exercises[k].end === null ? "…" : summary.exercises[k].end.toFixed(0)} s`)))
       : el("p", { class: "muted" }, "No exercise was marked or found in this session."),
     el("h3", {}, "Calibration"),
     summary.calibration_poses.length
