@@ -294,3 +294,42 @@ def test_a_paused_stream_still_shows_its_newest_estimates():
     print(f"held back, then shown at {t_shown:.2f} s of {end:.2f} s")
     assert t_shown > end - 1.0
     assert live.process([]) is None  # nothing new, nothing held
+
+
+def test_the_live_turn_of_a_tilted_phone_is_read_along_the_phone():
+    """A tall patient's (1.95 m) elbow flexions, the phone tilted 14° on the forearm: the
+    live trail's turn terms (what the phone's and the live page's counts fit the radius
+    on) read the pull along the phone's own axis, so each repetition turns about the
+    elbow (~0.19 m), not past ``PIVOT_M``. Read along the forearm's axis they turned about
+    0.35 m and the phone counted none of them (review18)."""
+    from armtrack.estimator.metrics import detect_repetitions
+    from armtrack.estimator.metrics.elbow_pivot import PIVOT_M, fit_radius
+    from armtrack.estimator.pipeline import PipelineConfig
+    from armtrack.server.ingest.protocol import MarkMessage, Samples
+    from armtrack.server.live.estimator import LiveEstimator
+    from test_phone_kit_accuracy import phone_like
+
+    rec, _, _ = phone_like("elbow_flexion", "forearm", 0, 5, height_m=1.95,
+                           mount_tilt_deg=15.0)
+    live = LiveEstimator(PipelineConfig(side=rec.side, lengths=rec.segment_lengths(),
+                                        sensors=tuple(rec.sensors)), 1, max_rate_hz=1e6)
+    marks = [MarkMessage(-1, t, label) for pose in rec.calibration
+             for t, label in ((pose.start, pose.name), (pose.end, f"end:{pose.name}"))]
+    s = rec.sensors["forearm"]
+    rows = np.column_stack([s.t, s.acc, s.gyr, np.full((len(s.t), 3), np.nan)])
+    t, deg, turn = [], [], []
+    for a in range(0, len(rows), 60):  # a second at a time
+        pose = live.process((marks if a == 0 else []) + [Samples(-1, "forearm", rows[a:a + 60])])
+        if pose is not None and not isinstance(pose, str):
+            trail = orjson.loads(pose.text)["trail"]
+            if trail["t"] and "forearm_turn" in trail:
+                t += trail["t"]
+                deg += [row[REPORTED_ANGLES.index("elbow_flexion")] for row in trail["angles_deg"]]
+                turn += trail["forearm_turn"]
+    t, deg, turn = np.array(t), np.array(deg, dtype=float), np.array(turn, dtype=float)
+    reps = [r for r in detect_repetitions(np.deg2rad(deg), t) if r.start_s > 10.5]
+    radii = [fit_radius(*turn[np.searchsorted(t, r.start_s):
+                             np.searchsorted(t, r.end_s, "right")].T) for r in reps]
+    print("live radii", [None if r is None else round(r, 3) for r in radii])
+    assert len(reps) == 5
+    assert all(r is not None and 0.1 < r < PIVOT_M for r in radii), radii

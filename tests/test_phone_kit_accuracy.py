@@ -33,13 +33,15 @@ REPEATED_SHARE = 0.03
 
 
 def phone_like(exercise: str, sensor: str, seed: int, repetitions: int | None = None,
-               side: str = "right", gyro_bias_max: float = 0.02):
+               side: str = "right", gyro_bias_max: float = 0.02, height_m: float = 1.75,
+               mount_tilt_deg: float = 8.0):
     """A phone on ``sensor`` of the ``side`` arm doing ``exercise``; its recording with
-    repeated stamps. (``gyro_bias_max`` 0: no bias; the same noise, mounting and stamps.)"""
+    repeated stamps. (``gyro_bias_max`` 0: no bias; the same noise, mounting and stamps;
+    ``height_m`` the patient's, ``mount_tilt_deg`` the phone's largest tilt off the arm.)"""
     rng = np.random.default_rng(1000 + seed)
     config = SimulationConfig(
         exercise=exercise, sensors=(sensor,), side=side, rate_hz=60.0, nine_axis=False,
-        seed=seed,
+        seed=seed, height_m=height_m, mount_tilt_deg=mount_tilt_deg,
         errors=ImuErrors(gyro_noise=0.01, acc_noise=0.1), gyro_bias_max=gyro_bias_max,
         jitter_s=float(rng.uniform(0.002, 0.005)), mount_axial_deg=60.0,
         repetitions=repetitions)

@@ -293,12 +293,18 @@ def test_a_straight_arm_raise_is_not_counted_as_elbow_repetitions(module_server,
     """A phone on the forearm alone (6-axis at 60 Hz, phone-like errors): five elbow
     flexions are five elbow repetitions; five forward raises of the straight arm turn the
     forearm the same way (the elbow angle reads 150°) but about the shoulder, and count as
-    none, the report saying why in words (``estimator/metrics/elbow_pivot.py``)."""
+    none, the report saying why in words (``estimator/metrics/elbow_pivot.py``). A tall
+    patient's (1.95 m) elbow flexions with the phone tilted 14° on the forearm still count:
+    the pull is read along the phone's own axis, not the forearm's (read along the
+    forearm's they turned about 0.35 m and none counted; review18)."""
     from test_phone_kit_accuracy import phone_like
 
-    for exercise, expected in (("elbow_flexion", 5), ("shoulder_flexion", 0)):
-        recording, _, _ = phone_like(exercise, "forearm", 0, 5)
-        patient = alice.patient(f"forearm phone {exercise}", "right", 1.75)
+    for exercise, expected, height, tilt in (("elbow_flexion", 5, 1.75, 8.0),
+                                             ("shoulder_flexion", 0, 1.75, 8.0),
+                                             ("elbow_flexion", 5, 1.95, 15.0)):
+        recording, _, _ = phone_like(exercise, "forearm", 0, 5, height_m=height,
+                                     mount_tilt_deg=tilt)
+        patient = alice.patient(f"forearm phone {exercise} {height}", "right", height)
         token = alice.device(patient["id"], "phone")["token"]
         session_id = stream(module_server, token, recording)
         assert alice.wait_processed(session_id)["processing_error"] is None

@@ -9,15 +9,19 @@ raise reads as elbow flexion). The accelerometer tells them apart: turning at ``
 about a point on the sensor's long axis ``Y`` (``+Y`` proximal) at a distance ``r``
 pulls the sensor toward it, ``ω⊥² r`` along ``+Y`` (``ω⊥``: the rate about the axes
 across the forearm; the turn about ``Y`` itself, pronation, pulls nothing), and
-whatever else ``Y`` reads is gravity, ``g · Y_up`` (the forearm's long axis's upward
-component, from the estimated orientation). So over a movement
+whatever else ``Y`` reads is gravity, ``g · Y_up`` (the upward component of the
+sensor's own ``Y``: the estimated forearm's turned by the calibration's mounting,
+``up_of_sensor_y``; the forearm's own axis is off by the phone's tilt on the arm). So
+over a movement
 
     r = Σ (a_y − g · Y_up) · ω⊥²  /  Σ ω⊥⁴,
 
 the least-squares radius. On the simulator (a phone at 60 Hz with phone-like errors,
 seeds 0–15, both arms, 5 repetitions each, measured by hand with ``phone_like`` of
 ``tests/test_phone_kit_accuracy.py``) the elbow flexions' repetitions read 0.04–0.27 m and
-the straight-arm raises' 0.41–0.57 m: ``PIVOT_M`` lies between. The report's test
+the straight-arm raises' 0.41–0.57 m read along the forearm's axis; along the phone's own
+(seeds 0–3, both arms, review18) 0.16–0.18 m and 0.48–0.51 m, the true 0.17 and 0.49 m:
+``PIVOT_M`` lies between. The report's test
 (``tests/test_reports.py``, a straight-arm raise) streams seed 0 of each through a server.
 A movement slower than ``MIN_RATE`` (peak ``ω⊥``) pulls too little to tell (``ω⊥² r``
 under the accelerometer's and the tilt's errors) and is not judged: it counts as the
@@ -86,8 +90,24 @@ def split_elbow_repetitions(reps: Sequence[Repetition], t: np.ndarray, acc: np.n
     return kept, refused
 
 
-def y_up_of_quats(q: np.ndarray) -> np.ndarray:
-    """The upward (world ``z``) component of a segment's ``+Y`` axis from its orientation
-    quaternions ``q`` (N, 4) ``w, x, y, z`` (segment to world): ``R[2, 1]``."""
+def y_up_of_quats(q: np.ndarray, sensor_y: np.ndarray | None = None) -> np.ndarray:
+    """The upward (world ``z``) component of the sensor's ``+Y`` axis from its segment's
+    orientation quaternions ``q`` (N, 4) ``w, x, y, z`` (segment to world): ``R[2, :]``
+    · ``sensor_y``, the sensor's ``+Y`` in the segment's frame (the calibration's
+    ``R_sensor_segment[1]``; None: the segment's own ``+Y``, ``R[2, 1]``)."""
     w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    return 2.0 * (y * z + w * x)
+    row = np.column_stack([2.0 * (x * z - w * y), 2.0 * (y * z + w * x),
+                           1.0 - 2.0 * (x * x + y * y)])
+    return up_of_sensor_y(row, sensor_y)
+
+
+def up_of_sensor_y(segment_up: np.ndarray, sensor_y: np.ndarray | None) -> np.ndarray:
+    """The upward component of the sensor's ``+Y`` axis from the segment's rows
+    ``R_world_segment[..., 2, :]`` (N, 3) and the sensor's ``+Y`` in the segment's frame
+    ``sensor_y`` (3,) (None: the segment's ``+Y``). The accelerometer's ``Y`` is the
+    sensor's, not the segment's: a phone tilted 8° on the forearm against the segment
+    read its elbow flexions' radius 0.1 m too far (0.26 m for 0.16 m, review18), a tall
+    patient's (1.95 m, phone tilted 14°) past ``PIVOT_M``."""
+    if sensor_y is None:
+        return segment_up[:, 1]
+    return segment_up @ np.asarray(sensor_y, dtype=float)

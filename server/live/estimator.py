@@ -11,7 +11,7 @@ import numpy as np
 from armtrack.estimator.arm.forward import POINTS
 from armtrack.estimator.arm.joints import REPORTED_ANGLES, SEGMENTS
 from armtrack.estimator.jit import compiler
-from armtrack.estimator.metrics.elbow_pivot import turn_terms
+from armtrack.estimator.metrics.elbow_pivot import turn_terms, up_of_sensor_y
 from armtrack.estimator.metrics.rom import CALIBRATION_TAIL_S
 from armtrack.estimator.pipeline import EstimateArrays, Pipeline, PipelineConfig
 from armtrack.estimator.recording import Mark
@@ -207,7 +207,11 @@ class LiveEstimator:
         ay = np.interp(t, rows[:, 0], rows[:, 1])
         gyr = np.column_stack([np.interp(t, rows[:, 0], rows[:, 2]), np.zeros(len(t)),
                                np.interp(t, rows[:, 0], rows[:, 3])])
-        pull, across = turn_terms(ay, gyr, estimates.R_world_segment[:, FOREARM, 2, 1])
+        calibration = self.pipeline.calibration  # the sensor's +Y in the forearm's frame
+        sensor_y = (calibration.R_sensor_segment["forearm"][1] if calibration is not None
+                    and "forearm" in calibration.R_sensor_segment else None)
+        pull, across = turn_terms(ay, gyr, up_of_sensor_y(
+            estimates.R_world_segment[:, FOREARM, 2, :], sensor_y))
         self._forearm_rows = [rows[rows[:, 0] >= t[-1] - RAW_KEEP_S]]
         return np.column_stack([pull, across])
 

@@ -297,7 +297,8 @@ class SessionData:
                 or "forearm" not in self.quats or len(self.t) < 2:
             return None
         stream = sensors["forearm"]
-        y_up = np.interp(stream.t, self.t, y_up_of_quats(self.quats["forearm"]))
+        sensor_y = (self.session.calibration or {}).get("forearm_sensor_y")
+        y_up = np.interp(stream.t, self.t, y_up_of_quats(self.quats["forearm"], sensor_y))
         return stream.t, stream.acc, stream.gyr, y_up
 
     def elbow_split(self, reps: Sequence[Repetition]

@@ -98,6 +98,10 @@ def process_session(db: DbSession, session_id: int, filter_name: str = DEFAULT_F
         "poses": [{"name": p.name, "start": p.start, "end": p.end}
                   for p in recording.calibration],
         "warnings": warnings,
+        # the forearm sensor's +Y in the forearm's frame: its accelerometer's axis, which
+        # the report's elbow pivot needs (estimator/metrics/elbow_pivot.py)
+        **({"forearm_sensor_y": [float(v) for v in calibration.R_sensor_segment["forearm"][1]]}
+           if "forearm" in calibration.R_sensor_segment else {}),
     }
     session.estimator = {"version": estimator_version(), "filter": filter_name,
                          **({"elbow": elbow} if elbow else {}),
