@@ -192,6 +192,7 @@ def two_sets_session(module_server):
 
 SET_1 = "Elbow flexion — set 1"
 SET_2 = "Elbow flexion — set 2"
+EMPTY = "empty (no repetition)"
 
 
 @pytest.mark.parametrize("width", [390, 1280])
@@ -200,19 +201,22 @@ def test_two_sets_of_one_exercise_read_apart(module_server, two_sets_session, wi
     """user18: two marked sets of the same exercise read "Elbow flexion: Elbow flexion"
     twice in the figures and "Elbow flexion × 1, Elbow flexion × 0" in the chips: nothing
     told set 1 from set 2. Each is named by its set, on the session page and in the
-    patient's sessions list."""
+    patient's sessions list; an empty set (no repetition) says it is empty."""
     patient, session, _ = two_sets_session
     with page_at(width) as page:
         sign_in_as(page, module_server.url, "alice")
         page.goto(f"{module_server.url}/patients/{patient['id']}")
         row = page.locator(f'#sessions [data-session="{session["id"]}"]')
         sync_api.expect(row).to_contain_text(f"{SET_1} × 1")
-        sync_api.expect(row).to_contain_text(SET_2)
+        sync_api.expect(row).to_contain_text(f"{SET_2}: {EMPTY}")
         page.goto(f"{module_server.url}/sessions/{session['id']}")
         chips = page.locator("#exercises .chip")
         sync_api.expect(chips).to_have_count(2)
         sync_api.expect(chips.nth(0)).to_contain_text(f"{SET_1} × 1 · ")
-        sync_api.expect(chips.nth(1)).to_contain_text(SET_2)
+        # the empty set is shown, as empty, not as an exercise of 0 repetitions (user18)
+        sync_api.expect(chips.nth(1)).to_have_text(re.compile(
+            rf"^{SET_2}: {re.escape(EMPTY)} · \d+–\d+ s$"))
+        sync_api.expect(chips.nth(1)).to_have_class(re.compile(r"\bempty\b"))
         figures = page.locator('#exercise-figures tr[data-angle="elbow_flexion"] td.name')
         sync_api.expect(figures.first).to_have_text(f"{SET_1}: Elbow flexion")
         page.screenshot(path=str(tmp_path / f"sets-{width}.png"), full_page=True)
@@ -235,5 +239,5 @@ def test_two_sets_of_one_exercise_read_apart_in_the_pdf(module_server, two_sets_
     text = subprocess.run(["pdftotext", "-layout", str(tmp_path / "report.pdf"), "-"],
                           capture_output=True, text=True, check=True).stdout
     assert f"{SET_1}: 1 repetition " in text, text[:2000]
-    assert f"{SET_2}: " in text, text[:2000]
+    assert f"{SET_2}: {EMPTY} (" in text, text[:2000]
     assert f"1. {SET_1}" in text, text

@@ -93,7 +93,10 @@ def done_lines(report: SessionReport) -> list[str]:
     for e, name in zip(report.exercises, names, strict=True):
         reps = max((a.repetitions for a in e.angles), default=0)
         how = "marked by the kit" if e.source == "marks" else "recognised in the movement"
-        lines.append(f"{name}: {reps} repetition{'s' if reps != 1 else ''} "
+        # a marked set with no repetition (started and ended at once) is listed, as empty
+        done = ("empty (no repetition)" if e.source == "marks" and not reps
+                else f"{reps} repetition{'s' if reps != 1 else ''}")
+        lines.append(f"{name}: {done} "
                      f"({e.start_s:.0f}–{e.end_s:.0f} s into the session, {how})")
     return lines or ["No repeated exercise was found (the range below is over the whole "
                      "session, calibration poses left out)."]

@@ -269,12 +269,19 @@ function exerciseNames(exercises) {
   });
 }
 
+// A set the kit marked in which the report counted no repetition (started and ended at
+// once, or nothing done): shown, as empty, not as an exercise "× 0".
+function emptySet(e) {
+  return e.source === "marks" && e.repetitions === 0;
+}
+
 // A session's exercises as chips say them: each one's name (its set where there are
-// several), with the repetitions the report found.
+// several), with the repetitions the report found; an empty set says so.
 function exerciseChipTexts(exercises) {
   const names = exerciseNames(exercises);
-  return exercises.map((e, k) => typeof e.repetitions === "number" && (e.source !== "detected" || e.repetitions)
-    ? `${names[k]} × ${e.repetitions}` : names[k]);
+  return exercises.map((e, k) => emptySet(e) ? `${names[k]}: empty (no repetition)`
+    : typeof e.repetitions === "number" && (e.source !== "detected" || e.repetitions)
+      ? `${names[k]} × ${e.repetitions}` : names[k]);
 }
 
 function qualityBadge(quality) {

@@ -555,7 +555,7 @@ async function showReplay() {
   card.hidden = false;
   clear(card,
     el("h2", {}, "Exercises"),
-    summary.exercises.length ? el("div", { id: "exercises" }, exerciseChipTexts(summary.exercises).map((text, k) => el("span", { class: "chip" },
+    summary.exercises.length ? el("div", { id: "exercises" }, exerciseChipTexts(summary.exercises).map((text, k) => el("span", { class: emptySet(summary.exercises[k]) ? "chip empty" : "chip" },
       text + ` · ${summary.exercises[k].start.toFixed(0)}–${summary.exercises[k].end === null ? "…" : summary.exercises[k].end.toFixed(0)} s`)))
       : el("p", { class: "muted" }, "No exercise was marked or found in this session."),
     el("h3", {}, "Calibration"),
