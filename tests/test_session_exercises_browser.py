@@ -219,6 +219,12 @@ def test_two_sets_of_one_exercise_read_apart(module_server, two_sets_session, wi
         sync_api.expect(chips.nth(1)).to_have_class(re.compile(r"\bempty\b"))
         figures = page.locator('#exercise-figures tr[data-angle="elbow_flexion"] td.name')
         sync_api.expect(figures.first).to_have_text(f"{SET_1}: Elbow flexion")
+        # stacked (the side column at 1280 px, a phone): the count's word agrees with it;
+        # before, CSS wrote "1 repetitions"
+        reps = page.locator('#exercise-figures tr[data-angle="elbow_flexion"] td:nth-child(2)')
+        assert reps.first.inner_text() == "1"
+        words = reps.first.evaluate("td => getComputedStyle(td, '::after').content")
+        assert words == '" repetition"', words
         page.screenshot(path=str(tmp_path / f"sets-{width}.png"), full_page=True)
         print(f"\nscreenshot at {width} px: {tmp_path}")
 

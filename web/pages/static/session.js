@@ -514,7 +514,7 @@ function exerciseFigures(report) {
       el("th", { class: "num" }, "Smoothness"))),
     el("tbody", {}, rows.map(([e, a]) => el("tr", { dataset: { angle: a.angle, exercise: e.name } },
       el("td", { class: "name" }, (several ? names.get(e) + ": " : "") + (ANGLE_LABELS[a.angle] || a.angle)),
-      el("td", { class: "num" }, String(a.repetitions)),
+      el("td", { class: "num", dataset: { unit: a.repetitions === 1 ? " repetition" : " repetitions" } }, String(a.repetitions)),
       el("td", { class: "num" }, a.mean_movement_time_s === null ? "—" : a.mean_movement_time_s.toFixed(1) + " s"),
       el("td", { class: "num" }, a.peak_velocity_deg_s === null ? "—" : Math.round(a.peak_velocity_deg_s) + "°/s"),
       el("td", { class: "num" }, signed(a.median_sparc, 1)))))),
