@@ -34,18 +34,32 @@ REPEATED_SHARE = 0.03
 
 def phone_like(exercise: str, sensor: str, seed: int, repetitions: int | None = None,
                side: str = "right", gyro_bias_max: float = 0.02, height_m: float = 1.75,
-               mount_tilt_deg: float = 8.0):
+               mount_tilt_deg: float = 8.0, acc_bias_y: float = 0.0,
+               slow: tuple[float, float] | None = None):
     """A phone on ``sensor`` of the ``side`` arm doing ``exercise``; its recording with
     repeated stamps. (``gyro_bias_max`` 0: no bias; the same noise, mounting and stamps;
-    ``height_m`` the patient's, ``mount_tilt_deg`` the phone's largest tilt off the arm.)"""
+    ``height_m`` the patient's, ``mount_tilt_deg`` the phone's largest tilt off the arm,
+    ``acc_bias_y`` [m/s²] its accelerometer's offset along its long axis; ``slow``: the
+    single-joint exercise's repetitions taken (rise [s], amplitude [deg]) instead.)"""
     rng = np.random.default_rng(1000 + seed)
     config = SimulationConfig(
         exercise=exercise, sensors=(sensor,), side=side, rate_hz=60.0, nine_axis=False,
         seed=seed, height_m=height_m, mount_tilt_deg=mount_tilt_deg,
-        errors=ImuErrors(gyro_noise=0.01, acc_noise=0.1), gyro_bias_max=gyro_bias_max,
+        errors=ImuErrors(gyro_noise=0.01, acc_noise=0.1, acc_bias=(0.0, acc_bias_y, 0.0)),
+        gyro_bias_max=gyro_bias_max,
         jitter_s=float(rng.uniform(0.002, 0.005)), mount_axial_deg=60.0,
         repetitions=repetitions)
-    sim = simulate(config)
+    motion = None
+    if slow is not None:
+        from armtrack.estimator.simulation.profiles import Motion
+        from armtrack.estimator.simulation.profiles import repetitions as reps_of
+        from armtrack.estimator.simulation.scenarios import EXERCISE_START_S, exercise_motion
+        base = exercise_motion(exercise, repetitions_count=repetitions)
+        rise, amplitude = slow
+        motion = Motion(joints={**base.joints, exercise: reps_of(
+            EXERCISE_START_S, repetitions or 5, np.deg2rad(amplitude), rise=rise)},
+            trunk=base.trunk)
+    sim = simulate(config, motion=motion)
     stream = sim.recording.sensors[sensor]
     t = stream.t.copy()
     repeated = np.flatnonzero(rng.random(len(t)) < REPEATED_SHARE)

@@ -14,9 +14,10 @@ sensor's own ``Y``: the estimated forearm's turned by the calibration's mounting
 ``up_of_sensor_y``; the forearm's own axis is off by the phone's tilt on the arm). So
 over a movement
 
-    r = Σ (a_y − g · Y_up) · ω⊥²  /  Σ ω⊥⁴,
+    r = Σ (p − p̄) · (ω⊥² − m)  /  Σ (ω⊥² − m)²,   p = a_y − g · Y_up, m = mean ω⊥²,
 
-the least-squares radius. On the simulator (a phone at 60 Hz with phone-like errors,
+the least-squares radius beside a constant (the accelerometer's offset along ``Y``).
+On the simulator (a phone at 60 Hz with phone-like errors,
 seeds 0–15, both arms, 5 repetitions each, measured by hand with ``phone_like`` of
 ``tests/test_phone_kit_accuracy.py``) the elbow flexions' repetitions read 0.04–0.27 m and
 the straight-arm raises' 0.41–0.57 m read along the forearm's axis; along the phone's own
@@ -65,12 +66,19 @@ def turn_terms(acc_y: np.ndarray, gyr: np.ndarray, y_up: np.ndarray
 
 def fit_radius(pull: np.ndarray, across: np.ndarray) -> float | None:
     """The least-squares radius [m] of samples' ``pull`` [m/s²] against ``across``
-    (``ω⊥²``, [rad²/s²]); None when fewer than 3 or the peak rate is under ``MIN_RATE``."""
+    (``ω⊥²``, [rad²/s²]) with a constant beside it; None when fewer than 3 or the peak
+    rate is under ``MIN_RATE``. The constant takes the accelerometer's own offset along
+    the phone (phones' read ±0.2 m/s² and more): without it, 0.2 m/s² turned a slow elbow
+    flexion's (90° in 3.5 s, peak 1.1 rad/s) 0.17 m into 0.32–0.43 m (review18); the
+    repetition's still ends tell it from the turn's pull."""
     ok = np.isfinite(pull) & np.isfinite(across)
     if np.count_nonzero(ok) < 3 or float(np.sqrt(across[ok].max())) < MIN_RATE:
         return None
-    w2 = across[ok]
-    return float(np.sum(pull[ok] * w2) / np.sum(w2 * w2))
+    w2 = across[ok] - across[ok].mean()
+    spread = float(np.sum(w2 * w2))
+    if spread <= 0.0:
+        return None
+    return float(np.sum((pull[ok] - pull[ok].mean()) * w2) / spread)
 
 
 def split_elbow_repetitions(reps: Sequence[Repetition], t: np.ndarray, acc: np.ndarray,
