@@ -134,3 +134,57 @@ def test_one_accounts_waiting_builds_leave_threads_and_connections_to_others(ser
     assert "at once" in refused[0].json()["detail"], refused[0].text
     # once the build is done, the account's summary is there as for anyone
     assert alice.http.get(f"/api/sessions/{held['id']}/summary").status_code == 200
+
+
+def test_a_page_refused_for_builds_at_once_asks_again_when_told(server):
+    """The account already has 4 requests waiting for a build (its other tabs on a cold
+    server): the session page's summary is refused (429, Retry-After: 5). The page asks
+    again after the time the server gave and shows the session; before, it showed
+    'ask again in 5 s' in a card the therapist could only reload (review18). 390 px."""
+    from browser_helpers import need_browser, page_at, sign_in_as
+    need_browser()
+
+    alice = server.client("alice")
+    held, shown = _session(alice), _session(alice)
+    hold = BUILD_GATE / f"hold-{held['id']}"
+    refused: list[int] = []
+
+    async def waiters() -> list[httpx.Response]:
+        async with httpx.AsyncClient(base_url=server.url, timeout=120, headers={
+                "Authorization": f"Bearer {alice.token}"}) as http:
+            return await asyncio.gather(*(http.get(f"/api/sessions/{held['id']}/summary")
+                                          for _ in range(4)))
+
+    import threading
+    results: list = []
+    hold.touch()
+    thread = threading.Thread(target=lambda: results.extend(asyncio.run(waiters())))
+    try:
+        thread.start()
+        deadline = time.monotonic() + 30
+        while not (BUILD_GATE / f"reached-{held['id']}").exists():
+            assert time.monotonic() < deadline, "the held build never began"
+            time.sleep(0.02)
+        time.sleep(0.3)  # the other three are waiting for it
+        with page_at(390) as page:
+            sign_in_as(page, server.url, "alice")
+
+            def seen(response):
+                if response.url.endswith(f"/api/sessions/{shown['id']}/summary") \
+                        and response.status == 429:
+                    refused.append(response.status)
+                    hold.unlink(missing_ok=True)  # the other tabs' builds come
+            page.on("response", seen)
+            page.goto(f"{server.url}/sessions/{shown['id']}")
+            try:
+                page.wait_for_selector("#angles-card h2:has-text('Range of motion')",
+                                       timeout=20_000)
+            finally:
+                text = page.inner_text("main")
+                print(f"\nrefused {len(refused)} time(s); the page: {text[:400]!r}")
+    finally:
+        hold.unlink(missing_ok=True)
+        thread.join(60)
+    assert refused, "the page's summary was never refused: the test proved nothing"
+    assert "at once" not in text, text
+    assert [r.status_code for r in results] == [200] * 4

@@ -126,7 +126,17 @@ async function api(path, options = {}) {
     body = JSON.stringify(body);
     headers["Content-Type"] = "application/json";
   }
-  const answer = await fetch(path, { method: options.method || "GET", headers, body });
+  const method = options.method || "GET";
+  let answer = await fetch(path, { method, headers, body });
+  // A read the server is too busy for (429/503 with Retry-After: e.g. the account's other
+  // tabs have 4 reports being made, server/builds.py) is asked again when it says, up to
+  // 3 times, so the card fills instead of showing 'ask again in 5 s' nobody can act on.
+  for (let again = 0; again < 3 && method === "GET" && (answer.status === 429 || answer.status === 503); again += 1) {
+    const wait = Number(answer.headers.get("Retry-After"));
+    if (!(wait > 0 && wait <= 30)) break;
+    await new Promise((done) => setTimeout(done, wait * 1000));
+    answer = await fetch(path, { method, headers, body });
+  }
   if (answer.status === 401) {
     sessionStorage.removeItem(TOKEN_KEY);
     location.href = "/signin?next=" + encodeURIComponent(location.pathname);
