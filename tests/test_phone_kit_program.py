@@ -176,6 +176,11 @@ def test_the_patient_follows_the_program_on_the_phone(kit_server, phone, shots):
         sync_api.expect(phone.locator("#effort")).to_be_visible(timeout=20_000)
         _answer(phone, 6, 3)
         sync_api.expect(phone.locator("#sent")).to_be_visible()
+        # what comes next, in the patient's words (user18: only "Thank you. Your therapist
+        # will see it."): how often the therapist asks for each exercise
+        sync_api.expect(phone.locator("#next-time")).to_have_text(
+            "Next: your therapist asks for Bend the elbow 5 days a week, "
+            "Turn the palm 3 days a week.")
         kept = phone.evaluate("KitStore.getState('stream').then((s) => s.ratings)")
         assert [(r["exercise"], r["effort"], r["pain"]) for r in kept] == [("pronation", 6, 3)]
         sync_api.expect(phone.locator("#sent")).to_contain_text("will send when online")

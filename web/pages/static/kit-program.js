@@ -32,6 +32,20 @@ const KitProgram = {
     return days === 7 ? "every day" : `${days} ${days === 1 ? "day" : "days"} a week`;
   },
 
+  /** What comes next, for the finished screen, from the program the phone already has:
+   * how often the therapist asks for the exercises ("Next: your therapist asks for these
+   * exercises 5 days a week."; each its own where they differ); null without a program
+   * (or from an older server, which did not say how often). Nothing is guessed: the
+   * phone does not know the patient's other sessions of the week. */
+  next(exercises) {
+    const often = exercises.filter((ex) => ex.days_per_week)
+      .map((ex) => ({ title: ex.title, words: KitProgram.often(ex) }));
+    if (!often.length) return null;
+    if (often.length === exercises.length && often.every((o) => o.words === often[0].words))
+      return `Next: your therapist asks for ${often.length > 1 ? "these exercises" : often[0].title} ${often[0].words}.`;
+    return "Next: your therapist asks for " + often.map((o) => `${o.title} ${o.words}`).join(", ") + ".";
+  },
+
   /** Whether a phone on `segment` measures exercise `ex` (device-today's measured_by;
    * an older server's answer: the exercise's sensor). */
   measuredOn(ex, segment) {

@@ -664,6 +664,8 @@ async function finished() {
   screen(el("h1", { class: "welldone" }, byTherapist ? "Session ended" : "Session finished"),
     el("p", {}, byTherapist ? "Your therapist ended this session. Thank you — what you did is saved."
       : "Thank you. Your therapist will see it."),
+    kit.today.program && KitProgram.next(exercisesForKit())
+      ? el("p", { class: "lead", id: "next-time" }, KitProgram.next(exercisesForKit())) : null,
     el("h2", { class: "question" }, "What you did"), done, info,
     // only once all is sent: a new session starts a new outbox
     big("Start another session", { id: "again", class: "big secondary", disabled: "",
