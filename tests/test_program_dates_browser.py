@@ -137,3 +137,33 @@ def test_a_program_report_the_server_refuses_is_not_saved_as_a_file(module_serve
         page.screenshot(path=str(tmp_path / "refused-report-390.png"))
         print(f"\n{tmp_path}")
         assert saved == [], [d.suggested_filename for d in saved]
+
+
+def test_a_file_asked_for_after_the_sign_in_ended_goes_to_the_sign_in_page(module_server):
+    """The session page's files (angles.csv …) and the Progress card's progress.csv each
+    fetched with their own copy of the programs' download, without its sign-in rule: once
+    the sign-in had ended (signed out in another tab, expired) the card said the server's
+    'Not authenticated'-like words and stayed. Now one download (app.js saveFile) for all:
+    to the sign-in page, as every other request of the pages (review18). 390 px."""
+    from armtrack.estimator.recording import format_recording
+    from armtrack.estimator.simulation import SimulationConfig, simulate
+
+    api = module_server.client("alice")
+    patient = api.patient("Signed Out Files Patient")
+    recording = simulate(SimulationConfig(exercise="elbow_flexion", repetitions=1)).recording
+    made = api.http.post("/api/recordings", data={"patient_id": patient["id"]},
+                         files={"file": ("s.csv", format_recording(recording), "text/csv")})
+    assert made.status_code == 201, made.text
+    with page_at(390) as page:
+        for where, button in ((f"/sessions/{made.json()['id']}", '[data-export$="angles.csv"]'),
+                              (f"/patients/{patient['id']}",
+                               '#progress-card [data-export$="/progress.csv"]')):
+            sign_in_as(page, module_server.url, "alice")
+            page.goto(module_server.url + where)
+            page.locator(button).wait_for()
+            # the sign-in ends as the file is asked for: the server's 401
+            page.route("**/*.csv", lambda route: route.fulfill(
+                status=401, content_type="application/json",
+                body='{"detail": "Not authenticated"}'))
+            page.locator(button).dispatch_event("click")
+            page.wait_for_url("**/signin?next=*", timeout=10_000)

@@ -117,7 +117,9 @@ function clinic() {
   return clinicPromise;
 }
 
-async function api(path, options = {}) {
+// The answer to `path` once it is ok: a GET the server is too busy for asked again when
+// it says, a 401 to the sign-in page, any other refusal an ApiError in the server's words.
+async function fetchOk(path, options = {}) {
   await requireSignIn();
   if (path !== "/api/clinic") await clinic();
   const headers = Object.assign({ Authorization: "Bearer " + token() }, options.headers || {});
@@ -151,8 +153,28 @@ async function api(path, options = {}) {
     } catch (_) { /* not JSON */ }
     throw new ApiError(answer.status, detail);
   }
+  return answer;
+}
+
+async function api(path, options = {}) {
+  const answer = await fetchOk(path, options);
   if (answer.status === 204) return null;
   return answer.json();
+}
+
+// Save what `path` answers as `filename` (a report, a CSV: fetched with the therapist's
+// token); a refusal shown in `where` in the server's words, nothing saved; an ended
+// sign-in goes to the sign-in page as any request does. The pages' one download.
+async function saveFile(path, filename, where) {
+  try {
+    const answer = await fetchOk(path);
+    const url = URL.createObjectURL(await answer.blob());
+    const a = el("a", { href: url, download: filename });
+    document.body.append(a); a.click(); a.remove();
+    setTimeout(() => URL.revokeObjectURL(url), 10000);
+  } catch (error) {
+    if (error.status !== 401) showError(where, new Error(`${filename} was not made: ${error.message}`));
+  }
 }
 
 // el("div", {class: "x", onclick: fn}, "text", child, ...)

@@ -90,14 +90,7 @@ const PatientTools = (() => {
       el("button", { class: "secondary", dataset: { export: csv }, onclick: async (event) => {
         const button = event.currentTarget;
         button.disabled = true;
-        try {
-          const answer = await fetch(csv, { headers: { Authorization: "Bearer " + token() } });
-          if (!answer.ok) throw new Error((await answer.json()).detail);
-          const url = URL.createObjectURL(await answer.blob());
-          const a = el("a", { href: url, download: `patient-${patientId}-progress.csv` });
-          document.body.append(a); a.click(); a.remove();
-          setTimeout(() => URL.revokeObjectURL(url), 10000);
-        } catch (error) { showError(document.getElementById("progress-card"), error); }
+        await saveFile(csv, `patient-${patientId}-progress.csv`, document.getElementById("progress-card"));
         button.disabled = false;
       } }, "⬇ progress.csv"),
       el("span", { class: "muted small" }, " each session's range per joint, % of normal, target and repetitions")) : null;
@@ -167,14 +160,7 @@ const PatientTools = (() => {
     });
     const exportButton = el("button", { class: "secondary", id: "export-patient", onclick: async () => {
       exportButton.disabled = true;
-      try {
-        const answer = await fetch(`/api/patients/${patientId}/export`, { headers: { Authorization: "Bearer " + token() } });
-        if (!answer.ok) throw new Error((await answer.json()).detail);
-        const url = URL.createObjectURL(await answer.blob());
-        const a = el("a", { href: url, download: `patient-${patientId}.zip` });
-        document.body.append(a); a.click(); a.remove();
-        setTimeout(() => URL.revokeObjectURL(url), 10000);
-      } catch (error) { showError(form, error); }
+      await saveFile(`/api/patients/${patientId}/export`, `patient-${patientId}.zip`, form);
       exportButton.disabled = false;
     } }, "⬇ Export all the patient's data (zip)");
     const erase = el("button", { class: "danger", id: "erase-patient", onclick: async () => {

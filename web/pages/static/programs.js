@@ -105,25 +105,8 @@ function uncountedNote(n) {
  * patient handed to a colleague or erased meanwhile, too many reports at once) is said in
  * the programs card in the server's words, and a sign-in that ended goes to the sign-in
  * page, as `api` does; before, the refusal's JSON was saved under the PDF's name. */
-async function download(path, filename) {
-  const where = document.getElementById("programs-card") || document.querySelector("main");
-  try {
-    const answer = await fetch(path, { headers: { Authorization: "Bearer " + token() } });
-    if (answer.status === 401) {
-      sessionStorage.removeItem(TOKEN_KEY);
-      location.href = "/signin?next=" + encodeURIComponent(location.pathname);
-      return;
-    }
-    if (!answer.ok) {
-      let detail = answer.statusText;
-      try { detail = (await answer.json()).detail || detail; } catch (_) { /* not JSON */ }
-      throw new Error(`${filename} was not made: ${detail}`);
-    }
-    const url = URL.createObjectURL(await answer.blob());
-    const a = el("a", { href: url, download: filename });
-    document.body.append(a); a.click(); a.remove();
-    setTimeout(() => URL.revokeObjectURL(url), 10000);
-  } catch (error) { showError(where, error); }
+function download(path, filename) {
+  return saveFile(path, filename, document.getElementById("programs-card") || document.querySelector("main"));
 }
 
 // The range of each session (dots and line) against the target band, oldest left.

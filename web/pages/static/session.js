@@ -452,14 +452,7 @@ function download(path, filename) {
   return el("button", { class: "secondary", onclick: async (event) => {
     const button = event.currentTarget;
     button.disabled = true;
-    try {
-      const answer = await fetch(path, { headers: { Authorization: "Bearer " + token() } });
-      if (!answer.ok) throw new Error((await answer.json()).detail);
-      const url = URL.createObjectURL(await answer.blob());
-      const a = el("a", { href: url, download: filename });
-      document.body.append(a); a.click(); a.remove();
-      setTimeout(() => URL.revokeObjectURL(url), 10000);
-    } catch (error) { showError(document.getElementById("details-card"), error); }
+    await saveFile(path, filename, document.getElementById("details-card"));
     button.disabled = false;
   }, dataset: { export: path } }, "⬇ " + filename);
 }
