@@ -177,13 +177,47 @@ def current_admin(therapist: Therapist) -> models.Therapist:
 Admin = Annotated[models.Therapist, Depends(current_admin)]
 
 
+class AtOnce:
+    """At most ``most`` requests of one account (its id, all its sign-ins together) at
+    once in this server process; the next is refused at once (429, ``busy``) rather than
+    served too."""
+
+    def __init__(self, most: int):
+        self.most = most
+        self._held: dict[int, int] = {}
+        self._lock = threading.Lock()
+
+    @contextlib.contextmanager
+    def turn(self, account: int, busy: str, retry_after_s: int | None = None
+             ) -> Iterator[None]:
+        """Hold one of ``account``'s places while the block runs, or raise the 429 with
+        ``busy`` (and ``Retry-After``: ``retry_after_s`` [s]) when all are held."""
+        with self._lock:
+            held = self._held.get(account, 0)
+            if held >= self.most:
+                raise HTTPException(
+                    status.HTTP_429_TOO_MANY_REQUESTS, busy,
+                    headers=None if retry_after_s is None else {"Retry-After": str(retry_after_s)})
+            self._held[account] = held + 1
+        try:
+            yield
+        finally:
+            with self._lock:
+                if (left := self._held[account] - 1) > 0:
+                    self._held[account] = left
+                else:
+                    del self._held[account]
+
+
 #: A list asked for with a ``limit`` over this is long (``long_list``).
 LONG_LIST = 100
 #: One account's long lists of sessions or summaries being made at once, all its sign-ins
 #: together, in one server process.
 LONG_LISTS_AT_ONCE = 2
-_long_lists: dict[int, int] = {}
-_long_lists_lock = threading.Lock()
+_long_lists = AtOnce(LONG_LISTS_AT_ONCE)
+LONG_LISTS_BUSY = (f"this account has {LONG_LISTS_AT_ONCE} lists of more than {LONG_LIST} "
+                   "rows being made at once, the most it may: ask again in 2 s, or ask for "
+                   f"at most {LONG_LIST} rows at a time (limit, offset)")
 
 
 @contextlib.contextmanager
@@ -197,24 +231,8 @@ def long_list(therapist: models.Therapist, limit: int) -> Iterator[None]:
     if limit <= LONG_LIST:
         yield
         return
-    with _long_lists_lock:
-        held = _long_lists.get(therapist.id, 0)
-        if held >= LONG_LISTS_AT_ONCE:
-            raise HTTPException(
-                status.HTTP_429_TOO_MANY_REQUESTS,
-                f"this account has {LONG_LISTS_AT_ONCE} lists of more than {LONG_LIST} "
-                "rows being made at once, the most it may: ask again in 2 s, or ask for "
-                f"at most {LONG_LIST} rows at a time (limit, offset)",
-                headers={"Retry-After": "2"})
-        _long_lists[therapist.id] = held + 1
-    try:
+    with _long_lists.turn(therapist.id, LONG_LISTS_BUSY, retry_after_s=2):
         yield
-    finally:
-        with _long_lists_lock:
-            if (left := _long_lists[therapist.id] - 1) > 0:
-                _long_lists[therapist.id] = left
-            else:
-                del _long_lists[therapist.id]
 
 
 class Page:

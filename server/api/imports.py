@@ -45,7 +45,7 @@ from .. import audit
 from ..db import models
 from ..live.access import holds
 from ..services import Services
-from .deps import Db, own_patient
+from .deps import AtOnce, Db, own_patient
 from .deps import services as get_services
 from .schemas import MAX_ID, Id
 from .sessions import uploader
@@ -190,8 +190,8 @@ INSPECT_BUSY = ("another inspection from this kit is being read; send this one w
 #: A therapist's uploads and inspections read at once, all their sign-ins together (two
 #: tabs); each reads its files whole into memory on a worker thread.
 THERAPIST_READS_AT_ONCE = 2
-#: Therapist id → their uploads and inspections being read now.
-_therapist_reads: dict[int, int] = {}
+#: Therapists' uploads and inspections being read now.
+_therapist_reads = AtOnce(THERAPIST_READS_AT_ONCE)
 THERAPIST_BUSY = (f"this account has {THERAPIST_READS_AT_ONCE} uploads or inspections being "
                   "read at once, the most it may: send this one when one is done")
 
@@ -203,18 +203,8 @@ def therapist_turn(therapist: models.Therapist) -> Iterator[None]:
     their bound, a therapist's none: 12 inspections of a 30 MB recording at once from one
     therapist took the server +770 MB and another therapist's page to 2.2 s, 12 uploads
     +502 MB (at the 200 MB upload limit and 40 worker threads: tens of GB)."""
-    with _inspecting_lock:
-        if _therapist_reads.get(therapist.id, 0) >= THERAPIST_READS_AT_ONCE:
-            raise HTTPException(status.HTTP_429_TOO_MANY_REQUESTS, THERAPIST_BUSY)
-        _therapist_reads[therapist.id] = _therapist_reads.get(therapist.id, 0) + 1
-    try:
+    with _therapist_reads.turn(therapist.id, THERAPIST_BUSY):
         yield
-    finally:
-        with _inspecting_lock:
-            if (left := _therapist_reads[therapist.id] - 1) > 0:
-                _therapist_reads[therapist.id] = left
-            else:
-                del _therapist_reads[therapist.id]
 
 
 @contextlib.contextmanager
