@@ -22,7 +22,7 @@ import sys
 from collections.abc import Sequence
 
 from armtrack.estimator.errors import EstimatorError
-from armtrack.server.db.errors import SchemaError
+from armtrack.server.db.errors import DriverMissing, SchemaError
 
 #: The sub-commands, in the order ``armtrack --help`` lists them; ``create-user`` is the
 #: module ``commands/create_user.py``.
@@ -58,7 +58,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     try:
         return command_module(args.command).run(args)
-    except (EstimatorError, SchemaError) as exc:
+    except (EstimatorError, SchemaError, DriverMissing) as exc:
         print(f"armtrack {args.command}: {exc}", file=sys.stderr)
         return 2
     except BrokenPipeError:

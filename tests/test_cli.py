@@ -435,3 +435,27 @@ def test_create_user_at_a_terminal_asks_the_password_twice(tmp_path):
     code, out = _at_a_terminal(["create-user", "ann", *data],
                                [b"first-password-1\n", b"first-password-1\n"])
     assert code == 0 and "created therapist 'ann'" in out, out
+
+
+@pytest.mark.parametrize("command", [["create-user", "carl", "--password", "a long password"],
+                                     ["serve", "--port", "0"]])
+def test_a_postgresql_url_without_its_driver_says_what_to_install(tmp_path, command):
+    """Found by an IT person following docs/operator.md: ARMTRACK_DATABASE_URL set to
+    PostgreSQL in an install without the ``postgres`` extra made ``create-user`` and
+    ``serve`` end in a 25-line traceback (``ModuleNotFoundError: No module named
+    'psycopg'``). Now one line naming the driver and the pip command, exit 2. The driver
+    is hidden from this process (CI's environment has it)."""
+    url = "postgresql+psycopg://armtrack@127.0.0.1:9/armtrack"
+    code = ("import sys; sys.modules['psycopg'] = None; sys.argv[0] = 'armtrack'; "
+            "from armtrack.server.cli import main; sys.exit(main(sys.argv[1:]))")
+    done = subprocess.run([sys.executable, "-c", code, *command], capture_output=True,
+                          text=True, timeout=120, cwd=tmp_path,
+                          env={**os.environ, "ARMTRACK_DATABASE_URL": url,
+                               "ARMTRACK_DATA_DIR": str(tmp_path / "data")})
+    print(done.stderr)
+    assert done.returncode == 2, done.stderr
+    assert "Traceback" not in done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"armtrack {command[0]}: ")
+    assert "psycopg" in lines[0] and "armtrack[postgres]" in lines[0]
+    assert f"{Path(sys.executable).parent}/pip install" in lines[0]

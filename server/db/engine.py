@@ -6,11 +6,14 @@ patient's data is overwritten in the file); any other SQLAlchemy URL
 from __future__ import annotations
 
 import os
+import sys
 from pathlib import Path
 
 from sqlalchemy import Engine, create_engine, event
 from sqlalchemy.engine import make_url
 from sqlalchemy.orm import sessionmaker
+
+from .errors import DriverMissing
 
 
 def owner_only_file(path: Path) -> None:
@@ -25,6 +28,19 @@ def owner_only_file(path: Path) -> None:
         os.chmod(path, 0o600)
 
 
+def driver_missing_words(backend: str, exc: ModuleNotFoundError) -> str:
+    """What to install when the database URL's driver is missing: PostgreSQL's comes with
+    the ``postgres`` extra (pyproject.toml), installed with this environment's pip."""
+    pip = Path(sys.executable).parent / "pip"
+    module = exc.name or str(exc)
+    if backend == "postgresql":
+        return (f"the database URL is PostgreSQL's but its driver, {module}, is not installed "
+                f"in this environment: {pip} install 'psycopg[binary]>=3.1' (what the extra "
+                "armtrack[postgres] holds; docs/operator.md, PostgreSQL)")
+    return (f"the database URL's driver for {backend}, {module}, is not installed in this "
+            f"environment: install it with {pip} install, or use SQLite or PostgreSQL")
+
+
 def make_engine(url: str) -> Engine:
     """An engine for ``url``; for an SQLite file its folder is made if missing. A failed
     statement's parameters stay out of its error's text (``hide_parameters``), which the
@@ -32,7 +48,10 @@ def make_engine(url: str) -> Engine:
     hash; attack13 found both in the log of a database locked past its busy timeout)."""
     parsed = make_url(url)
     if parsed.get_backend_name() != "sqlite":
-        return create_engine(url, pool_pre_ping=True, hide_parameters=True)
+        try:
+            return create_engine(url, pool_pre_ping=True, hide_parameters=True)
+        except ModuleNotFoundError as exc:  # else a traceback ending in "No module named …"
+            raise DriverMissing(driver_missing_words(parsed.get_backend_name(), exc)) from exc
     if parsed.database and parsed.database != ":memory:":
         owner_only_file(Path(parsed.database))
     engine = create_engine(url, connect_args={"check_same_thread": False, "timeout": 30},

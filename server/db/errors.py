@@ -12,6 +12,11 @@ class SchemaError(Exception):
     what to do."""
 
 
+class DriverMissing(Exception):
+    """The database URL names a driver this environment lacks: the message names what to
+    install, with this environment's pip."""
+
+
 def database_words(exc: BaseException) -> str:
     """What the database said (SQLAlchemy's wrapped driver error: its first line, e.g.
     "database or disk is full"), without SQLAlchemy's statement and link."""
