@@ -306,3 +306,36 @@ def test_the_operators_install_steps_make_accounts_the_server_has(tmp_path):
     accounts = ServerProcess(served).sql(
         "SELECT username FROM therapists ORDER BY username")
     assert [name for (name,) in accounts] == ["alice", "root"], accounts
+
+
+def test_the_operators_accounts_steps_run_and_say_how_a_password_is_changed(tmp_path):
+    """docs/operator.md's Accounts block, run as written on a scratch data folder: a second
+    therapist, and disabling one. Found by an IT person asked to add a therapist and
+    rotate one's password: the operator's guide said neither (the command line's
+    "exists already" said no more), and nothing where the server's log goes. The section
+    names the pages that do it, which exist."""
+    guide = (DOCS / "operator.md").read_text("utf-8")
+    section = re.search(r"^## Accounts\n(.*?)^## ", guide, re.S | re.M)
+    assert section, "the operator's guide has no Accounts section"
+    text = section.group(1)
+    block = re.search(r"```text\n(.*?)```", text, re.S).group(1)
+    env = {k: v for k, v in os.environ.items() if not k.startswith("ARMTRACK_")}
+    env["ARMTRACK_DATA_DIR"] = str(tmp_path / "data")
+    bin_dir = str(Path(sys.executable).parent) + "/"
+    for line in (ln.split("  #")[0].strip() for ln in block.splitlines() if ln.strip()):
+        done = subprocess.run(["bash", "-c", line.replace("/opt/armtrack/bin/", bin_dir)],
+                              cwd=tmp_path, input="a long password\n", capture_output=True,
+                              text=True, timeout=120, env=env)
+        print(line, "→", done.returncode, done.stdout.strip(), done.stderr.strip()[-300:])
+        assert done.returncode == 0, done.stderr
+    rows = ServerProcess(tmp_path / "data").sql(
+        "SELECT username, full_name, disabled_at IS NOT NULL FROM therapists ORDER BY username")
+    print(rows)
+    assert [(name, disabled) for name, _, disabled in rows] == [
+        ("alice", False), ("bob", True), ("carol", False)]
+    assert dict((n, f) for n, f, _ in rows)["carol"] == "Carol Meier"
+    routes = (ROOT / "web" / "pages" / "routes.py").read_text("utf-8")
+    for page in ("/account", "/admin"):
+        assert f"`{page}`" in text and f'@router.get("{page}")' in routes, page
+    for words in ("reset code", "I have a reset code", "journalctl", "/healthz"):
+        assert words in text, words

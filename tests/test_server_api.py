@@ -167,6 +167,11 @@ def test_create_user_refuses_a_short_password_and_a_taken_name(module_server):
     assert short.returncode == 2 and "at least 8" in short.stderr
     taken = module_server.armtrack("create-user", "alice", input="another password\n")
     assert taken.returncode == 2 and "exists already" in taken.stderr
+    # found by an IT person rotating a therapist's password: the refusal said only
+    # "exists already", not how an existing account gets a new password
+    print(taken.stderr)
+    assert "reset code" in taken.stderr and "/admin" in taken.stderr
+    assert "/account" in taken.stderr and "nothing was changed" in taken.stderr
 
 
 def test_the_migrations_make_the_models_schema(tmp_path):

@@ -76,9 +76,11 @@ def run(args: argparse.Namespace) -> int:
     sessions, engine = _database(args)
     try:
         with sessions() as db:
-            if db.scalar(select(models.Therapist).where(models.Therapist.username == args.name)):
-                print(f"armtrack create-user: user {args.name!r} exists already",
-                      file=sys.stderr)
+            existing = db.scalar(select(models.Therapist)
+                                 .where(models.Therapist.username == args.name))
+            if existing is not None:
+                print(f"armtrack create-user: user {args.name!r} exists already; nothing was "
+                      f"changed. {_new_password_words(existing.is_admin)}", file=sys.stderr)
                 return 2
             db.add(models.Therapist(username=args.name, password_hash=hash_password(password),
                                     is_admin=args.admin, full_name=args.full_name or None))
@@ -87,6 +89,19 @@ def run(args: argparse.Namespace) -> int:
         engine.dispose()
     print(f"created {'clinic admin' if args.admin else 'therapist'} {args.name!r}")
     return 0
+
+
+def _new_password_words(is_admin: bool) -> str:
+    """How an existing account gets a new password (create-user sets none): found by an
+    IT person rotating a therapist's password, whom "exists already" left without a way."""
+    own = "its holder changes it signed in, on their account page (/account)"
+    if is_admin:
+        return (f"A new password: {own}; a clinic admin who forgot theirs is given a new "
+                "admin account (armtrack create-user NEW_NAME --admin) and this one is "
+                "disabled (--disable) (docs/security.md)")
+    return (f"A new password: {own}, or a clinic admin makes a one-time reset code on the "
+            "Clinic accounts page (/admin), which the therapist enters under \"I have a "
+            "reset code\" on the sign-in page (docs/operator.md, Accounts)")
 
 
 def _disable(args: argparse.Namespace) -> int:
