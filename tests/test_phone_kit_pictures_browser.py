@@ -70,3 +70,28 @@ def test_the_pictures_show_the_arm_the_therapist_set(module_server, phone, shots
         assert left["phone"] < -5 and all(a < -5 for a in left["arm"]), left
         assert abs(right["phone"] + left["phone"]) < 1.0, (right, left)
         assert sorted(right["arm"]) == pytest.approx(sorted(-a for a in left["arm"]), abs=1.0)
+
+
+def test_the_place_choice_says_which_exercises_each_place_measures(module_server, phone, shots):
+    """Found walking a patient's path at 390 px: the welcome lists four exercises ("Today:
+    Bend the elbow, Turn the palm, Raise the arm forward, Raise the arm to the side"), then
+    "Where will you wear the phone?" offered two near-identical pictures, "On my forearm"
+    and "On my upper arm", saying nothing of what either measures; the forearm session ran
+    "Exercise 1 of 2" and ended "Session finished", the other two never named. Each choice
+    now names the exercises done with the phone there."""
+    api = module_server.client("alice")
+    token = api.device(api.patient("Place Choice")["id"], "phone")["token"]
+    phone.goto(f"{module_server.url}/kit#token={token}")
+    phone.click("#start")
+    sync_api.expect(phone.locator("#segment-forearm")).to_be_visible()
+    phone.screenshot(path=str(shots / "place-choice.png"))
+    forearm = phone.locator("#segment-forearm").inner_text()
+    upper = phone.locator("#segment-upper_arm").inner_text()
+    print(f"\nforearm: {forearm!r}\nupper arm: {upper!r}")
+    assert "Bend the elbow" in forearm and "Turn the palm" in forearm
+    assert "Raise the arm" not in forearm
+    assert "Raise the arm forward" in upper and "Raise the arm to the side" in upper
+    assert "Bend the elbow" not in upper
+    # all of it on the phone's width, nothing cut off to the side
+    assert phone.evaluate("document.documentElement.scrollWidth") <= 390
+    phone.evaluate("localStorage.clear()")

@@ -291,7 +291,10 @@ function chooseSegment() {
       ["forearm", "upper_arm"].filter(usable).map((segment) => el("button", {
         class: "choice", id: "segment-" + segment, onclick: choose(segment) },
         el("div", { class: "picture small" }, KitPictures.named("segment:" + segment, null, kit.side)),
-        el("span", {}, "On my " + SEGMENT_WORDS[segment])))));
+        el("span", {}, "On my " + SEGMENT_WORDS[segment],
+          // which of today's exercises the phone measures there: the welcome lists all
+          el("span", { class: "measures" }, "For: " + [...new Set(kit.today.exercises
+            .filter((e) => KitProgram.measuredOn(e, segment)).map((e) => e.title))].join(", ")))))));
 }
 
 function sensorProblem(reason, advice = el("p", {}, "Open this page in Chrome or Safari, from the https link, and allow motion sensors when asked.")) {
