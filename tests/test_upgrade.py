@@ -170,3 +170,23 @@ def test_a_migration_waits_for_another_writer_instead_of_failing(tmp_path):
     print(f"\n{len(writes) - at_start} writes by the other program between the migrations")
     assert len(writes) > at_start
     assert current_revision(make_engine(f"sqlite:///{path}")) == head_revision()
+
+
+def test_create_user_on_last_months_database_says_it_upgraded_it(tmp_path):
+    """Found following docs/operator.md's Upgrading as a clinic's IT person: after
+    installing the new version, ``armtrack create-user`` (a second therapist, before
+    starting the server) migrated the database from schema 0003 silently, so the
+    upgrade the guide says "says so in its log" left no word anywhere (and an IT person
+    who had skipped step 1's backup would not learn that the old version could no
+    longer open it). Now it says so, as ``armtrack serve`` does."""
+    data = tmp_path / "data"
+    data.mkdir()
+    last_months_database(data / "armtrack.db")
+    server = ServerProcess(data)
+    done = server.armtrack("create-user", "bob", "--password", "a long password")
+    print(done.stdout, done.stderr)
+    assert done.returncode == 0, done.stderr
+    assert f"database migrated from schema 0003 to {head_revision()}" in done.stdout
+    assert "created therapist 'bob'" in done.stdout
+    again = server.armtrack("create-user", "carl", "--password", "a long password")
+    assert again.returncode == 0 and "migrated" not in again.stdout  # once only

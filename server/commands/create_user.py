@@ -41,7 +41,11 @@ def _database(args: argparse.Namespace):
     settings = settings_from(args)
     settings.data_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
     engine = make_engine(settings.resolved_database_url())
-    ensure_current(engine)
+    migrated = ensure_current(engine)
+    if migrated and migrated[0] is not None and migrated[0] != migrated[1]:
+        # an upgrade is said wherever it happens, as `armtrack serve` says it
+        print(f"armtrack: database migrated from schema {migrated[0]} to {migrated[1]}",
+              flush=True)
     return make_sessionmaker(engine), engine
 
 

@@ -116,10 +116,10 @@ def schema_words(engine: Engine) -> str | None:
             f"(docs/operator.md, Upgrading)")
 
 
-def ensure_current(engine: Engine) -> bool:
-    """Migrate the database to the newest schema if it is not there; True if it migrated."""
+def ensure_current(engine: Engine) -> tuple[str | None, str | None] | None:
+    """Migrate the database to the newest schema if it is not there: the schemas before
+    and after when it did (before ``None``: a new database), else ``None``."""
     head = head_revision()
     if head is not None and current_revision(engine) == head:
-        return False
-    upgrade(engine)
-    return True
+        return None
+    return upgrade(engine)
