@@ -339,3 +339,55 @@ def test_the_operators_accounts_steps_run_and_say_how_a_password_is_changed(tmp_
         assert f"`{page}`" in text and f'@router.get("{page}")' in routes, page
     for words in ("reset code", "I have a reset code", "journalctl", "/healthz"):
         assert words in text, words
+
+
+def _docker_ignored(path: str, patterns: list[str]) -> bool:
+    """Whether ``docker build`` leaves ``path`` (relative to the context) out, by
+    .dockerignore's rules: a pattern, anchored at the context's root, matches the path or
+    a folder above it, segment by segment (``*`` within one, ``**`` any number of them); a
+    later ``!pattern`` takes a path back."""
+    import fnmatch
+
+    def match(pattern: list[str], parts: list[str]) -> bool:
+        if not pattern:
+            return not parts
+        if pattern[0] == "**":
+            return any(match(pattern[1:], parts[i:]) for i in range(len(parts) + 1))
+        return bool(parts) and fnmatch.fnmatchcase(parts[0], pattern[0]) and \
+            match(pattern[1:], parts[1:])
+
+    parts = path.split("/")
+    ignored = False
+    for pattern in patterns:
+        keep = pattern.startswith("!")
+        segments = pattern.lstrip("!").strip("/").split("/")
+        if any(match(segments, parts[:i]) for i in range(1, len(parts) + 1)):
+            ignored = not keep
+    return ignored
+
+
+def test_the_docker_image_leaves_out_patients_data_and_the_hosts_environment():
+    """Found reading docker/ as a clinic's IT person (no docker daemon on this machine):
+    the Dockerfile copies the whole checkout (``COPY . /app``, context the repository
+    root) and there was no .dockerignore, so an image built in a checkout the server had
+    run from took its ``armtrack-data/`` (the patients' database, which .gitignore says
+    never to commit), ``armtrack-demo/``, database copies, the host's ``.venv`` (whose
+    python the image lacks, over which ``.ci/install`` makes its own) and ``.git``. What
+    the image needs stays in."""
+    ignore = ROOT / ".dockerignore"
+    assert ignore.exists(), "no .dockerignore beside the build context's root"
+    patterns = [ln.strip() for ln in ignore.read_text("utf-8").splitlines()
+                if ln.strip() and not ln.startswith("#")]
+    out = [".venv/bin/python", ".git/HEAD", "armtrack-data/armtrack.db",
+           "armtrack-data/armtrack.db-wal", "armtrack-demo/armtrack.db",
+           "clinic/armtrack-data/armtrack.db", "backups/armtrack-2026-12-02.db",
+           "armtrack.dump", "build/lib/x.py", "armtrack.egg-info/PKG-INFO",
+           "server/__pycache__/app.cpython-311.pyc", ".pytest_cache/v", "demo.csv"]
+    kept = ["pyproject.toml", "README.md", ".ci/install", "server/app.py",
+            "server/db/migrations/versions/0001_initial_schema.py", "estimator/__init__.py",
+            "web/pages/static/kit.js", "docker/Dockerfile"]
+    wrong = [p for p in out if not _docker_ignored(p, patterns)]
+    wrong += [f"{p} (needed)" for p in kept if _docker_ignored(p, patterns)]
+    assert not wrong, wrong
+    for path in kept:
+        assert (ROOT / path).exists(), path
