@@ -14,7 +14,7 @@ from armtrack.estimator.recording import parse_recording, write_recording_to
 from fastapi import APIRouter, Depends, Form, HTTPException, Request, UploadFile, status
 from fastapi.responses import Response
 from pydantic import TypeAdapter
-from sqlalchemy import select
+from sqlalchemy import select, text
 from sqlalchemy.orm import Session as DbSession
 from sqlalchemy.orm import object_session
 
@@ -24,6 +24,7 @@ from ..commands.output import write_angles_csv
 from ..db import models
 from ..ingest import carried_on
 from ..kit import daily_samples, discharge, new_sessions
+from ..live.access import holds
 from ..reports.content import no_estimates_words
 from ..services import Services
 from ..store.background import ProcessingFailed
@@ -53,6 +54,7 @@ from .deps import (
     oauth2,
     own_patient,
     own_session,
+    therapist_of_token,
 )
 from .deps import services as get_services
 from .erase import erase_session
@@ -185,6 +187,7 @@ def upload_recording(db: Db, who: Annotated[models.Therapist | models.Device,
                                             Depends(uploader)],
                      svc: Annotated[Services, Depends(get_services)],
                      response: Response,
+                     token: Annotated[str | None, Depends(oauth2)],
                      file: UploadFile | None = None,
                      patient_id: Annotated[int | None, Form(ge=1, le=MAX_ID)] = None,
                      files: list[UploadFile] | None = None,
@@ -236,7 +239,8 @@ def upload_recording(db: Db, who: Annotated[models.Therapist | models.Device,
             raise HTTPException(status.HTTP_429_TOO_MANY_REQUESTS, new_sessions.BUSY)
         try:
             session = _count_and_store(db, svc, patient, device_id, file, files, sensors,
-                                       format, calibration, side, height_m, options)
+                                       format, calibration, side, height_m, options,
+                                       lambda: _right_gone(db, svc, who, token, patient.id))
         except BaseException:
             db.rollback()  # the kit's database turns go at once, whatever went wrong
             raise
@@ -255,11 +259,59 @@ def upload_recording(db: Db, who: Annotated[models.Therapist | models.Device,
     return session_out(session)
 
 
+#: Said when an upload's right went while it was read (``_right_gone``).
+NOTHING_STORED = "nothing of the upload was stored"
+
+
+def _right_gone(db: DbSession, svc: Services, who: models.Therapist | models.Device,
+                token: str | None, patient_id: int) -> HTTPException | None:
+    """Why the upload may no longer be stored, read again just before its session's
+    insert with the rows held until its commit, or None. An upload is checked when its
+    body has arrived, then read and parsed (seconds; an APDM ``.h5`` up to two minutes):
+    a patient reassigned or erased meanwhile, an account disabled, a sign-in ended or a
+    kit revoked had its session stored all the same, written by whoever no longer held
+    the patient (tests/test_security_upload_rights.py). SQLite: the write lock, taken
+    first, holds every other writer off until the commit; PostgreSQL: the rows read are
+    held (``FOR SHARE``) until then."""
+    if db.get_bind().dialect.name == "sqlite":  # a kit's count turn may hold it already
+        db.execute(text("UPDATE patients SET name = name WHERE id = :p"), {"p": patient_id})
+
+    def fresh(model, *where):
+        return db.scalar(select(model).where(*where).with_for_update(read=True)
+                         .execution_options(populate_existing=True))
+
+    patient = fresh(models.Patient, models.Patient.id == patient_id)
+    if isinstance(who, models.Device):
+        device = fresh(models.Device, models.Device.id == who.id)
+        if device is None or device.revoked_at is not None or patient is None \
+                or device.patient_id != patient_id:
+            return HTTPException(status.HTTP_401_UNAUTHORIZED,
+                                 f"this kit was revoked while its upload was read: "
+                                 f"{NOTHING_STORED}", headers={"WWW-Authenticate": "Bearer"})
+        if (why := discharge.refusal(patient)) is not None:
+            return HTTPException(status.HTTP_403_FORBIDDEN, f"{why} ({NOTHING_STORED})")
+        return None
+    fresh(models.AccessToken, models.AccessToken.token_hash == hash_token(token or ""))
+    fresh(models.Therapist, models.Therapist.id == who.id)
+    therapist = therapist_of_token(db, token, svc.settings.demo_mode)
+    if therapist is None or therapist.id != who.id:
+        return HTTPException(status.HTTP_401_UNAUTHORIZED,
+                             f"your sign-in ended while the upload was read (signed out, "
+                             f"the password changed or the account disabled): "
+                             f"{NOTHING_STORED}; sign in again",
+                             headers={"WWW-Authenticate": "Bearer"})
+    if not holds(therapist, patient):
+        return HTTPException(status.HTTP_404_NOT_FOUND,
+                             f"no patient {patient_id}: {NOTHING_STORED} (the patient was "
+                             "reassigned or erased while it was read)")
+    return None
+
+
 def _count_and_store(db, svc: Services, patient: models.Patient, device_id: int | None,
                      file: UploadFile | None, files: list[UploadFile] | None,
                      sensors: str | None, format: str | None, calibration: str | None,
-                     side: str | None, height_m: float | None, options: str | None
-                     ) -> models.Session:
+                     side: str | None, height_m: float | None, options: str | None,
+                     right_gone=lambda: None) -> models.Session:
     """The upload read and stored as a new closed session (committed). A kit's
     (``device_id``) is one of its new sessions: its upload turn across instances is taken
     for the whole transaction (429 ``BUSY`` at once when another instance has it), the
@@ -312,6 +364,8 @@ def _count_and_store(db, svc: Services, patient: models.Patient, device_id: int 
         why = new_sessions.refusal(db, device_id, limit)
         if why is not None:
             raise HTTPException(status.HTTP_429_TOO_MANY_REQUESTS, why)
+    if (gone := right_gone()) is not None:  # read again where no change can come between
+        raise gone
     try:
         session = add_recording(db, patient, recording, device_id, blocks)
     except InvalidArgument as exc:
