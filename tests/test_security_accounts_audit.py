@@ -93,6 +93,25 @@ def test_a_reset_code_issued_to_a_disabled_account_waits_for_its_enabling(srv):
     assert _sign_in(srv, "dora", "dora-new-password") == 200
 
 
+def test_a_reset_code_dies_when_the_therapist_changes_their_password(srv):
+    """A therapist who learns that a reset code of theirs went astray (read over a
+    shoulder, a chat message forwarded) changes their password. The code must not set it
+    again after them: it stayed good for its 24 h, and whoever held it chose the password
+    the therapist's next sign-in needed (att19)."""
+    srv.create_user("hana")
+    root = srv.client("root")
+    hana = _id(srv, "hana")
+    code = root.http.post(f"/api/admin/therapists/{hana}/reset").json()["reset_token"]
+    changed = srv.client("hana").http.post("/api/auth/password", json={
+        "old_password": PASSWORD, "new_password": "hana-chose-this"})
+    assert changed.status_code == 204, changed.text
+    used = _reset(srv, code, "holder-chose-this")
+    assert used.status_code == 401, used.text
+    assert "ask your admin" in used.json()["detail"]
+    assert _sign_in(srv, "hana", "holder-chose-this") == 401
+    assert _sign_in(srv, "hana", "hana-chose-this") == 200
+
+
 @pytest.mark.parametrize("params", [
     {"to_date": "9999-12-31"},          # the day after it is beyond Python's dates
     {"from_date": "0001-01-01"},        # its midnight at +9:19 is before year 1 in UTC

@@ -183,7 +183,8 @@ async def change_password(body: PasswordChange, therapist: Therapist, request: R
                           token: Annotated[str | None, Depends(oauth2)],
                           svc: Annotated[Services, Depends(services)]) -> None:
     """Change your password (the old one, then the new one, at least 8 characters). Your
-    other sign-ins end, with their live feeds and 3D views; this one stays."""
+    other sign-ins end, with their live feeds and 3D views, and so does a reset code not
+    used yet; this sign-in stays."""
     async def stored_hash() -> str:
         return therapist.password_hash
     right = await _guess(request, svc, login_keys(therapist.username, _client(request)),
@@ -198,6 +199,10 @@ async def change_password(body: PasswordChange, therapist: Therapist, request: R
         db.execute(delete(models.AccessToken).where(
             models.AccessToken.therapist_id == therapist.id,
             models.AccessToken.token_hash != hash_token(token or "")))
+        # an unused reset code ends too: its holder would set the password after them
+        db.execute(delete(models.PasswordReset).where(
+            models.PasswordReset.therapist_id == therapist.id,
+            models.PasswordReset.used_at.is_(None)))
         db.commit()
 
     await svc.run_db(work)
