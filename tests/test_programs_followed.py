@@ -557,9 +557,12 @@ def test_the_patient_page_shows_the_program_and_its_adherence(world, browser, wi
     sync_api.expect(card.locator(".program-exercises tbody tr")).to_have_count(2)
     for w in world["adherence"]["weeks"]:
         cells = card.locator(f'tr[data-week="{w["week"]}"] td')
-        sync_api.expect(cells.nth(3)).to_have_text(
+        # the days, the figure the patient's phone says ("This week: 2 of 5 days done")
+        sync_api.expect(cells.nth(1)).to_have_text(
+            f'{w["done"]["days"]} / {w["prescribed"]["days"]}')
+        sync_api.expect(cells.nth(4)).to_have_text(
             f'{w["done"]["repetitions"]} / {w["prescribed"]["repetitions"]}')
-        sync_api.expect(cells.nth(4)).to_have_text(f'{w["adherence_percent"]:.0f} %')
+        sync_api.expect(cells.nth(5)).to_have_text(f'{w["adherence_percent"]:.0f} %')
     sync_api.expect(card.locator(".flag-line")).to_have_count(3)
     last = world["adherence"]["exercises"][0]["points"][-1]["range_deg"]
     sync_api.expect(card.locator('tr[data-exercise="elbow_flexion"] td').nth(4)).to_contain_text(

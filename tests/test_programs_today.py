@@ -55,3 +55,63 @@ def test_the_program_in_force_today_is_what_the_kit_guides(db):
     assert stream.device_today(db, patient, date(2027, 2, 1))["program"]["version"] == 2
     store.end_program(db, program)
     assert stream.device_today(db, patient, date(2026, 12, 2)) is None
+
+
+def test_this_weeks_days_are_the_adherence_weeks_read_in_a_few_queries(db, monkeypatch):
+    # the phone's "This week: 2 of 3 days done" (device-today's this_week) is the
+    # therapist's week (adherence.weeks: prescribed.days, done.days) by one rule
+    # (adherence.week_days), read without building any report, in a few queries however
+    # many sessions the patient had before the week
+    from datetime import UTC, datetime, timedelta
+    from zoneinfo import ZoneInfo
+
+    from armtrack.server.db import models
+    from armtrack.server.programs import adherence
+    from armtrack.server.settings import Settings
+    from sqlalchemy import event
+
+    zone = ZoneInfo("Europe/Zurich")
+    patient = add_patient(db, "Weekly")
+    program = store.create_program(db, patient.id, ProgramIn(
+        name="Weekly", start_date=date(2026, 9, 7),
+        exercises=[{**ELBOW, "days_per_week": 3}]), therapist_id=1)
+    version = program.versions[-1]
+
+    def session(at: datetime) -> None:
+        s = models.Session(patient_id=patient.id, source="stream", status="closed",
+                           side="right", sensors={}, started_at=at)
+        db.add(s)
+        db.flush()
+        db.add(models.SessionProgram(session_id=s.id, version_id=version.id))
+
+    for day in range(80):  # the weeks before: many sessions, none of this week
+        session(datetime(2026, 9, 7, 9, tzinfo=UTC) + timedelta(days=day))
+    session(datetime(2026, 11, 29, 22, 30, tzinfo=UTC))  # Sun 23:30 in Zurich: last week
+    session(datetime(2026, 11, 29, 23, 30, tzinfo=UTC))  # Mon 00:30 in Zurich: this week
+    session(datetime(2026, 11, 30, 17, 0, tzinfo=UTC))   # the same Monday again
+    session(datetime(2026, 12, 2, 8, 0, tzinfo=UTC))     # Wednesday
+    db.commit()
+
+    def no_report(*args, **kwargs):
+        raise AssertionError("this_week built a report")
+
+    monkeypatch.setattr(adherence.content, "session_report", no_report)
+    statements = []
+    listen = lambda *a: statements.append(a[2])  # noqa: E731
+    event.listen(db.get_bind(), "before_cursor_execute", listen)
+    try:
+        week = adherence.this_week(db, patient.id, program, date(2026, 12, 2), zone)
+    finally:
+        event.remove(db.get_bind(), "before_cursor_execute", listen)
+    print(f"\nthis_week: {week}; {len(statements)} statements")
+    assert week == {"week": "2026-W49", "monday": date(2026, 11, 30), "days_done": 2,
+                    "days_asked": 3, "today_done": True}
+    assert len(statements) <= 6, statements
+    monkeypatch.undo()
+    therapist = {w.week: w for w in adherence.patient_programs_progress(
+        db, patient, Settings(clinic_timezone="Europe/Zurich"),
+        now=datetime(2026, 12, 2, 12, tzinfo=UTC))[0].weeks}
+    assert (therapist["2026-W49"].done.days, therapist["2026-W49"].prescribed.days) == (2, 3)
+    last = adherence.this_week(db, patient.id, program, date(2026, 11, 29), zone)
+    assert (last["week"], last["days_done"], last["today_done"]) == ("2026-W48", 4, True)
+    assert (therapist["2026-W48"].done.days, therapist["2026-W48"].prescribed.days) == (4, 3)

@@ -48,12 +48,15 @@ def today(request: Request, db: Db, device: Device) -> dict[str, Any]:
     (the clinic's day) with its dose and version, else the default session; ``discharged``:
     the therapist discharged the patient, the kit starts no new session
     (docs/extensions/discharge.md); ``recent``: what the patient did in their own latest
-    sessions (``programs/recent.py``); ``patient_first_name``: the first word of the
-    patient's name, which the kit page shows before a link replaces the kit it holds."""
+    sessions (``programs/recent.py``); with a program ``this_week``: its days done and
+    asked this week, as the therapist's adherence counts them; ``patient_first_name``:
+    the first word of the patient's name, which the kit page shows before a link
+    replaces the kit it holds."""
     patient = db.get(models.Patient, device.patient_id)
     assert patient is not None  # a device goes with its patient (cascade)
-    day = clinic_today(request.app.state.services.settings.clinic_zone())
+    zone = request.app.state.services.settings.clinic_zone()
+    day = clinic_today(zone)
     return {"device": device.name, "patient_first_name": (patient.name.split() or [""])[0],
-            **todays_exercises(db, patient, day),
+            **todays_exercises(db, patient, day, zone),
             "discharged": patient.discharged_at is not None,
             "recent": recent_sessions(db, patient.id)}

@@ -292,19 +292,45 @@ def last_week(program: models.Program, today: date, zone: ZoneInfo) -> date:
     return monday(min(today, end) if end is not None else today)
 
 
+@dataclass(frozen=True)
+class WeekDays:
+    """A program's week by days (``docs/programs.md``, "Adherence"): the version whose
+    prescription the week follows, its active days, the days asked (``prescribed.days``:
+    ``min(max_e days_per_week_e, active days)``) and the days done (``done.days``: distinct
+    clinic days with a program session)."""
+
+    version: models.ProgramVersion
+    active: int
+    asked: int
+    done: int
+    in_week: list[ProgramSession]
+
+
+def week_days(program: models.Program, items: Sequence[ProgramSession], week: date,
+              zone: ZoneInfo) -> WeekDays:
+    """The days of the week of Monday ``week``, from the program's sessions ``items``
+    (their results are not needed): the one rule of the therapist's weeks (``weeks``) and
+    of the patient's phone (``this_week``)."""
+    version = prescription_version(program, week, zone)
+    active = active_days(program, version, week, zone)
+    in_week = [i for i in items if week <= i.day < week + timedelta(days=7)]
+    return WeekDays(version, active,
+                    min(max(e.days_per_week for e in version.exercises), active),
+                    len({i.day for i in in_week}), in_week)
+
+
 def weeks(program: models.Program, items: Sequence[ProgramSession], today: date,
           zone: ZoneInfo) -> list[WeekAdherence]:
     out = []
     week = monday(program.versions[0].start_date)
     stop = last_week(program, today, zone)
     while week <= stop:
-        version = prescription_version(program, week, zone)
-        active = active_days(program, version, week, zone)
-        in_week = [i for i in items if week <= i.day < week + timedelta(days=7)]
+        days = week_days(program, items, week, zone)
+        version, active, in_week = days.version, days.active, days.in_week
         per_e = {e.exercise: min(e.days_per_week, active) for e in version.exercises}
         prescribed_reps = {e.exercise: per_e[e.exercise] * e.sets * e.repetitions
                            for e in version.exercises}
-        sessions_prescribed = min(max(e.days_per_week for e in version.exercises), active)
+        sessions_prescribed = days.asked
         done_reps = {name: sum(i.results[name].repetitions for i in in_week
                                if name in i.results) for name in per_e}
         done_days = {name: len({i.day for i in in_week if name in i.results
@@ -315,12 +341,35 @@ def weeks(program: models.Program, items: Sequence[ProgramSession], today: date,
             week=week_name(week), monday=week, version=version.number, active_days=active,
             prescribed=Counts(sessions=sessions_prescribed, days=sessions_prescribed,
                               exercises=sum(per_e.values()), repetitions=total),
-            done=Counts(sessions=len(in_week), days=len({i.day for i in in_week}),
+            done=Counts(sessions=len(in_week), days=days.done,
                         exercises=sum(done_days.values()),
                         repetitions=sum(done_reps.values())),
             adherence_percent=round(100.0 * capped / total, 1) if total else None))
         week += timedelta(days=7)
     return out
+
+
+def this_week(db: DbSession, patient_id: int, program: models.Program, today: date,
+              zone: ZoneInfo) -> dict[str, Any]:
+    """The patient's phone's count of this week (``docs/extensions/device-today.md``,
+    ``this_week``): the week of the clinic's ``today`` as the therapist's adherence counts
+    it (``week_days``), ``{"week", "monday", "days_done", "days_asked", "today_done"}``.
+    Bounded: the patient's programs, the sessions that started in the week (with a day's
+    margin each side; the clinic's days decide), their program links and marks — four
+    queries, no report built (days need none)."""
+    week = monday(today)
+    programs = [p for p in store.patient_programs(db, patient_id) if p.versions]
+    sessions = list(db.scalars(
+        select(models.Session)
+        .where(models.Session.patient_id == patient_id,
+               models.Session.started_at >= start_of_day(week - timedelta(days=1), zone),
+               models.Session.started_at < start_of_day(week + timedelta(days=8), zone))
+        .order_by(models.Session.started_at, models.Session.id)))
+    links, marked = _links_and_marks(db, sessions)
+    items = _attributed(sessions, programs, links, marked, zone).get(program.id, [])
+    days = week_days(program, items, week, zone)
+    return {"week": week_name(week), "monday": week, "days_done": days.done,
+            "days_asked": days.asked, "today_done": any(i.day == today for i in days.in_week)}
 
 
 # --- progress -------------------------------------------------------------------------

@@ -12,11 +12,13 @@ from __future__ import annotations
 
 from datetime import date
 from typing import Any
+from zoneinfo import ZoneInfo
 
 from sqlalchemy.orm import Session as DbSession
 
 from ..db import models
 from ..reports.targets import patient_targets
+from .adherence import this_week
 from .catalogue import CATALOGUE, DEFAULT_SESSION, phone_fields
 from .stream import device_today
 
@@ -24,14 +26,21 @@ from .stream import device_today
 DEVICE_TODAY_VERSION = 1
 
 
-def todays_exercises(db: DbSession, patient: models.Patient, today: date) -> dict[str, Any]:
+def todays_exercises(db: DbSession, patient: models.Patient, today: date,
+                     zone: ZoneInfo) -> dict[str, Any]:
     """The answer of ``GET /api/device/today`` for ``patient`` on the clinic's day
-    ``today``: ``source`` (``program`` or ``default``) and ``exercises``, in order, each
-    the catalogue's fields plus ``target``: ``{"min_deg", "max_deg", "from"}``; with a
-    program also ``program`` and each exercise's dose (``programs-hello.md``)."""
+    ``today`` (in the clinic's ``zone``): ``source`` (``program`` or ``default``) and
+    ``exercises``, in order, each the catalogue's fields plus ``target``: ``{"min_deg",
+    "max_deg", "from"}``; with a program also ``program``, each exercise's dose
+    (``programs-hello.md``) and ``this_week``: the week's days done and asked, by the
+    therapist's adherence rule (``adherence.this_week``)."""
     program = device_today(db, patient, today)
     if program is not None:
-        return {"version": DEVICE_TODAY_VERSION, **program}
+        # the program device_today read (in the session already: no query)
+        followed = db.get(models.Program, program["program"]["id"])
+        assert followed is not None
+        return {"version": DEVICE_TODAY_VERSION, **program,
+                "this_week": this_week(db, patient.id, followed, today, zone)}
     targets = patient_targets(db, patient.id)
     exercises = []
     for sensor, names in DEFAULT_SESSION.items():

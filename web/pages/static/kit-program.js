@@ -46,6 +46,21 @@ const KitProgram = {
     return "Next: your therapist asks for " + often.map((o) => `${o.title} ${o.words}`).join(", ") + ".";
   },
 
+  /** Where the patient stands this week, in plain and kind words, from device-today's
+   * `this_week` (the therapist's adherence count: days with a session of the program,
+   * against the days asked): "This week: 2 of 5 days done."; none yet: "This week: 0 of
+   * 5 days done. Today is a good day to start."; all: "You have done all 5 days this week
+   * — well done."; null without it (no program, or an older server). */
+  week(w) {
+    if (!w || !w.days_asked) return null;
+    const days = (n) => `${n} ${n === 1 ? "day" : "days"}`;
+    if (w.days_done >= w.days_asked)
+      return w.days_asked === 1 ? "You have done your day this week — well done."
+        : `You have done all ${w.days_asked} days this week — well done.`;
+    const line = `This week: ${w.days_done} of ${days(w.days_asked)} done.`;
+    return w.days_done ? line : `${line} Today is a good day to start.`;
+  },
+
   /** Whether a phone on `segment` measures exercise `ex` (device-today's measured_by;
    * an older server's answer: the exercise's sensor). */
   measuredOn(ex, segment) {
@@ -81,6 +96,9 @@ const KitProgram = {
       program.version > 1 ? el("p", { class: "note", id: "program-version" },
         "Changed by your therapist" + (program.changed_at ? " " + dayWords(new Date(program.changed_at), "on ") : "")) : null,
       program.note ? el("p", { class: "lead", id: "program-note" }, program.note) : null,
+      // this week's count only from the server's answer of now: a kept one may be last week's
+      today.this_week && !today.offline && KitProgram.week(today.this_week)
+        ? el("p", { class: "week", id: "this-week" }, KitProgram.week(today.this_week)) : null,
       el("ol", { class: "program", id: "program-list" }, exercises.map((ex) =>
         el("li", {}, el("span", { class: "title" }, ex.title),
           el("span", { class: "dose" }, [KitProgram.dose(ex), KitProgram.often(ex),

@@ -657,6 +657,7 @@ function wellDone(index) {
 /** The session's end: the patient's, or the therapist's (closed on their page while the
  * phone streamed it: the phone sends the rest and records no more). */
 async function finished() {
+  kit.weekAsked = false;
   const byTherapist = Boolean(kit.stream.state && kit.stream.state.closedByTherapist);
   saveStep("finished", 0);
   const done = KitProgram.done(exercisesForKit(), kit.did);
@@ -664,12 +665,14 @@ async function finished() {
     lines: [...done.children].map((li) => li.textContent),
     session: (kit.stream.state && kit.stream.state.session) || null }));
   const info = el("p", { class: "lead", id: "sent" }, "Sending your session…");
+  // this week's count with this session in it: asked again once all of it is stored
+  const week = el("p", { class: "week", id: "this-week", hidden: "" }, "");
   screen(el("h1", { class: "welldone" }, byTherapist ? "Session ended" : "Session finished"),
     el("p", {}, byTherapist ? "Your therapist ended this session. Thank you — what you did is saved."
       : "Thank you. Your therapist will see it."),
     kit.today.program && KitProgram.next(exercisesForKit())
       ? el("p", { class: "lead", id: "next-time" }, KitProgram.next(exercisesForKit())) : null,
-    el("h2", { class: "question" }, "What you did"), done, info,
+    week, el("h2", { class: "question" }, "What you did"), done, info,
     // only once all is sent: a new session starts a new outbox
     big("Start another session", { id: "again", class: "big secondary", disabled: "",
       onclick: () => { localStorage.removeItem(STEP_KEY); welcome(); } }));
@@ -684,8 +687,20 @@ async function finished() {
       localStorage.removeItem(STEP_KEY);
       document.getElementById("again").removeAttribute("disabled");
       letSleep();
+      if (!kit.weekAsked) { kit.weekAsked = true; weekNow(week); }
     }
   });
+}
+
+/** This week's count once the session is stored (device-today's this_week, which counts
+ * it from then on): shown in `line` and kept for the next welcome; nothing is said
+ * offline or from a server that does not count (no guess of the server's week). */
+async function weekNow(line) {
+  const today = await loadToday();
+  if (today.offline || today.revoked || !today.this_week) return;
+  kit.today.this_week = today.this_week;
+  const words = KitProgram.week(today.this_week);
+  if (words) { line.textContent = words; line.hidden = false; }
 }
 
 /** The server stopped taking this phone's readings (too many of them refused, close 4429

@@ -136,11 +136,13 @@ function weeksTable(weeks) {
   return el("details", { class: "weeks", open: true },
     el("summary", {}, "Adherence by week (done / prescribed)"),
     el("div", { class: "scroll" }, el("table", { class: "adherence" },
-      el("thead", {}, el("tr", {}, ["Week", "Sessions", "Exercises", "Repetitions", "Adherence"]
+      el("thead", {}, el("tr", {}, ["Week", "Days", "Sessions", "Exercises", "Repetitions", "Adherence"]
         .map((h, i) => el("th", { class: i ? "num" : "" }, h)))),
       el("tbody", {}, weeks.slice().reverse().map((w) => el("tr", { dataset: { week: w.week } },
         el("td", { title: `ISO week ${w.week}` }, `week of ${fmtDay(w.monday)}`,
           el("span", { class: "small muted" }, ` v${w.version}`)),
+        // days: the figure the patient's phone says ("This week: 2 of 5 days done")
+        cell(w.done.days, w.prescribed.days),
         cell(w.done.sessions, w.prescribed.sessions), cell(w.done.exercises, w.prescribed.exercises),
         cell(w.done.repetitions, w.prescribed.repetitions),
         el("td", { class: "num " + percentClass(w.adherence_percent) },
