@@ -16,6 +16,7 @@ from dataclasses import replace
 
 import pytest
 from armtrack.estimator.arm.joints import REPORTED_ANGLES
+from armtrack.estimator.body import SegmentLengths
 from armtrack.estimator.recording import Mark
 from armtrack.estimator.simulation import ImuErrors, SimulationConfig, simulate
 from armtrack.server.emulator import MessagePlan, hello_message
@@ -30,12 +31,13 @@ CUT_AT_S = 20.5  # recording time: after the second repetition's return
 server = server_fixture("resume", "alice")
 
 
-def _simulation(seed: int = 1, repetitions: int = REPS, exercise: str = "elbow_flexion"):
-    """A forearm phone's elbow flexions (``exercise``: what the arm does), marked as the
-    elbow flexion exercise from 10.5 s to its end: (the simulation, its recording with the
-    marks)."""
+def _simulation(seed: int = 1, repetitions: int = REPS, exercise: str = "elbow_flexion",
+                height_m: float = 1.75):
+    """A forearm phone's elbow flexions (``exercise``: what the arm does; ``height_m``: the
+    patient's), marked as the elbow flexion exercise from 10.5 s to its end: (the
+    simulation, its recording with the marks)."""
     config = SimulationConfig(exercise=exercise, sensors=("forearm",), rate_hz=60.0,
-                              nine_axis=False, seed=seed, jitter_s=0.003,
+                              nine_axis=False, seed=seed, jitter_s=0.003, height_m=height_m,
                               repetitions=repetitions,
                               errors=ImuErrors(gyro_noise=0.01, acc_noise=0.1),
                               gyro_bias_max=0.02, mount_axial_deg=30.0)
@@ -139,7 +141,7 @@ def test_a_count_runs_from_its_mark_or_from_the_first_estimate_after_a_lost_stat
                     [d if a == "elbow_flexion" else 0.0 for a in REPORTED_ANGLES]
                     for d in deg.tolist()]}}
 
-    live = FeedbackTracker(bands, ("elbow_flexion",))
+    live = FeedbackTracker(bands, ("elbow_flexion",), SegmentLengths.from_height(1.75))
     live.mark(10.5, "exercise:elbow_flexion")
     now = 0.0
     for i in range(2):
@@ -150,7 +152,7 @@ def test_a_count_runs_from_its_mark_or_from_the_first_estimate_after_a_lost_stat
     message = live.pose(pose(20.0), now + 1.0)
     assert (message["repetitions"], message["count_from"]) == (3, 10.5)
 
-    lost = FeedbackTracker(bands, ("elbow_flexion",))
+    lost = FeedbackTracker(bands, ("elbow_flexion",), SegmentLengths.from_height(1.75))
     lost.mark(10.5, "exercise:elbow_flexion", stored=True)
     message = lost.pose(pose(30.0), 1.0)
     assert (message["repetitions"], message["count_from"]) == (1, 30.05)
@@ -164,11 +166,14 @@ def test_a_straight_arm_raise_is_not_counted_on_the_phone(server):
     arm forward 5 times instead (the elbow angle reads 150° each time): the phone counts
     none and is told, per counting run, how many movements were not the elbow's
     (``not_elbow_movements``, ``estimator/metrics/elbow_pivot.py``). Streamed at 4× real
-    time, the exercise held until the first feedback."""
+    time, the exercise held until the first feedback. The patient is small (1.2 m): the
+    raise turns about the shoulder only 0.33 m from the phone, and the threshold is this
+    patient's (``pivot_m`` of the session's body; one 0.34 m for every body counted all
+    five)."""
     api = server.client("alice")
-    patient = api.patient("Raised the arm")
+    patient = api.patient("Raised the arm", height_m=1.2)
     device = api.device(patient["id"], "phone")
-    recording = _simulation(exercise="shoulder_flexion")[1]
+    recording = _simulation(seed=0, exercise="shoulder_flexion", height_m=1.2)[1]
     plan = MessagePlan(recording, rows_per_message=12)
     feedback: list[dict] = []
 

@@ -19,8 +19,11 @@ import numpy as np
 import orjson
 import pytest
 from armtrack.estimator.arm.joints import REPORTED_ANGLES
+from armtrack.estimator.body import SegmentLengths
 from armtrack.server.live.estimator import AngleTrail
 from armtrack.server.live.motion import MotionWatch, current_exercise
+
+BODY = SegmentLengths.from_height(1.75)
 
 
 def short_exercise(name: str, repetitions: int, seed: int = 0, tail_s: float = 2.0):
@@ -78,7 +81,7 @@ def test_the_count_reads_the_trail_when_poses_are_far_apart():
     degrees = _elbow_cycles(t, start_s=10.0)
     for chunk in np.array_split(np.arange(len(t)), 20):
         watch.add(_pose(7, t[chunk], degrees[chunk]))
-    found = current_exercise(watch, 7, {"name": "elbow_flexion", "t": 9.5})
+    found = current_exercise(watch, 7, {"name": "elbow_flexion", "t": 9.5}, BODY)
     print(f"found: {found}")
     assert found["label"] == "Elbow flexion"
     assert found["angle"] == "elbow_flexion"
@@ -86,13 +89,17 @@ def test_the_count_reads_the_trail_when_poses_are_far_apart():
     assert found["counted_to_s"] == pytest.approx(t[-1])
 
 
-@pytest.mark.parametrize(("radius_m", "counted"), [(0.15, 5), (0.5, 0)])
-def test_the_live_page_counts_the_elbow_only_when_the_forearm_turned_about_it(radius_m,
-                                                                              counted):
+@pytest.mark.parametrize(("radius_m", "height_m", "counted"),
+                         [(0.15, 1.75, 5), (0.5, 1.75, 0), (0.3, 1.2, 0), (0.36, 1.95, 5)])
+def test_the_live_page_counts_the_elbow_only_when_the_forearm_turned_about_it(
+        radius_m, height_m, counted):
     """A forearm-only kit's trail carries its turn terms (``forearm_turn``: the pull along
     the forearm less gravity, and the squared rate across it): the forearm turning about a
     point 0.15 m away is the elbow (5 counted); 0.5 m away it is the straight arm raised
-    about the shoulder, and the live page counts none, as the report and the phone do."""
+    about the shoulder, and the live page counts none, as the report and the phone do.
+    The threshold is the session's body's (``pivot_m``): 0.3 m is a small patient's
+    (1.2 m) shoulder; 0.36 m lies past the old one-for-all 0.34 m but under a tall
+    patient's (1.95 m) threshold, 0.37 m, halfway to the shoulder 0.55 m away."""
     watch = MotionWatch(hub=None, patient_id=1)
     t = np.arange(0.0, 30.0, 0.04)
     degrees = _elbow_cycles(t, start_s=10.0)
@@ -102,7 +109,8 @@ def test_the_live_page_counts_the_elbow_only_when_the_forearm_turned_about_it(ra
         pose = _pose(7, t[chunk], degrees[chunk])
         pose["trail"]["forearm_turn"] = turn[chunk].tolist()
         watch.add(pose)
-    found = current_exercise(watch, 7, {"name": "elbow_flexion", "t": 9.5})
+    found = current_exercise(watch, 7, {"name": "elbow_flexion", "t": 9.5},
+                             SegmentLengths.from_height(height_m))
     assert found["repetitions"] == counted
 
 
@@ -112,7 +120,7 @@ def test_a_mark_the_live_angles_have_not_reached_is_a_count_of_zero():
     watch = MotionWatch(hub=None, patient_id=1)
     t = np.arange(0.0, 10.39, 0.04)
     watch.add(_pose(7, t, _elbow_cycles(t, 99.0)))
-    found = current_exercise(watch, 7, {"name": "elbow_flexion", "t": 10.5})
+    found = current_exercise(watch, 7, {"name": "elbow_flexion", "t": 10.5}, BODY)
     assert found == {"name": "elbow_flexion", "label": "Elbow flexion", "source": "marks",
                      "since_s": 10.5, "repetitions": 0, "repetitions_done": 0,
                      "angle": None, "counted_to_s": None}
@@ -300,10 +308,10 @@ def test_the_live_turn_of_a_tilted_phone_is_read_along_the_phone():
     """A tall patient's (1.95 m) elbow flexions, the phone tilted 14° on the forearm: the
     live trail's turn terms (what the phone's and the live page's counts fit the radius
     on) read the pull along the phone's own axis, so each repetition turns about the
-    elbow (~0.19 m), not past ``PIVOT_M``. Read along the forearm's axis they turned about
-    0.35 m and the phone counted none of them (review18)."""
+    elbow (~0.19 m), not past the body's ``pivot_m``. Read along the forearm's axis they
+    turned about 0.35 m and the phone counted none of them (review18)."""
     from armtrack.estimator.metrics import detect_repetitions
-    from armtrack.estimator.metrics.elbow_pivot import PIVOT_M, fit_radius
+    from armtrack.estimator.metrics.elbow_pivot import fit_radius, pivot_m
     from armtrack.estimator.pipeline import PipelineConfig
     from armtrack.server.ingest.protocol import MarkMessage, Samples
     from armtrack.server.live.estimator import LiveEstimator
@@ -332,4 +340,4 @@ def test_the_live_turn_of_a_tilted_phone_is_read_along_the_phone():
                              np.searchsorted(t, r.end_s, "right")].T) for r in reps]
     print("live radii", [None if r is None else round(r, 3) for r in radii])
     assert len(reps) == 5
-    assert all(r is not None and 0.1 < r < PIVOT_M for r in radii), radii
+    assert all(r is not None and 0.1 < r < pivot_m(rec.segment_lengths()) for r in radii), radii

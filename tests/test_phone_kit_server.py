@@ -12,6 +12,7 @@ from dataclasses import replace
 import httpx
 import pytest
 from armtrack.estimator.arm.coverage import assumptions, measured_angles
+from armtrack.estimator.body import SegmentLengths
 from armtrack.estimator.recording import Mark
 from armtrack.estimator.simulation import ImuErrors, SimulationConfig, simulate
 from armtrack.server.emulator import MessagePlan, hello_message
@@ -88,7 +89,8 @@ def test_the_live_counter_is_the_reports_rule_counted_once_back_at_rest():
     deg = np.concatenate([np.zeros(40), excursion([70]), excursion([-65]),
                           excursion([70, 35, 70], 6.0), excursion([6]), excursion([-70])])
     t = 0.05 * np.arange(deg.size)
-    counter = RepetitionCounter(Band("forearm_pronation", -70.0, 70.0))
+    counter = RepetitionCounter(Band("forearm_pronation", -70.0, 70.0),
+                                SegmentLengths.from_height(1.75))
     shown, unpaired = [], []
     for a in range(0, deg.size, 7):  # poses of 7 estimates
         counter.add(t[a:a + 7], deg[a:a + 7])

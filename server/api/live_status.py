@@ -35,6 +35,7 @@ from ..live.motion import MotionWatch, current_exercise, watch, watching
 from ..live.streams import STALE_S
 from ..services import Services
 from ..store.blocks import SAMPLE_COLUMNS, unpack_many
+from ..store.recordings import session_lengths
 from ..store.stopped import stopped_by_server
 from ..text_direction import shown
 from .deps import Therapist, aware_utc, own_patient
@@ -312,7 +313,7 @@ def live_status(svc: Services, db: DbSession, patient_id: int,
         "connected": open_stream is not None,
         "sensors": sensors,
         "calibration": calibration,
-        "exercise": (current_exercise(motion, session.id, mark)
+        "exercise": (current_exercise(motion, session.id, mark, session_lengths(session))
                      if motion is not None else None),
         "estimating": bool(latest and latest.get("session_id") == session.id),
         "normal_ranges": NORMAL_RANGE_DEG,

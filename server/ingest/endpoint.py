@@ -400,7 +400,8 @@ class IngestConnection:
                 bands, marks = await services.run_db(_feedback_start, self.patient_id,
                                                      session_id)
                 tracker = FeedbackTracker({k: Band(*v) for k, v in bands.items()},
-                                          measured_angles(hello.sensors))
+                                          measured_angles(hello.sensors),
+                                          SegmentLengths.from_height(height))
                 for t, label in marks:  # a resumed stream: the exercise under way goes on
                     tracker.mark(t, label, stored=True)
                 self.feedback = FeedbackRunner(tracker, services.run_cpu, self.send)

@@ -40,8 +40,9 @@ from typing import Any
 
 import numpy as np
 from armtrack.estimator.arm.joints import REPORTED_ANGLES
+from armtrack.estimator.body import SegmentLengths
 from armtrack.estimator.metrics import BOTH_WAYS, Repetition, count_repetitions, detect_repetitions
-from armtrack.estimator.metrics.elbow_pivot import PIVOT_M, fit_radius
+from armtrack.estimator.metrics.elbow_pivot import split_elbow_repetitions
 
 log = logging.getLogger("armtrack.ingest")
 
@@ -73,8 +74,10 @@ class RepetitionCounter:
     ``count_repetitions``. A repetition counts once its return to rest is seen; the
     count shown never goes back (a later sample may move the rest level a little)."""
 
-    def __init__(self, band: Band):
+    def __init__(self, band: Band, lengths: SegmentLengths):
         self.band = band
+        #: the session's body: where its elbow and shoulder lie from the phone
+        self.lengths = lengths
         self.count = 0
         #: on a both-ways angle, the turns the side that leads is ahead by (0: each turn
         #: has its turn the other way; the count is complete), else 0
@@ -107,17 +110,13 @@ class RepetitionCounter:
     def _split(self, t: np.ndarray, reps: tuple[Repetition, ...]
                ) -> tuple[list[Repetition], list[Repetition]]:
         """The elbow's repetitions and those the forearm turned about the shoulder
-        (``elbow_pivot``: the report's rule); every one the elbow's on another angle or
-        without turn terms."""
+        (``elbow_pivot.split_elbow_repetitions``: the report's rule, for the session's
+        body); every one the elbow's on another angle or without turn terms."""
         if self.band.angle != "elbow_flexion" or not reps:
             return list(reps), []
         turn = np.asarray(self._turn, dtype=float)
-        kept, refused = [], []
-        for rep in reps:
-            a, b = np.searchsorted(t, rep.start_s, "left"), np.searchsorted(t, rep.end_s, "right")
-            radius = fit_radius(turn[a:b, 0], turn[a:b, 1])
-            (refused if radius is not None and radius > PIVOT_M else kept).append(rep)
-        return kept, refused
+        kept, refused = split_elbow_repetitions(reps, t, turn[:, 0], turn[:, 1], self.lengths)
+        return kept, [rep for rep, _ in refused]
 
     def recount(self) -> int:
         """The repetitions so far (the report's rule on the samples kept)."""
@@ -149,9 +148,12 @@ class FeedbackTracker:
     """One stream's feedback: the exercise marks as they come, the poses as they are
     estimated; ``pose`` gives the message to send (or None while rate-limited)."""
 
-    def __init__(self, bands: Mapping[str, Band], measured: tuple[str, ...]):
+    def __init__(self, bands: Mapping[str, Band], measured: tuple[str, ...],
+                 lengths: SegmentLengths):
         self.bands = dict(bands)
         self.measured = measured
+        #: the session's body (its elbow's and shoulder's distances from a forearm phone)
+        self.lengths = lengths
         #: (t, label, stored) not yet passed by a pose
         self._marks: list[tuple[float, str, bool]] = []
         self._seen: set[tuple[float, str]] = set()  # a mark sent again after a resume
@@ -179,7 +181,8 @@ class FeedbackTracker:
             if label.startswith("exercise:"):
                 self.exercise = label.removeprefix("exercise:")
                 band = self.bands.get(self.exercise)
-                self.counter = RepetitionCounter(band) if band is not None else None
+                self.counter = (RepetitionCounter(band, self.lengths) if band is not None
+                                else None)
                 self.count_from = None if stored else at
             elif self.exercise is not None and label == f"end:exercise:{self.exercise}":
                 self.exercise, self.counter, self.count_from = None, None, None

@@ -34,8 +34,9 @@ from typing import Any
 
 import numpy as np
 from armtrack.estimator.arm.joints import REPORTED_ANGLES
+from armtrack.estimator.body import SegmentLengths
 from armtrack.estimator.metrics import BOTH_WAYS, count_repetitions, detect_repetitions
-from armtrack.estimator.metrics.elbow_pivot import PIVOT_M, fit_radius
+from armtrack.estimator.metrics.elbow_pivot import split_elbow_repetitions
 
 from ..programs.catalogue import exercise as catalogue_exercise
 from ..reports.words import exercise_words as words
@@ -162,13 +163,14 @@ def watching(hub: Any, patient_id: int) -> MotionWatch | None:
     return current
 
 
-def current_exercise(motion: MotionWatch, session_id: int, mark: dict[str, Any] | None
-                     ) -> dict[str, Any] | None:
+def current_exercise(motion: MotionWatch, session_id: int, mark: dict[str, Any] | None,
+                     lengths: SegmentLengths) -> dict[str, Any] | None:
     """The exercise going on and its repetitions so far (worker thread). ``mark``: the
-    open exercise mark ``{"name", "t"}`` or None. None before any pose after the
-    calibration, or when nothing is going on. ``counted_to_s``: the stream time [s] the
-    count has reached (the live estimates lag the stored stream when the server is
-    busy; null before the first angle after the mark)."""
+    open exercise mark ``{"name", "t"}`` or None; ``lengths``: the session's body (a
+    forearm-only kit's elbow is told from its shoulder by them, ``_elbows``). None before
+    any pose after the calibration, or when nothing is going on. ``counted_to_s``: the
+    stream time [s] the count has reached (the live estimates lag the stored stream when
+    the server is busy; null before the first angle after the mark)."""
     from ..reports.content import GROUP_GAP_S, detected_groups, detected_name
 
     sid, calibrated_from, t, angles, turns = motion.series_and_turns()
@@ -192,7 +194,7 @@ def current_exercise(motion: MotionWatch, session_id: int, mark: dict[str, Any] 
             continue
         found[angle] = detect_repetitions(column, t, include=include)
     if found.get("elbow_flexion"):  # a forearm-only kit's raise about the shoulder: not
-        found["elbow_flexion"] = _elbows(found["elbow_flexion"], t, turns)
+        found["elbow_flexion"] = _elbows(found["elbow_flexion"], t, turns, lengths)
     if mark:
         entry = catalogue_exercise(mark["name"])
         angle = (entry.angle if entry is not None and entry.angle in found
@@ -216,20 +218,14 @@ def current_exercise(motion: MotionWatch, session_id: int, mark: dict[str, Any] 
             "repetitions": _count(in_group, angle), "repetitions_done": _done(in_group, angle)}
 
 
-def _elbows(reps: Any, t: np.ndarray, turns: np.ndarray) -> tuple:
+def _elbows(reps: Any, t: np.ndarray, turns: np.ndarray, lengths: SegmentLengths) -> tuple:
     """The elbow flexion's repetitions ``reps`` less those a forearm-only kit's forearm
-    turned about a point further than ``PIVOT_M`` (the straight arm raised about the
-    shoulder; ``estimator/metrics/elbow_pivot.py``, the report's and the phone's rule);
-    all of them when the trail carried no turn terms."""
+    turned about the shoulder (the straight arm raised; ``split_elbow_repetitions``, the
+    report's and the phone's rule, for the body of segment ``lengths``); all of them when
+    the trail carried no turn terms."""
     if len(turns) != len(t) or not np.isfinite(turns).any():
         return reps
-    kept = []
-    for rep in reps:
-        a, b = np.searchsorted(t, rep.start_s, "left"), np.searchsorted(t, rep.end_s, "right")
-        radius = fit_radius(turns[a:b, 0], turns[a:b, 1])
-        if radius is None or radius <= PIVOT_M:
-            kept.append(rep)
-    return tuple(kept)
+    return tuple(split_elbow_repetitions(reps, t, turns[:, 0], turns[:, 1], lengths)[0])
 
 
 def _count(found: dict[str, Any], angle: str | None) -> int:

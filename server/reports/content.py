@@ -47,7 +47,11 @@ from armtrack.estimator.metrics import (
     range_of_motion_table,
     repetition_smoothness,
 )
-from armtrack.estimator.metrics.elbow_pivot import split_elbow_repetitions, y_up_of_quats
+from armtrack.estimator.metrics.elbow_pivot import (
+    split_elbow_repetitions,
+    turn_terms,
+    y_up_of_quats,
+)
 from armtrack.estimator.recording import Recording
 from pydantic import BaseModel, Field
 from sqlalchemy.orm import Session as DbSession
@@ -288,10 +292,10 @@ class SessionData:
         return {k: np.deg2rad(v) for k, v in self.angles.items()}
 
     @functools.cached_property
-    def forearm_turns(self) -> tuple[np.ndarray, ...] | None:
-        """A forearm-only kit's forearm sensor ``(t, acc, gyr, y_up)`` (its readings and
-        its long axis's upward component at their times, ``estimator/metrics/
-        elbow_pivot.py``); None for any other kit."""
+    def forearm_turns(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """A forearm-only kit's forearm sensor's turn terms ``(t, pull, across)`` (its
+        times and ``turn_terms`` of its readings and its long axis's upward component,
+        ``estimator/metrics/elbow_pivot.py``); None for any other kit."""
         sensors = self.recording.sensors
         if "forearm" not in sensors or "upper_arm" in sensors \
                 or "forearm" not in self.quats or len(self.t) < 2:
@@ -299,17 +303,18 @@ class SessionData:
         stream = sensors["forearm"]
         sensor_y = (self.session.calibration or {}).get("forearm_sensor_y")
         y_up = np.interp(stream.t, self.t, y_up_of_quats(self.quats["forearm"], sensor_y))
-        return stream.t, stream.acc, stream.gyr, y_up
+        return (stream.t, *turn_terms(stream.acc[:, 1], stream.gyr, y_up))
 
     def elbow_split(self, reps: Sequence[Repetition]
                     ) -> tuple[list[Repetition], list[tuple[Repetition, float]]]:
         """The elbow flexion's repetitions ``reps`` of a forearm-only kit split into the
         elbow's own and the straight arm's raises about the shoulder, with their radius
-        [m] (``split_elbow_repetitions``); every one kept on any other kit."""
+        [m] (``split_elbow_repetitions``, for the session's body); every one kept on any
+        other kit."""
         turns = self.forearm_turns
         if turns is None:
             return list(reps), []
-        return split_elbow_repetitions(reps, *turns)
+        return split_elbow_repetitions(reps, *turns, self.recording.segment_lengths())
 
     def credited(self, angle: str, reps: Sequence[Repetition]) -> Sequence[Repetition]:
         """``angle``'s repetitions that count: on a forearm-only kit an elbow flexion

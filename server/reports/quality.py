@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 from armtrack.estimator.metrics import detect_repetitions
+from armtrack.estimator.metrics.elbow_pivot import pivot_m
 from armtrack.estimator.metrics.timebase import runs
 from armtrack.estimator.sampling import packets, sample_interval_s, summarise_sampling
 
@@ -149,9 +150,11 @@ def shoulder_turn_warnings(data: SessionData) -> list[str]:
         return []
     low, high = (f"{f(radius for _, radius in refused):.2f}" for f in (min, max))
     n = len(refused)
+    threshold = pivot_m(data.recording.segment_lengths())
     return [f"{n} movement{'s' if n != 1 else ''} of the forearm phone (from "
             f"{refused[0][0].start_s:.1f} s) {'were' if n != 1 else 'was'} not counted as "
             f"elbow repetitions: the forearm turned about a point "
             f"{low if low == high else low + '–' + high} m away, the shoulder rather than "
-            "the elbow (the arm raised straight). A phone on the forearm counts the "
+            f"the elbow (the arm raised straight; for this patient's arm lengths, beyond "
+            f"{threshold:.2f} m is not the elbow). A phone on the forearm counts the "
             "elbow's bending only; for shoulder raises the phone goes on the upper arm"]

@@ -226,6 +226,14 @@ def session_recording(db: DbSession, session: models.Session) -> Recording:
         points=points, points_frame=frame if points else None)
 
 
+def session_lengths(session: models.Session) -> SegmentLengths:
+    """The body a session's estimates use (``Recording.segment_lengths`` of its stored
+    recording): its measured segment lengths, else those of its height."""
+    if session.lengths:
+        return SegmentLengths(**session.lengths)
+    return SegmentLengths.from_height(session.height_m)
+
+
 def delay_metadata(session: models.Session) -> dict[str, str]:
     """The ``gyro_delay_s`` header of the session's declared gyroscope delay
     (docs/extensions/gyro-delay.md), as the session keeps it; empty when none was."""
