@@ -5,7 +5,9 @@ Routes need not write it themselves: ``AuditMiddleware`` gives each API request 
 (a dict in a context variable) that the dependencies fill in — ``current_therapist`` the
 actor, ``own_patient`` / ``own_session`` the patient and session reached — and writes one
 entry once the route has answered with success. A route that reached no patient's data
-writes nothing (sign-in, admin's therapist management); a refused request writes nothing.
+writes nothing (sign-in); a refused request writes nothing. Changes of accounts are
+written by their routes with ``record``: an admin's making, disabling and enabling of an
+account and issuing of a reset code, a password reset or changed.
 A repeated view of the same patient's data (or of one session's) by the same actor within
 ``ARMTRACK_AUDIT_REPEAT_S`` is logged once, whichever routes it took (a page asks many; the
 dashboard polls its live status twice a second), a repeated opening of the same live feed

@@ -112,6 +112,42 @@ def test_a_reset_code_dies_when_the_therapist_changes_their_password(srv):
     assert _sign_in(srv, "hana", "hana-chose-this") == 200
 
 
+def test_who_opened_closed_or_changed_an_account_is_in_the_audit_log(srv):
+    """An admin who enables a departed therapist's account again (their patients stay
+    with it) lets its holder read those patients: the log showed the account's views but
+    not that, when or by whom it was opened again; nor who made an account (a second
+    admin's too), closed one, or changed its password. Now each is an entry: the admin
+    (or the therapist) acting, the account in the route, the address (att19)."""
+    root = srv.client("root")
+    made = root.http.post("/api/admin/therapists", json={"username": "ivy",
+                                                         "password": PASSWORD})
+    assert made.status_code == 201, made.text
+    ivy = made.json()["id"]
+    for step in ("disable", "enable"):
+        answer = root.http.post(f"/api/admin/therapists/{ivy}/{step}")
+        assert answer.status_code == 200, answer.text
+    changed = srv.client("ivy").http.post("/api/auth/password", json={
+        "old_password": PASSWORD, "new_password": "ivy-chose-this"})
+    assert changed.status_code == 204, changed.text
+    root_id = _id(srv, "root")
+    entries = [(e["action"], e["therapist_id"], e["route"], e["client"])
+               for e in reversed(root.http.get("/api/audit").json())
+               if e["action"].endswith(("_account", "_password"))
+               and (str(ivy) in e["route"] or e["therapist_id"] == ivy)]
+    print("\n", entries)
+    assert entries == [
+        ("created_account", root_id, f"POST /api/admin/therapists (account {ivy})",
+         "127.0.0.1"),
+        ("disabled_account", root_id, f"POST /api/admin/therapists/{ivy}/disable",
+         "127.0.0.1"),
+        ("enabled_account", root_id, f"POST /api/admin/therapists/{ivy}/enable",
+         "127.0.0.1"),
+        ("changed_password", ivy, "POST /api/auth/password", "127.0.0.1")], entries
+    ivy_api = srv.client("ivy", "ivy-chose-this")  # she sees her own change
+    assert [e["action"] for e in ivy_api.http.get("/api/audit").json()] == \
+        ["changed_password"]
+
+
 @pytest.mark.parametrize("params", [
     {"to_date": "9999-12-31"},          # the day after it is beyond Python's dates
     {"from_date": "0001-01-01"},        # its midnight at +9:19 is before year 1 in UTC

@@ -110,8 +110,18 @@ def list_therapists(db: Db, admin: Admin, page: Annotated[Page, Depends()]
     return [_out(db, t, counts) for t in rows]
 
 
+def _logged(db: DbSession, action: str, route: str, admin: models.Therapist,
+            request: Request) -> None:
+    """An admin's change of an account, in the audit log (not committed): the admin, the
+    account in the route, the address. Before, none was written: an account enabled again
+    (its patients stay with it) was then used with no entry of who opened it, or when."""
+    audit.record(db, action=action, route=route, therapist_id=admin.id,
+                 client=request.client.host if request.client else None, commit=False)
+
+
 @router.post("/therapists", response_model=TherapistOut, status_code=status.HTTP_201_CREATED)
-def create_therapist(body: TherapistIn, db: Db, admin: Admin) -> TherapistOut:
+def create_therapist(body: TherapistIn, db: Db, admin: Admin, request: Request
+                     ) -> TherapistOut:
     """A new therapist (or admin) account."""
     if db.scalar(select(models.Therapist).where(models.Therapist.username == body.username)):
         raise HTTPException(status.HTTP_409_CONFLICT, f"user {body.username!r} exists already")
@@ -119,12 +129,15 @@ def create_therapist(body: TherapistIn, db: Db, admin: Admin) -> TherapistOut:
                                  password_hash=hash_password(body.password),
                                  full_name=(body.full_name or "").strip() or None)
     db.add(therapist)
+    db.flush()
+    _logged(db, "created_account", f"POST {request.url.path} (account {therapist.id})",
+            admin, request)
     db.commit()
     return _out(db, therapist)
 
 
 @router.post("/therapists/{therapist_id}/disable", response_model=TherapistOut)
-async def disable_therapist(therapist_id: Id, admin: Admin,
+async def disable_therapist(therapist_id: Id, admin: Admin, request: Request,
                             svc: Annotated[Services, Depends(services)]) -> TherapistOut:
     """Disable an account: it cannot sign in, its tokens and unused reset codes stop
     working and its live feeds and 3D views close at once. Its patients stay; reassign
@@ -143,6 +156,7 @@ async def disable_therapist(therapist_id: Id, admin: Admin,
         db.execute(delete(models.PasswordReset).where(
             models.PasswordReset.therapist_id == therapist_id,
             models.PasswordReset.used_at.is_(None)))
+        _logged(db, "disabled_account", f"POST {request.url.path}", admin, request)
         db.commit()
         return _out(db, therapist)
 
@@ -152,10 +166,12 @@ async def disable_therapist(therapist_id: Id, admin: Admin,
 
 
 @router.post("/therapists/{therapist_id}/enable", response_model=TherapistOut)
-def enable_therapist(therapist_id: Id, db: Db, admin: Admin) -> TherapistOut:
+def enable_therapist(therapist_id: Id, db: Db, admin: Admin, request: Request
+                     ) -> TherapistOut:
     """Enable a disabled account again (it signs in afresh)."""
     therapist = _therapist(db, therapist_id)
     therapist.disabled_at = None
+    _logged(db, "enabled_account", f"POST {request.url.path}", admin, request)
     db.commit()
     return _out(db, therapist)
 

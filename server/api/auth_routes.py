@@ -203,6 +203,8 @@ async def change_password(body: PasswordChange, therapist: Therapist, request: R
         db.execute(delete(models.PasswordReset).where(
             models.PasswordReset.therapist_id == therapist.id,
             models.PasswordReset.used_at.is_(None)))
+        audit.record(db, action="changed_password", route="POST /api/auth/password",
+                     therapist_id=therapist.id, client=_client(request), commit=False)
         db.commit()
 
     await svc.run_db(work)

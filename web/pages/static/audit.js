@@ -11,7 +11,9 @@ const AUDIT_ACTIONS = {
   reassigned: "Reassigned", issued_device: "Issued a kit", revoked_device: "Revoked a kit",
   discharged: "Discharged", readmitted: "Readmitted",
   changed: "Changed", viewed_live: "Watched live", issued_reset: "Issued a password reset",
-  reset_password: "Reset the password",
+  reset_password: "Reset the password", created_account: "Created an account",
+  disabled_account: "Disabled an account", enabled_account: "Enabled an account",
+  changed_password: "Changed their password",
 };
 
 frame([{ text: "Audit log" }]);
