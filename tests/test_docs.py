@@ -334,6 +334,14 @@ def test_the_operators_accounts_steps_run_and_say_how_a_password_is_changed(tmp_
     assert [(name, disabled) for name, _, disabled in rows] == [
         ("alice", False), ("bob", True), ("carol", False)]
     assert dict((n, f) for n, f, _ in rows)["carol"] == "Carol Meier"
+    # bob, disabled, asked for again: the refusal says how he comes back, not how to
+    # change a password he cannot sign in to use
+    again = subprocess.run([str(Path(sys.executable).parent / "armtrack"), "create-user", "bob"],
+                           input="a long password\n", capture_output=True, text=True,
+                           timeout=120, env=env)
+    print(again.stderr)
+    assert again.returncode == 2 and "is disabled" in again.stderr
+    assert "enables it" in again.stderr and "/admin" in again.stderr
     routes = (ROOT / "web" / "pages" / "routes.py").read_text("utf-8")
     for page in ("/account", "/admin"):
         assert f"`{page}`" in text and f'@router.get("{page}")' in routes, page

@@ -83,8 +83,11 @@ def run(args: argparse.Namespace) -> int:
             existing = db.scalar(select(models.Therapist)
                                  .where(models.Therapist.username == args.name))
             if existing is not None:
+                way = ("It is disabled: a clinic admin enables it again on the Clinic "
+                       "accounts page (/admin)" if existing.disabled_at is not None
+                       else _new_password_words(existing.is_admin))
                 print(f"armtrack create-user: user {args.name!r} exists already; nothing was "
-                      f"changed. {_new_password_words(existing.is_admin)}", file=sys.stderr)
+                      f"changed. {way}", file=sys.stderr)
                 return 2
             db.add(models.Therapist(username=args.name, password_hash=hash_password(password),
                                     is_admin=args.admin, full_name=args.full_name or None))
