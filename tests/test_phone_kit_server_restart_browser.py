@@ -7,11 +7,16 @@ kill). Debian's headless chromium at 390 px, a real server killed with SIGKILL."
 
 from __future__ import annotations
 
-import time
-
 import pytest
 import test_phone_kit_browser as kit_page
-from test_phone_kit_browser import FEEDER, _start_kit, _wait, motion_events, phone_simulation
+from test_phone_kit_browser import (
+    FEEDER,
+    _start_kit,
+    _wait,
+    motion_events,
+    phone_simulation,
+    sync_api,
+)
 from test_phone_kit_browser_storage import _all_stored_once
 
 phone = kit_page.phone
@@ -43,8 +48,15 @@ def test_a_server_killed_mid_session_loses_nothing_the_phone_took(server, phone,
                                  "&& kit.stream.unsent === 0"), 60, "5 s streamed")
     session = phone.evaluate("kit.stream.state.session")
     acked = api.session(session)["samples"]
+    at_kill = phone.evaluate("kit.stream.samples")
     server.kill()
-    time.sleep(4)  # the phone goes on recording while the server is down
+    # the phone goes on recording while the server is down: the page has seen the close
+    # and kept 2 s of readings taken since (a fixed 4-s sleep guessed it had, by then)
+    offline = min(at_kill + 120, 1199)  # (the feed ends at 1200)
+    _wait(lambda: phone.evaluate(f"!kit.stream.connected && kit.stream.samples > {offline} "
+                                 "&& kit.stream.unsent > 0"), 60,
+          "readings kept on the phone while the server is down")
+    sync_api.expect(phone.locator("#status")).to_contain_text("saved on this phone")
     said = phone.locator("body").inner_text()
     phone.screenshot(path=str(shots / "restart-down.png"))
     print(f"\nwhile the server is down the phone says: {said[:400]!r}")
