@@ -79,3 +79,47 @@ def test_a_refusal_echoing_wide_characters_still_closes_with_its_code(module_ser
         print(code, error["reason"][:60])
         assert error["type"] == "error" and field in error["reason"], error
         assert code == 4400, (code, error["reason"][:60])
+
+
+@pytest.mark.parametrize("change", ["revoked", "erased"])
+def test_a_socket_opened_before_the_kit_was_revoked_cannot_start_a_stream(module_server,
+                                                                          change):
+    """A kit's socket counts from its connection (one of the token's four), but it was
+    known to the revoke only once its hello had made a stream: a socket opened before the
+    kit was revoked, its hello sent after, started a new session in the patient's record
+    and streamed into it, acked (until the periodic check, ≤ 5 s later). A stolen phone's
+    token, its sockets opened ahead and kept idle, wrote on after the therapist revoked it.
+    With the patient erased, the hello failed on an assertion (att19)."""
+    alice = module_server.client("alice")
+    patient = alice.patient(f"Kit {change} while idle")
+    device = alice.device(patient["id"])
+
+    async def scenario():
+        ws = await connect(module_server.ws_url,
+                           additional_headers={"Authorization": f"Bearer {device['token']}"})
+        path = f"/api/devices/{device['id']}" if change == "revoked" \
+            else f"/api/patients/{patient['id']}"
+        answer = await asyncio.to_thread(alice.http.delete, path)
+        assert answer.status_code == 204, answer.text
+        await ws.send(json.dumps(HELLO))
+        messages = []
+        try:
+            async with asyncio.timeout(10):
+                while True:
+                    messages.append(json.loads(await ws.recv()))
+                    if messages[-1]["type"] == "ready":  # write, as the stolen token would
+                        await ws.send(json.dumps({
+                            "type": "samples", "seq": 0, "sensor": "forearm",
+                            "rows": [[0.0, 0.0, 0.0, 9.81, 0.0, 0.0, 0.0, None, None, None]]}))
+        except ConnectionClosed as exc:
+            return messages, exc.rcvd.code if exc.rcvd else None
+        await ws.close()
+        return messages, None
+
+    messages, code = asyncio.run(scenario())
+    print(f"\n{change}: {messages} close {code}")
+    assert [m["type"] for m in messages] == ["error"], messages
+    assert "revoked" in messages[0]["reason"], messages
+    assert code == 4401, code
+    assert module_server.sql("SELECT COUNT(*) FROM sessions WHERE device_id = :d",
+                             d=device["id"])[0][0] == 0

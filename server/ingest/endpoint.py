@@ -324,6 +324,9 @@ class IngestConnection:
     async def _open_stream(self, hello: Hello) -> dict[str, Any]:
         services = self.services
         extra: dict[str, Any] = {}
+        # the token was read at the connection, which a revoke does not see until its hello
+        # has made a stream: read again now (a revoke from here on closes the stream)
+        await services.run_db(self._check_kit)
         if hello.resume is not None or hello.session is not None:
             # another patient's session or stream is refused before anything is touched:
             # no connection of theirs closed, nothing waited for
@@ -441,6 +444,18 @@ class IngestConnection:
         """A closed (or closing) session: the store step refuses its hello with its own
         words (closed-session/1's ``next_seq``), before any other check."""
         return session.status == "closed" or session.id in self.services.closing
+
+    def _check_kit(self, db: DbSession) -> None:
+        """Refuse the hello (4401) of a kit revoked, or erased with its patient, since its
+        socket connected. Before, a socket opened ahead and kept idle started a session
+        after the revoke and streamed into it, acked, until the periodic check
+        (tests/test_security_ingest.py); with the patient erased, the hello failed on an
+        assertion."""
+        device = db.get(models.Device, self.device_id)
+        if device is None or device.revoked_at is not None:
+            raise Refused("hello: this kit's token was revoked, or its patient erased, since "
+                          "it connected: ask the therapist for a new kit link",
+                          close_code=protocol.CLOSE_BAD_TOKEN)
 
     def _create_session(self, db: DbSession, hello: Hello, stream_id: str) -> tuple[int, float]:
         patient = db.get(models.Patient, self.patient_id)
