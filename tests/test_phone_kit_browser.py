@@ -313,6 +313,10 @@ def test_phone_kit_guides_streams_survives_a_cut_link_and_matches_truth(kit_serv
         _wait(lambda: phone.evaluate("kit.stream.closes") > closes_before, 10,
               "the page to see the close")
         sync_api.expect(phone.locator("#status")).to_contain_text("saved on this phone")
+        # the count stands still while offline (the server counts): the patient who keeps
+        # going is told so, not left to wonder at "3 of 10" (user19's walk at 390 px)
+        sync_api.expect(phone.locator("#live-note")).to_contain_text(
+            "The count stops until then")
         phone.wait_for_timeout(3000)
         phone.screenshot(path=str(shots / "a8-offline.png"))
         unsent_offline = phone.evaluate("kit.stream.unsent")

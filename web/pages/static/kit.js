@@ -638,7 +638,7 @@ function exercise(index, set = 0, resumed = false) {
       marker.hidden = true;
       note.textContent = kit.stream.connected
         ? "Measuring… your angle shows in a moment."
-        : "No internet: keep going. Your movements are saved on this phone and sent when the internet is back.";
+        : "No internet: keep going. Your movements are saved on this phone and sent when the internet is back. The count stops until then.";
     }
   });
 }
