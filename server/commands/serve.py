@@ -9,18 +9,22 @@ import re
 from pathlib import Path
 from urllib.parse import unquote_plus
 
-#: ``token=…`` in a logged URL (kits that cannot set headers put their token there),
-#: matched once the URL is percent-decoded (``?tok%65n=`` is ``?token=`` to the server).
-TOKEN_IN_URL = re.compile(r"(token=)[^&\s\"']+", re.IGNORECASE)
+#: ``token=…`` in a logged URL (kits that cannot set headers put their token there), and
+#: the patients list's search ``q=…`` (what the therapist typed of a patient's name, sent
+#: at each key: the access log wrote it whole), matched once the URL is percent-decoded
+#: (``?tok%65n=`` is ``?token=`` to the server).
+TOKEN_IN_URL = re.compile(r"(token=)[^&\s\"']+|([?&]q=)(?:(?!\sHTTP/)[^&\"'])+",
+                          re.IGNORECASE)  # a name holds spaces (+ in the URL)
 
 
 def redact(text: str) -> str:
-    """``text`` with the value of every ``token=`` replaced by ``***``, looked for in the
-    text as it is and percent-decoded (where one is found, the decoded text is kept)."""
+    """``text`` with the value of every ``token=`` and ``q=`` replaced by ``***``, looked
+    for in the text as it is and percent-decoded (where one is found, the decoded text is
+    kept)."""
     decoded = unquote_plus(text) if "%" in text or "+" in text else text
     if TOKEN_IN_URL.search(decoded) is None:
         return text
-    return TOKEN_IN_URL.sub(r"\1***", decoded)
+    return TOKEN_IN_URL.sub(lambda m: (m.group(1) or m.group(2)) + "***", decoded)
 
 HELP = "run the server (REST API, ingest WebSocket, dashboard)"
 DESCRIPTION = ("Runs armtrack under uvicorn. Settings come from the environment "
@@ -30,7 +34,7 @@ DESCRIPTION = ("Runs armtrack under uvicorn. Settings come from the environment 
 
 
 class RedactTokens(logging.Filter):
-    """Keeps bearer tokens given in URLs out of the logs."""
+    """Keeps bearer tokens given in URLs, and names searched for, out of the logs."""
 
     def filter(self, record: logging.LogRecord) -> bool:
         if record.args:
