@@ -220,6 +220,18 @@ class Api:
         answer.raise_for_status()
         return answer.json()
 
+    def settled(self, session_id: int, timeout: float = 15) -> dict:
+        """The session once it is no longer live. A kit's ``bye`` is acked, then the server
+        closes the session (``endpoint._finish``); a kit that closes its socket right after
+        bye (``KitEmulator``, the phone page) finishes before that, and the session reads
+        "live" for a moment on a loaded machine. After ``timeout`` the session as it is."""
+        deadline = time.monotonic() + timeout
+        while True:
+            session = self.session(session_id)
+            if session["status"] != "live" or time.monotonic() > deadline:
+                return session
+            time.sleep(0.1)
+
     def live_session(self, patient_id: int, timeout: float = 60) -> dict:
         """The session the patient's kit streams now (``/live``'s), once it has begun."""
         deadline = time.monotonic() + timeout

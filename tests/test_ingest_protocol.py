@@ -901,6 +901,6 @@ def test_a_bad_stream_does_not_disturb_another_patients_stream(srv, api):
             assert np.array_equal(getattr(got, column).view(np.int64),
                                   getattr(s, column).view(np.int64)), (name, column)
     assert stored.calibration == recording.calibration
-    session = api.session(stats.session)
+    session = api.settled(stats.session)  # (the emulator closes right after its bye)
     assert session["samples"] == sum(len(s) for s in recording.sensors.values())
     assert session["status"] == "closed"

@@ -238,7 +238,7 @@ def test_a_full_disk_gives_errors_keeps_the_unacked_data_and_recovers(zygote, tm
         assert storage and all(e["seq"] is None for e in storage), seen["errors"]
         assert kit.stats.refused == 0 and kit.stats.acked == kit.stats.total
         assert_stored_exactly(api, kit.stats.session, sent)
-        assert api.session(kit.stats.session)["status"] == "closed"
+        assert api.settled(kit.stats.session)["status"] == "closed"
         assert "database or disk is full" in server.log.read_text()
     finally:
         server.stop()
@@ -318,7 +318,7 @@ def test_a_locked_database_gives_errors_keeps_the_unacked_data_and_recovers(zygo
         assert storage and all(e["seq"] is None for e in storage), seen["errors"]
         assert kit.stats.refused == 0 and kit.stats.acked == kit.stats.total
         assert_stored_exactly(api, kit.stats.session, sent)
-        assert api.session(kit.stats.session)["status"] == "closed"
+        assert api.settled(kit.stats.session)["status"] == "closed"
         assert "database is locked" in server.log.read_text()
     finally:
         lock.set()
@@ -366,7 +366,7 @@ def test_sensors_that_stall_flood_or_reconnect_every_second_lose_nothing(srv, ap
         assert stats.acked == stats.total and stats.refused == 0 and not stats.errors, (
             kit, stats.errors)
         assert_stored_exactly(api, stats.session, sent)
-        assert api.session(stats.session)["status"] == "closed"
+        assert api.settled(stats.session)["status"] == "closed"
     assert stall.stats.reconnects == 0 and steady.stats.reconnects == 0
     assert flaky.stats.drops >= 4 and flaky.stats.reconnects == flaky.stats.drops
     assert steady.stats.latency_percentiles((99,))[99] < 1.0
