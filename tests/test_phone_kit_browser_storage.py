@@ -61,6 +61,11 @@ def server(tmp_path_factory):
     process.stop()
 
 
+# every reading taken is in a message, saved and acked: "unsent === 0" alone also holds
+# while the last 0.1 s of readings wait for the next flush (kit-stream.js rows, _unsaved)
+ALL_SENT = ("kit.stream.connected && kit.stream.rows.length === 0 "
+            "&& kit.stream._unsaved.size === 0 && kit.stream.unsent === 0")
+
 #: How long POST /close may take [s]: it answers once the session is estimated, and a
 #: fresh server's first estimation took over 60 s (the client's default) on a loaded machine.
 CLOSE_S = 300.0
@@ -135,9 +140,8 @@ def test_a_failed_save_is_retried_and_nothing_is_lost(server, phone, shots):
     phone.evaluate("window.__failSaves = 1")
     _wait(lambda: phone.evaluate("window.__failed") == 1, 10, "the failed save")
     _wait(lambda: _dispatched(phone) >= 900, 60, "the readings dispatched")
-    phone.wait_for_timeout(500)
-    _wait(lambda: phone.evaluate("kit.stream.unsent === 0"), 30,
-          "every message sent and acked after the failed save")
+    _wait(lambda: phone.evaluate(ALL_SENT), 30,
+          "every reading sent and acked after the failed save")
     session_id = phone.evaluate("kit.stream.state.session")
     _all_stored_once(server, phone, events, session_id, "one failed save")
     assert phone.evaluate("kit.stream.error") is None, "the passing fault is still shown"
@@ -162,9 +166,8 @@ def test_a_full_phone_says_so_and_sends_all_once_it_has_room(server, phone, shot
     print(f"\nshown while full: {error!r}")
     assert "storage is full" in error, error
     _wait(lambda: _dispatched(phone) >= 900, 60, "the readings dispatched")
-    phone.wait_for_timeout(500)
-    _wait(lambda: phone.evaluate("kit.stream.unsent === 0 && kit.stream._unsaved.size === 0"),
-          30, "every message saved, sent and acked once there was room")
+    _wait(lambda: phone.evaluate(ALL_SENT), 30,
+          "every reading saved, sent and acked once there was room")
     session_id = phone.evaluate("kit.stream.state.session")
     _all_stored_once(server, phone, events, session_id, "storage full for 12 saves")
     assert phone.evaluate("kit.stream.error") is None, "the storage message outlived the fault"
@@ -227,8 +230,9 @@ def test_a_clock_gone_back_across_a_reload_does_not_stamp_readings_alike(server,
     _wait(lambda: phone.evaluate("kit.stream && kit.stream.state !== null"), 10,
           "the session started")
     phone.evaluate(FEEDER, events[:300])
-    _wait(lambda: phone.evaluate("window.__feed.i >= 300 && kit.stream.unsent === 0 "
-                                 "&& kit.stream._unsaved.size === 0"), 60, "5 s streamed")
+    # rows too: a flush after the kept state is moved below saves the page's own state
+    # over it (KitStore.append), and the reload would then set no clock back
+    _wait(lambda: phone.evaluate(f"window.__feed.i >= 300 && {ALL_SENT}"), 60, "5 s streamed")
     session_id = phone.evaluate("kit.stream.state.session")
     phone.evaluate("""async () => {
       const state = await KitStore.getState("stream");
@@ -238,8 +242,7 @@ def test_a_clock_gone_back_across_a_reload_does_not_stamp_readings_alike(server,
     phone.click("#continue")
     _wait(lambda: phone.evaluate("kit.stream && kit.stream.connected"), 30, "resumed")
     phone.evaluate(FEEDER, events[300:600])
-    _wait(lambda: phone.evaluate("window.__feed.i >= 300 && kit.stream.unsent === 0 "
-                                 "&& kit.stream._unsaved.size === 0"), 60, "5 s more")
+    _wait(lambda: phone.evaluate(f"window.__feed.i >= 300 && {ALL_SENT}"), 60, "5 s more")
     _wait(lambda: api.session(session_id)["samples"] >= 600, 30, "600 readings stored")
     stored = _stored_rows(server, api, session_id)
     acc = np.array(events)[:, 1:4]
@@ -285,9 +288,7 @@ def test_the_kit_opened_again_in_a_second_tab_leaves_the_first_streaming(server,
     assert "another tab" in text, text
     assert second.evaluate("kit.stream") is None  # the second tab opened no stream
     _wait(lambda: _dispatched(phone) >= 900, 60, "the readings dispatched")
-    phone.wait_for_timeout(500)
-    _wait(lambda: phone.evaluate("kit.stream.unsent === 0 && kit.stream._unsaved.size === 0"),
-          30, "everything sent")
+    _wait(lambda: phone.evaluate(ALL_SENT), 30, "everything sent")
     _all_stored_once(server, phone, events, phone.evaluate("kit.stream.state.session"),
                      "a second tab open")
     phone.close()  # the first tab closed: the second goes on with the session by itself
@@ -749,10 +750,6 @@ def test_the_phone_kit_stops_when_the_server_refuses_its_own_messages(refusing_s
 
 
 CAP = 200
-# every reading taken is in a message, saved and acked: "unsent === 0" alone also holds
-# while the last 0.1 s of readings wait for the next flush (kit-stream.js rows, _unsaved)
-ALL_SENT = ("kit.stream.connected && kit.stream.rows.length === 0 "
-            "&& kit.stream._unsaved.size === 0 && kit.stream.unsent === 0")
 
 
 @pytest.fixture(scope="module")
