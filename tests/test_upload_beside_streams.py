@@ -110,7 +110,12 @@ def test_a_big_upload_does_not_stall_another_patients_acks(server):
             failed.append(exc)
     kit_thread = threading.Thread(target=run, daemon=True)
     kit_thread.start()
-    time.sleep(3)
+    # acks measured before the upload (the bar's baseline): a fixed 3 s could pass before
+    # the kit had connected and heard one on a loaded machine ("before" empty)
+    deadline = time.monotonic() + 60
+    while len(lags) < 8 and not failed:  # ~2 s of acks, one each ACK_EVERY_S at most
+        assert time.monotonic() < deadline, f"the kit heard {len(lags)} acks in 60 s"
+        time.sleep(0.1)
     began = time.monotonic()
     answer = api.http.post("/api/recordings", data={"patient_id": uploader["id"],
                                                     "wait": "false"},
