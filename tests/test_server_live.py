@@ -302,3 +302,182 @@ def test_a_pose_cut_off_by_a_lost_stream_is_not_reported_as_held(module_server, 
     assert pose["name"] == "npose" and pose["end"] is None and pose["cut_off"] is True
     # what clients read before: unchanged (the pose whose end has not come)
     assert after["calibration"]["holding"]["name"] == "npose"
+
+
+def _rss_mb(pids) -> float:
+    from pathlib import Path
+
+    return sum(int(Path(f"/proc/{pid}/status").read_text().split("VmRSS:")[1].split()[0])
+               for pid in pids) / 1024
+
+
+def test_a_sensor_that_stops_mid_session_leaves_the_live_view_going_and_memory_bounded(
+        module_server, elbow):
+    """A 3-sensor kit whose hand sensor stops after calibration (its battery died) while
+    the upper arm and forearm send 100,000 rows more each: the live poses go on with
+    the hand's angles unknown (null), the feed says in words which sensor stopped and what
+    to do, and the live estimation process does not hold the others' rows for the hand
+    (it did: no pose after the stop, ~100 MB a million rows)."""
+    api = module_server.client("alice")
+    patient = api.patient()
+    token = api.device(patient["id"])["token"]
+    recording = elbow.recording
+    stop_t, more = 12.0, 100_000
+    rows = {name: np.column_stack([s.t, s.acc, s.gyr, s.mag])
+            for name, s in recording.sensors.items()}
+    end_t = rows["forearm"][-1, 0] + more / 100
+    rss, seen = {}, []
+
+    async def scenario():
+        def caught_up(ups):
+            poses = [u for u in ups if u["kind"] == "pose"]
+            if poses and "before" not in rss:
+                rss["pids"] = _live_estimation_processes(module_server)
+                rss["before"] = _rss_mb(rss["pids"])
+            seen[:] = ups
+            return any(p["t"] >= end_t - 1.0 for p in poses)  # the stream's newest
+
+        watcher = asyncio.create_task(watch(module_server, api.token, patient["id"],
+                                            caught_up, timeout=180.0))
+        await asyncio.sleep(0.3)
+        async with connect(module_server.ws_url, max_size=None,
+                           additional_headers={"Authorization": f"Bearer {token}"}) as ws:
+            await ws.send(json.dumps({"type": "hello", "protocol": 1, "device": "kit",
+                                      "side": "right", "sensors": list(rows),
+                                      "rate_hz": 100, "nine_axis": True, "resume": None}))
+            assert json.loads(await ws.recv())["type"] == "ready"
+            acked = {"seq": -1, "errors": []}
+
+            async def read_acks():
+                async for text in ws:
+                    message = json.loads(text)
+                    if message["type"] == "ack":
+                        acked["seq"] = max(acked["seq"], message["seq"])
+                    elif message["type"] == "error":
+                        acked["errors"].append(message)
+            reader = asyncio.create_task(read_acks())
+            seq = 0
+
+            async def send(payload):
+                nonlocal seq
+                await ws.send(json.dumps({**payload, "seq": seq}))
+                seq += 1
+
+            for pose in recording.calibration:
+                for t, label in ((pose.start, pose.name), (pose.end, f"end:{pose.name}")):
+                    await send({"type": "mark", "t": t, "label": label})
+            n = len(rows["forearm"])
+            for start in range(0, n, 100):
+                for name, r in rows.items():
+                    chunk = r[start:start + 100]
+                    if name == "hand":  # its battery dies at stop_t
+                        chunk = chunk[chunk[:, 0] < stop_t]
+                    if len(chunk):
+                        await send({"type": "samples", "sensor": name,
+                                    "rows": chunk.tolist()})
+            # the upper arm and forearm go on, held still: 100,000 rows more each
+            still = {name: [round(float(v), 3) for v in rows[name][-1, 1:]]
+                     for name in ("upper_arm", "forearm")}
+            t0 = rows["forearm"][-1, 0]
+            for start in range(1, more + 1, 1000):
+                t = t0 + np.arange(start, start + 1000) / 100
+                for name, values in still.items():
+                    await send({"type": "samples", "sensor": name,
+                                "rows": [[round(float(x), 2), *values] for x in t]})
+            async with asyncio.timeout(60):
+                while acked["seq"] < seq - 1:
+                    await asyncio.sleep(0.05)
+            try:  # the newest pose after the last ack (a minute: a loaded machine)
+                updates = await asyncio.wait_for(asyncio.shield(watcher), 60.0)
+            except TimeoutError:
+                watcher.cancel()
+                updates = None
+            rss["after"] = _rss_mb(rss["pids"])
+            reader.cancel()
+            assert not acked["errors"], acked["errors"]
+            return updates
+
+    updates = asyncio.run(scenario())
+    print(f"live estimation RSS {rss['before']:.0f} MB after the first pose, "
+          f"{rss['after']:.0f} MB after 2 × {more} rows without the hand "
+          f"(+{rss['after'] - rss['before']:.0f} MB)")
+    poses = [u for u in seen if u["kind"] == "pose"]
+    assert updates is not None, (
+        "no live pose reached the stream's end: the view froze; "
+        f"{len(poses)} poses, the last at {poses[-1]['t'] if poses else None} s of {end_t} s, "
+        f"other updates {[u for u in seen if u['kind'] != 'pose'][-3:]}")
+    poses = [u for u in updates if u["kind"] == "pose"]
+    late = [p for p in poses if p["t"] > stop_t + 15]
+    assert late, "no live pose after the hand stopped"
+    last = late[-1]
+    assert last["angles_deg"]["elbow_flexion"] is not None
+    assert last["angles_deg"]["wrist_flexion"] is None  # the hand's: unknown, not 0
+    assert last["segments_q"]["hand"][0] is None
+    # the hand only: the others' 1000-row messages (10 s each) are not a stop
+    assert set(last["stopped_sensors"]) == {"hand"}
+    assert last["stopped_sensors"]["hand"]["t"] < stop_t
+    assert any(w.startswith("the hand sensor stopped sending at ") and "check its battery"
+               in w for w in last["warnings"]), last["warnings"]
+    assert rss["after"] - rss["before"] < 10, "the live estimation held the rows"
+
+
+def _estimator_poses(sensors, rows_of, until_s, stop_of):
+    """A ``LiveEstimator`` fed 1-s messages of ``sensors`` (``rows_of(name, t0, n)``) up
+    to ``until_s`` stream seconds, each sensor until ``stop_of.get(name, inf)``: its poses'
+    dicts (the pose rate lifted)."""
+    from armtrack.estimator.body import SegmentLengths
+    from armtrack.estimator.pipeline import PipelineConfig
+    from armtrack.server.ingest.protocol import Samples
+    from armtrack.server.live.estimator import HELD, LiveEstimator
+
+    config = PipelineConfig(side="right", lengths=SegmentLengths.from_height(1.7),
+                            sensors=tuple(sensors))
+    live = LiveEstimator(config, session_id=1, max_rate_hz=1e9)
+    poses = []
+    for second in range(int(until_s)):
+        items = [Samples(-1, name, rows_of(name, float(second), 100)) for name in sensors
+                 if second < stop_of.get(name, np.inf)]
+        pose = live.process(items)
+        if pose is not None and pose != HELD:
+            poses.append(pose.parsed() if hasattr(pose, "parsed") else json.loads(pose.text))
+    return live, poses
+
+
+def _still_rows(name, t0, n):
+    rows = np.zeros((n, 10))
+    rows[:, 0] = t0 + np.arange(n) / 100
+    rows[:, 2] = -9.81  # hanging: the sensor's -Y up
+    rows[:, 7:] = np.nan  # 6-axis
+    return rows
+
+
+def test_the_live_view_goes_on_when_the_reference_sensor_stops_after_calibration():
+    """The upper arm (the sensor whose sample times the estimates take) stops at 70 s,
+    after the default calibration at 60 s: the estimates go on at the forearm's times,
+    the upper arm's and the elbow's angles unknown, and the rows are not held."""
+    live, poses = _estimator_poses(("upper_arm", "forearm"), _still_rows, 560,
+                                   {"upper_arm": 70})
+    last = poses[-1]
+    assert last["t"] > 558
+    assert last["angles_deg"]["shoulder_flexion"] is None
+    assert last["angles_deg"]["elbow_flexion"] is None
+    assert last["segments_q"]["upper_arm"][0] is None
+    assert last["segments_q"]["forearm"][0] is not None
+    assert last["positions_m"]["elbow"][0] is None
+    assert set(last["stopped_sensors"]) == {"upper_arm"}
+    assert "the upper-arm sensor stopped sending" in last["warnings"][-1]
+    assert live.pipeline.held_rows() < 1000
+
+
+def test_a_sensor_that_sends_once_and_stops_before_calibration_is_left_out():
+    """The hand sends one message and stops: calibration (at 60 s) and the live view go
+    on without it; its angles are unknown (null), not the 0 of an unworn sensor."""
+    live, poses = _estimator_poses(("upper_arm", "forearm", "hand"), _still_rows, 400,
+                                   {"hand": 1})
+    assert poses, "no live pose: the kit waits for its hand sensor for ever"
+    last = poses[-1]
+    assert last["t"] > 398
+    assert last["angles_deg"]["wrist_flexion"] is None
+    assert last["angles_deg"]["elbow_flexion"] is not None
+    assert "the hand sensor stopped sending" in last["warnings"][-1]
+    assert live.pipeline.held_rows() < 1000

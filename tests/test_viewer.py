@@ -222,6 +222,51 @@ def test_a_client_scene_is_built_once_and_moved_in_place():
     assert np.linalg.norm(target - shoulder) < 0.01
 
 
+def test_a_segment_whose_sensor_stopped_is_left_out_of_the_view_not_drawn_wrong():
+    """A live pose whose hand sensor stopped sending (its segment, point and angles null,
+    ``server/live/estimator.py``): the arm is drawn all the same, without the hand and
+    the wrist's arc; the first pose without a hand hides it (a pose with any unknown part
+    was skipped whole before: the view froze)."""
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    views: list[ClientView] = []
+    server.on_client_connect(lambda client: views.append(
+        ClientView(client, heading="Ada · live", height_m=1.75, side="right")))
+    lengths = SegmentLengths.from_height(1.75)
+    whole = pose_from_angles({"elbow_flexion": 60.0, "wrist_flexion": 30.0}, lengths,
+                             "right", {"elbow_flexion": (0.0, 60.0),
+                                       "wrist_flexion": (0.0, 30.0)}, t=1.0)
+    update = {"t": 2.0, "angles_deg": {**whole.angles_deg, "elbow_flexion": 90.0,
+                                       "wrist_flexion": None, "wrist_deviation": None},
+              "positions_m": {k: v.tolist() for k, v in whole.p_thorax.items()},
+              "segments_q": {s: matrix_to_quat(R).tolist() for s, R in whole.R_world.items()},
+              "rom_deg": {"elbow_flexion": {"min": 0.0, "max": 90.0},
+                          "wrist_flexion": {"min": 0.0, "max": 30.0}}}
+    update["positions_m"]["hand"] = [None, None, None]
+    update["segments_q"]["hand"] = [None] * 4
+    stopped = Pose.from_update(update)
+    try:
+        async def scenario():
+            url = f"ws://127.0.0.1:{server.get_port()}/"
+            viewer = asyncio.create_task(watch(url, seconds=1.5))
+            while not views:
+                await asyncio.sleep(0.05)
+            await asyncio.to_thread(views[0].show, whole)
+            hand_shown = views[0].arm.hand.visible
+            await asyncio.to_thread(views[0].show, stopped)
+            await viewer
+            return hand_shown
+
+        hand_shown = asyncio.run(scenario())
+    finally:
+        server.stop()
+    view = views[0]
+    assert hand_shown and not view.arm.hand.visible
+    assert view._last is stopped  # drawn, not skipped
+    assert view.arm.segments["forearm"].visible and view.arm.joints["wrist"].visible
+    assert view.arcs._arcs["elbow_flexion"].visible
+    assert not view.arcs._arcs["wrist_flexion"].visible
+
+
 def test_the_gate_closes_a_viewer_without_a_ticket_before_sending_anything():
     class NoServices:  # the gate needs no database: it refuses before building anything
         db = hub = sensor_status = None

@@ -30,6 +30,13 @@ class EstimateArrays:
     positions: np.ndarray
     R_world_segment: np.ndarray
 
+    @staticmethod
+    def concatenate(parts: Sequence[EstimateArrays]) -> EstimateArrays:
+        """Consecutive estimates as one (at least one part)."""
+        return EstimateArrays(*(np.concatenate([getattr(p, name) for p in parts])
+                                for name in ("t", "angles", "residuals", "positions",
+                                             "R_world_segment")))
+
     def named(self) -> Estimates:
         """The same numbers as ``Estimates`` (views, no copies)."""
         return Estimates(

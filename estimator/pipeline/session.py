@@ -19,6 +19,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..arm.compiled import CompiledJoints
+from ..arm.coverage import ANGLES_OF_SENSOR
+from ..arm.forward import POINTS
 from ..arm.inverse import JointAngleParams
 from ..arm.joints import REPORTED_ANGLES, SEGMENT_OF_SENSOR, SEGMENTS
 from ..body import SENSOR_NAMES, SegmentLengths, Side
@@ -89,6 +91,13 @@ class Pipeline:
         self._marks: list[Mark] = []
         self._joints = CompiledJoints(config.side, config.lengths, config.joint_params)
         self._given = 0  # reference samples estimated so far
+        self._given_t = -np.inf  # the last estimate's time [s]
+        #: sensors left out live after they stopped sending (``stop_sensor``): name → the
+        #: time of their last sample [s]
+        self.stopped: dict[str, float] = {}
+        self._unknown = np.zeros(len(REPORTED_ANGLES), dtype=bool)  # angles they leave unknown
+        self._unknown_points = np.zeros(len(POINTS), dtype=bool)
+        self._unknown_segments = np.zeros(len(SEGMENTS), dtype=bool)
         self.calibration: Calibration | None = None
         self._finished = False
         self._constraints: dict[str, HeadingConstraint] = {}
@@ -180,6 +189,60 @@ class Pipeline:
         self.config = replace(self.config, sensors=tuple(self._tracks))
         self._reference = self.config.reference
         self._others = [t for n, t in self._tracks.items() if n != self._reference]
+
+    def last_times(self) -> dict[str, float]:
+        """Each sensor's last sample time [s] (-inf: none yet), of the sensors still in."""
+        return {name: track.last_t for name, track in self._tracks.items()}
+
+    def held_rows(self) -> int:
+        """Samples the tracks hold (waiting for the others, or for slerp)."""
+        return sum(track.kept() for track in self._tracks.values())
+
+    def stop_sensor(self, sensor: str) -> EstimateArrays | None:
+        """Leave out a sensor that stopped sending while the others go on (a node's battery
+        died, its link dropped), so the others need not wait for it: a live decision, never
+        made on a file (``armtrack estimate`` gives what it always gave). Before
+        calibration it is as if it had never been worn (as ``drop_sensor``, data or not),
+        but for what it leaves unknown (below). After, the estimates that waited for its
+        samples are given now (returned, None if none). From then on its segment moves
+        with its parent and is unknown (NaN in ``R_world_segment``), as are the angles it
+        measures and those of the next sensor down the arm (measured against it), and the
+        points from its segment's end on.
+        Refused for the last sensor, or one not in the session."""
+        track = self._tracks.get(sensor)
+        if track is None:
+            raise InvalidArgument(f"sensor {sensor!r} cannot be stopped: it is not in this "
+                                  f"session ({', '.join(self._tracks)})")
+        if len(self._tracks) == 1:
+            raise InvalidArgument("the last sensor of a session cannot be stopped")
+        waited = None
+        if self.calibration is not None and not self._finished:
+            waited = self._estimate(final=False)
+        self.stopped[sensor] = track.last_t
+        del self._tracks[sensor]
+        self.config = replace(self.config, sensors=tuple(self._tracks))
+        old = self._reference
+        self._reference = self.config.reference
+        self._others = [t for n, t in self._tracks.items() if n != self._reference]
+        segment = _SEGMENT_INDEX[SEGMENT_OF_SENSOR[sensor]]
+        below = next((s for s in _CHAIN[_CHAIN.index(sensor) + 1:] if s in self._tracks),
+                     None)
+        for name in (sensor, below):
+            for angle in ANGLES_OF_SENSOR.get(name or "", ()):
+                self._unknown[REPORTED_ANGLES.index(angle)] = True
+        if segment > 0:  # the thorax held where calibration put it keeps the points
+            self._unknown_segments[segment] = True
+            self._unknown_points[segment - 1:] = True
+        if self.calibration is None:
+            return None
+        if self._reference != old:  # estimates go on at the new reference's sample times
+            reference = self._tracks[self._reference]
+            self._given = reference.discarded + int(
+                reference.times().searchsorted(self._given_t, "right"))
+        self._constraints.pop(sensor, None)
+        if sensor == "upper_arm":  # the elbow's tie needs the upper arm
+            self._constraints.pop("forearm", None)
+        return waited
 
     def poll(self) -> Estimates:
         """Every estimate that has become available since the last call."""
@@ -352,7 +415,8 @@ class Pipeline:
                 drift = np.empty((n, 2))
                 taken_at(t, track.drift_taken_back(), times, Rw[:, index], drift)
                 taken[index], knots[index] = drift[:, 0], drift[:, 1]
-        if not present[0]:  # no trunk sensor: the thorax stays where calibration put it
+        if not present[0]:  # no trunk sensor (or it stopped): the thorax stays where
+            # calibration put it
             Rw[:, 0] = self.calibration.R_world_thorax
             present[0] = 1.0
         points_flexion = None
@@ -365,8 +429,13 @@ class Pipeline:
         angles, residuals, positions, R_world_all = self._joints.update(Rw, present)
         if points_flexion is not None and self.gamma is not None and self.gamma.forearm_imu:
             self.gamma.compare(points_flexion, angles[:, _ELBOW_FLEXION], flagged)
+        if self.stopped:  # unknown without a stopped sensor (``stop_sensor``)
+            angles[:, self._unknown] = np.nan
+            positions[:, self._unknown_points] = np.nan
+            R_world_all[:, self._unknown_segments] = np.nan
         # no later estimate looks further back than this one: the tracks forget the rest
         last = float(times[-1])
+        self._given_t = last
         for track in self._tracks.values():
             track.discard_before(last)
         if self._wrist is not None:
@@ -483,6 +552,8 @@ def _prior(value: Sequence[float] | None) -> tuple[float, float, float] | None:
 
 
 _SEGMENT_INDEX = {segment: i for i, segment in enumerate(SEGMENTS)}
+#: The sensors down the arm, trunk first.
+_CHAIN = ("trunk", "clavicle", "upper_arm", "forearm", "hand")
 _SENSOR_OF_SEGMENT = {_SEGMENT_INDEX[segment]: sensor
                       for sensor, segment in SEGMENT_OF_SENSOR.items()}
 #: The mean heading's weights: a sensor's heading drifts while it moves (at rest the filter

@@ -333,6 +333,10 @@ class SensorTrack:
         self._start += keep_from
         self.discarded += keep_from
 
+    def kept(self) -> int:
+        """How many samples are kept."""
+        return self._end - self._start
+
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``(t, acc, gyr, q)`` of the samples kept (contiguous views, not copies)."""
         kept = slice(self._start, self._end)

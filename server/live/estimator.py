@@ -25,6 +25,21 @@ from .encoded import EncodedPose
 #: Stream seconds after which a sensor named in hello that sent nothing is left out of
 #: the live estimates (the others would wait for it for ever).
 SILENT_SENSOR_S = 10.0
+#: Stream seconds a sensor that sent before may fall behind the newest sample of the
+#: kit's others before the live view leaves it out (``_drop_stopped``); it is left out
+#: when it has also sent nothing for ``STOPPED_SENSOR_S`` seconds of the server's clock,
+#: or when the others' samples the live estimates hold waiting for it pass
+#: ``STOPPED_HELD_ROWS`` (a kit that sends one sensor and not the others, fast). 30 s: a
+#: kit's message of 1000 rows (the most, ``ingest.protocol.MAX_ROWS``) is 10 s at 100 Hz,
+#: 20 s at 50 Hz, so its sensors may lag one another by that much as it sends (at 10 s
+#: the upper arm of a kit sending 1000-row messages was taken for stopped).
+STOPPED_SENSOR_S = 30.0
+#: The most rows of the other sensors the live estimates hold for a sensor that fell
+#: behind (about 0.1 kB a row: a few MB; 100 s of a 3-sensor kit at 100 Hz).
+STOPPED_HELD_ROWS = 30_000
+#: Sensors in the therapist's words.
+SENSOR_WORDS = {"trunk": "trunk", "clavicle": "collarbone", "upper_arm": "upper-arm",
+                "forearm": "forearm", "hand": "hand"}
 #: Rate of the angle trail a pose carries [Hz, on the stream's clock]: every estimate
 #: since the previous pose, thinned to this rate. The live repetition count
 #: (``server/live/motion.py``) reads the trail, not the poses, which come one per batch
@@ -176,6 +191,11 @@ class LiveEstimator:
         self.rom = RunningRange()
         self.warnings: list[str] = []
         self._dropped: set[str] = set()
+        #: sensors left out after they stopped sending: name → {"t": its last sample [s,
+        #: stream clock], "at": when it came [Unix s]}
+        self.stopped: dict[str, dict[str, float]] = {}
+        self._heard: dict[str, tuple[float, float]] = {}  # sensor → (monotonic, Unix) s
+        self._resumed: set[str] = set()
         self.estimates = 0
         self._first_t = np.inf
         self._last_pose = -np.inf  # monotonic time the last pose was returned
@@ -194,6 +214,39 @@ class LiveEstimator:
             self._dropped.add(sensor)
             self.warnings.append(f"sensor {sensor} sent nothing in {SILENT_SENSOR_S:g} s: "
                                  "the live view goes on without it")
+
+    def _drop_stopped(self) -> EstimateArrays | None:
+        """Leave out of the live view a sensor that stopped sending while the others go on
+        (``STOPPED_SENSOR_S``, ``STOPPED_HELD_ROWS``): the estimates then go on without it,
+        and the others' samples are no longer held for it. Its later samples are stored
+        all the same (the offline estimation at close takes every sample). Returns the
+        estimates that waited for it (None: none)."""
+        pipeline = self.pipeline
+        waited: list[EstimateArrays] = []
+        while True:  # the furthest behind first; then the rule again without it
+            last = {s: t for s, t in pipeline.last_times().items() if t > -np.inf}
+            if len(last) < 2 or len(pipeline.last_times()) < 2:
+                break
+            sensor, t = min(last.items(), key=lambda item: item[1])
+            if max(last.values()) - t < STOPPED_SENSOR_S:
+                break
+            now = time.monotonic()
+            heard_at, heard_unix = self._heard.get(sensor, (now, time.time()))
+            if now - heard_at < STOPPED_SENSOR_S and pipeline.held_rows() < STOPPED_HELD_ROWS:
+                break
+            estimates = pipeline.stop_sensor(sensor)
+            if estimates is not None:
+                waited.append(estimates)
+            self._dropped.add(sensor)
+            self.stopped[sensor] = {"t": t, "at": heard_unix}
+            when = time.strftime("%H:%M", time.localtime(heard_unix))
+            self.warnings.append(
+                f"the {SENSOR_WORDS.get(sensor, sensor)} sensor stopped sending at {when} "
+                f"(stream time {t:.0f} s) — check its battery and its connection; angles "
+                "that need it are not shown live (everything it sent is stored)")
+        if not waited:
+            return None
+        return waited[0] if len(waited) == 1 else EstimateArrays.concatenate(waited)
 
     def _forearm_turns(self, estimates: EstimateArrays) -> np.ndarray | None:
         """A forearm-only kit's turn terms at the estimates' times (n, 2): the forearm's
@@ -225,6 +278,11 @@ class LiveEstimator:
             if isinstance(item, Samples):
                 rows = item.rows
                 if item.sensor in self._dropped:
+                    if item.sensor in self.stopped and item.sensor not in self._resumed:
+                        self._resumed.add(item.sensor)
+                        self.warnings.append(
+                            f"the {SENSOR_WORDS.get(item.sensor, item.sensor)} sensor sends "
+                            "again: it is stored, and shown live from the next session")
                     continue  # it came too late for the live view; it is stored all the same
                 if item.sensor.startswith(POINT_PREFIX):  # docs/extensions/points.md
                     pipeline.feed_points(item.sensor[len(POINT_PREFIX):], rows[:, 0],
@@ -234,6 +292,7 @@ class LiveEstimator:
                 if first < self._first_t:
                     self._first_t = first
                 pipeline.feed_rows(item.sensor, rows)
+                self._heard[item.sensor] = (time.monotonic(), time.time())
                 if self._forearm_only and item.sensor == "forearm":
                     self._forearm_rows.append(np.asarray(rows, dtype=float)[:, [0, 2, 4, 6]])
                 if pipeline.calibration is None:
@@ -243,8 +302,12 @@ class LiveEstimator:
                 if item.label in ("end:npose", "end:tpose"):
                     self._pose_end = max(self._pose_end, item.t)
                     self.rom.start_s = self._pose_end + CALIBRATION_TAIL_S
+        waited = self._drop_stopped()
         # the kernels' arrays, not named views: a pose needs only their last rows
         estimates = pipeline.poll_arrays()
+        if waited is not None:
+            estimates = waited if estimates is None else \
+                EstimateArrays.concatenate([waited, estimates])
         if estimates is not None:
             self.estimates += len(estimates.t)
             self.rom.update(estimates.t, estimates.angles)
@@ -270,6 +333,7 @@ class LiveEstimator:
             "rom_deg": self.rom.as_dict(),
             "estimates": self.estimates,
             "warnings": list(self.warnings),
+            **({"stopped_sensors": self.stopped} if self.stopped else {}),
             "trail": {"t": trail_t, "angles_deg": trail_deg,
                       **({"forearm_turn": trail_turns} if trail_turns is not None else {})},
             **({"elbow_source": pipeline.elbow_source} if pipeline.gamma is not None else {}),

@@ -117,27 +117,43 @@ class ArmView:
         ends = {"clavicle": (np.zeros(3), p["shoulder"]),
                 "upper_arm": (p["shoulder"], p["elbow"]),
                 "forearm": (p["elbow"], p["wrist"])}
+        known = {k: bool(np.isfinite(v).all()) for k, v in p.items()}
+        R_thorax = pose.R_thorax
+        # a segment whose sensor stopped sending is unknown (NaN): left out, not drawn wrong
         for name, (a, b) in ends.items():
-            centre, wxyz, length = between(a, b)
             node = self.segments[name]
+            shown = bool(np.isfinite(a).all() and np.isfinite(b).all())
+            if node.visible != shown:
+                node.visible = shown
+            if not shown:
+                continue
+            centre, wxyz, length = between(a, b)
             node.position, node.wxyz = centre, wxyz
             if abs(self._heights.get(name, -1.0) - length) > 1e-3:
                 node.height = self._heights[name] = length
-        R_thorax = pose.R_thorax
-        self.hand.wxyz = quat(R_thorax["hand"])
-        self.hand.position = (p["wrist"] + p["hand"]) / 2
-        hand_length = float(np.linalg.norm(p["hand"] - p["wrist"]))
-        if abs(self._heights.get("hand", -1.0) - hand_length) > 1e-3:
-            self._heights["hand"] = hand_length
-            self.hand.dimensions = (self.hand.dimensions[0], hand_length,
-                                    self.hand.dimensions[2])
+        hand_shown = known["wrist"] and known["hand"] and bool(
+            np.isfinite(R_thorax["hand"]).all())
+        if self.hand.visible != hand_shown:
+            self.hand.visible = hand_shown
+        if hand_shown:
+            self.hand.wxyz = quat(R_thorax["hand"])
+            self.hand.position = (p["wrist"] + p["hand"]) / 2
+            hand_length = float(np.linalg.norm(p["hand"] - p["wrist"]))
+            if abs(self._heights.get("hand", -1.0) - hand_length) > 1e-3:
+                self._heights["hand"] = hand_length
+                self.hand.dimensions = (self.hand.dimensions[0], hand_length,
+                                        self.hand.dimensions[2])
         for name, node in self.joints.items():
-            node.position = p[name]
+            if node.visible != known[name]:
+                node.visible = known[name]
+            if known[name]:
+                node.position = p[name]
         sites = {"thorax": np.array([0.0, -0.09 * self.height_m, 0.0]),
                  "clavicle": p["shoulder"] / 2,
                  "upper_arm": (p["shoulder"] + p["elbow"]) / 2,
                  "forearm": p["elbow"] + 0.7 * (p["wrist"] - p["elbow"]),
                  "hand": (p["wrist"] + p["hand"]) / 2}
         for name, frame in self.sensors.items():
-            frame.wxyz = quat(R_thorax[name])
-            frame.position = sites[name]
+            if np.isfinite(R_thorax[name]).all() and np.isfinite(sites[name]).all():
+                frame.wxyz = quat(R_thorax[name])
+                frame.position = sites[name]

@@ -50,9 +50,17 @@ class Pose:
         return all(np.isfinite(v).all() for v in (*self.p_thorax.values(),
                                                    *self.R_world.values()))
 
+    def is_drawable(self) -> bool:
+        """Whether the trunk and shoulder are known: the arm can be drawn, its unknown
+        segments (a sensor that stopped sending, ``server/live/estimator.py``) left out."""
+        return bool(np.isfinite(self.R_world["thorax"]).all()
+                    and np.isfinite(self.p_thorax["shoulder"]).all())
+
     def lengths(self) -> SegmentLengths | None:
         """Segment lengths [m] measured between this pose's points, or None."""
         p = self.p_thorax
+        if not self.is_finite():
+            return None
         try:
             return SegmentLengths(
                 clavicle=float(np.linalg.norm(p["shoulder"])),

@@ -176,7 +176,10 @@ class RomArcs:
 
     def update(self, pose: Pose, lengths: SegmentLengths) -> None:
         """Show the active angles' arcs for ``pose``; hide the others."""
-        shown = set(active(pose)) if self.enabled else set()
+        # an unknown angle (its sensor stopped sending) has no arc: its joint is not drawn
+        shown = {k for k in active(pose) if math.isfinite(pose.angles_deg.get(k, math.nan))
+                 and np.isfinite(pose.p_thorax[ARCS[k].centre]).all()} if self.enabled \
+            else set()
         for name, arc in self._arcs.items():
             label = self._labels[name]
             if name not in shown:

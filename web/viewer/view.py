@@ -85,9 +85,10 @@ class ClientView:
         return True
 
     def show(self, pose: Pose, *, measured: bool = True) -> None:
-        """Draw ``pose`` (a pose with non-finite parts is skipped). The first measured pose
+        """Draw ``pose`` (one without a known trunk and shoulder is skipped; unknown
+        segments are left out). The first measured pose
         also places the camera in front of the subject, on the measured arm's side."""
-        if not pose.is_finite():
+        if not pose.is_drawable():
             return
         lengths = pose.lengths() or self.lengths
         with self.client.atomic():
