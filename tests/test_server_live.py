@@ -421,10 +421,11 @@ def test_a_sensor_that_stops_mid_session_leaves_the_live_view_going_and_memory_b
     assert rss["after"] - rss["before"] < 10, "the live estimation held the rows"
 
 
-def _estimator_poses(sensors, rows_of, until_s, stop_of):
+def _estimator_poses(sensors, rows_of, until_s, stop_of, resume_of=None):
     """A ``LiveEstimator`` fed 1-s messages of ``sensors`` (``rows_of(name, t0, n)``) up
-    to ``until_s`` stream seconds, each sensor until ``stop_of.get(name, inf)``: its poses'
-    dicts (the pose rate lifted)."""
+    to ``until_s`` stream seconds, each sensor until ``stop_of.get(name, inf)`` (and from
+    ``resume_of.get(name, inf)`` on again): its poses' dicts (the pose rate lifted)."""
+    resume_of = resume_of or {}
     from armtrack.estimator.body import SegmentLengths
     from armtrack.estimator.pipeline import PipelineConfig
     from armtrack.server.ingest.protocol import Samples
@@ -436,7 +437,7 @@ def _estimator_poses(sensors, rows_of, until_s, stop_of):
     poses = []
     for second in range(int(until_s)):
         items = [Samples(-1, name, rows_of(name, float(second), 100)) for name in sensors
-                 if second < stop_of.get(name, np.inf)]
+                 if not stop_of.get(name, np.inf) <= second < resume_of.get(name, np.inf)]
         pose = live.process(items)
         if pose is not None and pose != HELD:
             poses.append(pose.parsed() if hasattr(pose, "parsed") else json.loads(pose.text))
@@ -480,4 +481,16 @@ def test_a_sensor_that_sends_once_and_stops_before_calibration_is_left_out():
     assert last["angles_deg"]["wrist_flexion"] is None
     assert last["angles_deg"]["elbow_flexion"] is not None
     assert "the hand sensor stopped sending" in last["warnings"][-1]
+    assert live.pipeline.held_rows() < 1000
+
+
+def test_a_stopped_sensor_that_sends_again_is_stored_but_stays_out_of_the_live_view():
+    """The hand stops at 1 s and sends again from 300 s (after it was left out): the live
+    view says so once and goes on without it (its filter missed minutes); no failure."""
+    live, poses = _estimator_poses(("upper_arm", "forearm", "hand"), _still_rows, 400,
+                                   {"hand": 1}, {"hand": 300})
+    last = poses[-1]
+    assert last["t"] > 398 and last["angles_deg"]["wrist_flexion"] is None
+    again = [w for w in last["warnings"] if "the hand sensor sends again" in w]
+    assert len(again) == 1 and "shown live from the next session" in again[0]
     assert live.pipeline.held_rows() < 1000
