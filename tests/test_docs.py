@@ -399,3 +399,19 @@ def test_the_docker_image_leaves_out_patients_data_and_the_hosts_environment():
     assert not wrong, wrong
     for path in kept:
         assert (ROOT / path).exists(), path
+
+
+def test_the_operators_guide_says_where_the_compiled_kernels_are_cached(monkeypatch):
+    """Found installing afresh as a clinic's IT person: the first patient's live angles
+    came 34 s into the exercise (the kernels compiled on first use; later starts 3 s),
+    which operator.md did not say. It now says so, where they are cached (this test: the
+    folder ``estimator/jit.py`` uses) and how to build them before patients come."""
+    from armtrack.estimator.jit import installed_cache_dir
+
+    guide = (DOCS / "operator.md").read_text("utf-8")
+    monkeypatch.setenv("XDG_CACHE_HOME", "/x")
+    assert installed_cache_dir() == Path("/x/armtrack/numba")
+    assert "`$XDG_CACHE_HOME` or `~/.cache`, then `armtrack/numba`" in guide
+    block = re.search(r"\*\*The first session after an install\.\*\*(.*?)\n\n", guide, re.S)
+    assert block, "operator.md does not say what the first session after an install waits"
+    assert "armtrack estimate" in block.group(1) and "armtrack simulate" in block.group(1)
