@@ -270,7 +270,7 @@ def _right_gone(db: DbSession, svc: Services, who: models.Therapist | models.Dev
     body has arrived, then read and parsed (seconds; an APDM ``.h5`` up to two minutes):
     a patient reassigned or erased meanwhile, an account disabled, a sign-in ended or a
     kit revoked had its session stored all the same, written by whoever no longer held
-    the patient (tests/test_security_upload_rights.py). SQLite: the write lock, taken
+    the patient (tests/test_security_ingest.py). SQLite: the write lock, taken
     first, holds every other writer off until the commit; PostgreSQL: the rows read are
     held (``FOR SHARE``) until then."""
     if db.get_bind().dialect.name == "sqlite":  # a kit's count turn may hold it already
