@@ -34,6 +34,23 @@ pytestmark = pytest.mark.slow
 ELBOW_SETS, ELBOW_REPS, PALM_REPS = 2, 3, 2
 
 
+def this_week(api, token: str) -> dict:
+    """device-today's ``this_week`` as the kit's link reads it."""
+    answer = api.http.get("/api/device/today", headers={"Authorization": f"Bearer {token}"})
+    assert answer.status_code == 200, answer.text
+    return answer.json()["this_week"]
+
+
+def week_words(week: dict) -> str:
+    """What the kit says of ``week`` (``KitProgram.week`` in kit-program.js)."""
+    done, asked = week["days_done"], week["days_asked"]
+    if done >= asked:
+        return ("You have done your day this week — well done." if asked == 1
+                else f"You have done all {asked} days this week — well done.")
+    line = f"This week: {done} of {asked} {'day' if asked == 1 else 'days'} done."
+    return line if done else f"{line} Today is a good day to start."
+
+
 def program_body(today: str) -> dict:
     return {"name": "After the fracture", "start_date": today,
             "note": "Mornings, before breakfast.",
@@ -121,6 +138,10 @@ def test_the_patient_follows_the_program_on_the_phone(kit_server, phone, shots):
                 and "2 times" in items[1])
         # how often: the patient at home is told the prescribed days a week
         assert "5 days a week" in items[0] and "3 days a week" in items[1], items
+        # where the patient stands this week (the therapist's count): none done yet
+        before = this_week(api, device["token"])
+        assert before["days_done"] == 0, before
+        sync_api.expect(phone.locator("#this-week")).to_have_text(week_words(before))
         phone.screenshot(path=str(shots / "p1-program-welcome.png"), full_page=True)
         phone.click("#start")
         phone.click("#segment-forearm")
@@ -191,6 +212,12 @@ def test_the_patient_follows_the_program_on_the_phone(kit_server, phone, shots):
         _wait(lambda: proxy.refused > 0, 30, "a reconnect refused while the link is cut")
         proxy.restore()
         sync_api.expect(phone.locator("#sent")).to_contain_text("All sent", timeout=60_000)
+        # the finished screen asks the week's count again once all is sent, this real
+        # session counted (test_phone_kit_week_browser.py stands in for the stream)
+        after = this_week(api, device["token"])
+        assert after["days_done"] == 1 and after["today_done"], after
+        sync_api.expect(phone.locator("#this-week")).to_have_text(week_words(after),
+                                                                 timeout=30_000)
         assert phone.evaluate("kit.stream.state.ratings.length") == 0
         assert phone.locator("#again").is_enabled()
         session_id = phone.evaluate("kit.stream.state.session")
