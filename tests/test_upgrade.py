@@ -190,3 +190,15 @@ def test_create_user_on_last_months_database_says_it_upgraded_it(tmp_path):
     assert "created therapist 'bob'" in done.stdout
     again = server.armtrack("create-user", "carl", "--password", "a long password")
     assert again.returncode == 0 and "migrated" not in again.stdout  # once only
+
+
+def test_reprocess_on_last_months_database_says_it_upgraded_it(tmp_path):
+    """``armtrack reprocess`` migrates the database too (before the server's start, after
+    an upgrade): it did so without a word, as create-user did (review19)."""
+    data = tmp_path / "data"
+    data.mkdir()
+    last_months_database(data / "armtrack.db")
+    done = ServerProcess(data).armtrack("reprocess", "999")
+    print(done.stdout, done.stderr)
+    assert f"database migrated from schema 0003 to {head_revision()}" in done.stdout
+    assert "no session 999" in done.stderr

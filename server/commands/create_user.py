@@ -36,16 +36,14 @@ def _database(args: argparse.Namespace):
     services (viewer, live estimation), which `create-user` does not need and which would
     cost seconds to import."""
     from armtrack.server.db.engine import make_engine, make_sessionmaker
-    from armtrack.server.db.migrate import ensure_current
+    from armtrack.server.db.migrate import ensure_current, migrated_words
 
     settings = settings_from(args)
     settings.data_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
     engine = make_engine(settings.resolved_database_url())
     migrated = ensure_current(engine)
-    if migrated and migrated[0] is not None and migrated[0] != migrated[1]:
-        # an upgrade is said wherever it happens, as `armtrack serve` says it
-        print(f"armtrack: database migrated from schema {migrated[0]} to {migrated[1]}",
-              flush=True)
+    if migrated and (words := migrated_words(*migrated)):
+        print(words, flush=True)  # an upgrade is said wherever it happens, as serve says it
     return make_sessionmaker(engine), engine
 
 

@@ -22,7 +22,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from armtrack.estimator.orientation import FILTERS, GYRO_DELAY_FILTERS
     from armtrack.server.db import models
-    from armtrack.server.db.migrate import ensure_current
+    from armtrack.server.db.migrate import ensure_current, migrated_words
     from armtrack.server.services import Services
     from armtrack.server.store.processing import process_session
 
@@ -35,7 +35,9 @@ def run(args: argparse.Namespace) -> int:
     try:
         # the schema only: marking live sessions interrupted is the server's start-up
         # step, and the server may be running with kits streaming
-        ensure_current(services.engine)
+        migrated = ensure_current(services.engine)
+        if migrated and (words := migrated_words(*migrated)):
+            print(words, flush=True)  # as serve and create-user say it
         for session_id in args.session_ids:
             with services.db() as db:
                 session = db.get(models.Session, session_id)

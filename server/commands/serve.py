@@ -119,15 +119,14 @@ def demo_account_present(settings) -> bool:
     from armtrack.server.api.deps import DEMO_USER
     from armtrack.server.db import models
     from armtrack.server.db.engine import make_engine, make_sessionmaker
-    from armtrack.server.db.migrate import upgrade
+    from armtrack.server.db.migrate import migrated_words, upgrade
     from sqlalchemy import select
 
     settings.data_dir.mkdir(mode=0o700, parents=True, exist_ok=True)
     engine = make_engine(settings.resolved_database_url())
     try:
-        before, after = upgrade(engine)
-        if before is not None and before != after:
-            print(f"armtrack: database migrated from schema {before} to {after}", flush=True)
+        if words := migrated_words(*upgrade(engine)):
+            print(words, flush=True)
         with make_sessionmaker(engine)() as db:
             return db.scalar(select(models.Therapist.id).where(
                 models.Therapist.username == DEMO_USER,

@@ -116,6 +116,15 @@ def schema_words(engine: Engine) -> str | None:
             f"(docs/operator.md, Upgrading)")
 
 
+def migrated_words(before: str | None, after: str | None) -> str | None:
+    """The line every command that upgraded an existing database prints (``serve``,
+    ``create-user``, ``reprocess``: docs/operator.md, Upgrading), or None when it did not
+    (a new database, or nothing to do)."""
+    if before is None or before == after:
+        return None
+    return f"armtrack: database migrated from schema {before} to {after}"
+
+
 def ensure_current(engine: Engine) -> tuple[str | None, str | None] | None:
     """Migrate the database to the newest schema if it is not there: the schemas before
     and after when it did (before ``None``: a new database), else ``None``."""
