@@ -13,14 +13,18 @@ from urllib.parse import unquote_plus
 #: the patients list's search ``q=…`` (what the therapist typed of a patient's name, sent
 #: at each key: the access log wrote it whole), matched once the URL is percent-decoded
 #: (``?tok%65n=`` is ``?token=`` to the server).
-TOKEN_IN_URL = re.compile(r"(token=)[^&\s\"']+|([?&]q=)(?:(?!\sHTTP/)[^&\"'])+",
-                          re.IGNORECASE)  # a name holds spaces (+ in the URL)
+TOKEN_IN_URL = re.compile(r"(token=)[^&\s\"']+|([?&]q=)(?:(?!\sHTTP/)[^&\"])+",
+                          re.IGNORECASE)  # a name holds spaces (+ in the URL), and ' (O'Brien)
+#: The search ``q=…`` in the URL as sent, hidden before it is decoded: there a name's
+#: encoded ``&`` (``%26``) does not yet end it (review19: "q=***&Augusta" was written).
+SEARCH_IN_URL = re.compile(r"([?&]q=)[^&\s\"]+", re.IGNORECASE)
 
 
 def redact(text: str) -> str:
     """``text`` with the value of every ``token=`` and ``q=`` replaced by ``***``, looked
     for in the text as it is and percent-decoded (where one is found, the decoded text is
     kept)."""
+    text = SEARCH_IN_URL.sub(r"\1***", text)
     decoded = unquote_plus(text) if "%" in text or "+" in text else text
     if TOKEN_IN_URL.search(decoded) is None:
         return text
