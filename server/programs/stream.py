@@ -24,7 +24,7 @@ from .. import clock
 from ..db import models
 from ..ingest.protocol import CLOSE_BAD_PROTOCOL, MARK_LABEL_MAX, Hello, Refused
 from ..plain_text import text_problem
-from ..reports.targets import patient_targets
+from ..reports.targets import Target, patient_targets, targets_at
 from . import catalogue, store
 from .calendar import aware
 
@@ -98,6 +98,47 @@ def followed_version(db: DbSession, session_id: int) -> models.ProgramVersion | 
     in ``hello``), or None."""
     link = db.get(models.SessionProgram, session_id)
     return None if link is None else db.get(models.ProgramVersion, link.version_id)
+
+
+def session_targets(db: DbSession, session: models.Session
+                    ) -> tuple[dict[str, Target], dict[str, tuple[str, Target | None]]]:
+    """What a session is judged against ("Target then"): per angle, and per exercise of
+    the program version it followed (name → its angle and band, None without one).
+
+    The patient's targets in force when it started (``targets_at``), and for a session
+    that followed a program version, each exercise's band as the version gave it (the
+    band the phone showed): the version's own, else the patient's target then. The
+    catalogue's usual range is not a target (``resolve_target``'s last resort): such an
+    exercise has none. Per angle, the band every exercise of the version on that angle
+    shares; where two of them give it different bands (a forward and a side raise both
+    move ``shoulder_elevation``) the angle has no one target and each exercise keeps its
+    own."""
+    base = targets_at(db, session.patient_id, aware(session.started_at))
+    version = followed_version(db, session.id)
+    if version is None:
+        return base, {}
+    bands: dict[str, tuple[str, Target | None]] = {}
+    for e in version.exercises:
+        if e.target_min_deg is not None and e.target_max_deg is not None:
+            band: Target | None = Target(angle=e.angle, min_deg=e.target_min_deg,
+                                         max_deg=e.target_max_deg, note=None,
+                                         set_at=aware(version.created_at))
+        else:
+            band = base.get(e.angle)
+        bands[e.exercise] = (e.angle, band)
+    by_angle = dict(base)
+    for angle in {a for a, _ in bands.values()}:
+        given = {None if b is None else (b.min_deg, b.max_deg)
+                 for a, b in bands.values() if a == angle}
+        if len(given) == 1:
+            only = next(b for a, b in bands.values() if a == angle)
+            if only is None:
+                by_angle.pop(angle, None)
+            else:
+                by_angle[angle] = only
+        else:
+            by_angle.pop(angle, None)
+    return dict(sorted(by_angle.items())), bands
 
 
 def followed_program(db: DbSession, session_id: int) -> dict[str, Any] | None:

@@ -109,11 +109,12 @@ class RomEntry(BaseModel):
     percent_of_paper: float | None = Field(
         description="the same side rule against the paper's Table 2 range [%]")
     target_min: float | None = Field(
-        None, description="the patient's target minimum in force when the session started "
-        "[deg]")
+        None, description="the target minimum in force when the session started [deg]: "
+        "the program version's band when the session followed one (per exercise; for the "
+        "session, where its exercises on the angle share one band), else the patient's")
     target_max: float | None = Field(
-        None, description="the patient's target maximum in force when the session started "
-        "[deg]")
+        None, description="the target maximum in force when the session started [deg] "
+        "(as target_min)")
     percent_of_target: float | None = Field(
         None, description="the same side rule against the target: max(max ÷ target_max, "
         "min ÷ target_min) × 100, a term only for a side the target has, clamped at 0 [%]")
@@ -264,7 +265,8 @@ class SessionReport(BaseModel):
     quality: Quality
     targets: list[TargetOut] = Field(
         description="the targets in force when the session started (what rom's target_* "
-        "fields compare with): a target set later does not rewrite the report")
+        "fields compare with; a followed program version's bands where it gives the "
+        "angle one): a target set later does not rewrite the report")
     current_targets: list[TargetOut] = Field(
         default_factory=list, description="the patient's targets today, shown beside")
 
@@ -590,12 +592,26 @@ def rom_against(rom: Mapping[str, RomEntry], targets: Mapping[str, Target]
 
 
 def with_targets(report: SessionReport, targets: Mapping[str, Target],
-                 current: Mapping[str, Target] | None = None) -> SessionReport:
+                 current: Mapping[str, Target] | None = None,
+                 bands: Mapping[str, tuple[str, Target | None]] | None = None
+                 ) -> SessionReport:
     """The report against ``targets`` (angle → target: those in force at the session's
-    time) instead of those it was made with; ``current``: today's, shown beside."""
+    time) instead of those it was made with; ``current``: today's, shown beside;
+    ``bands``: the program version's exercises the session followed, name → (angle, its
+    band or None), each exercise of that name judged on its angle against its band
+    (``programs.stream.session_targets``)."""
+    bands = bands or {}
+
+    def of_exercise(name: str) -> Mapping[str, Target]:
+        if name not in bands:
+            return targets
+        angle, band = bands[name]
+        own = {k: v for k, v in targets.items() if k != angle}
+        return own if band is None else {**own, angle: band}
+
     return report.model_copy(update={
         "rom": rom_against(report.rom, targets),
-        "exercises": [e.model_copy(update={"rom": rom_against(e.rom, targets)})
+        "exercises": [e.model_copy(update={"rom": rom_against(e.rom, of_exercise(e.name))})
                       for e in report.exercises],
         "targets": [target_out(t) for t in targets.values()],
         "current_targets": [target_out(t) for t in (current or {}).values()]})
@@ -619,14 +635,17 @@ def session_report(db: DbSession, session: models.Session,
                    current: Mapping[str, Target] | None = None,
                    keep: bool = True) -> SessionReport:
     """The session's report (from ``data`` when loaded already) against ``targets``
-    (default: the patient's targets in force when the session started), with ``current``
+    (default: those in force when the session started, the program version's bands if
+    it followed one: ``programs.stream.session_targets``), with ``current``
     (default: today's) beside; raises NoEstimates. The computed report is kept for the
     next request while the session's estimates stay the same (``keep``; False for a
     one-off pass over many sessions, as an export: it would fill the cache with them)."""
-    from .targets import current_targets, targets_at
+    from ..programs.stream import session_targets
+    from .targets import current_targets
 
+    bands: Mapping[str, tuple[str, Target | None]] = {}
     if targets is None:
-        targets = targets_at(db, session.patient_id, utc(session.started_at))
+        targets, bands = session_targets(db, session)
     if current is None:
         current = current_targets(db, session.patient_id)
     key = report_key(session)
@@ -641,4 +660,4 @@ def session_report(db: DbSession, session: models.Session,
                 _CACHE.put(key, made)
             return made
         base = REPORTS.get(("report", key), build)
-    return with_targets(base, targets, current)
+    return with_targets(base, targets, current, bands)

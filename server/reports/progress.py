@@ -24,6 +24,7 @@ from sqlalchemy.orm import Session as DbSession
 from ..db import models
 from ..lru import BoundedLru
 from ..programs.adherence import ProgramProgress
+from ..programs.stream import session_targets
 from ..spreadsheet import spreadsheet_text
 from .content import (
     AngleName,
@@ -37,7 +38,6 @@ from .content import (
     session_report,
     utc,
 )
-from .targets import targets_at
 
 SECONDS_PER_WEEK = 7 * 24 * 3600.0
 #: A slope needs sessions spread over at least this [s]: one day.
@@ -142,7 +142,7 @@ def session_row(db: DbSession, session: models.Session) -> SessionProgress:
             return session_progress(session, None)
         row = session_progress(session, report)
         _ROWS.put(key, row.model_dump_json().encode())
-    targets = targets_at(db, session.patient_id, utc(session.started_at))
+    targets = session_targets(db, session)[0]
     return row.model_copy(update={"rom": rom_against(row.rom, targets),
                                   "processing_error": session.processing_error})
 
