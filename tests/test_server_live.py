@@ -421,7 +421,7 @@ def test_a_sensor_that_stops_mid_session_leaves_the_live_view_going_and_memory_b
     assert rss["after"] - rss["before"] < 10, "the live estimation held the rows"
 
 
-def _estimator_poses(sensors, rows_of, until_s, stop_of, resume_of=None):
+def _estimator_poses(sensors, rows_of, until_s, stop_of, resume_of=None, **live_args):
     """A ``LiveEstimator`` fed 1-s messages of ``sensors`` (``rows_of(name, t0, n)``) up
     to ``until_s`` stream seconds, each sensor until ``stop_of.get(name, inf)`` (and from
     ``resume_of.get(name, inf)`` on again): its poses' dicts (the pose rate lifted)."""
@@ -433,7 +433,7 @@ def _estimator_poses(sensors, rows_of, until_s, stop_of, resume_of=None):
 
     config = PipelineConfig(side="right", lengths=SegmentLengths.from_height(1.7),
                             sensors=tuple(sensors))
-    live = LiveEstimator(config, session_id=1, max_rate_hz=1e9)
+    live = LiveEstimator(config, session_id=1, max_rate_hz=1e9, **live_args)
     poses = []
     for second in range(int(until_s)):
         items = [Samples(-1, name, rows_of(name, float(second), 100)) for name in sensors
@@ -468,6 +468,23 @@ def test_the_live_view_goes_on_when_the_reference_sensor_stops_after_calibration
     assert set(last["stopped_sensors"]) == {"upper_arm"}
     assert "the upper-arm sensor stopped sending" in last["warnings"][-1]
     assert live.pipeline.held_rows() < 1000
+
+
+def test_the_stopped_sensors_time_is_the_clinics_clock():
+    """The warning's "stopped sending at 12:03" is read by the therapist beside their own
+    clock: it is the clinic's time (``ARMTRACK_CLINIC_TIMEZONE``), not the server
+    machine's (a container's is UTC), as every day and time the pages show (review19)."""
+    from datetime import datetime
+    from zoneinfo import ZoneInfo
+
+    zone = "Pacific/Chatham"  # +12:45/+13:45: no machine's clock here reads it by chance
+    live, poses = _estimator_poses(("upper_arm", "forearm"), _still_rows, 560,
+                                   {"upper_arm": 70}, clinic_timezone=zone)
+    at = live.stopped["upper_arm"]["at"]
+    clinic = datetime.fromtimestamp(at, ZoneInfo(zone)).strftime("%H:%M")
+    warning = next(w for w in poses[-1]["warnings"] if "stopped sending at" in w)
+    print(f"\n{warning}")
+    assert f"stopped sending at {clinic} " in warning, (clinic, warning)
 
 
 def test_a_sensor_that_sends_once_and_stops_before_calibration_is_left_out():

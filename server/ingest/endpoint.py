@@ -387,7 +387,8 @@ class IngestConnection:
                     hub=services.hub, batcher=services.live,
                     max_rate_hz=self.settings.live_poses_hz,
                     points_frame=hello.points.frame if hello.points else None,
-                    gyr_bias_priors=priors)
+                    gyr_bias_priors=priors,
+                    clinic_timezone=self.settings.clinic_timezone)
             except EstimatorError as exc:  # the data are still stored; only live view is off
                 log.warning("no live estimates for session %s: %s", session_id, exc)
         if hello.extensions:  # docs/extensions/README.md: those this server speaks

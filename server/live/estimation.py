@@ -68,6 +68,9 @@ class Opening:
     #: the kit's remembered gyroscope biases the filters start from (sensor → [rad/s],
     #: docs/gyro-bias-memory.md), or None
     gyr_bias_priors: Mapping[str, tuple[float, float, float]] | None = None
+    #: the clinic's time zone (``ARMTRACK_CLINIC_TIMEZONE``): the clock of the estimator's
+    #: words ("the hand sensor stopped sending at 12:03")
+    clinic_timezone: str = "UTC"
 
 
 @dataclass(frozen=True)
@@ -123,7 +126,8 @@ def run_jobs(estimators: dict[int, LiveEstimator], jobs: Sequence[Job],
             if opening is not None:
                 estimators[key] = LiveEstimator(opening.config, opening.session_id,
                                                 opening.max_rate_hz, opening.points_frame,
-                                                opening.gyr_bias_priors)
+                                                opening.gyr_bias_priors,
+                                                opening.clinic_timezone)
             estimator = estimators.get(key)
             if estimator is None:
                 outcome = LiveFailure("the live estimation process stopped (a new one "

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping
+from datetime import datetime
+from zoneinfo import ZoneInfo
 
 import numpy as np
 from armtrack.estimator.arm.forward import POINTS
@@ -182,9 +184,12 @@ class LiveEstimator:
 
     def __init__(self, config: PipelineConfig, session_id: int, max_rate_hz: float,
                  points_frame: PointsFrame | None = None,
-                 gyr_bias_priors: Mapping[str, tuple[float, float, float]] | None = None):
+                 gyr_bias_priors: Mapping[str, tuple[float, float, float]] | None = None,
+                 clinic_timezone: str = "UTC"):
         self.pipeline = Pipeline(config, points_frame=points_frame,
                                  gyr_bias_priors=gyr_bias_priors)
+        #: the clinic's clock (``ARMTRACK_CLINIC_TIMEZONE``), which a warning's time is in
+        self._zone = ZoneInfo(clinic_timezone)
         self.session_id = session_id
         self._min_interval = 1.0 / max_rate_hz
         self._pose_end = -np.inf
@@ -239,7 +244,8 @@ class LiveEstimator:
                 waited.append(estimates)
             self._dropped.add(sensor)
             self.stopped[sensor] = {"t": t, "at": heard_unix}
-            when = time.strftime("%H:%M", time.localtime(heard_unix))
+            # the clinic's time, as the pages show times; not the server machine's clock
+            when = datetime.fromtimestamp(heard_unix, self._zone).strftime("%H:%M")
             self.warnings.append(
                 f"the {SENSOR_WORDS.get(sensor, sensor)} sensor stopped sending at {when} "
                 f"(stream time {t:.0f} s) — check its battery and its connection; angles "

@@ -122,7 +122,8 @@ class LiveWorker:
     def __init__(self, config: PipelineConfig, *, patient_id: int, session_id: int,
                  hub: LiveHub, batcher: LiveBatcher, max_rate_hz: float,
                  points_frame: PointsFrame | None = None,
-                 gyr_bias_priors: Mapping[str, tuple[float, float, float]] | None = None):
+                 gyr_bias_priors: Mapping[str, tuple[float, float, float]] | None = None,
+                 clinic_timezone: str = "UTC"):
         self.patient_id = patient_id
         self.session_id = session_id
         self.key = batcher.new_key()
@@ -130,7 +131,7 @@ class LiveWorker:
         self._batcher = batcher
         #: what makes the estimator; sent with the first batch, then None
         self._opening: Opening | None = Opening(config, session_id, max_rate_hz, points_frame,
-                                                gyr_bias_priors)
+                                                gyr_bias_priors, clinic_timezone)
         self._pending: list[Samples | MarkMessage] = []
         self._pose_interval = 1.0 / max_rate_hz  # [s]
         self._fed_seq = -1  # the highest seq fed: a resumed stream sends some again
