@@ -62,7 +62,9 @@ def server(tmp_path_factory):
 
 
 # every reading taken is in a message, saved and acked: "unsent === 0" alone also holds
-# while the last 0.1 s of readings wait for the next flush (kit-stream.js rows, _unsaved)
+# while the last 0.1 s of readings wait for the next flush (kit-stream.js rows, _unsaved).
+# An ack is sent once its commit is done (writer._done after _commit, which also adds to
+# sessions.samples): what is acked is stored and counted, nothing more to wait for
 ALL_SENT = ("kit.stream.connected && kit.stream.rows.length === 0 "
             "&& kit.stream._unsaved.size === 0 && kit.stream.unsent === 0")
 
@@ -663,7 +665,6 @@ def test_a_kit_whose_day_is_spent_keeps_its_session_and_sends_it_later(day_serve
           "let in once the day freed up, everything sent")
     second = phone.evaluate("kit.stream.state.session")
     taken = phone.evaluate("kit.stream.samples")
-    phone.wait_for_timeout(2000)  # the last ack's commit
     phone.screenshot(path=str(shots / "d2-sent-later.png"))
     stored = _stored_rows(server, api, second)
     print(f"{taken} readings taken, {len(stored)} stored in session {second}")
@@ -783,7 +784,6 @@ def test_a_full_session_goes_on_in_a_new_one_by_itself(capped_server, phone, sho
     _wait(lambda: phone.evaluate("kit.stream.carriedOver >= 2"), 60,
           "two new sessions of the phone's own")
     _wait(lambda: phone.evaluate(ALL_SENT), 60, "every reading sent and acked")
-    phone.wait_for_timeout(2000)  # the last ack's commit
     phone.screenshot(path=str(shots / "f1-full-goes-on.png"))
     stopped = phone.evaluate("kit.stream.stopped")
     taken = phone.evaluate("kit.stream.samples")
@@ -830,7 +830,6 @@ def test_a_full_session_reloaded_before_its_bye_goes_on_once(capped_server, phon
                                  "&& kit.stream.state.session"), 60, "the rest carried over")
     second = phone.evaluate("kit.stream.state.session")
     _wait(lambda: phone.evaluate(ALL_SENT), 60, "every reading sent and acked")
-    phone.wait_for_timeout(2000)  # the last ack's commit
     phone.screenshot(path=str(shots / "g1-carried-over.png"))
     counts = [api.session(s)["samples"] for s in (first, second)]
     status = api.session(first)["status"]
