@@ -47,6 +47,11 @@ def test_every_route_but_sign_in_needs_a_therapist(module_server, alice):
     assert checked >= 2 * 14
 
 
+def no_patient(patient_id: int) -> str:
+    return (f"no patient {patient_id} among yours: erased, or reassigned to another "
+            "therapist (ask your clinic admin), or a wrong link")
+
+
 def test_a_therapist_reaches_only_their_own_patients(alice, bob):
     patient = alice.patient("Carol")
     device = alice.device(patient["id"])
@@ -59,8 +64,10 @@ def test_a_therapist_reaches_only_their_own_patients(alice, bob):
                          ("DELETE", f"/api/patients/{patient['id']}")):
         answer = bob.http.request(method, path, json={"name": "x"})
         assert answer.status_code == 404, (method, path)
-        assert answer.json()["detail"] in (f"no patient {patient['id']}",
-                                          f"no device {device['id']}")
+        assert answer.json()["detail"] in (no_patient(patient["id"]), f"no device {device['id']}")
+    # words a therapist can act on, the same for a patient that never was (no oracle)
+    missing = bob.http.get("/api/patients/999999")
+    assert (missing.status_code, missing.json()["detail"]) == (404, no_patient(999999))
     assert patient["id"] not in [p["id"] for p in bob.http.get("/api/patients").json()]
     assert alice.http.get(f"/api/patients/{patient['id']}").status_code == 200
 

@@ -21,7 +21,7 @@ from sqlalchemy.orm import Session as DbSession
 from .. import audit
 from ..auth import DEMO_USER, hash_token
 from ..db import models
-from ..live.access import Watch, holds
+from ..live.access import Watch, holds, no_patient
 from ..services import ExportUnwanted, Services
 from .spool import SpooledResponse
 
@@ -247,7 +247,7 @@ class Page:
 def own_patient(db: DbSession, therapist: models.Therapist, patient_id: int) -> models.Patient:
     patient = db.get(models.Patient, patient_id)
     if not holds(therapist, patient):
-        raise HTTPException(status.HTTP_404_NOT_FOUND, f"no patient {patient_id}")
+        raise HTTPException(status.HTTP_404_NOT_FOUND, no_patient(patient_id))
     audit.note(patient_id=patient.id)
     return patient
 

@@ -31,6 +31,14 @@ CLOSE_SIGNED_OUT = 4401
 CLOSE_NOT_FOUND = 4404
 
 
+def no_patient(patient_id: int) -> str:
+    """A therapist's words for a patient not among theirs: the same whether it never was,
+    was erased or is another therapist's (no oracle), saying what may have happened and
+    whom to ask; the pages' 404 and the live sockets' close reason (at most 123 bytes)."""
+    return (f"no patient {patient_id} among yours: erased, or reassigned to another "
+            "therapist (ask your clinic admin), or a wrong link")
+
+
 @dataclass(eq=False)
 class Watch:
     """One open feed and its right. ``close(code, reason)`` is called once, on the event
@@ -77,7 +85,7 @@ def refusals(db: DbSession, watches: Iterable[Watch], demo_mode: bool = False
                 or (therapist.username == DEMO_USER and not demo_mode):
             refused[watch] = (CLOSE_SIGNED_OUT, "the sign-in has ended: sign in again")
         elif owners.get(watch.patient_id) != watch.therapist_id or therapist.is_admin:
-            refused[watch] = (CLOSE_NOT_FOUND, f"no patient {watch.patient_id}")
+            refused[watch] = (CLOSE_NOT_FOUND, no_patient(watch.patient_id))
         elif watch.session_id is not None \
                 and sessions.get(watch.session_id) != watch.patient_id:
             refused[watch] = (CLOSE_NOT_FOUND, f"no session {watch.session_id}")

@@ -24,7 +24,7 @@ from ..auth import hash_token
 from ..db import models
 from ..ingest.endpoint import bearer
 from ..ingest.protocol import CLOSE_BAD_TOKEN, dumps
-from .access import Watch, holds
+from .access import Watch, holds, no_patient
 from .encoded import EncodedPose
 from .slots import FeedSlots, Slot
 
@@ -76,7 +76,7 @@ async def live(websocket: WebSocket,
         if allowed == "token":
             await websocket.close(CLOSE_BAD_TOKEN, "sign in first")
         elif allowed == "patient":
-            await websocket.close(CLOSE_NOT_FOUND, f"no patient {patient}")
+            await websocket.close(CLOSE_NOT_FOUND, no_patient(patient))
         else:  # its words first: the page shows an error update, then the close
             with contextlib.suppress(WebSocketDisconnect, RuntimeError, OSError):
                 await websocket.send_text(dumps({"kind": "error",
