@@ -205,7 +205,7 @@ def test_device_today_gives_the_patient_their_own_recent_sessions(world):
     assert done["name"] == "elbow_flexion" and done["title"] == "Bend the elbow"
     assert done["repetitions"] == reps == 12, (done, reps)
     assert done["prescribed"] == 12  # version 2: 2 sets of 6
-    assert done["target"] == {"min_deg": 0.0, "max_deg": 110.0}
+    assert done["target"] == {"min_deg": 0.0, "max_deg": 110.0, "from": "program"}
     assert 85 < done["max_deg"] < 115 and -15 < done["min_deg"] < 15, done
     # the session without a program: the catalogue's count, the catalogue's band
     assert recent[1]["program"] is None

@@ -177,3 +177,28 @@ def test_a_phone_strapped_upside_down_is_told_at_the_arm_down_pose(server, phone
     phone.screenshot(path=str(shots / "upside-down-npose.png"))
     assert "top toward your elbow" in said
     fits(phone)
+
+
+def test_a_band_nobody_set_is_called_the_usual_range_not_a_target(server, phone, shots):
+    """The therapist set no target: the phone showed the exercise's usual range as
+    "target 0° to 120°", while the therapist's report says "Target then: –" (no target
+    was set). Now the phone calls it what it is, "usual range 0° to 120°", on the
+    exercise screen and in what was done (one ``KitProgram.bandWords``); a band the
+    therapist set (the program's, the patient's target) is still "target"."""
+    api = server.client("alice")
+    token = api.device(api.patient("Usual Range")["id"], "phone")["token"]
+    phone.goto(f"{server.url}/kit#token={token}")
+    sync_api.expect(phone.locator("#start")).to_be_visible()
+    words = phone.evaluate("""() => ["default", "catalogue", "patient", "program"].map((from) =>
+        KitProgram.didLine("Bend the elbow", 7, 10, 2, 101, {min_deg: 0, max_deg: 120, from}))""")
+    print("\n" + "\n".join(words))
+    assert [w.endswith("(usual range 0° to 120°)") for w in words] == [True, True, False, False]
+    assert [w.endswith("(target 0° to 120°)") for w in words] == [False, False, True, True]
+    phone.evaluate("""(lines) => localStorage.setItem("armtrack.kit.last",
+        JSON.stringify({at: Date.now(), lines}))""", words[:1] + words[3:])
+    phone.goto(f"{server.url}/kit#token={token}")
+    sync_api.expect(phone.locator("#last-session")).to_contain_text("usual range 0° to 120°")
+    fits(phone)
+    phone.screenshot(path=str(shots / "usual-range-390.png"), full_page=True)
+    phone.set_viewport_size({"width": 1280, "height": 900})
+    phone.screenshot(path=str(shots / "usual-range-1280.png"), full_page=True)

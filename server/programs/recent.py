@@ -68,17 +68,18 @@ def _told(db: DbSession, session: models.Session, results: dict[str, ExerciseRes
         entry, result = CATALOGUE[name], results[name]
         if name in prescribed:
             e = prescribed[name]
-            (low, high), _ = resolve_target(e, targets)
+            (low, high), source = resolve_target(e, targets)
             count = e.sets * e.repetitions
         else:
             target = targets.get(entry.angle)
             low, high = ((target.min_deg, target.max_deg) if target is not None
                          else (entry.rest_deg, entry.target_deg))
+            source = "patient" if target is not None else "default"
             count = entry.repetitions
         exercises.append({"name": name, "title": entry.title,
                           "repetitions": result.repetitions, "prescribed": count,
                           "min_deg": result.min_deg, "max_deg": result.max_deg,
-                          "target": {"min_deg": low, "max_deg": high}})
+                          "target": {"min_deg": low, "max_deg": high, "from": source}})
     return {"session_id": session.id, "started_at": aware(session.started_at),
             "program": (None if version is None else
                         {"name": version.program.name, "version": version.number}),

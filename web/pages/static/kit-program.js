@@ -119,13 +119,24 @@ const KitProgram = {
     }));
   },
 
+  /** The band shown beside an exercise: "target 0° to 110°" when the therapist set it
+   * (the program's or the patient's target), "usual range 0° to 120°" when nobody did
+   * (`from` default or catalogue: the exercise's usual range, which the therapist's
+   * report does not call a target either, "Target then: –"). */
+  bandWords(target) {
+    const usual = target.from === "default" || target.from === "catalogue";
+    return `${usual ? "usual range" : "target"} ${Math.round(target.min_deg)}° to `
+      + `${Math.round(target.max_deg)}°`;
+  },
+
   /** One line of what was done: "Bend the elbow: 8 of 10 repetitions · from 3° to 112°
    * (target 0° to 120°)", or "…: not done" with no repetition and no range; `lo`, `hi`
-   * [deg] the range reached (null: none shown), `target` { min_deg, max_deg }. */
+   * [deg] the range reached (null: none shown), `target` { min_deg, max_deg, from }
+   * (``bandWords``). */
   didLine(title, reps, prescribed, lo, hi, target) {
     if (!reps && lo == null) return `${title}: not done`;
     const range = lo == null ? "" : ` · from ${Math.round(lo)}° to ${Math.round(hi)}°`
-      + ` (target ${Math.round(target.min_deg)}° to ${Math.round(target.max_deg)}°)`;
+      + ` (${KitProgram.bandWords(target)})`;
     return `${title}: ${reps} of ${prescribed} repetitions${range}`;
   },
 

@@ -57,16 +57,16 @@ const CARRY_ON_WITHIN_S = 30 * 60;
 const FALLBACK_EXERCISES = [
   { name: "elbow_flexion", title: "Bend the elbow", angle: "elbow_flexion", sensor: "forearm", repetitions: 10,
     instruction: "Arm along your side, thumb forward: bend the elbow to bring the hand up toward the shoulder, then straighten it fully.",
-    picture: "elbow_flexion", target: { min_deg: 0, max_deg: 120 } },
+    picture: "elbow_flexion", target: { min_deg: 0, max_deg: 120, from: "default" } },
   { name: "pronation", title: "Turn the palm", angle: "forearm_pronation", sensor: "forearm", repetitions: 10, both_ways: true,
     instruction: "Elbow bent at a right angle by your side: turn the palm down, then up, as far as is comfortable.",
-    picture: "pronation", target: { min_deg: -70, max_deg: 70 } },
+    picture: "pronation", target: { min_deg: -70, max_deg: 70, from: "default" } },
   { name: "shoulder_flexion", title: "Raise the arm forward", angle: "shoulder_elevation", sensor: "upper_arm", repetitions: 10,
     instruction: "Arm straight, thumb up: raise it forward and up as high as is comfortable, then lower it slowly.",
-    picture: "shoulder_flexion", target: { min_deg: 0, max_deg: 150 } },
+    picture: "shoulder_flexion", target: { min_deg: 0, max_deg: 150, from: "default" } },
   { name: "shoulder_abduction", title: "Raise the arm to the side", angle: "shoulder_elevation", sensor: "upper_arm", repetitions: 10,
     instruction: "Arm straight, palm down: raise it out to the side up to shoulder height, then lower it slowly.",
-    picture: "shoulder_abduction", target: { min_deg: 0, max_deg: 90 } },
+    picture: "shoulder_abduction", target: { min_deg: 0, max_deg: 90, from: "default" } },
 ];
 const SEGMENT_WORDS = { forearm: "forearm", upper_arm: "upper arm" };
 const TOP_TOWARD = { forearm: "your elbow", upper_arm: "your shoulder" };
@@ -563,7 +563,7 @@ function exercise(index, set = 0, resumed = false) {
   screen(el("p", { class: "kicker" }, `Exercise ${index + 1} of ${list.length}`,
     sets > 1 ? ` · set ${set + 1} of ${sets}` : "", " · ", clock),
     el("h1", {}, ex.title),
-    el("div", { class: "live" }, angle, el("div", { class: "target" }, `target ${Math.round(lo)}° to ${Math.round(hi)}°`)),
+    el("div", { class: "live" }, angle, el("div", { class: "target" }, KitProgram.bandWords(ex.target))),
     band, reps, note, next);
   // repetitions: per counting run of the server (feedback's count_from; one run goes on
   // across a resumed stream), a new run's count added to what was shown before it
