@@ -323,6 +323,20 @@ class _Forked:
         return self.returncode  # type: ignore[return-value]
 
 
+#: A ``Zygote`` preamble that sets the server's clock (``armtrack.server.clock.now``) from
+#: the ISO time written in the file ``{path}`` (the real clock while it is empty or absent):
+#: a test moves the server's days by writing that file.
+SIMULATED_CLOCK_PREAMBLE = """
+import datetime as _dt, pathlib as _pl
+import armtrack.server.clock as _clock
+_NOW_FILE = _pl.Path({path!r})
+def _simulated_now():
+    text = _NOW_FILE.read_text().strip() if _NOW_FILE.exists() else ""
+    return _dt.datetime.fromisoformat(text) if text else _dt.datetime.now(_dt.UTC)
+_clock.now = _simulated_now
+"""
+
+
 class Zygote:
     """A process that has imported the server and forks ``armtrack`` commands from it
     (their own ``main``): a server starts in about a second instead of several.

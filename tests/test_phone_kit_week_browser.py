@@ -25,7 +25,7 @@ import pytest
 from armtrack.estimator.recording import Mark, Pose, Recording, SensorStream
 from armtrack.server.emulator import KitEmulator
 from browser_helpers import chromium, first_page, need_browser, screenshots_folder, sign_in_as
-from server_support import Zygote, ZygoteServerProcess
+from server_support import SIMULATED_CLOCK_PREAMBLE, Zygote, ZygoteServerProcess
 
 sync_api = need_browser()
 
@@ -34,17 +34,6 @@ NAME = "After the fracture"
 PROGRAM = {"name": NAME, "start_date": "2026-11-23", "exercises": [
     {"exercise": "elbow_flexion", "sets": 2, "repetitions": 10, "days_per_week": 3},
     {"exercise": "pronation", "sets": 1, "repetitions": 6, "days_per_week": 2}]}
-
-PREAMBLE = """
-import datetime as _dt, pathlib as _pl
-import armtrack.server.clock as _clock
-_NOW_FILE = _pl.Path({path!r})
-def _simulated_now():
-    text = _NOW_FILE.read_text().strip() if _NOW_FILE.exists() else ""
-    return _dt.datetime.fromisoformat(text) if text else _dt.datetime.now(_dt.UTC)
-_clock.now = _simulated_now
-"""
-
 
 def clinic(day: date, hour: int, minute: int = 0) -> datetime:
     """``hour:minute`` of ``day`` in the clinic, as UTC."""
@@ -67,7 +56,7 @@ def short_recording() -> Recording:
 def world(tmp_path_factory):
     folder = tmp_path_factory.mktemp("kit-week")
     now_file = folder / "now.txt"
-    zygote = Zygote(PREAMBLE.format(path=str(now_file)))
+    zygote = Zygote(SIMULATED_CLOCK_PREAMBLE.format(path=str(now_file)))
     server = ZygoteServerProcess(folder / "server", zygote,
                                  env={"ARMTRACK_CLINIC_TIMEZONE": "Europe/Zurich"})
     server.create_user("alice")

@@ -24,7 +24,7 @@ from armtrack.estimator.simulation import SimulationConfig, simulate
 from armtrack.estimator.simulation.profiles import Motion, Profile
 from armtrack.estimator.simulation.scenarios import EXERCISES, calibration_sequence
 from armtrack.server.emulator import KitEmulator
-from server_support import Zygote, ZygoteServerProcess
+from server_support import SIMULATED_CLOCK_PREAMBLE, Zygote, ZygoteServerProcess
 
 ZONE = ZoneInfo("Europe/Zurich")  # UTC+1 in November
 MONDAY = date(2026, 11, 2)
@@ -91,17 +91,6 @@ V1_AT = local(0, 8)
 V2_AT = local(9, 7)
 FINAL_NOW = local(17, 12)
 
-PREAMBLE = """
-import datetime as _dt, pathlib as _pl
-import armtrack.server.clock as _clock
-_NOW_FILE = _pl.Path({path!r})
-def _simulated_now():
-    text = _NOW_FILE.read_text().strip() if _NOW_FILE.exists() else ""
-    return _dt.datetime.fromisoformat(text) if text else _dt.datetime.now(_dt.UTC)
-_clock.now = _simulated_now
-"""
-
-
 def recording_of(planned: Planned, seed: int):
     """A simulated upper-arm + forearm session: calibration, then each exercise's sets
     with marks ``exercise:<name>`` … ``end:exercise:<name>`` around each set."""
@@ -127,7 +116,7 @@ def recording_of(planned: Planned, seed: int):
 def world(tmp_path_factory):
     folder = tmp_path_factory.mktemp("programs")
     now_file = folder / "now.txt"
-    zygote = Zygote(PREAMBLE.format(path=str(now_file)))
+    zygote = Zygote(SIMULATED_CLOCK_PREAMBLE.format(path=str(now_file)))
     server = ZygoteServerProcess(folder / "server", zygote, env={
         "ARMTRACK_CLINIC_TIMEZONE": "Europe/Zurich",
         "ARMTRACK_FLAG_NO_SESSION_DAYS": str(SETTINGS["no_session_days"]),

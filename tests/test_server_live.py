@@ -466,7 +466,7 @@ def test_the_live_view_goes_on_when_the_reference_sensor_stops_after_calibration
     assert last["segments_q"]["forearm"][0] is not None
     assert last["positions_m"]["elbow"][0] is None
     assert set(last["stopped_sensors"]) == {"upper_arm"}
-    assert "the upper-arm sensor stopped sending" in last["warnings"][-1]
+    assert "the upper arm sensor stopped sending" in last["warnings"][-1]
     assert live.pipeline.held_rows() < 1000
 
 

@@ -225,8 +225,8 @@ class Pipeline:
         self._reference = self.config.reference
         self._others = [t for n, t in self._tracks.items() if n != self._reference]
         segment = _SEGMENT_INDEX[SEGMENT_OF_SENSOR[sensor]]
-        below = next((s for s in _CHAIN[_CHAIN.index(sensor) + 1:] if s in self._tracks),
-                     None)
+        below = next((s for s in SENSOR_NAMES[SENSOR_NAMES.index(sensor) + 1:]  # down the arm
+                      if s in self._tracks), None)
         for name in (sensor, below):
             for angle in ANGLES_OF_SENSOR.get(name or "", ()):
                 self._unknown[REPORTED_ANGLES.index(angle)] = True
@@ -552,8 +552,6 @@ def _prior(value: Sequence[float] | None) -> tuple[float, float, float] | None:
 
 
 _SEGMENT_INDEX = {segment: i for i, segment in enumerate(SEGMENTS)}
-#: The sensors down the arm, trunk first.
-_CHAIN = ("trunk", "clavicle", "upper_arm", "forearm", "hand")
 _SENSOR_OF_SEGMENT = {_SEGMENT_INDEX[segment]: sensor
                       for sensor, segment in SEGMENT_OF_SENSOR.items()}
 #: The mean heading's weights: a sensor's heading drifts while it moves (at rest the filter

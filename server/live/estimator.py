@@ -12,6 +12,7 @@ from zoneinfo import ZoneInfo
 import numpy as np
 from armtrack.estimator.arm.forward import POINTS
 from armtrack.estimator.arm.joints import REPORTED_ANGLES, SEGMENTS
+from armtrack.estimator.calibration.quality import PLACES
 from armtrack.estimator.jit import compiler
 from armtrack.estimator.metrics.elbow_pivot import turn_terms, up_of_sensor_y
 from armtrack.estimator.metrics.rom import CALIBRATION_TAIL_S
@@ -39,9 +40,6 @@ STOPPED_SENSOR_S = 30.0
 #: The most rows of the other sensors the live estimates hold for a sensor that fell
 #: behind (about 0.1 kB a row: a few MB; 100 s of a 3-sensor kit at 100 Hz).
 STOPPED_HELD_ROWS = 30_000
-#: Sensors in the therapist's words.
-SENSOR_WORDS = {"trunk": "trunk", "clavicle": "collarbone", "upper_arm": "upper-arm",
-                "forearm": "forearm", "hand": "hand"}
 #: Rate of the angle trail a pose carries [Hz, on the stream's clock]: every estimate
 #: since the previous pose, thinned to this rate. The live repetition count
 #: (``server/live/motion.py``) reads the trail, not the poses, which come one per batch
@@ -230,7 +228,7 @@ class LiveEstimator:
         waited: list[EstimateArrays] = []
         while True:  # the furthest behind first; then the rule again without it
             last = {s: t for s, t in pipeline.last_times().items() if t > -np.inf}
-            if len(last) < 2 or len(pipeline.last_times()) < 2:
+            if len(last) < 2:
                 break
             sensor, t = min(last.items(), key=lambda item: item[1])
             if max(last.values()) - t < STOPPED_SENSOR_S:
@@ -247,7 +245,7 @@ class LiveEstimator:
             # the clinic's time, as the pages show times; not the server machine's clock
             when = datetime.fromtimestamp(heard_unix, self._zone).strftime("%H:%M")
             self.warnings.append(
-                f"the {SENSOR_WORDS.get(sensor, sensor)} sensor stopped sending at {when} "
+                f"the {PLACES.get(sensor, sensor)} sensor stopped sending at {when} "
                 f"(stream time {t:.0f} s) — check its battery and its connection; angles "
                 "that need it are not shown live (everything it sent is stored)")
         if not waited:
@@ -287,7 +285,7 @@ class LiveEstimator:
                     if item.sensor in self.stopped and item.sensor not in self._resumed:
                         self._resumed.add(item.sensor)
                         self.warnings.append(
-                            f"the {SENSOR_WORDS.get(item.sensor, item.sensor)} sensor sends "
+                            f"the {PLACES.get(item.sensor, item.sensor)} sensor sends "
                             "again: it is stored, and shown live from the next session")
                     continue  # it came too late for the live view; it is stored all the same
                 if item.sensor.startswith(POINT_PREFIX):  # docs/extensions/points.md
