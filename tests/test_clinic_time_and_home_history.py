@@ -22,8 +22,8 @@ from zoneinfo import ZoneInfo
 import pytest
 from armtrack.server.emulator import KitEmulator
 from browser_helpers import chromium, first_page, need_browser, screenshots_folder, sign_in_as
-from server_support import Zygote, ZygoteServerProcess
-from test_programs_followed import PREAMBLE, Planned, recording_of
+from server_support import SIMULATED_CLOCK_PREAMBLE, Zygote, ZygoteServerProcess
+from test_programs_followed import Planned, recording_of
 
 pytestmark = pytest.mark.slow
 
@@ -44,7 +44,7 @@ def world(tmp_path_factory):
     therapist, has a session of his own."""
     folder = tmp_path_factory.mktemp("clinic-time")
     now_file = folder / "now.txt"
-    zygote = Zygote(PREAMBLE.format(path=str(now_file)))
+    zygote = Zygote(SIMULATED_CLOCK_PREAMBLE.format(path=str(now_file)))
     server = ZygoteServerProcess(folder / "server", zygote, env={
         "ARMTRACK_CLINIC_TIMEZONE": "America/New_York", "ARMTRACK_CLINIC_CLOCK": "12h"})
     server.create_user("alice")

@@ -15,8 +15,8 @@ from types import SimpleNamespace
 import pytest
 from armtrack.server.emulator import KitEmulator
 from browser_helpers import need_browser, page_at, sign_in_as
-from server_support import Zygote, ZygoteServerProcess
-from test_programs_followed import PREAMBLE, Planned, recording_of
+from server_support import SIMULATED_CLOCK_PREAMBLE, Zygote, ZygoteServerProcess
+from test_programs_followed import Planned, recording_of
 
 sync_api = need_browser()
 
@@ -26,7 +26,7 @@ def world(tmp_path_factory):
     """Two sessions yesterday at 10:00 and 10:30 (UTC, the clinic's zone), one today."""
     folder = tmp_path_factory.mktemp("day-sessions")
     now_file = folder / "now.txt"
-    zygote = Zygote(PREAMBLE.format(path=str(now_file)))
+    zygote = Zygote(SIMULATED_CLOCK_PREAMBLE.format(path=str(now_file)))
     server = ZygoteServerProcess(folder / "server", zygote)
     server.create_user("alice")
     server.start()
@@ -89,7 +89,7 @@ def busy_week(tmp_path_factory):
 
     folder = tmp_path_factory.mktemp("day-sessions-busy")
     now_file = folder / "now.txt"
-    zygote = Zygote(PREAMBLE.format(path=str(now_file)))
+    zygote = Zygote(SIMULATED_CLOCK_PREAMBLE.format(path=str(now_file)))
     server = ZygoteServerProcess(folder / "server", zygote,
                                  env={"ARMTRACK_MAX_NEW_SESSIONS_PER_KIT_HOUR": "100"})
     server.create_user("alice")

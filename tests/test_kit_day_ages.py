@@ -15,8 +15,7 @@ import json
 from datetime import UTC, datetime, timedelta
 
 import pytest
-from server_support import Zygote, ZygoteServerProcess
-from test_programs_followed import PREAMBLE
+from server_support import SIMULATED_CLOCK_PREAMBLE, Zygote, ZygoteServerProcess
 from test_security_kit_quota import samples, stored
 from test_security_session_flood import hello
 
@@ -28,7 +27,7 @@ SETTING = "ARMTRACK_MAX_KIT_SAMPLES_PER_DAY"
 def world(tmp_path_factory):
     folder = tmp_path_factory.mktemp("kit-day")
     now_file = folder / "now.txt"
-    zygote = Zygote(PREAMBLE.format(path=str(now_file)))
+    zygote = Zygote(SIMULATED_CLOCK_PREAMBLE.format(path=str(now_file)))
     server = ZygoteServerProcess(folder / "server", zygote, env={SETTING: str(LIMIT)})
     server.create_user("alice")
     server.start()
