@@ -123,7 +123,7 @@ def test_the_phone_says_this_weeks_days_as_the_therapist_counts_them(world):
     # before any session: none of 3 (elbow 3 days a week, the palm 2: the most, 3)
     assert this_week(world, clinic(monday, 9)) == {
         "week": "2026-W48", "monday": "2026-11-23", "days_done": 0, "days_asked": 3,
-        "today_done": False}
+        "today_done": False, "shortened": None}
     with (sync_api.sync_playwright() as playwright,
           chromium(playwright, 390, 844, phone=True) as narrow,
           chromium(playwright, 1280, 900) as wide):
@@ -139,7 +139,7 @@ def test_the_phone_says_this_weeks_days_as_the_therapist_counts_them(world):
         assert this_week(world, clinic(date(2026, 11, 29), 23, 45))["days_done"] == 2
         now = this_week(world, clinic(week2, 12))
         assert now == {"week": "2026-W49", "monday": "2026-11-30", "days_done": 1,
-                       "days_asked": 3, "today_done": True}
+                       "days_asked": 3, "today_done": True, "shortened": None}
         # the therapist's adherence, by the same rule: W48 Tuesday and Sunday, W49 Monday
         assert adherence_days(world) == {"2026-W48": (2, 3), "2026-W49": (1, 3)}
 
@@ -180,3 +180,36 @@ def test_the_phone_says_this_weeks_days_as_the_therapist_counts_them(world):
         assert said == "You have done all 3 days this week — well done."
         assert phone_week(phone, world, "w7-welcome-all-390.png") == said
         assert adherence_days(world)["2026-W49"] == numbers(said) == (3, 3)
+
+
+def test_a_week_the_program_starts_in_says_why_it_asks_fewer_days(world):
+    """A program of 5 days a week prescribed on a Saturday asks 2 days of that week (the
+    therapist's adherence: its active days). The welcome said "5 days a week" and then
+    "This week: 0 of 2 days done" with no reason (user20's walk at 390 px): it now says
+    the program started on Saturday."""
+    saturday = date(2026, 12, 5)
+    world["now"].write_text(clinic(saturday, 10).isoformat())
+    alice = world["alice"]
+    patient = alice.patient("Bea Saturday")
+    token = alice.device(patient["id"], "Bea's phone")["token"]
+    made = alice.http.post(f"/api/patients/{patient['id']}/programs", json={
+        "name": "From Saturday", "start_date": saturday.isoformat(), "exercises": [
+            {"exercise": "elbow_flexion", "sets": 2, "repetitions": 10, "days_per_week": 5}]})
+    assert made.status_code == 201, made.text
+    answer = alice.http.get("/api/device/today", headers={"Authorization": f"Bearer {token}"})
+    week = answer.json()["this_week"]
+    assert (week["days_done"], week["days_asked"]) == (0, 2)
+    assert week["shortened"] == {"starts_on": "2026-12-05", "ends_on": None}
+    expected = ("This week: 0 of 2 days done (your program started on Saturday). "
+                "Today is a good day to start.")
+    with sync_api.sync_playwright() as playwright:
+        for width, height in ((390, 844), (1280, 900)):
+            with chromium(playwright, width, height, phone=width < 500) as context:
+                page = first_page(context)
+                page.goto(f"{world['server'].url}/kit#token={token}")
+                line = page.locator("#this-week")
+                sync_api.expect(line).to_be_visible(timeout=30_000)
+                sync_api.expect(page.locator("body")).to_contain_text("5 days a week")
+                page.screenshot(path=str(world["shots"] / f"w8-started-saturday-{width}.png"),
+                                full_page=True)
+                assert line.inner_text() == expected

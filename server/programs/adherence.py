@@ -273,14 +273,21 @@ def prescription_version(program: models.Program, week_monday: date, zone: ZoneI
         or program.versions[0]
 
 
-def active_days(program: models.Program, version: models.ProgramVersion,
-                week_monday: date, zone: ZoneInfo) -> int:
+def active_dates(program: models.Program, version: models.ProgramVersion,
+                 week_monday: date, zone: ZoneInfo) -> list[date]:
+    """The days of the week of ``week_monday`` within ``version``'s dates (and before the
+    program was ended), in order."""
     last = version.end_date
     if program.ended_at is not None:
         ended = local_day(program.ended_at, zone)
         last = ended if last is None else min(last, ended)
     days = [week_monday + timedelta(days=i) for i in range(7)]
-    return sum(1 for d in days if version.start_date <= d and (last is None or d <= last))
+    return [d for d in days if version.start_date <= d and (last is None or d <= last)]
+
+
+def active_days(program: models.Program, version: models.ProgramVersion,
+                week_monday: date, zone: ZoneInfo) -> int:
+    return len(active_dates(program, version, week_monday, zone))
 
 
 def last_week(program: models.Program, today: date, zone: ZoneInfo) -> date:
@@ -353,7 +360,10 @@ def this_week(db: DbSession, patient_id: int, program: models.Program, today: da
               zone: ZoneInfo) -> dict[str, Any]:
     """The patient's phone's count of this week (``docs/extensions/device-today.md``,
     ``this_week``): the week of the clinic's ``today`` as the therapist's adherence counts
-    it (``week_days``), ``{"week", "monday", "days_done", "days_asked", "today_done"}``.
+    it (``week_days``), ``{"week", "monday", "days_done", "days_asked", "today_done",
+    "shortened"}``; ``shortened``: when the program's dates leave fewer days in the week
+    than its exercises ask, ``{"starts_on", "ends_on"}`` (the program's first or last day
+    where it falls inside the week, else null), so the phone can say why; else null.
     Bounded: the patient's programs, the sessions that started in the week (with a day's
     margin each side; the clinic's days decide), their program links and marks — four
     queries, no report built (days need none)."""
@@ -368,8 +378,14 @@ def this_week(db: DbSession, patient_id: int, program: models.Program, today: da
     links, marked = _links_and_marks(db, sessions)
     items = _attributed(sessions, programs, links, marked, zone).get(program.id, [])
     days = week_days(program, items, week, zone)
+    shortened = None
+    dates = active_dates(program, days.version, week, zone)
+    if dates and days.asked < max(e.days_per_week for e in days.version.exercises):
+        shortened = {"starts_on": dates[0] if dates[0] > week else None,
+                     "ends_on": dates[-1] if dates[-1] < week + timedelta(days=6) else None}
     return {"week": week_name(week), "monday": week, "days_done": days.done,
-            "days_asked": days.asked, "today_done": any(i.day == today for i in days.in_week)}
+            "days_asked": days.asked, "today_done": any(i.day == today for i in days.in_week),
+            "shortened": shortened}
 
 
 # --- progress -------------------------------------------------------------------------

@@ -49,7 +49,9 @@ const KitProgram = {
   /** Where the patient stands this week, in plain and kind words, from device-today's
    * `this_week` (the therapist's adherence count: days with a session of the program,
    * against the days asked): "This week: 2 of 5 days done."; none yet: "This week: 0 of
-   * 5 days done. Today is a good day to start."; all: "You have done all 5 days this week
+   * 5 days done. Today is a good day to start."; a week the program starts or ends in says
+   * why it asks fewer days: "This week: 0 of 2 days done (your program started on
+   * Saturday)."; all: "You have done all 5 days this week
    * — well done."; null without it (no program, or an older server). */
   week(w) {
     if (!w || !w.days_asked) return null;
@@ -57,8 +59,22 @@ const KitProgram = {
     if (w.days_done >= w.days_asked)
       return w.days_asked === 1 ? "You have done your day this week — well done."
         : `You have done all ${w.days_asked} days this week — well done.`;
-    const line = `This week: ${w.days_done} of ${days(w.days_asked)} done.`;
+    const line = `This week: ${w.days_done} of ${days(w.days_asked)} done${KitProgram.why(w.shortened)}.`;
     return w.days_done ? line : `${line} Today is a good day to start.`;
+  },
+
+  /** Why this week asks fewer days than "5 days a week" (device-today's
+   * this_week.shortened: the program starts or ends within the week), in words to append:
+   * " (your program started on Saturday)"; "" when it does not. */
+  why(shortened) {
+    if (!shortened) return "";
+    const weekday = (iso) => {
+      const [y, m, d] = iso.split("-").map(Number);
+      return new Date(y, m - 1, d).toLocaleDateString(undefined, { weekday: "long" });
+    };
+    if (shortened.starts_on) return ` (your program started on ${weekday(shortened.starts_on)})`;
+    if (shortened.ends_on) return ` (your program ends on ${weekday(shortened.ends_on)})`;
+    return "";
   },
 
   /** Whether a phone on `segment` measures exercise `ex` (device-today's measured_by;
