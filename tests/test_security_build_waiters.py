@@ -24,8 +24,9 @@ from armtrack.estimator.simulation import SimulationConfig, simulate
 from conftest import fresh_postgres_database
 from server_support import ServerProcess
 
-#: While ``BUILD_GATE/hold-<session id>`` exists, that session's summary build says so
-#: (``reached-<session id>``) and waits until the file is gone.
+#: While ``BUILD_GATE/hold-<session id>`` exists, that session's summary build (or, with
+#: ``hold-report-<session id>``, its report's build) says so (``reached-…``) and waits
+#: until the file is gone.
 BUILD_GATE = Path(tempfile.mkdtemp(prefix="armtrack-build-gate-"))
 GATE_HOOK = """
 import os as _os, sys as _sys, threading as _threading, time as _time
@@ -40,15 +41,26 @@ def _install(gate):
         _time.sleep(0.1)
     original = module._summarise
 
-    def gated(db, session, key):
-        hold = gate / f"hold-{session.id}"
+    def wait(name):
+        hold = gate / f"hold-{name}"
         if hold.exists():
-            (gate / f"reached-{session.id}").touch()
+            (gate / f"reached-{name}").touch()
             deadline = _time.monotonic() + 120
             while hold.exists() and _time.monotonic() < deadline:
                 _time.sleep(0.01)
+
+    def gated(db, session, key):
+        wait(session.id)
         return original(db, session, key)
     module._summarise = gated
+
+    import armtrack.server.reports.content as content
+    build_report = content.build_report
+
+    def gated_report(data, targets):
+        wait(f"report-{data.session.id}")
+        return build_report(data, targets)
+    content.build_report = gated_report
 
 
 if _os.environ.get("TEST_BUILD_GATE"):
@@ -71,6 +83,7 @@ def server(tmp_path_factory, postgres_url):
                                                     os.environ.get("PYTHONPATH")]))})
     for user in ("alice", "carol"):
         process.create_user(user)
+    process.create_admin("root")
     process.start()
     yield process
     process.stop()
@@ -188,3 +201,61 @@ def test_a_page_refused_for_builds_at_once_asks_again_when_told(server):
     assert refused, "the page's summary was never refused: the test proved nothing"
     assert "at once" not in text, text
     assert [r.status_code for r in results] == [200] * 4
+
+
+def _held_answer(server, api, path: str, name: str, meanwhile) -> httpx.Response:
+    """``api``'s GET of ``path`` with its build held (``hold-<name>``) until
+    ``meanwhile()`` has run."""
+    import threading
+    hold = BUILD_GATE / f"hold-{name}"
+    answers: list[httpx.Response] = []
+    hold.touch()
+    asking = threading.Thread(target=lambda: answers.append(api.http.get(path)))
+    try:
+        asking.start()
+        deadline = time.monotonic() + 30
+        while not (BUILD_GATE / f"reached-{name}").exists():
+            assert time.monotonic() < deadline, "the held build never began"
+            time.sleep(0.02)
+        meanwhile()
+    finally:
+        hold.unlink(missing_ok=True)
+        asking.join(60)
+    return answers[0]
+
+
+def test_a_summary_built_while_its_patient_is_reassigned_is_not_sent(server):
+    """att19's finding: ``/summary`` checked the therapist's right when the request came;
+    the patient reassigned to carol while the build ran, alice still got it. Now the right
+    is read again when the answer goes, as an export's is: 404."""
+    alice, root = server.client("alice"), server.client("root")
+    carol = next(t for t in root.http.get("/api/admin/therapists").json()
+                 if t["username"] == "carol")
+    session = _session(alice)
+
+    def reassign() -> None:
+        moved = root.http.post(f"/api/admin/patients/{session['patient_id']}/reassign",
+                               json={"therapist_id": carol["id"]})
+        assert moved.status_code == 200, moved.text
+    answer = _held_answer(server, alice, f"/api/sessions/{session['id']}/summary",
+                          str(session["id"]), reassign)
+    assert answer.status_code == 404, answer.text[:200]
+    assert answer.json()["detail"] == f"no session {session['id']}"
+
+
+@pytest.mark.parametrize("form", ["report", "report.pdf"])
+def test_a_report_built_while_its_sign_in_ends_is_not_sent(server, form):
+    """The same for ``/report``, the sign-in ended (signed out) while it was built: 401;
+    and for ``report.pdf``, an export sent whole, whose right was read at its turn only."""
+    alice = server.client("alice")
+    session = _session(alice)
+    alice.wait_processed(session["id"])
+    other_tab = server.client("alice")
+    other_tab.http.headers["Authorization"] = alice.http.headers["Authorization"]
+
+    def sign_out() -> None:
+        assert other_tab.http.post("/api/auth/signout").status_code == 204
+    answer = _held_answer(server, alice, f"/api/sessions/{session['id']}/{form}",
+                          f"report-{session['id']}", sign_out)
+    assert answer.status_code == 401, answer.text[:200]
+    assert "sign in" in answer.json()["detail"]

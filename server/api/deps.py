@@ -21,7 +21,7 @@ from sqlalchemy.orm import Session as DbSession
 from .. import audit
 from ..auth import DEMO_USER, hash_token
 from ..db import models
-from ..live.access import Watch, holds, no_patient
+from ..live.access import CLOSE_SIGNED_OUT, Watch, holds, no_patient, refusals
 from ..services import ExportUnwanted, Services
 from .spool import SpooledResponse
 
@@ -106,7 +106,11 @@ async def in_export_turn(request: Request, asker: models.Therapist,
 
     def work(db: DbSession) -> T:
         checked_at[0] = services.access.generation  # the rights are read after this
-        return fn(db, current_therapist(db, token, request), *args)
+        therapist = current_therapist(db, token, request)
+        answer = fn(db, therapist, *args)
+        if not isinstance(answer, SpooledResponse):  # sent whole: its right read again now
+            right_held(db, token, therapist, services.settings.demo_mode)
+        return answer
     try:
         answer = await services.run_export(work, owner=asker.id, gone=_disconnected(request))
     except ExportUnwanted:  # nobody is there to answer
@@ -141,6 +145,50 @@ def _right_held(services: Services, token_hash: str, therapist_id: int, patient_
         finally:
             services.access.remove(watch)
     return guard
+
+
+def right_held(db: DbSession, token: str | None, therapist: models.Therapist,
+               demo_mode: bool) -> None:
+    """Read the request's right again, as it answers: the sign-in (``token``) and the
+    patient and session its route reached (as ``own_*`` noted them for the audit) checked
+    as an open feed's are (``live.access.refusals``). Gone (the sign-in ended, the account
+    disabled, the patient erased or reassigned, the session erased while the answer was
+    made, which can take seconds): the 401 or 404 a request made now would get. For an
+    answer sent whole once made; a download's right is watched while it is sent
+    (``_right_held``)."""
+    reached = audit.noted()
+    if reached.get("patient_id") is None:
+        return  # no patient's data reached
+    session_id = reached.get("session_id")
+    watch = Watch(hash_token(token or ""), therapist.id, reached["patient_id"], session_id,
+                  close=lambda code, reason: None)
+    refused = refusals(db, [watch], demo_mode).get(watch)
+    if refused is None:
+        return
+    code, reason = refused
+    if code == CLOSE_SIGNED_OUT:
+        raise unauthorized(reason)
+    raise HTTPException(status.HTTP_404_NOT_FOUND,
+                        reason if session_id is None else f"no session {session_id}")
+
+
+class Right:
+    """A route's answer made while its right may go (a report, a summary: a build that can
+    wait for a place and take seconds): ``right.held(answer)`` gives the answer once the
+    right is read again (``right_held``), or raises the 401 or 404."""
+
+    def __init__(self, db: Db, token: Annotated[str | None, Depends(oauth2)],
+                 therapist: Annotated[models.Therapist, Depends(current_therapist)],
+                 request: Request):
+        self.db, self.token, self.therapist = db, token, therapist
+        self.demo_mode = request.app.state.services.settings.demo_mode
+
+    def held(self, answer: T) -> T:
+        right_held(self.db, self.token, self.therapist, self.demo_mode)
+        return answer
+
+
+Held = Annotated[Right, Depends()]
 
 
 #: Exports one account may have being made or downloaded at once (a built one waits for

@@ -30,7 +30,7 @@ from ..reports.targets import (
 from ..services import Services
 from ..settings import Settings
 from ..store.recordings import dated_by
-from .deps import Db, Therapist, in_export_turn, own_patient, own_session, services
+from .deps import Db, Held, Therapist, in_export_turn, own_patient, own_session, services
 from .spool import as_text, spooled
 
 router = APIRouter(prefix="/api", tags=["reports"], responses={
@@ -70,21 +70,21 @@ def _attachment(body: str | bytes, media_type: str, filename: str) -> Response:
 
 @router.get("/sessions/{session_id}/report", response_model=SessionReport,
             responses=CONFLICT)
-def get_report(session_id: Id, db: Db, therapist: Therapist) -> SessionReport:
+def get_report(session_id: Id, db: Db, therapist: Therapist, right: Held) -> SessionReport:
     """The session's report: range of motion per angle that moved (calibration poses
     excluded) against normal values and the patient's targets, exercises with repetitions,
     movement times, peak velocities, smoothness and consistency, and data quality."""
-    return _report(db, therapist, session_id)[1]
+    return right.held(_report(db, therapist, session_id)[1])
 
 
 @router.get("/sessions/{session_id}/report.csv", response_class=Response,
             responses={**CSV, **CONFLICT})
-def get_report_csv(session_id: Id, db: Db, therapist: Therapist) -> Response:
+def get_report_csv(session_id: Id, db: Db, therapist: Therapist, right: Held) -> Response:
     """The report's summary as CSV: one row per angle, for the session and per exercise.
     (Per-sample angles: ``/api/sessions/{id}/angles.csv``.)"""
     _, report = _report(db, therapist, session_id)
-    return _attachment(report_csv.report_csv(report), "text/csv",
-                       f"session-{session_id}-report.csv")
+    return right.held(_attachment(report_csv.report_csv(report), "text/csv",
+                                  f"session-{session_id}-report.csv"))
 
 
 @router.get("/sessions/{session_id}/report.pdf", response_class=Response,
@@ -182,13 +182,14 @@ async def get_report_sto(session_id: Id, therapist: Therapist, request: Request,
             responses={200: {"content": {"application/fhir+json": {"schema": {
                 "type": "object", "description": "a FHIR R4 Bundle"}}},
                 "description": "FHIR R4 Bundle"}, **CONFLICT})
-def get_report_fhir(session_id: Id, db: Db, therapist: Therapist) -> JSONResponse:
+def get_report_fhir(session_id: Id, db: Db, therapist: Therapist, right: Held
+                    ) -> JSONResponse:
     """The ranges of motion as FHIR R4 Observations (SNOMED CT 364564000) grouped in a
     DiagnosticReport, in a collection Bundle."""
     _, report = _report(db, therapist, session_id)
-    return JSONResponse(fhir.fhir_bundle(report), media_type="application/fhir+json",
+    return right.held(JSONResponse(fhir.fhir_bundle(report), media_type="application/fhir+json",
                         headers={"Content-Disposition":
-                                 f'attachment; filename="session-{session_id}.fhir.json"'})
+                                 f'attachment; filename="session-{session_id}.fhir.json"'}))
 
 
 def _progress(db: DbSession, therapist: models.Therapist, patient_id: int
@@ -204,7 +205,7 @@ def _progress(db: DbSession, therapist: models.Therapist, patient_id: int
 
 
 @router.get("/patients/{patient_id}/progress", response_model=progress_mod.Progress)
-def get_progress(patient_id: Id, db: Db, therapist: Therapist,
+def get_progress(patient_id: Id, db: Db, therapist: Therapist, right: Held,
                  svc: Annotated[Services, Depends(services)]) -> progress_mod.Progress:
     """The report's metrics for each of the patient's sessions, oldest first, against the
     patient's targets, and per angle the trend (change and slope per week of the range);
@@ -212,14 +213,15 @@ def get_progress(patient_id: Id, db: Db, therapist: Therapist,
     result = _progress(db, therapist, patient_id)
     result.programs = patient_programs_progress(db, db.get(models.Patient, patient_id),
                                                 svc.settings)
-    return result
+    return right.held(result)
 
 
 @router.get("/patients/{patient_id}/progress.csv", response_class=Response, responses=CSV)
-def get_progress_csv(patient_id: Id, db: Db, therapist: Therapist) -> Response:
+def get_progress_csv(patient_id: Id, db: Db, therapist: Therapist, right: Held) -> Response:
     """Progress as CSV: one row per session and angle."""
-    return _attachment(progress_mod.progress_csv(_progress(db, therapist, patient_id)),
-                       "text/csv", f"patient-{patient_id}-progress.csv")
+    return right.held(_attachment(
+        progress_mod.progress_csv(_progress(db, therapist, patient_id)),
+        "text/csv", f"patient-{patient_id}-progress.csv"))
 
 
 @router.get("/patients/{patient_id}/targets", response_model=list[TargetOut])

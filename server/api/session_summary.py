@@ -23,7 +23,7 @@ from ..builds import REPORTS
 from ..db import models
 from ..store.coverage import session_coverage
 from ..store.processing import stored_estimates
-from .deps import Db, Therapist, long_list, own_patient, own_session
+from .deps import Db, Held, Therapist, long_list, own_patient, own_session
 from .live_status import block_totals, lost_fraction
 from .schemas import Id
 
@@ -244,15 +244,15 @@ def _summarise(db: DbSession, session: models.Session, key: tuple) -> dict[str, 
 
 
 @router.get("/sessions/{session_id}/summary")
-def get_summary(session_id: Id, db: Db, therapist: Therapist) -> dict[str, Any]:
+def get_summary(session_id: Id, db: Db, therapist: Therapist, right: Held) -> dict[str, Any]:
     """Exercises, duration [s], range of motion [deg] against normal values (AAOS) of the
     angles the kit measures, calibration poses excluded, a ROM headline, the data quality,
     and the kit's measured angles and assumptions (docs/extensions/measured-angles.md)."""
-    return summarise(db, own_session(db, therapist, session_id))
+    return right.held(summarise(db, own_session(db, therapist, session_id)))
 
 
 @router.get("/patients/{patient_id}/summaries")
-def list_summaries(patient_id: Id, db: Db, therapist: Therapist,
+def list_summaries(patient_id: Id, db: Db, therapist: Therapist, right: Held,
                    limit: Annotated[int, Query(ge=1, le=200)] = 50,
                    offset: Annotated[int, Query(ge=0, le=2**31 - 1)] = 0) -> list[dict[str, Any]]:
     """The summaries of a patient's sessions, newest first."""
@@ -263,5 +263,5 @@ def list_summaries(patient_id: Id, db: Db, therapist: Therapist,
                               .order_by(models.Session.started_at.desc(),
                                         models.Session.id.desc())
                               .limit(limit).offset(offset))
-        return [summarise(db, s) for s in sessions]
+        return right.held([summarise(db, s) for s in sessions])
 

@@ -66,9 +66,15 @@ def refusals(db: DbSession, watches: Iterable[Watch], demo_mode: bool = False
     if not watches:
         return {}
     now = datetime.now(UTC)
-    tokens = {row.token_hash: row for row in db.scalars(select(models.AccessToken).where(
+    # columns, not objects: a session that holds the rows already (a request checking its
+    # own right again, ``api.deps.right_refused``) would give its stale objects back
+    tokens = {row.token_hash: row for row in db.execute(select(
+        models.AccessToken.token_hash, models.AccessToken.therapist_id,
+        models.AccessToken.expires_at).where(
         models.AccessToken.token_hash.in_({w.token_hash for w in watches})))}
-    therapists = {t.id: t for t in db.scalars(select(models.Therapist).where(
+    therapists = {t.id: t for t in db.execute(select(
+        models.Therapist.id, models.Therapist.disabled_at, models.Therapist.username,
+        models.Therapist.is_admin).where(
         models.Therapist.id.in_({w.therapist_id for w in watches})))}
     owners = dict(db.execute(select(models.Patient.id, models.Patient.therapist_id).where(
         models.Patient.id.in_({w.patient_id for w in watches}))).all())
