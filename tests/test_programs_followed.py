@@ -491,8 +491,11 @@ def test_the_progress_pdf_says_what_the_api_says(world, tmp_path):
     text = subprocess.run(["pdftotext", "-layout", str(path), "-"], capture_output=True,
                           text=True, check=True).stdout
     assert "Elbow after the fracture" in text and "version 2" in text
+    # the clinic's zone whole: the heading ran past the page's edge ("(Europe/Zur")
+    assert "the clinic's day (Europe/Zurich)" in text, text
     for f in world["adherence"]["flags"]:
         assert f["message"] in text.replace("\n", " ") or f["message"][:30] in text
+    import re
     from datetime import date
 
     from armtrack.server.reports.words import day_words
@@ -500,9 +503,14 @@ def test_the_progress_pdf_says_what_the_api_says(world, tmp_path):
     for w in world["adherence"]["weeks"]:  # named by their Monday, as the pages name them
         assert f'week of {day_words(date.fromisoformat(w["monday"]))}' in text
         assert f'{w["done"]["repetitions"]} / {w["prescribed"]["repetitions"]}' in text
+        # the Days column, as on the therapist's weeks table (adherence.week_days), before
+        # the sessions
+        row = (rf'week of {day_words(date.fromisoformat(w["monday"]))}\s+v{w["version"]}\s+'
+               rf'{w["done"]["days"]}\s*/\s*{w["prescribed"]["days"]}\s+'  # "4/5": pdftotext
+               rf'{w["done"]["sessions"]}\s*/\s*{w["prescribed"]["sessions"]}\s')
+        assert re.search(row, text), (row, text)
+    assert re.search(r"week\s+version\s+days\s+sessions", text), text
     pages = subprocess.run(["pdfinfo", str(path)], capture_output=True, text=True).stdout
-    import re
-
     assert re.search(r"^Pages:\s+1$", pages, re.M), pages
     import os
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import io
 import math
+import textwrap
 from collections.abc import Sequence
 from datetime import date, datetime, time, timedelta
 from zoneinfo import ZoneInfo
@@ -44,14 +45,17 @@ def _program_page(fig: Figure, patient: models.Patient, p: ProgramProgress, toda
     fig.text(0.06, 0.965, "Exercise program progress", fontsize=15, weight="bold")
     fig.text(0.94, 0.965, f"{patient.name} · {patient.side} arm", ha="right", fontsize=9,
              color="#444")
-    fig.text(0.06, 0.94, f"{p.name} — version {p.version}, "
-             + ("in force" if p.active else "not in force")
-             + f" · {len(p.sessions)} session{'' if len(p.sessions) == 1 else 's'}"
-             + f" · as of {day_words(today, weekday=True)}, the clinic's day ({zone})",
-             fontsize=10)
+    # wrapped within the page (a 120-character name; the zone ran past the edge on one
+    # line: "(Europe/Zur"); 85 characters of 10 pt fit its 0.88 of A4's width
+    heading = textwrap.wrap(
+        f"{p.name} — version {p.version}, " + ("in force" if p.active else "not in force")
+        + f" · {len(p.sessions)} session{'' if len(p.sessions) == 1 else 's'}", 85)
+    heading.append(f"as of {day_words(today, weekday=True)}, the clinic's day ({zone})")
+    for i, line in enumerate(heading):
+        fig.text(0.06, 0.94 - 0.016 * i, line, fontsize=10)
     fig.text(0.06, 0.02, DISCLAIMER, fontsize=7, color="#666")
     fig.text(0.94, 0.02, f"page {page} of {pages}", ha="right", fontsize=7, color="#666")
-    y = 0.915
+    y = 0.931 - 0.016 * len(heading)
     if p.flags:
         fig.text(0.06, y, "Needs a look:", fontsize=10, weight="bold", color="#b03a2e")
         for f in p.flags:
@@ -68,17 +72,20 @@ def _program_page(fig: Figure, patient: models.Patient, p: ProgramProgress, toda
                        0.022 * (len(weeks) + 1)))
     ax.axis("off")
     rows = [[f"week of {day_words(w.monday)}", f"v{w.version}",
+             f"{w.done.days} / {w.prescribed.days}",
              f"{w.done.sessions} / {w.prescribed.sessions}",
              f"{w.done.exercises} / {w.prescribed.exercises}",
              f"{w.done.repetitions} / {w.prescribed.repetitions}",
              "–" if w.adherence_percent is None else f"{w.adherence_percent:.0f} %"]
             for w in weeks]
     if rows:
-        table = ax.table(cellText=rows, colLabels=["week", "version", "sessions",
+        # days: the days with a session of the program against the days asked, the
+        # patient page's Days and the phone's "This week" (adherence.week_days)
+        table = ax.table(cellText=rows, colLabels=["week", "version", "days", "sessions",
                                                    "exercise-days", "repetitions",
                                                    "adherence"],
                          # the week's date is the longest cell ("week of 30 Nov 2026")
-                         colWidths=[0.22, 0.1, 0.17, 0.17, 0.17, 0.17],
+                         colWidths=[0.22, 0.08, 0.13, 0.13, 0.15, 0.15, 0.14],
                          loc="upper left", cellLoc="center")
         table.auto_set_font_size(False)
         table.set_fontsize(8)
