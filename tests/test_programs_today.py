@@ -115,3 +115,60 @@ def test_this_weeks_days_are_the_adherence_weeks_read_in_a_few_queries(db, monke
     last = adherence.this_week(db, patient.id, program, date(2026, 11, 29), zone)
     assert (last["week"], last["days_done"], last["today_done"]) == ("2026-W48", 4, True)
     assert (therapist["2026-W48"].done.days, therapist["2026-W48"].prescribed.days) == (4, 3)
+
+
+def test_progress_rows_take_their_targets_in_a_few_queries_and_the_band_of_the_raise_done(db):
+    # "Target then" of the progress list: 100 sessions read their targets in a few queries
+    # for all (it was ~3 a row), and an angle two exercises of the version give different
+    # bands (a forward and a side raise: shoulder_elevation) takes the band of the one
+    # the session did; a session that did both keeps none (its range is over both)
+    from datetime import UTC, datetime, timedelta
+
+    from armtrack.server.db import models
+    from armtrack.server.reports import progress
+    from armtrack.server.reports.content import RomEntry, report_key
+    from sqlalchemy import event
+
+    patient = add_patient(db, "Raises")
+    program = store.create_program(db, patient.id, ProgramIn(
+        name="Raises", start_date=date(2026, 9, 7), exercises=[
+            {"exercise": "shoulder_flexion", "sets": 1, "repetitions": 5, "days_per_week": 3,
+             "target_min_deg": 0, "target_max_deg": 140},
+            {"exercise": "shoulder_abduction", "sets": 1, "repetitions": 5,
+             "days_per_week": 3, "target_min_deg": 0, "target_max_deg": 100}]),
+        therapist_id=1)
+    version = program.versions[-1]
+    sessions = []
+    for day in range(100):
+        s = models.Session(patient_id=patient.id, source="stream", status="closed",
+                           side="right", sensors={}, samples=10,
+                           started_at=datetime(2026, 9, 7, 9, tzinfo=UTC) + timedelta(days=day))
+        db.add(s)
+        db.flush()
+        db.add(models.SessionProgram(session_id=s.id, version_id=version.id))
+        sessions.append(s)
+    db.commit()
+    rom = RomEntry(min=5.0, max=120.0, range=115.0, normal_min=0.0, normal_max=180.0,
+                   percent_of_normal=66.7, paper_min=None, paper_max=None,
+                   percent_of_paper=None, samples=100)
+    did = {0: ("shoulder_flexion",), 1: ("shoulder_abduction",)}
+    for i, s in enumerate(sessions):  # the rows as kept once read (no report built here)
+        row = progress.SessionProgress(
+            session_id=s.id, started_at=s.started_at, status="closed", processed=True,
+            processing_error=None, rom={"shoulder_elevation": rom}, repetitions={},
+            median_sparc={}, peak_velocity_deg_s={})
+        progress._ROWS.put(report_key(s), (row.model_dump_json().encode(),
+                                           did.get(i, ("shoulder_flexion", "shoulder_abduction"))))
+    statements = []
+    listen = lambda *a: statements.append(a[2])  # noqa: E731
+    event.listen(db.get_bind(), "before_cursor_execute", listen)
+    try:
+        rows = progress.session_rows(db, patient.id, sessions)
+    finally:
+        event.remove(db.get_bind(), "before_cursor_execute", listen)
+    print(f"\n100 progress rows: {len(statements)} statements")
+    assert len(statements) <= 4, statements
+    bands = [(r.rom["shoulder_elevation"].target_min, r.rom["shoulder_elevation"].target_max)
+             for r in rows]
+    assert bands[0] == (0, 140) and bands[1] == (0, 100)  # the raise done: its band
+    assert set(bands[2:]) == {(None, None)}  # both raises: no one band

@@ -200,7 +200,7 @@ def _progress(db: DbSession, therapist: models.Therapist, patient_id: int
                                .where(models.Session.patient_id == patient_id)
                                .order_by(models.Session.started_at, models.Session.id)))
     # each session against the targets in force at its time; today's beside
-    return progress_mod.progress(patient, [progress_mod.session_row(db, s) for s in sessions],
+    return progress_mod.progress(patient, progress_mod.session_rows(db, patient_id, sessions),
                                  [content.target_out(t) for t in targets.values()])
 
 

@@ -11,6 +11,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from datetime import date
 from typing import Any
@@ -19,12 +20,13 @@ from armtrack.estimator.recording.model import LABEL_PATTERN
 from sqlalchemy import func, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session as DbSession
+from sqlalchemy.orm import selectinload
 
 from .. import clock
 from ..db import models
 from ..ingest.protocol import CLOSE_BAD_PROTOCOL, MARK_LABEL_MAX, Hello, Refused
 from ..plain_text import text_problem
-from ..reports.targets import Target, patient_targets, targets_at
+from ..reports.targets import Target, patient_targets, target_history, targets_at, targets_in
 from . import catalogue, store
 from .calendar import aware
 
@@ -113,8 +115,49 @@ def session_targets(db: DbSession, session: models.Session
     shares; where two of them give it different bands (a forward and a side raise both
     move ``shoulder_elevation``) the angle has no one target and each exercise keeps its
     own."""
-    base = targets_at(db, session.patient_id, aware(session.started_at))
-    version = followed_version(db, session.id)
+    return _judged_against(targets_at(db, session.patient_id, aware(session.started_at)),
+                           followed_version(db, session.id))
+
+
+def sessions_targets(db: DbSession, patient_id: int, sessions: Sequence[models.Session]
+                     ) -> dict[int, tuple[dict[str, Target], dict[str, tuple[str, Target | None]]]]:
+    """``session_targets`` of many sessions of one patient (session id → the pair), in a
+    few queries however many there are (the progress list: one read of the patient's
+    target history, of the sessions' program links, of the versions they followed and of
+    those versions' exercises)."""
+    history = target_history(db, patient_id)
+    links: dict[int, int] = {}
+    ids = [s.id for s in sessions]
+    for start in range(0, len(ids), 500):  # SQLite's bound parameters, in chunks
+        links.update((session_id, version_id) for session_id, version_id in db.execute(
+            select(models.SessionProgram.session_id, models.SessionProgram.version_id)
+            .where(models.SessionProgram.session_id.in_(ids[start:start + 500]))))
+    versions = {v.id: v for v in db.scalars(
+        select(models.ProgramVersion)
+        .where(models.ProgramVersion.id.in_(set(links.values())))
+        .options(selectinload(models.ProgramVersion.exercises)))} if links else {}
+    return {s.id: _judged_against(targets_in(history, aware(s.started_at)),
+                                  versions.get(links.get(s.id, -1)))
+            for s in sessions}
+
+
+def with_band_done(targets: dict[str, Target], bands: dict[str, tuple[str, Target | None]],
+                   done: Iterable[str]) -> dict[str, Target]:
+    """``targets`` (``session_targets``' per angle) with, for an angle two exercises of
+    the followed version give different bands, the band of the one the session did
+    (``done``: its exercises' names) when it did only one of them: its range is that
+    exercise's. A session that did both keeps none there (its range spans both)."""
+    done = set(done)
+    out = dict(targets)
+    for angle in {a for a, _ in bands.values()} - set(out):
+        did = [band for name, (a, band) in bands.items() if a == angle and name in done]
+        if len(did) == 1 and did[0] is not None:
+            out[angle] = did[0]
+    return dict(sorted(out.items()))
+
+
+def _judged_against(base: dict[str, Target], version: models.ProgramVersion | None
+                    ) -> tuple[dict[str, Target], dict[str, tuple[str, Target | None]]]:
     if version is None:
         return base, {}
     bands: dict[str, tuple[str, Target | None]] = {}

@@ -640,7 +640,7 @@ def session_report(db: DbSession, session: models.Session,
     (default: today's) beside; raises NoEstimates. The computed report is kept for the
     next request while the session's estimates stay the same (``keep``; False for a
     one-off pass over many sessions, as an export: it would fill the cache with them)."""
-    from ..programs.stream import session_targets
+    from ..programs.stream import session_targets, with_band_done
     from .targets import current_targets
 
     bands: Mapping[str, tuple[str, Target | None]] = {}
@@ -660,4 +660,6 @@ def session_report(db: DbSession, session: models.Session,
                 _CACHE.put(key, made)
             return made
         base = REPORTS.get(("report", key), build)
+    if bands:  # an angle of two exercises with different bands: the one done's, if one
+        targets = with_band_done(dict(targets), dict(bands), (e.name for e in base.exercises))
     return with_targets(base, targets, current, bands)

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import csv
 import io
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from datetime import datetime
 
 import numpy as np
@@ -24,7 +24,7 @@ from sqlalchemy.orm import Session as DbSession
 from ..db import models
 from ..lru import BoundedLru
 from ..programs.adherence import ProgramProgress
-from ..programs.stream import session_targets
+from ..programs.stream import session_targets, sessions_targets, with_band_done
 from ..spreadsheet import spreadsheet_text
 from .content import (
     AngleName,
@@ -38,6 +38,7 @@ from .content import (
     session_report,
     utc,
 )
+from .targets import Target
 
 SECONDS_PER_WEEK = 7 * 24 * 3600.0
 #: A slope needs sessions spread over at least this [s]: one day.
@@ -120,31 +121,47 @@ def trend(rows: Sequence[SessionProgress]) -> dict[str, Trend]:
     return out
 
 
-#: Sessions' progress rows without targets, as JSON, by what identifies their estimates
-#: (the report cache's key: a new estimate, reprocessing, a resumed stream make a new
-#: key), so that a patient's progress needs no report built again once read, past the
-#: report cache's 64 sessions. A row with 10 angles: 3.7 kB of JSON (17 kB as objects),
-#: its key 0.6 kB; 10,000 rows ≈ 45 MB at most.
-_ROWS: BoundedLru[tuple, bytes] = BoundedLru(10_000)
+#: Sessions' progress rows without targets, as JSON, with the names of the exercises the
+#: session did, by what identifies their estimates (the report cache's key: a new
+#: estimate, reprocessing, a resumed stream make a new key), so that a patient's progress
+#: needs no report built again once read, past the report cache's 64 sessions. A row with
+#: 10 angles: 3.7 kB of JSON (17 kB as objects), its key 0.6 kB; 10,000 rows ≈ 45 MB at
+#: most.
+_ROWS: BoundedLru[tuple, tuple[bytes, tuple[str, ...]]] = BoundedLru(10_000)
+
+Judged = tuple[Mapping[str, Target], Mapping[str, tuple[str, Target | None]]]
 
 
-def session_row(db: DbSession, session: models.Session) -> SessionProgress:
-    """The session's progress row, against the patient's targets in force when it
-    started (read now: only the row without targets is kept)."""
+def session_row(db: DbSession, session: models.Session,
+                judged: Judged | None = None) -> SessionProgress:
+    """The session's progress row, against what it is judged by (``judged``: its
+    ``session_targets``, read now when not given; only the row without targets is kept).
+    An angle that two exercises of the followed version give different bands (no one
+    "Target then") takes the band of the one the session did when it did only one."""
     key = report_key(session)
     kept = _ROWS.get(key)
     if kept is not None:
-        row = SessionProgress.model_validate_json(kept)
+        row, done = SessionProgress.model_validate_json(kept[0]), kept[1]
     else:
         try:  # one pass over many sessions: the reports are not kept, their rows are
             report = session_report(db, session, {}, current={}, keep=False)
         except NoEstimates:  # nothing kept: its estimates may come at any moment
             return session_progress(session, None)
         row = session_progress(session, report)
-        _ROWS.put(key, row.model_dump_json().encode())
-    targets = session_targets(db, session)[0]
+        done = tuple(e.name for e in report.exercises)
+        _ROWS.put(key, (row.model_dump_json().encode(), done))
+    targets, bands = judged if judged is not None else session_targets(db, session)
+    targets = with_band_done(dict(targets), dict(bands), done)
     return row.model_copy(update={"rom": rom_against(row.rom, targets),
                                   "processing_error": session.processing_error})
+
+
+def session_rows(db: DbSession, patient_id: int, sessions: Sequence[models.Session]
+                 ) -> list[SessionProgress]:
+    """``session_row`` of each of a patient's sessions, their targets read in a few
+    queries for all (``programs.stream.sessions_targets``)."""
+    judged = sessions_targets(db, patient_id, sessions)
+    return [session_row(db, s, judged[s.id]) for s in sessions]
 
 
 def progress(patient: models.Patient, rows: Sequence[SessionProgress],

@@ -13,6 +13,7 @@ them. One source of targets: the programs feature reads them from here too."""
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 from datetime import UTC, datetime
 
@@ -73,9 +74,18 @@ def targets_at(db: DbSession, patient_id: int, moment: datetime) -> dict[str, Ta
                              models.PatientTargetVersion.set_at <= moment)
                       .order_by(models.PatientTargetVersion.set_at,
                                 models.PatientTargetVersion.id))
+    return targets_in(rows, moment)
+
+
+def targets_in(history: Iterable[models.PatientTargetVersion], moment: datetime
+               ) -> dict[str, Target]:
+    """``targets_at`` from the patient's versions (``target_history``, oldest first; those
+    set after ``moment`` are passed over), for many moments from one read."""
     last: dict[str, models.PatientTargetVersion] = {}
-    for row in rows:
-        last[row.angle] = row
+    for row in history:
+        at = row.set_at if row.set_at.tzinfo else row.set_at.replace(tzinfo=UTC)
+        if at <= moment:  # SQLite gives naive datetimes back, stored in UTC
+            last[row.angle] = row
     return {angle: _target(last[angle]) for angle in sorted(last)
             if last[angle].min_deg is not None and last[angle].max_deg is not None}
 
