@@ -247,3 +247,63 @@ def test_two_sets_of_one_exercise_read_apart_in_the_pdf(module_server, two_sets_
     assert f"{SET_1}: 1 repetition " in text, text[:2000]
     assert f"{SET_2}: {EMPTY} (" in text, text[:2000]
     assert f"1. {SET_1}" in text, text
+
+
+def _stream_with_rating(server, token: str, recording, rating: dict) -> int:
+    """``recording`` streamed over the real protocol at full speed, then the patient's
+    effort and pain after the exercise (``effort-pain/1``), then ``bye``; the session."""
+    import asyncio
+    import json
+
+    from armtrack.server.emulator import MessagePlan, hello_message
+    from websockets.asyncio.client import connect
+
+    async def run() -> int:
+        plan = MessagePlan(recording, rows_per_message=50)
+        async with connect(f"{server.ws_url}?token={token}") as ws:
+            await ws.send(json.dumps({**hello_message(recording, "phone"),
+                                      "extensions": ["effort-pain/1"]}))
+            ready = json.loads(await ws.recv())
+            assert ready["type"] == "ready" and "effort-pain/1" in ready["extensions"], ready
+            for seq in range(len(plan)):
+                await ws.send(plan.encode(seq))
+            await ws.send(json.dumps({"type": "effort_pain", **rating}))
+            while (answer := json.loads(await ws.recv()))["type"] != "effort_pain_stored":
+                assert answer["type"] == "ack", answer
+            await ws.send(json.dumps({"type": "bye"}))
+            return ready["session"]
+
+    return asyncio.run(run())
+
+
+@pytest.fixture(scope="module")
+def rated_session(module_server):
+    """A streamed, processed session in which the patient rated the exercise."""
+    api = module_server.client("alice")
+    patient = api.patient("Rated Patient")
+    token = api.device(patient["id"], "phone")["token"]
+    session_id = _stream_with_rating(
+        module_server, token, _exercise("elbow_flexion", repetitions=2),
+        {"id": "r1", "exercise": "elbow_flexion", "t": 20.0, "effort": 4.5, "pain": 3})
+    return api.wait_processed(session_id, timeout=120)
+
+
+def test_the_session_page_says_how_hard_and_painful_the_patient_found_it(
+        module_server, rated_session, tmp_path):
+    """The patient rates each exercise on the phone (effort 0-10, pain 0-10). The session
+    page a therapist opens to review a home session did not show it: only the program's
+    progress had it, by day (user20's walk). It now says it under the exercises, at 1280
+    and 390 px (one browser, resized: the cost of a second launch and sign-in saved)."""
+    with page_at(1280) as page:
+        sign_in_as(page, module_server.url, "alice")
+        for width in (1280, 390):
+            page.set_viewport_size({"width": width, "height": 900})
+            page.goto(f"{module_server.url}/sessions/{rated_session['id']}")
+            ratings = page.locator("#ratings")
+            sync_api.expect(ratings).to_contain_text(
+                "Elbow flexion: effort 4.5 of 10, pain 3 of 10", timeout=30_000)
+            sync_api.expect(ratings).to_contain_text("The patient said")
+            box, card = ratings.bounding_box(), page.locator("#details-card").bounding_box()
+            assert box["x"] + box["width"] <= card["x"] + card["width"] + 0.5, width
+            page.screenshot(path=str(tmp_path / f"session-ratings-{width}.png"), full_page=True)
+        print(f"\nscreenshots: {tmp_path}")

@@ -247,8 +247,22 @@ def _summarise(db: DbSession, session: models.Session, key: tuple) -> dict[str, 
 def get_summary(session_id: Id, db: Db, therapist: Therapist, right: Held) -> dict[str, Any]:
     """Exercises, duration [s], range of motion [deg] against normal values (AAOS) of the
     angles the kit measures, calibration poses excluded, a ROM headline, the data quality,
-    and the kit's measured angles and assumptions (docs/extensions/measured-angles.md)."""
-    return right.held(summarise(db, own_session(db, therapist, session_id)))
+    the kit's measured angles and assumptions (docs/extensions/measured-angles.md), and
+    ``ratings``: the effort and pain the patient gave after each exercise
+    (docs/extensions/effort-pain.md), in the order given."""
+    session = own_session(db, therapist, session_id)
+    return right.held({**summarise(db, session), "ratings": session_ratings(db, session.id)})
+
+
+def session_ratings(db: DbSession, session_id: int) -> list[dict[str, Any]]:
+    """The session's effort and pain ratings, ``{"exercise", "t", "effort", "pain"}`` each,
+    in the order given (at most ``RATINGS_PER_SESSION_MAX``: one bounded query)."""
+    rows = db.execute(select(models.SessionRating.exercise, models.SessionRating.t,
+                             models.SessionRating.effort, models.SessionRating.pain)
+                      .where(models.SessionRating.session_id == session_id)
+                      .order_by(models.SessionRating.id))
+    return [{"exercise": e, "t": t, "effort": effort, "pain": pain}
+            for e, t, effort, pain in rows]
 
 
 @router.get("/patients/{patient_id}/summaries")

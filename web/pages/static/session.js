@@ -515,6 +515,18 @@ function exerciseFigures(report) {
       "Means over the repetitions; peak speed: the joint's fastest turn; smoothness: SPARC, closer to 0 is smoother.")];
 }
 
+/** What the patient said after each exercise on the phone (effort-pain/1): "The patient
+ * said: Elbow flexion: effort 4.5 of 10, pain 3 of 10"; nothing when they gave none. */
+function ratingsNote(ratings) {
+  if (!ratings || !ratings.length) return null;
+  const score = (v, what) => v === null || v === undefined ? `${what} not given` : `${what} ${v} of 10`;
+  return el("div", { id: "ratings", style: "margin-top:8px" },
+    el("p", { style: "margin:4px 0" }, el("b", {}, "The patient said"),
+      " (effort: 0 nothing at all to 10 maximal; pain: 0 none to 10 the worst imaginable):"),
+    el("ul", { style: "margin:2px 0;padding-left:20px" }, ratings.map((r) => el("li", {},
+      `${r.exercise.split(" + ").map(exerciseLabel).join(" + ")}: ${score(r.effort, "effort")}, ${score(r.pain, "pain")}`))));
+}
+
 /** The targets in force when the session was recorded, and how far each was reached. */
 function targetLines(report) {
   const names = ANGLES.filter((n) => report.rom[n] && report.rom[n].target_max !== null
@@ -551,6 +563,7 @@ async function showReplay() {
     summary.exercises.length ? el("div", { id: "exercises" }, exerciseChipTexts(summary.exercises).map((text, k) => el("span", { class: emptySet(summary.exercises[k]) ? "chip empty" : "chip" },
       text + ` · ${summary.exercises[k].start.toFixed(0)}–${summary.exercises[k].end === null ? "…" : summary.exercises[k].end.toFixed(0)} s`)))
       : el("p", { class: "muted" }, "No exercise was marked or found in this session."),
+    ratingsNote(summary.ratings),
     el("h3", {}, "Calibration"),
     summary.calibration_poses.length
       ? el("p", { style: "margin:4px 0" }, `${summary.calibration_poses.length} pose(s)` + (q.calibration_method ? ` · method: ${q.calibration_method}` : ""))
