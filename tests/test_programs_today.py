@@ -172,3 +172,49 @@ def test_progress_rows_take_their_targets_in_a_few_queries_and_the_band_of_the_r
              for r in rows]
     assert bands[0] == (0, 140) and bands[1] == (0, 100)  # the raise done: its band
     assert set(bands[2:]) == {(None, None)}  # both raises: no one band
+
+
+def test_this_weeks_shortened_says_only_what_is_true_today(db, monkeypatch):
+    # device-today's this_week.shortened tells the phone why the week asks fewer days
+    # ("your program ends on Wednesday"); the week follows the version in force on its
+    # Monday (the therapist's adherence rule). A program to end on Wednesday, extended
+    # by the therapist on Thursday, is still followed: on Thursday it does not "end on
+    # Wednesday", and the phone must not say so; nor, on Wednesday, that a program moved
+    # on Tuesday to start that day "started on Friday" (its Monday version's start).
+    from datetime import UTC, datetime
+    from zoneinfo import ZoneInfo
+
+    from armtrack.server import clock
+    from armtrack.server.programs import adherence
+
+    zone = ZoneInfo("Europe/Zurich")
+    patient = add_patient(db, "Ending")
+    monkeypatch.setattr(clock, "now", lambda: datetime(2026, 11, 20, 9, tzinfo=UTC))
+    program = store.create_program(db, patient.id, ProgramIn(
+        name="Until Wednesday", start_date=date(2026, 11, 23), end_date=date(2026, 12, 2),
+        exercises=[ELBOW]), therapist_id=1)
+    tuesday = adherence.this_week(db, patient.id, program, date(2026, 12, 1), zone)
+    assert (tuesday["days_asked"], tuesday["shortened"]) == (
+        3, {"starts_on": None, "ends_on": date(2026, 12, 2)})
+    monkeypatch.setattr(clock, "now", lambda: datetime(2026, 12, 3, 9, tzinfo=UTC))
+    store.change_program(db, program, PrescriptionIn(
+        start_date=date(2026, 11, 23), exercises=[ELBOW]), therapist_id=1)
+    thursday = date(2026, 12, 3)
+    assert stream.device_today(db, patient, thursday) is not None  # still followed
+    week = adherence.this_week(db, patient.id, program, thursday, zone)
+    assert week["days_asked"] == 3  # the week's Monday version: Monday to Wednesday
+    assert week["shortened"] is None, week
+    monkeypatch.setattr(clock, "now", lambda: datetime(2026, 11, 27, 9, tzinfo=UTC))
+    later = store.create_program(db, patient.id, ProgramIn(
+        name="From Friday", start_date=date(2026, 12, 4), exercises=[ELBOW]), therapist_id=1)
+    store.end_program(db, program)
+    friday = adherence.this_week(db, patient.id, later, date(2026, 12, 4), zone)
+    assert (friday["days_asked"], friday["shortened"]) == (
+        3, {"starts_on": date(2026, 12, 4), "ends_on": None})
+    monkeypatch.setattr(clock, "now", lambda: datetime(2026, 12, 1, 9, tzinfo=UTC))
+    store.change_program(db, later, PrescriptionIn(
+        start_date=date(2026, 12, 1), exercises=[ELBOW]), therapist_id=1)
+    wednesday = date(2026, 12, 2)
+    assert stream.device_today(db, patient, wednesday)["program"]["id"] == later.id
+    week = adherence.this_week(db, patient.id, later, wednesday, zone)
+    assert week["days_asked"] == 3 and week["shortened"] is None, week

@@ -362,8 +362,10 @@ def this_week(db: DbSession, patient_id: int, program: models.Program, today: da
     ``this_week``): the week of the clinic's ``today`` as the therapist's adherence counts
     it (``week_days``), ``{"week", "monday", "days_done", "days_asked", "today_done",
     "shortened"}``; ``shortened``: when the program's dates leave fewer days in the week
-    than its exercises ask, ``{"starts_on", "ends_on"}`` (the program's first or last day
-    where it falls inside the week, else null), so the phone can say why; else null.
+    than its exercises ask, ``{"starts_on", "ends_on"}`` (the program's first day where it
+    falls inside the week and is not after today, its last where inside the week and not
+    before today, else null), so the phone can say why; else (or when neither is true
+    today: the therapist changed the dates since the week's Monday) null.
     Bounded: the patient's programs, the sessions that started in the week (with a day's
     margin each side; the clinic's days decide), their program links and marks — four
     queries, no report built (days need none)."""
@@ -381,8 +383,12 @@ def this_week(db: DbSession, patient_id: int, program: models.Program, today: da
     shortened = None
     dates = active_dates(program, days.version, week, zone)
     if dates and days.asked < max(e.days_per_week for e in days.version.exercises):
-        shortened = {"starts_on": dates[0] if dates[0] > week else None,
-                     "ends_on": dates[-1] if dates[-1] < week + timedelta(days=6) else None}
+        # only what is true today: the week follows its Monday's version, whose dates the
+        # therapist may have changed since (an end put off, a start brought forward)
+        starts_on = dates[0] if week < dates[0] <= today else None
+        ends_on = dates[-1] if today <= dates[-1] < week + timedelta(days=6) else None
+        if starts_on or ends_on:
+            shortened = {"starts_on": starts_on, "ends_on": ends_on}
     return {"week": week_name(week), "monday": week, "days_done": days.done,
             "days_asked": days.asked, "today_done": any(i.day == today for i in days.in_week),
             "shortened": shortened}
