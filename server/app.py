@@ -43,7 +43,13 @@ from .ingest import endpoint
 from .live import endpoint as live_endpoint
 from .periodic import every
 from .plain_text import database_failed, validation_error
-from .security import BodyLimit, SecurityHeaders, UntrustedProxyNotice, UploadGate
+from .security import (
+    BodyLimit,
+    SecurityHeaders,
+    UntrustedProxyNotice,
+    UploadGate,
+    setting_warnings,
+)
 from .services import Services
 from .settings import Settings
 from .store.processing import estimator_version
@@ -131,6 +137,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             logging.getLogger("armtrack").warning(
                 "ARMTRACK_CLINIC_NAME is not set: session reports (PDF) print no clinic "
                 "name; set it to the name reports should carry (docs/operator.md)")
+        for words in setting_warnings(settings):
+            logging.getLogger("armtrack").warning(words)
         await services.start()
         heap.settle()  # what start-up loaded is out of the collector's way from now on
         retention = (asyncio.create_task(retention_loop(services))

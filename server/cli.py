@@ -27,7 +27,7 @@ from armtrack.server.db.errors import DriverMissing, SchemaError
 #: The sub-commands, in the order ``armtrack --help`` lists them; ``create-user`` is the
 #: module ``commands/create_user.py``.
 COMMANDS = ("pose", "check", "simulate", "estimate", "orient", "stream", "serve", "demo",
-            "create-user", "import", "reprocess", "backup")
+            "create-user", "import", "reprocess", "backup", "warm")
 #: Commands whose module is not their name (``import`` is a Python keyword).
 COMMAND_MODULES = {"import": "import_files"}
 

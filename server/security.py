@@ -401,6 +401,42 @@ def _loopback(host: str) -> bool:
         return False
 
 
+#: The PostgreSQL password docker/compose.yaml falls back to when POSTGRES_PASSWORD is
+#: unset (a placeholder: every copy of armtrack has it).
+COMPOSE_PLACEHOLDER_PASSWORD = "change-me"
+
+
+def setting_warnings(settings: Settings) -> list[str]:
+    """What ``armtrack serve`` starts with but says in its log at every start, in words
+    the person who runs it can act on: settings that work and are not what a clinic
+    should run (empty: nothing to say). Warnings, not refusals (``unsafe_settings``): a
+    running install must be able to start while it is being mended."""
+    from sqlalchemy.engine import make_url
+
+    warnings = []
+    if make_url(settings.resolved_database_url()).password == COMPOSE_PLACEHOLDER_PASSWORD:
+        warnings.append(
+            "WARNING: the database password is docker/compose.yaml's placeholder "
+            "(POSTGRES_PASSWORD was not set): anyone who reaches the database can read "
+            "and change every patient's data. A new install: set POSTGRES_PASSWORD before "
+            "the first `docker compose ... up` (the postgres container takes it only when "
+            "it creates its database). A running one: `docker compose -f "
+            "docker/compose.yaml exec postgres psql -U armtrack -c \"ALTER USER armtrack "
+            "PASSWORD 'NEW'\"`, then set POSTGRES_PASSWORD=NEW (and the password in "
+            "ARMTRACK_DATABASE_URL) and `docker compose ... up -d` again "
+            "(docs/operator.md#postgresql)")
+    if (not _loopback(settings.host) and not settings.tls_cert
+            and not (settings.public_url or "").startswith("https://")):
+        warnings.append(
+            f"WARNING: serving plain http on {settings.host}:{settings.port}, which other "
+            "machines reach: patients' phones give the phone kit no motion sensors on an "
+            "http page, and passwords would cross the network in the clear. Put a reverse "
+            "proxy with a certificate in front (docs/operator.md#tls has a Caddy example) "
+            "and set ARMTRACK_PUBLIC_URL to its https address (which ends this warning), "
+            "or give ARMTRACK_TLS_CERT and ARMTRACK_TLS_KEY")
+    return warnings
+
+
 def unsafe_settings(settings: Settings, demo_account: bool) -> list[str]:
     """Why ``armtrack serve`` must not start with these settings (empty: it may).
     ``demo_account``: the database holds an enabled demo therapist (user ``demo``)."""

@@ -390,7 +390,10 @@ def test_the_docker_image_leaves_out_patients_data_and_the_hosts_environment():
            "armtrack-data/armtrack.db-wal", "armtrack-demo/armtrack.db",
            "clinic/armtrack-data/armtrack.db", "backups/armtrack-2026-12-02.db",
            "armtrack.dump", "build/lib/x.py", "armtrack.egg-info/PKG-INFO",
-           "server/__pycache__/app.cpython-311.pyc", ".pytest_cache/v", "demo.csv"]
+           "server/__pycache__/app.cpython-311.pyc", ".pytest_cache/v", "demo.csv",
+           # recordings anywhere in the checkout, not only at its top (`*.csv` matched
+           # only there): a patient's export unpacked in a folder, the demo's angles
+           "exports/patient-3/session-12.csv", "recordings/demo.angles.csv"]
     kept = ["pyproject.toml", "README.md", ".ci/install", "server/app.py",
             "server/db/migrations/versions/0001_initial_schema.py", "estimator/__init__.py",
             "web/pages/static/kit.js", "docker/Dockerfile"]
@@ -414,4 +417,8 @@ def test_the_operators_guide_says_where_the_compiled_kernels_are_cached(monkeypa
     assert "`$XDG_CACHE_HOME` or `~/.cache`, then `armtrack/numba`" in guide
     block = re.search(r"\*\*The first session after an install\.\*\*(.*?)\n\n", guide, re.S)
     assert block, "operator.md does not say what the first session after an install waits"
-    assert "armtrack estimate" in block.group(1) and "armtrack simulate" in block.group(1)
+    # ops20: the server builds them at start (its log's line) and `armtrack warm` ahead
+    assert "armtrack warm" in block.group(1), block.group(1)
+    assert "armtrack: compiled kernels ready (" in block.group(1)
+    from armtrack.server.store import background
+    assert "armtrack: compiled kernels ready (" in Path(background.__file__).read_text()

@@ -302,6 +302,38 @@ def test_serve_refuses_unsafe_settings_outside_demo_mode(tmp_path):
     assert "ARMTRACK_DEMO_MODE" in done.stderr
 
 
+def test_serve_warns_of_compose_placeholder_password_and_plain_http():
+    """Found by ops20 reading docker/compose.yaml: PostgreSQL's password falls back to
+    ``change-me`` when POSTGRES_PASSWORD is unset, and nothing said so. It is a warning at
+    every start, not a refusal: the postgres container took the password when it made its
+    database, so an install running on it must change it in the database first (the
+    words say how); refusing would stop a clinic's running server at its next upgrade.
+    A server others reach over plain http is warned of too (phones need https), unless
+    TLS is given or the https address patients' phones use is set. (The wiring into the
+    server's log: tests/test_first_run.py.)"""
+    from armtrack.server.security import setting_warnings
+    from armtrack.server.settings import Settings
+
+    placeholder = "postgresql+psycopg://armtrack:change-me@postgres/armtrack"
+    warnings = setting_warnings(Settings(database_url=placeholder))
+    assert len(warnings) == 1, warnings
+    for words in ("POSTGRES_PASSWORD", "ALTER USER armtrack PASSWORD",
+                  "docs/operator.md#postgresql"):
+        assert words in warnings[0], (words, warnings[0])
+    print("\n" + warnings[0])
+    chosen = "postgresql+psycopg://armtrack:Tr0ub4dor@postgres/armtrack"
+    assert setting_warnings(Settings(database_url=chosen)) == []
+    assert setting_warnings(Settings()) == []  # SQLite on 127.0.0.1
+
+    public = {"host": "0.0.0.0", "behind_proxy": True}
+    http = setting_warnings(Settings(**public))
+    assert len(http) == 1 and "plain http on 0.0.0.0:8000" in http[0], http
+    assert "ARMTRACK_PUBLIC_URL" in http[0] and "Caddy" in http[0]
+    print(http[0])
+    assert setting_warnings(Settings(**public, public_url="https://rehab.example.org")) == []
+    assert len(setting_warnings(Settings(**public, public_url="http://10.0.0.5:8000"))) == 1
+
+
 @pytest.mark.skipif(shutil.which("openssl") is None, reason="needs the openssl command")
 def test_serve_speaks_tls_with_a_certificate(tmp_path):
     cert, key = tmp_path / "cert.pem", tmp_path / "key.pem"

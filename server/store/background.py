@@ -242,6 +242,10 @@ def serve(conn: Connection, database_url: str) -> None:
     factory = make_sessionmaker(make_engine(database_url))
     estimating = ThreadPoolExecutor(1, thread_name_prefix="armtrack-estimate",
                                     initializer=_only_idle_cpu)
+    # the compiled kernels built (or loaded from their cache) now, on idle CPU time, not
+    # when the first patient streams: on a fresh install that took ~55 s (server/warm.py).
+    # A thread of its own, so that a job never waits for it.
+    threading.Thread(target=_warm_kernels, daemon=True, name="armtrack-warm").start()
 
     def compute(work: Callable[..., Any], *args: Any) -> Any:
         return estimating.submit(work, *args).result()
@@ -258,6 +262,21 @@ def serve(conn: Connection, database_url: str) -> None:
             break
     estimating.shutdown(wait=True)
     exit_child()
+
+
+def _warm_kernels() -> None:
+    """``warm.warm`` on idle CPU time; says in the server's log when the kernels are ready
+    (or why they could not be built: the kernels are then built at first use)."""
+    _only_idle_cpu()
+    from ..warm import warm
+
+    try:
+        seconds = warm()
+    except Exception:
+        log.exception("building the compiled kernels ahead failed; they are built when "
+                      "the first session needs them")
+        return
+    print(f"armtrack: compiled kernels ready ({seconds:.1f} s)", flush=True)
 
 
 def _only_idle_cpu() -> None:
