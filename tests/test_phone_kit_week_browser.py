@@ -123,7 +123,7 @@ def test_the_phone_says_this_weeks_days_as_the_therapist_counts_them(world):
     # before any session: none of 3 (elbow 3 days a week, the palm 2: the most, 3)
     assert this_week(world, clinic(monday, 9)) == {
         "week": "2026-W48", "monday": "2026-11-23", "days_done": 0, "days_asked": 3,
-        "today_done": False, "shortened": None}
+        "today_done": False, "shortened": None, "changed_on": None}
     with (sync_api.sync_playwright() as playwright,
           chromium(playwright, 390, 844, phone=True) as narrow,
           chromium(playwright, 1280, 900) as wide):
@@ -139,7 +139,8 @@ def test_the_phone_says_this_weeks_days_as_the_therapist_counts_them(world):
         assert this_week(world, clinic(date(2026, 11, 29), 23, 45))["days_done"] == 2
         now = this_week(world, clinic(week2, 12))
         assert now == {"week": "2026-W49", "monday": "2026-11-30", "days_done": 1,
-                       "days_asked": 3, "today_done": True, "shortened": None}
+                       "days_asked": 3, "today_done": True, "shortened": None,
+                       "changed_on": None}
         # the therapist's adherence, by the same rule: W48 Tuesday and Sunday, W49 Monday
         assert adherence_days(world) == {"2026-W48": (2, 3), "2026-W49": (1, 3)}
 
@@ -213,3 +214,52 @@ def test_a_week_the_program_starts_in_says_why_it_asks_fewer_days(world):
                 page.screenshot(path=str(world["shots"] / f"w8-started-saturday-{width}.png"),
                                 full_page=True)
                 assert line.inner_text() == expected
+
+
+def test_a_change_in_the_week_says_it_counts_from_the_next_week(world):
+    """A program of 6 days a week that began on Wednesday asks 5 days of that week; a
+    change to 3 days a week saved on Thursday leaves the week on the version it began with
+    (the adherence rule: the version in force on Monday, for a first week the first). The
+    phone's list then says "3 days a week" beside "0 of 5 days": it says both reasons,
+    and the therapist's weeks table says them beside the week's days."""
+    wednesday, thursday = date(2026, 12, 2), date(2026, 12, 3)
+    alice = world["alice"]
+    patient = alice.patient("Cem Change")
+    token = alice.device(patient["id"], "Cem's phone")["token"]
+    world["now"].write_text(clinic(wednesday, 8).isoformat())
+    elbow = {"exercise": "elbow_flexion", "sets": 1, "repetitions": 5}
+    made = alice.http.post(f"/api/patients/{patient['id']}/programs", json={
+        "name": "From Wednesday", "start_date": wednesday.isoformat(),
+        "exercises": [{**elbow, "days_per_week": 6}]})
+    assert made.status_code == 201, made.text
+    world["now"].write_text(clinic(thursday, 9).isoformat())
+    changed = alice.http.put(f"/api/programs/{made.json()['id']}", json={
+        "start_date": wednesday.isoformat(), "exercises": [{**elbow, "days_per_week": 3}]})
+    assert changed.status_code == 200, changed.text
+    week = this_week({**world, "token": token}, clinic(thursday, 10))
+    assert (week["days_asked"], week["changed_on"]) == (5, "2026-12-03"), week
+    expected = ("This week: 0 of 5 days done (your program started on Wednesday; its "
+                "change of Thursday counts from next week). Today is a good day to start.")
+    with (sync_api.sync_playwright() as playwright,
+          chromium(playwright, 390, 844, phone=True) as narrow,
+          chromium(playwright, 1280, 900) as wide):
+        for width, context in ((390, narrow), (1280, wide)):
+            page = first_page(context)
+            page.goto(f"{world['server'].url}/kit#token={token}")
+            line = page.locator("#this-week")
+            sync_api.expect(line).to_be_visible(timeout=30_000)
+            sync_api.expect(page.locator("body")).to_contain_text("3 days a week")
+            page.screenshot(path=str(world["shots"] / f"c1-changed-{width}.png"),
+                            full_page=True)
+            assert line.inner_text() == expected
+            sign_in_as(page, world["server"].url, "alice")
+            page.goto(f"{world['server'].url}/patients/{patient['id']}")
+            row = page.locator('table.adherence tr[data-week="2026-W49"]')
+            sync_api.expect(row).to_be_visible(timeout=30_000)
+            page.locator("details.weeks").screenshot(
+                path=str(world["shots"] / f"c2-therapist-weeks-{width}.png"))
+            cells = row.locator("td")
+            assert cells.nth(1).inner_text().split()[-3:] == ["0", "/", "5"]
+            why = row.locator(".week-why").inner_text()
+            began, on = page.evaluate("() => [fmtDay('2026-12-02'), fmtDay('2026-12-03')]")
+            assert why == f"began {began} · changed {on}: counts from the next week", why

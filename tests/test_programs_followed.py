@@ -246,8 +246,16 @@ def expected_weeks(rows: list[dict], today: date) -> list[dict]:
                      for n in names}
         done_days = {n: len({r["day"] for r in in_week
                              if r["results"].get(n, {}).get("reps", 0) > 0}) for n in names}
-        sessions = min(max(e["days_per_week"] for e in v["exercises"]), active)
+        per_week = max(e["days_per_week"] for e in v["exercises"])
+        sessions = min(per_week, active)
         total = sum(reps_e.values())
+        # why fewer days are asked than the list's days a week (docs/programs.md)
+        shortened = None if sessions == per_week else {
+            "starts_on": start.isoformat() if start > week else None, "ends_on": None}
+        changed_at = V2_AT.astimezone(ZONE).date()
+        changed_on = (changed_at.isoformat() if number == 1 and week <= changed_at
+                      < week + timedelta(days=7) and max(e["days_per_week"] for e in V2[
+                          "exercises"]) != per_week else None)
         out.append({
             "week": f"{week.isocalendar()[0]}-W{week.isocalendar()[1]:02d}",
             "monday": week.isoformat(), "version": number, "active_days": active,
@@ -257,7 +265,8 @@ def expected_weeks(rows: list[dict], today: date) -> list[dict]:
                      "exercises": sum(done_days.values()),
                      "repetitions": sum(done_reps.values())},
             "adherence_percent": round(100 * sum(min(done_reps[n], reps_e[n]) for n in names)
-                                       / total, 1)})
+                                       / total, 1),
+            "shortened": shortened, "changed_on": changed_on})
         week += timedelta(days=7)
     return out
 

@@ -105,7 +105,8 @@ def test_this_weeks_days_are_the_adherence_weeks_read_in_a_few_queries(db, monke
         event.remove(db.get_bind(), "before_cursor_execute", listen)
     print(f"\nthis_week: {week}; {len(statements)} statements")
     assert week == {"week": "2026-W49", "monday": date(2026, 11, 30), "days_done": 2,
-                    "days_asked": 3, "today_done": True, "shortened": None}
+                    "days_asked": 3, "today_done": True, "shortened": None,
+                    "changed_on": None}
     assert len(statements) <= 6, statements
     monkeypatch.undo()
     therapist = {w.week: w for w in adherence.patient_programs_progress(

@@ -43,6 +43,11 @@ class Counts(BaseModel):
     repetitions: int
 
 
+class Shortened(BaseModel):
+    starts_on: date | None = Field(description="the program's first day, within the week")
+    ends_on: date | None = Field(description="the program's last day, within the week")
+
+
 class WeekAdherence(BaseModel):
     week: str = Field(description="ISO week, e.g. 2026-W49")
     monday: date
@@ -52,6 +57,14 @@ class WeekAdherence(BaseModel):
     done: Counts
     adherence_percent: float | None = Field(
         description="100 × Σ min(done, prescribed repetitions) per exercise ÷ prescribed")
+    shortened: Shortened | None = Field(
+        None, description="null unless the program's dates leave fewer days in the week "
+        "than its exercises' days a week (it starts or ends within the week)")
+    changed_on: date | None = Field(
+        None, description="the day a version asking another number of days a week was "
+        "saved in the week, else null: the week keeps the version in force on its Monday "
+        "(for the program's first week, the first version), the change counts from the "
+        "next week")
 
 
 class ExercisePoint(BaseModel):
@@ -311,6 +324,11 @@ class WeekDays:
     asked: int
     done: int
     in_week: list[ProgramSession]
+    #: why the days asked are not the "N days a week" the program's list says: its dates
+    #: leave fewer days in the week (``Shortened``), or a version asking another N was
+    #: saved in the week (``changed_on``: the week keeps Monday's)
+    shortened: Shortened | None = None
+    changed_on: date | None = None
 
 
 def week_days(program: models.Program, items: Sequence[ProgramSession], week: date,
@@ -319,11 +337,22 @@ def week_days(program: models.Program, items: Sequence[ProgramSession], week: da
     (their results are not needed): the one rule of the therapist's weeks (``weeks``) and
     of the patient's phone (``this_week``)."""
     version = prescription_version(program, week, zone)
-    active = active_days(program, version, week, zone)
+    dates = active_dates(program, version, week, zone)
     in_week = [i for i in items if week <= i.day < week + timedelta(days=7)]
-    return WeekDays(version, active,
-                    min(max(e.days_per_week for e in version.exercises), active),
-                    len({i.day for i in in_week}), in_week)
+    per_week = max(e.days_per_week for e in version.exercises)
+    asked = min(per_week, len(dates))
+    shortened = None
+    if dates and asked < per_week:
+        shortened = Shortened(
+            starts_on=dates[0] if dates[0] > week else None,
+            ends_on=dates[-1] if dates[-1] < week + timedelta(days=6) else None)
+    start, stop = start_of_day(week, zone), start_of_day(week + timedelta(days=7), zone)
+    newer = [v for v in program.versions
+             if v.number > version.number and start <= aware(v.created_at) < stop]
+    changed_on = local_day(newer[-1].created_at, zone) if newer and max(
+        e.days_per_week for e in newer[-1].exercises) != per_week else None
+    return WeekDays(version, len(dates), asked, len({i.day for i in in_week}), in_week,
+                    shortened, changed_on)
 
 
 def weeks(program: models.Program, items: Sequence[ProgramSession], today: date,
@@ -351,7 +380,8 @@ def weeks(program: models.Program, items: Sequence[ProgramSession], today: date,
             done=Counts(sessions=len(in_week), days=days.done,
                         exercises=sum(done_days.values()),
                         repetitions=sum(done_reps.values())),
-            adherence_percent=round(100.0 * capped / total, 1) if total else None))
+            adherence_percent=round(100.0 * capped / total, 1) if total else None,
+            shortened=days.shortened, changed_on=days.changed_on))
         week += timedelta(days=7)
     return out
 
@@ -365,7 +395,9 @@ def this_week(db: DbSession, patient_id: int, program: models.Program, today: da
     than its exercises ask, ``{"starts_on", "ends_on"}`` (the program's first day where it
     falls inside the week and is not after today, its last where inside the week and not
     before today, else null), so the phone can say why; else (or when neither is true
-    today: the therapist changed the dates since the week's Monday) null.
+    today: the therapist changed the dates since the week's Monday) null; ``changed_on``:
+    the day a version asking another number of days was saved this week (the week keeps
+    Monday's), else null.
     Bounded: the patient's programs, the sessions that started in the week (with a day's
     margin each side; the clinic's days decide), their program links and marks — four
     queries, no report built (days need none)."""
@@ -380,18 +412,18 @@ def this_week(db: DbSession, patient_id: int, program: models.Program, today: da
     links, marked = _links_and_marks(db, sessions)
     items = _attributed(sessions, programs, links, marked, zone).get(program.id, [])
     days = week_days(program, items, week, zone)
+    # only what is true today: the week follows its Monday's version, whose dates the
+    # therapist may have changed since (an end put off, a start brought forward)
     shortened = None
-    dates = active_dates(program, days.version, week, zone)
-    if dates and days.asked < max(e.days_per_week for e in days.version.exercises):
-        # only what is true today: the week follows its Monday's version, whose dates the
-        # therapist may have changed since (an end put off, a start brought forward)
-        starts_on = dates[0] if week < dates[0] <= today else None
-        ends_on = dates[-1] if today <= dates[-1] < week + timedelta(days=6) else None
+    if days.shortened is not None:
+        first, last = days.shortened.starts_on, days.shortened.ends_on
+        starts_on = first if first is not None and first <= today else None
+        ends_on = last if last is not None and today <= last else None
         if starts_on or ends_on:
             shortened = {"starts_on": starts_on, "ends_on": ends_on}
     return {"week": week_name(week), "monday": week, "days_done": days.done,
             "days_asked": days.asked, "today_done": any(i.day == today for i in days.in_week),
-            "shortened": shortened}
+            "shortened": shortened, "changed_on": days.changed_on}
 
 
 # --- progress -------------------------------------------------------------------------

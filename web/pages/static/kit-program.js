@@ -51,7 +51,8 @@ const KitProgram = {
    * against the days asked): "This week: 2 of 5 days done."; none yet: "This week: 0 of
    * 5 days done. Today is a good day to start."; a week the program starts or ends in says
    * why it asks fewer days: "This week: 0 of 2 days done (your program started on
-   * Saturday)."; all: "You have done all 5 days this week
+   * Saturday)."; a week whose days were changed meanwhile, that the change counts from
+   * next week; all: "You have done all 5 days this week
    * — well done."; null without it (no program, or an older server). */
   week(w) {
     if (!w || !w.days_asked) return null;
@@ -59,22 +60,26 @@ const KitProgram = {
     if (w.days_done >= w.days_asked)
       return w.days_asked === 1 ? "You have done your day this week — well done."
         : `You have done all ${w.days_asked} days this week — well done.`;
-    const line = `This week: ${w.days_done} of ${days(w.days_asked)} done${KitProgram.why(w.shortened)}.`;
+    const line = `This week: ${w.days_done} of ${days(w.days_asked)} done${KitProgram.why(w)}.`;
     return w.days_done ? line : `${line} Today is a good day to start.`;
   },
 
-  /** Why this week asks fewer days than "5 days a week" (device-today's
-   * this_week.shortened: the program starts or ends within the week), in words to append:
-   * " (your program started on Saturday)"; "" when it does not. */
-  why(shortened) {
-    if (!shortened) return "";
+  /** Why this week asks other days than the list's "5 days a week" (device-today's
+   * this_week: `shortened`, the program starts or ends within the week; `changed_on`, a
+   * change of its days saved this week, which counts from next week as the therapist's
+   * adherence counts it), in words to append: " (your program started on Saturday)",
+   * " (its change of Thursday counts from next week)"; "" when neither. */
+  why(w) {
     const weekday = (iso) => {
       const [y, m, d] = iso.split("-").map(Number);
       return new Date(y, m - 1, d).toLocaleDateString(undefined, { weekday: "long" });
     };
-    if (shortened.starts_on) return ` (your program started on ${weekday(shortened.starts_on)})`;
-    if (shortened.ends_on) return ` (your program ends on ${weekday(shortened.ends_on)})`;
-    return "";
+    const shortened = w.shortened || {};
+    const parts = [];
+    if (shortened.starts_on) parts.push(`your program started on ${weekday(shortened.starts_on)}`);
+    else if (shortened.ends_on) parts.push(`your program ends on ${weekday(shortened.ends_on)}`);
+    if (w.changed_on) parts.push(`${parts.length ? "its" : "your program's"} change of ${weekday(w.changed_on)} counts from next week`);
+    return parts.length ? ` (${parts.join("; ")})` : "";
   },
 
   /** Whether a phone on `segment` measures exercise `ex` (device-today's measured_by;

@@ -140,13 +140,24 @@ function weeksTable(weeks) {
         .map((h, i) => el("th", { class: i ? "num" : "" }, h)))),
       el("tbody", {}, weeks.slice().reverse().map((w) => el("tr", { dataset: { week: w.week } },
         el("td", { title: `ISO week ${w.week}` }, `week of ${fmtDay(w.monday)}`,
-          el("span", { class: "small muted" }, ` v${w.version}`)),
+          el("span", { class: "small muted" }, ` v${w.version}`), weekWhy(w)),
         // days: the figure the patient's phone says ("This week: 2 of 5 days done")
         cell(w.done.days, w.prescribed.days),
         cell(w.done.sessions, w.prescribed.sessions), cell(w.done.exercises, w.prescribed.exercises),
         cell(w.done.repetitions, w.prescribed.repetitions),
         el("td", { class: "num " + percentClass(w.adherence_percent) },
           w.adherence_percent === null ? "—" : w.adherence_percent.toFixed(0) + " %")))))));
+}
+
+// Why a week asks other days than the program's "N days a week" (the adherence's
+// shortened and changed_on), under the week's name, as the patient's phone says it:
+// "began 2 Dec 2026 · changed 3 Dec 2026: counts from the next week"; null when neither.
+function weekWhy(w) {
+  const s = w.shortened || {};
+  const parts = [s.starts_on ? `began ${fmtDay(s.starts_on)}` : null,
+    s.ends_on ? `ends ${fmtDay(s.ends_on)}` : null,
+    w.changed_on ? `changed ${fmtDay(w.changed_on)}: counts from the next week` : null].filter(Boolean);
+  return parts.length ? el("span", { class: "small muted week-why", style: "display:block" }, parts.join(" · ")) : null;
 }
 
 function painLine(pain) {
