@@ -36,6 +36,9 @@ LISTS = {("GET", "/api/patients"), ("GET", "/api/admin/patients")}
 EXPORT_ENDINGS = (".csv", ".pdf", ".mot", ".sto", ".fhir.json", "/export")
 #: The most kinds of view remembered for ``ARMTRACK_AUDIT_REPEAT_S`` (16-byte keys).
 MAX_RECENT = 10_000
+#: The start of the route of an account change made on the command line (``armtrack
+#: create-user``), which no account makes.
+CREATE_USER = "armtrack create-user"
 #: Routes about the audit log itself or about accounts: never logged as data access.
 NOT_LOGGED = ("/api/audit", "/api/auth/")
 

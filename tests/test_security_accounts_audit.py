@@ -148,6 +148,33 @@ def test_who_opened_closed_or_changed_an_account_is_in_the_audit_log(srv):
         ["changed_password"]
 
 
+def test_an_account_made_or_disabled_on_the_command_line_is_in_the_audit_log(srv):
+    """``armtrack create-user`` (and ``--disable``) wrote no entry, where an admin's same
+    change on the Clinic accounts page does (att19): an account made on the server's
+    command line signed in and read patients with no entry of who made it, or when. Now
+    each is an entry: the command, the account, the operating-system user who ran it."""
+    import getpass
+    root = srv.client("root")
+    made = root.http.post("/api/admin/therapists", json={"username": "uma",
+                                                         "password": PASSWORD})
+    assert made.status_code == 201, made.text
+    done = srv.armtrack("create-user", "uma", "--disable")
+    assert done.returncode == 0, done.stderr
+    alice, uma = _id(srv, "alice"), made.json()["id"]
+
+    def entries(action: str, account: int) -> list[tuple]:
+        return [(e["therapist_id"], e["route"], e["client"], e["actor"])
+                for e in root.http.get("/api/audit", params={"action": action}).json()
+                if e["route"].endswith(f"(account {account})")]
+    by = f"{getpass.getuser()} (operating-system user)"
+    command = "armtrack create-user (command line)"
+    # alice was made by the module's server fixture, with create-user
+    assert entries("created_account", alice) == [
+        (None, f"armtrack create-user alice (account {alice})", by, command)]
+    assert entries("disabled_account", uma) == [
+        (None, f"armtrack create-user uma --disable (account {uma})", by, command)]
+
+
 @pytest.mark.parametrize("params", [
     {"to_date": "9999-12-31"},          # the day after it is beyond Python's dates
     {"from_date": "0001-01-01"},        # its midnight at +9:19 is before year 1 in UTC

@@ -18,6 +18,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from sqlalchemy import Select, or_, select
 from sqlalchemy.orm import Session as DbSession
 
+from .. import audit
 from ..commands.output import write_angles_csv
 from ..db import models
 from ..programs import store
@@ -225,6 +226,8 @@ def _actors(db: DbSession, rows: list[models.AuditEntry]) -> list[AuditOut]:
         if actor is None and row.therapist_id is None and row.device_id is None:
             # the server's own actions: retention's erasures, a silent session's close
             actor = ("armtrack (kit silent)" if row.action == "closed_silence"
+                     else f"{audit.CREATE_USER} (command line)"
+                     if row.route.startswith(audit.CREATE_USER)
                      else "armtrack (retention)")
         out.append(AuditOut.model_validate(row).model_copy(update={"actor": actor}))
     return out

@@ -87,13 +87,35 @@ def run(args: argparse.Namespace) -> int:
                 print(f"armtrack create-user: user {args.name!r} exists already; nothing was "
                       f"changed. {way}", file=sys.stderr)
                 return 2
-            db.add(models.Therapist(username=args.name, password_hash=hash_password(password),
-                                    is_admin=args.admin, full_name=args.full_name or None))
+            therapist = models.Therapist(username=args.name,
+                                         password_hash=hash_password(password),
+                                         is_admin=args.admin, full_name=args.full_name or None)
+            db.add(therapist)
+            db.flush()
+            _logged(db, "created_account",
+                    f"{args.name}{' --admin' if args.admin else ''}", therapist.id)
             db.commit()
     finally:
         engine.dispose()
     print(f"created {'clinic admin' if args.admin else 'therapist'} {args.name!r}")
     return 0
+
+
+def _logged(db, action: str, arguments: str, account: int) -> None:
+    """An account made or disabled here, in the audit log (not committed), as an admin's
+    change on the Clinic accounts page is: the command, the account, and who ran it (the
+    operating-system user, in the address's place; no account acted). Before, none was
+    written (att19)."""
+    import getpass
+
+    from armtrack.server import audit
+    try:
+        user = getpass.getuser()
+    except (KeyError, OSError):  # no name for the process's uid (a bare container)
+        user = "unknown"
+    audit.record(db, action=action,
+                 route=f"{audit.CREATE_USER} {arguments} (account {account})",
+                 client=f"{user} (operating-system user)", commit=False)
 
 
 def _new_password_words(is_admin: bool) -> str:
@@ -129,6 +151,7 @@ def _disable(args: argparse.Namespace) -> int:
             db.execute(delete(models.PasswordReset).where(  # unused reset codes end too
                 models.PasswordReset.therapist_id == therapist.id,
                 models.PasswordReset.used_at.is_(None)))
+            _logged(db, "disabled_account", f"{args.name} --disable", therapist.id)
             db.commit()
     finally:
         engine.dispose()
