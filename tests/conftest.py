@@ -79,6 +79,19 @@ def fresh_postgres_database(url: str) -> str:
     return make_url(url).set(database=name).render_as_string(hide_password=False)
 
 
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_teardown(item, nextitem):
+    """Marks the teardown (``server_support.TEARDOWN``): a server stopped now is stopped
+    for good, and ``ServerProcess.stop`` does not wait for its session estimations."""
+    from server_support import TEARDOWN
+
+    TEARDOWN.active = True
+    try:
+        yield
+    finally:
+        TEARDOWN.active = False
+
+
 def pytest_generate_tests(metafunc):
     """Tests marked ``both_databases`` run with their server on SQLite and PostgreSQL;
     tests taking ``recording_set`` run on each set of recordings there is."""

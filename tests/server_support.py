@@ -75,6 +75,41 @@ async def send_paced(ws, plan, speed: float, *, first: int = 0,
     return len(plan)
 
 
+class _Teardown:
+    """Whether pytest is tearing a test down now (``active``; tests/conftest.py's
+    ``pytest_runtest_teardown``), when module and test fixtures stop their servers."""
+
+    active = False
+
+
+TEARDOWN = _Teardown()
+
+
+def kill_children(pid: int, name: str) -> None:
+    """SIGKILL the child processes of ``pid`` named ``name`` (``/proc/PID/comm``), and
+    its children still starting (``multiprocessing``'s spawned children are named once
+    their imports are done: a server that lost its processing child starts another for
+    the next queued job, and that one would be waited for)."""
+    try:
+        tasks = list(Path(f"/proc/{pid}/task").iterdir())
+    except OSError:
+        return
+    for task in tasks:
+        try:
+            children = (task / "children").read_text().split()
+        except OSError:
+            continue
+        for child in children:
+            try:
+                comm = Path(f"/proc/{child}/comm").read_text().strip()
+                starting = (comm.startswith("python") and b"spawn_main"
+                            in Path(f"/proc/{child}/cmdline").read_bytes())
+                if comm == name or starting:
+                    os.kill(int(child), signal.SIGKILL)
+            except (OSError, ValueError):
+                pass
+
+
 def armtrack(*args: str, **kwargs) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "armtrack.server.cli", *args],
                           capture_output=True, text=True, **kwargs)
@@ -152,12 +187,27 @@ class ServerProcess:
             self.process.wait()
 
     def stop(self) -> None:
-        if self.process is not None and self.process.poll() is None:
-            self.process.terminate()
-            try:
-                self.process.wait(15)
-            except subprocess.TimeoutExpired:
+        """SIGTERM, then wait (15 s at most, else SIGKILL) for the server to end. It stops
+        as it does for users: it stores what kits sent, and waits for the session
+        estimations it was given (``SessionProcessing``: what is queued is estimated
+        first, there being nothing that estimates it later). When pytest tears a test down
+        (``TEARDOWN``, set by tests/conftest.py) nobody reads the server's data again, so
+        its processing child (``armtrack-proc``) is killed instead of waited for: its
+        first job runs at ``nice`` 19 with its estimation at ``SCHED_IDLE``, on a loaded
+        2-core machine 20 s and more (child imports, compiled kernels loaded), and the
+        teardown of every module whose server had just closed a session took the whole
+        15 s (ci20). A server that hangs on anything else still takes the 15 s."""
+        if self.process is None or self.process.poll() is not None:
+            return
+        self.process.terminate()
+        deadline = time.monotonic() + 15
+        while self.process.poll() is None:
+            if time.monotonic() > deadline:
                 self.kill()
+                return
+            if TEARDOWN.active:
+                kill_children(self.process.pid, "armtrack-proc")
+            time.sleep(0.02)
 
     def create_user(self, name: str, password: str = PASSWORD) -> None:
         done = self.armtrack("create-user", name, "--password", password)

@@ -327,8 +327,15 @@ def test_phone_kit_guides_streams_survives_a_cut_link_and_matches_truth(kit_serv
         _wait(lambda: phone.evaluate("window.__feed.i >= window.__feed.rows.length"), 120,
               "every reading dispatched")
         phone.wait_for_timeout(500)
-        reps_shown = phone.locator("#reps").inner_text()
-        phone.click("#next")  # the simulation ends here: on to the finish
+        # the count shown when the patient leaves the exercise, read in the same turn of
+        # the page as the click (kit.js notes what the screen shows every 100 ms: a
+        # feedback landing between a read and a separate click counted once more on
+        # the finished screen than the read said)
+        reps_shown = phone.evaluate("""() => {
+            const shown = document.querySelector("#reps").textContent;
+            document.querySelector("#next").click();  // the simulation ends: to the finish
+            return shown;
+        }""")
         finish_session(phone)
         sync_api.expect(phone.locator("#sent")).to_contain_text("All sent", timeout=60_000)
         phone.screenshot(path=str(shots / "a9-finished.png"))

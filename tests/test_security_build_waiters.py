@@ -21,12 +21,14 @@ import httpx
 import pytest
 from armtrack.estimator.recording import format_recording
 from armtrack.estimator.simulation import SimulationConfig, simulate
+from armtrack.server.builds import PER_CALLER
 from conftest import fresh_postgres_database
 from server_support import ServerProcess
 
 #: While ``BUILD_GATE/hold-<session id>`` exists, that session's summary build (or, with
 #: ``hold-report-<session id>``, its report's build) says so (``reached-…``) and waits
-#: until the file is gone.
+#: until the file is gone. Each request counted in for a build (``Builds._enter``) says
+#: how many its caller then has building or waiting (``counted-<kind>-<id>-<n>``).
 BUILD_GATE = Path(tempfile.mkdtemp(prefix="armtrack-build-gate-"))
 GATE_HOOK = """
 import os as _os, sys as _sys, threading as _threading, time as _time
@@ -53,6 +55,15 @@ def _install(gate):
         wait(session.id)
         return original(db, session, key)
     module._summarise = gated
+    builds = _sys.modules["armtrack.server.builds"]  # (session_summary imports it)
+    enter = builds.Builds._enter
+
+    def counted(self, who):
+        enter(self, who)
+        with self._lock:
+            n = self._callers.get(who, 0)
+        (gate / f"counted-{who[0]}-{who[1]}-{n}").touch()
+    builds.Builds._enter = counted
 
     import armtrack.server.reports.content as content
     build_report = content.build_report
@@ -170,6 +181,8 @@ def test_a_page_refused_for_builds_at_once_asks_again_when_told(server):
 
     import threading
     results: list = []
+    for stale in BUILD_GATE.glob("counted-*"):  # the test before's
+        stale.unlink()
     hold.touch()
     thread = threading.Thread(target=lambda: results.extend(asyncio.run(waiters())))
     try:
@@ -178,7 +191,11 @@ def test_a_page_refused_for_builds_at_once_asks_again_when_told(server):
         while not (BUILD_GATE / f"reached-{held['id']}").exists():
             assert time.monotonic() < deadline, "the held build never began"
             time.sleep(0.02)
-        time.sleep(0.3)  # the other three are waiting for it
+        # all four are counted in (the other three waiting for the held build): the
+        # page's next summary is the account's fifth
+        while not any(BUILD_GATE.glob(f"counted-therapist-*-{PER_CALLER}")):
+            assert time.monotonic() < deadline, "the four requests were never all counted"
+            time.sleep(0.02)
         with page_at(390) as page:
             sign_in_as(page, server.url, "alice")
 

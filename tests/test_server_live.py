@@ -18,23 +18,43 @@ def elbow():
     return simulate(SimulationConfig(exercise="elbow_flexion", repetitions=3, seed=4))
 
 
-async def watch(server, token, patient_id, until, timeout=60.0):
-    """Live updates of a patient until ``until(updates)`` holds."""
+async def watch(server, token, patient_id, until, timeout=60.0, subscribed=None):
+    """Live updates of a patient until ``until(updates)`` holds. ``subscribed`` (an
+    ``asyncio.Event``) is set once the feed is open: the server subscribes the feed to
+    the patient's updates in the same turn of its loop that answers the handshake
+    (``live.endpoint``: ``accept`` then ``hub.subscribe``, no wait between), so every
+    update published after that reaches it."""
     url = f"ws://127.0.0.1:{server.port}/ws/live?patient={patient_id}"
     updates = []
     async with connect(url, additional_headers={"Authorization": f"Bearer {token}"}) as ws:
+        if subscribed is not None:
+            subscribed.set()
         async with asyncio.timeout(timeout):
             while not until(updates):
                 updates.append(json.loads(await ws.recv()))
     return updates
 
 
+async def subscribed_or_failed(subscribed: asyncio.Event, watcher: asyncio.Task) -> None:
+    """Wait until the watcher's feed is open (``subscribed``), or raise the watcher's
+    failure (a refused feed)."""
+    opened = asyncio.create_task(subscribed.wait())
+    await asyncio.wait({opened, watcher}, timeout=60, return_when=asyncio.FIRST_COMPLETED)
+    opened.cancel()
+    if not subscribed.is_set():
+        if watcher.done():
+            watcher.result()  # its error
+        raise AssertionError("the live feed did not open in 60 s")
+
+
 def stream_while_watching(server, api, patient_id, token, recording, until, speed=4.0):
     """A kit streams ``recording`` while the therapist watches the patient's feed until
     ``until(updates)``: (the kit's stats, the updates)."""
     async def scenario():
-        watcher = asyncio.create_task(watch(server, api.token, patient_id, until))
-        await asyncio.sleep(0.3)
+        subscribed = asyncio.Event()
+        watcher = asyncio.create_task(watch(server, api.token, patient_id, until,
+                                            subscribed=subscribed))
+        await subscribed_or_failed(subscribed, watcher)
         stats = await KitEmulator(recording, server.ws_url, token, speed=speed).run()
         return stats, await watcher
 
@@ -93,8 +113,10 @@ def test_a_sensor_that_never_starts_does_not_stop_the_live_view(module_server, e
     async def scenario():
         def posed(ups):
             return any(u["kind"] == "pose" for u in ups)
-        watcher = asyncio.create_task(watch(module_server, api.token, patient["id"], posed))
-        await asyncio.sleep(0.3)
+        subscribed = asyncio.Event()
+        watcher = asyncio.create_task(watch(module_server, api.token, patient["id"], posed,
+                                            subscribed=subscribed))
+        await subscribed_or_failed(subscribed, watcher)
         async with connect(module_server.ws_url,
                            additional_headers={"Authorization": f"Bearer {token}"}) as ws:
             await ws.send(json.dumps({"type": "hello", "protocol": 1, "device": "kit",
@@ -337,9 +359,10 @@ def test_a_sensor_that_stops_mid_session_leaves_the_live_view_going_and_memory_b
             seen[:] = ups
             return any(p["t"] >= end_t - 1.0 for p in poses)  # the stream's newest
 
+        subscribed = asyncio.Event()
         watcher = asyncio.create_task(watch(module_server, api.token, patient["id"],
-                                            caught_up, timeout=180.0))
-        await asyncio.sleep(0.3)
+                                            caught_up, timeout=180.0, subscribed=subscribed))
+        await subscribed_or_failed(subscribed, watcher)
         async with connect(module_server.ws_url, max_size=None,
                            additional_headers={"Authorization": f"Bearer {token}"}) as ws:
             await ws.send(json.dumps({"type": "hello", "protocol": 1, "device": "kit",
