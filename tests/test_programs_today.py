@@ -173,6 +173,19 @@ def test_progress_rows_take_their_targets_in_a_few_queries_and_the_band_of_the_r
              for r in rows]
     assert bands[0] == (0, 140) and bands[1] == (0, 100)  # the raise done: its band
     assert set(bands[2:]) == {(None, None)}  # both raises: no one band
+    # the session's report (page, PDF, CSV, FHIR) by the same rule: its cached report,
+    # made without targets, judged now (content.session_report)
+    from armtrack.server.reports import content
+
+    for i, s in enumerate(sessions[:3]):
+        exercises = [content.Exercise(name=n, source="marks", start_s=0.0, end_s=9.0,
+                                      rom={"shoulder_elevation": rom}, angles=[])
+                     for n in did.get(i, ("shoulder_flexion", "shoulder_abduction"))]
+        content._CACHE.put(report_key(s), content.SessionReport.model_construct(
+            rom={"shoulder_elevation": rom}, exercises=exercises))
+    reported = [content.session_report(db, s).rom["shoulder_elevation"] for s in sessions[:3]]
+    assert [(r.target_min, r.target_max) for r in reported] == [
+        (0, 140), (0, 100), (None, None)]
 
 
 def test_this_weeks_shortened_says_only_what_is_true_today(db, monkeypatch):

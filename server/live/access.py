@@ -67,7 +67,7 @@ def refusals(db: DbSession, watches: Iterable[Watch], demo_mode: bool = False
         return {}
     now = datetime.now(UTC)
     # columns, not objects: a session that holds the rows already (a request checking its
-    # own right again, ``api.deps.right_refused``) would give its stale objects back
+    # own right again, ``api.deps.right_held``) would give its stale objects back
     tokens = {row.token_hash: row for row in db.execute(select(
         models.AccessToken.token_hash, models.AccessToken.therapist_id,
         models.AccessToken.expires_at).where(
