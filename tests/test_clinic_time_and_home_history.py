@@ -203,6 +203,7 @@ def test_device_today_gives_the_patient_their_own_recent_sessions(world):
     assert first["program"] == {"name": "Elbow at home", "version": 2}
     (done,) = first["exercises"]
     assert done["name"] == "elbow_flexion" and done["title"] == "Bend the elbow"
+    assert done["angle"] == "elbow_flexion"  # the kit words a both-ways range by it
     assert done["repetitions"] == reps == 12, (done, reps)
     assert done["prescribed"] == 12  # version 2: 2 sets of 6
     assert done["target"] == {"min_deg": 0.0, "max_deg": 110.0, "from": "program"}

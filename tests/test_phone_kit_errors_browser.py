@@ -202,3 +202,48 @@ def test_a_band_nobody_set_is_called_the_usual_range_not_a_target(server, phone,
     phone.screenshot(path=str(shots / "usual-range-390.png"), full_page=True)
     phone.set_viewport_size({"width": 1280, "height": 900})
     phone.screenshot(path=str(shots / "usual-range-1280.png"), full_page=True)
+
+
+def test_turning_the_palm_says_palm_up_or_down_not_a_signed_angle(server, phone, shots):
+    """Found by a new user: Turn the palm showed "usual range -70° to 70°" and the live
+    number read −45° for the palm turned up; a patient does not read signed angles. Now
+    the phone says the side in words, in kinematics.md's signs (pronation +: palm down;
+    supination −: palm up), on the exercise screen (band and live number) and in what
+    was done; the API's numbers stay signed. The live screen is the page's own
+    ``exercise`` with a feedback message set as the stream would (no 60-s feed)."""
+    api = server.client("alice")
+    token = api.device(api.patient("Palm Words")["id"], "phone")["token"]
+    phone.goto(f"{server.url}/kit#token={token}")
+    sync_api.expect(phone.locator("#start")).to_be_visible()
+    today = api.http.get("/api/device/today", headers={"Authorization": f"Bearer {token}"}).json()
+    palm = next(e for e in today["exercises"] if e["name"] == "pronation")
+    assert (palm["angle"], palm["target"]["min_deg"], palm["target"]["max_deg"]) == (
+        "forearm_pronation", -70.0, 70.0)  # the contract keeps its signs
+    index = phone.evaluate("""() => {
+        kit.sensor = "forearm";
+        kit.stream = { now: () => 0, mark() {}, connected: true };  // no session needed here
+        const i = exercisesForKit().findIndex((e) => e.name === "pronation");
+        exercise(i);
+        return i;
+    }""")
+    assert index >= 0
+    sync_api.expect(phone.locator(".live .target")).to_have_text(
+        "usual range 70° palm up to 70° palm down")
+    for deg, said in ((-45.4, "45° palm up"), (30, "30° palm down"), (0.2, "0°")):
+        phone.evaluate("""(deg) => { kit.feedback = { exercise: "pronation", t: 1, angle_deg: deg,
+            repetitions: 0, count_from: 0 }; kit.feedbackAt = Date.now(); }""", deg)
+        # the side is on a line of its own, under the number
+        sync_api.expect(phone.locator("#angle")).to_have_text(said, use_inner_text=True)
+        if deg == -45.4:
+            fits(phone)
+            phone.screenshot(path=str(shots / "palm-up-390.png"))
+    words = phone.evaluate("""() => [
+        KitProgram.didLine("Turn the palm", 8, 10, -52, 61,
+                           {min_deg: -70, max_deg: 70, from: "default"}, "forearm_pronation"),
+        KitProgram.didLine("Bend the elbow", 7, 10, 2, 101,
+                           {min_deg: 0, max_deg: 120, from: "program"}, "elbow_flexion")]""")
+    print("\n" + "\n".join(words))
+    assert words == [
+        "Turn the palm: 8 of 10 repetitions · from 52° palm up to 61° palm down"
+        " (usual range 70° palm up to 70° palm down)",
+        "Bend the elbow: 7 of 10 repetitions · from 2° to 101° (target 0° to 120°)"]

@@ -34,7 +34,7 @@ RECENT_LOOKED_AT = 6
 def recent_sessions(db: DbSession, patient_id: int) -> list[dict[str, Any]]:
     """The patient's latest estimated sessions with a marked exercise, newest first (at
     most ``RECENT_SESSIONS``): ``{"session_id", "started_at" [UTC], "program": {"name",
-    "version"} | None, "exercises": [{"name", "title", "repetitions", "prescribed",
+    "version"} | None, "exercises": [{"name", "title", "angle", "repetitions", "prescribed",
     "min_deg", "max_deg", "target": {"min_deg", "max_deg"}}]}``."""
     marked = select(models.Mark.id).where(models.Mark.session_id == models.Session.id,
                                           models.Mark.label.startswith("exercise:"))
@@ -76,7 +76,7 @@ def _told(db: DbSession, session: models.Session, results: dict[str, ExerciseRes
                          else (entry.rest_deg, entry.target_deg))
             source = "patient" if target is not None else "default"
             count = entry.repetitions
-        exercises.append({"name": name, "title": entry.title,
+        exercises.append({"name": name, "title": entry.title, "angle": entry.angle,
                           "repetitions": result.repetitions, "prescribed": count,
                           "min_deg": result.min_deg, "max_deg": result.max_deg,
                           "target": {"min_deg": low, "max_deg": high, "from": source}})

@@ -12,6 +12,14 @@ const BORG_WORDS = { 0: "Nothing at all", 1: "Very light", 2: "Light", 3: "Moder
 /** Numeric rating scale's anchors. */
 const PAIN_WORDS = { 0: "No pain", 10: "Worst pain imaginable" };
 
+/** The words for each side of a both-ways angle a phone may show, [negative, positive]
+ * in docs/spec/kinematics.md's signs (``KitProgram.angleWords``). */
+const ANGLE_SIDES = {
+  forearm_pronation: ["palm up", "palm down"],
+  shoulder_rotation: ["hand out", "hand in"],
+  wrist_flexion: ["hand up", "hand down"],
+};
+
 const KitProgram = {
   /** "2 sets of 10 · hold 2 seconds · rest 20 seconds between sets", in the patient's
    * words (the rest only when there are sets). */
@@ -136,28 +144,49 @@ const KitProgram = {
       const d = did[i] || {};
       const reps = Object.values(d.reps || {}).reduce((a, b) => a + b, 0);
       return el("li", {}, KitProgram.didLine(ex.title, reps, (ex.sets || 1) * ex.repetitions,
-        d.lo, d.hi, ex.target));
+        d.lo, d.hi, ex.target, ex.angle));
     }));
+  },
+
+  /** An angle [deg] as the patient reads it: a turn both ways in words, never a signed
+   * number ("45° palm up", "70° palm down"), as docs/spec/kinematics.md signs them
+   * (`forearm_pronation`: pronation +, the palm turned down; supination −, up;
+   * `shoulder_rotation`: internal +, the hand in; `wrist_flexion`: flexion +, the hand
+   * down); 0° and any other angle as the number ("112°"). The therapist's pages and the
+   * API keep the signed numbers. */
+  angleWords(angle, deg) {
+    return KitProgram.angleParts(angle, deg).filter(Boolean).join(" ");
+  },
+
+  /** ``angleWords`` in two parts, the number and the side's words ("" when none):
+   * ["45°", "palm up"]; the live screen shows the side smaller under the number. */
+  angleParts(angle, deg) {
+    const n = Math.round(deg);
+    const words = ANGLE_SIDES[angle];
+    if (!words || n === 0) return [`${n}°`, ""];
+    return [`${Math.abs(n)}°`, n > 0 ? words[1] : words[0]];
   },
 
   /** The band shown beside an exercise: "target 0° to 110°" when the therapist set it
    * (the program's or the patient's target), "usual range 0° to 120°" when nobody did
    * (`from` default or catalogue: the exercise's usual range, which the therapist's
-   * report does not call a target either, "Target then: –"). */
-  bandWords(target) {
+   * report does not call a target either, "Target then: –"); its ends in the words of
+   * `angleWords` for the exercise's `angle` ("usual range 70° palm up to 70° palm down"). */
+  bandWords(target, angle) {
     const usual = target.from === "default" || target.from === "catalogue";
-    return `${usual ? "usual range" : "target"} ${Math.round(target.min_deg)}° to `
-      + `${Math.round(target.max_deg)}°`;
+    return `${usual ? "usual range" : "target"} ${KitProgram.angleWords(angle, target.min_deg)} to `
+      + `${KitProgram.angleWords(angle, target.max_deg)}`;
   },
 
   /** One line of what was done: "Bend the elbow: 8 of 10 repetitions · from 3° to 112°
    * (target 0° to 120°)", or "…: not done" with no repetition and no range; `lo`, `hi`
    * [deg] the range reached (null: none shown), `target` { min_deg, max_deg, from }
-   * (``bandWords``). */
-  didLine(title, reps, prescribed, lo, hi, target) {
+   * (``bandWords``), `angle` the exercise's angle (``angleWords``: "from 40° palm up to
+   * 60° palm down"). */
+  didLine(title, reps, prescribed, lo, hi, target, angle) {
     if (!reps && lo == null) return `${title}: not done`;
-    const range = lo == null ? "" : ` · from ${Math.round(lo)}° to ${Math.round(hi)}°`
-      + ` (${KitProgram.bandWords(target)})`;
+    const range = lo == null ? "" : ` · from ${KitProgram.angleWords(angle, lo)} to `
+      + `${KitProgram.angleWords(angle, hi)} (${KitProgram.bandWords(target, angle)})`;
     return `${title}: ${reps} of ${prescribed} repetitions${range}`;
   },
 
@@ -167,7 +196,7 @@ const KitProgram = {
   recent(served, last) {
     const sessions = (served || []).map((r) => ({ at: new Date(r.started_at), session: r.session_id,
       lines: r.exercises.map((e) => KitProgram.didLine(e.title, e.repetitions, e.prescribed,
-        e.min_deg, e.max_deg, e.target)) }));
+        e.min_deg, e.max_deg, e.target, e.angle)) }));
     if (last && last.lines && last.lines.length) {
       const same = sessions.find((r) => last.session != null && r.session === last.session);
       if (same) same.lines = last.lines;

@@ -563,7 +563,7 @@ function exercise(index, set = 0, resumed = false) {
   screen(el("p", { class: "kicker" }, `Exercise ${index + 1} of ${list.length}`,
     sets > 1 ? ` · set ${set + 1} of ${sets}` : "", " · ", clock),
     el("h1", {}, ex.title),
-    el("div", { class: "live" }, angle, el("div", { class: "target" }, KitProgram.bandWords(ex.target))),
+    el("div", { class: "live" }, angle, el("div", { class: "target" }, KitProgram.bandWords(ex.target, ex.angle))),
     band, reps, note, next);
   // repetitions: per counting run of the server (feedback's count_from; one run goes on
   // across a resumed stream), a new run's count added to what was shown before it
@@ -586,7 +586,8 @@ function exercise(index, set = 0, resumed = false) {
     const f = kit.feedback;
     const fresh = f && Date.now() - kit.feedbackAt < 3000 && f.exercise === ex.name && f.t >= markT;
     if (fresh && f.angle_deg != null) {
-      angle.textContent = `${Math.round(f.angle_deg)}°`;
+      const [deg, side] = KitProgram.angleParts(ex.angle, f.angle_deg);
+      angle.replaceChildren(deg, ...(side ? [el("span", { class: "side" }, side)] : []));
       marker.style.left = pos(f.angle_deg);
       marker.hidden = false;
       // docs/extensions/kit-feedback.md: a new counting run starts from 0 and adds up
