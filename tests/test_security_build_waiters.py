@@ -26,9 +26,10 @@ from conftest import fresh_postgres_database
 from server_support import ServerProcess
 
 #: While ``BUILD_GATE/hold-<session id>`` exists, that session's summary build (or, with
-#: ``hold-report-<session id>``, its report's build) says so (``reached-…``) and waits
-#: until the file is gone. Each request counted in for a build (``Builds._enter``) says
-#: how many its caller then has building or waiting (``counted-<kind>-<id>-<n>``).
+#: ``hold-report-<session id>``, its report's build; ``hold-programs-<patient id>``, its
+#: programs' adherence) says so (``reached-…``) and waits until the file is gone. Each
+#: request counted in for a build (``Builds._enter``) says how many its caller then has
+#: building or waiting (``counted-<kind>-<id>-<n>``).
 BUILD_GATE = Path(tempfile.mkdtemp(prefix="armtrack-build-gate-"))
 GATE_HOOK = """
 import os as _os, sys as _sys, threading as _threading, time as _time
@@ -72,6 +73,14 @@ def _install(gate):
         wait(f"report-{data.session.id}")
         return build_report(data, targets)
     content.build_report = gated_report
+
+    import armtrack.server.programs.adherence as adherence
+    programs_progress = adherence.patient_programs_progress
+
+    def gated_programs(db, patient, *args, **kwargs):
+        wait(f"programs-{patient.id}")
+        return programs_progress(db, patient, *args, **kwargs)
+    adherence.patient_programs_progress = gated_programs
 
 
 if _os.environ.get("TEST_BUILD_GATE"):
@@ -276,3 +285,25 @@ def test_a_report_built_while_its_sign_in_ends_is_not_sent(server, form):
                           f"report-{session['id']}", sign_out)
     assert answer.status_code == 401, answer.text[:200]
     assert "sign in" in answer.json()["detail"]
+
+
+def test_a_programs_adherence_made_while_its_patient_is_reassigned_is_not_sent(server):
+    """The same for a program's ``/adherence`` (each of its sessions' reports)."""
+    alice, root = server.client("alice"), server.client("root")
+    carol = next(t for t in root.http.get("/api/admin/therapists").json()
+                 if t["username"] == "carol")
+    patient = alice.patient(name="Programmed")
+    program = alice.http.post(f"/api/patients/{patient['id']}/programs", json={
+        "name": "Daily", "start_date": "2026-12-01",
+        "exercises": [{"exercise": "elbow_flexion", "sets": 2,
+                                        "repetitions": 10, "days_per_week": 5}]})
+    assert program.status_code == 201, program.text
+
+    def reassign() -> None:
+        moved = root.http.post(f"/api/admin/patients/{patient['id']}/reassign",
+                               json={"therapist_id": carol["id"]})
+        assert moved.status_code == 200, moved.text
+    answer = _held_answer(server, alice, f"/api/programs/{program.json()['id']}/adherence",
+                          f"programs-{patient['id']}", reassign)
+    assert answer.status_code == 404, answer.text[:200]
+    assert answer.json()["detail"].startswith(f"no patient {patient['id']} among yours")

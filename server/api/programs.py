@@ -21,7 +21,7 @@ from ..programs.schemas import CatalogueOut, PrescriptionIn, ProgramIn, ProgramO
 from ..reports.targets import patient_targets
 from ..services import Services
 from ..settings import Settings
-from .deps import Db, Therapist, holds, own_patient, services
+from .deps import Db, Held, Therapist, holds, own_patient, services
 from .schemas import Id
 
 router = APIRouter(prefix="/api", tags=["programs"], responses={
@@ -133,14 +133,14 @@ def end_program(program_id: Id, db: Db, therapist: Therapist,
 
 
 @router.get("/programs/{program_id}/adherence", response_model=adherence.ProgramProgress)
-def get_adherence(program_id: Id, db: Db, therapist: Therapist,
+def get_adherence(program_id: Id, db: Db, therapist: Therapist, right: Held,
                   settings: SettingsDep) -> adherence.ProgramProgress:
     """The program's sessions, per ISO week prescribed vs done, per exercise the range
     over time against its target, pain over time, and its flags (``docs/programs.md``)."""
     program = own_program(db, therapist, program_id)
     patient = db.get(models.Patient, program.patient_id)
-    return next(p for p in adherence.patient_programs_progress(db, patient, settings)
-                if p.program_id == program.id)
+    return right.held(next(p for p in adherence.patient_programs_progress(db, patient, settings)
+                           if p.program_id == program.id))
 
 
 class PatientFlags(BaseModel):
@@ -167,7 +167,7 @@ def get_flags(db: Db, therapist: Therapist, settings: SettingsDep) -> list[Patie
             responses={200: {"content": {"application/fhir+json": {"schema": {
                 "type": "object", "description": "a FHIR R4 Bundle"}}},
                 "description": "FHIR R4 Bundle"}})
-def get_careplan_fhir(program_id: Id, db: Db, therapist: Therapist,
+def get_careplan_fhir(program_id: Id, db: Db, therapist: Therapist, right: Held,
                       settings: SettingsDep) -> JSONResponse:
     """The program as FHIR R4: CarePlan with its activities, a Goal and a ServiceRequest
     per exercise, and the sessions' range-of-motion, pain and effort Observations
@@ -180,13 +180,13 @@ def get_careplan_fhir(program_id: Id, db: Db, therapist: Therapist,
     sessions = adherence.filled_sessions(db, patient.id, program, zone)
     bundle = program_fhir.careplan_bundle(program, patient, patient_targets(db, patient.id),
                                           sessions, today(zone), clock.now())
-    return JSONResponse(bundle, media_type="application/fhir+json", headers={
-        "Content-Disposition": f'attachment; filename="program-{program_id}.fhir.json"'})
+    return right.held(JSONResponse(bundle, media_type="application/fhir+json", headers={
+        "Content-Disposition": f'attachment; filename="program-{program_id}.fhir.json"'}))
 
 
 @router.get("/patients/{patient_id}/progress.pdf", response_class=Response,
             responses={200: {"content": {"application/pdf": {}}, "description": "PDF"}})
-def get_progress_pdf(patient_id: Id, db: Db, therapist: Therapist,
+def get_progress_pdf(patient_id: Id, db: Db, therapist: Therapist, right: Held,
                      settings: SettingsDep) -> Response:
     """The patient's programs as a PDF: per program the flags, adherence per ISO week,
     the range of each exercise against its target, pain and effort over time."""
@@ -198,5 +198,5 @@ def get_progress_pdf(patient_id: Id, db: Db, therapist: Therapist,
     data = program_pdf.progress_pdf(patient, programs, today(zone), settings.clinic_timezone,
                                     clinic_name=settings.clinic_name,
                                     therapist=therapist.full_name or therapist.username)
-    return Response(data, media_type="application/pdf", headers={
-        "Content-Disposition": f'attachment; filename="patient-{patient_id}-progress.pdf"'})
+    return right.held(Response(data, media_type="application/pdf", headers={
+        "Content-Disposition": f'attachment; filename="patient-{patient_id}-progress.pdf"'}))
