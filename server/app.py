@@ -133,7 +133,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 "no therapist account yet: make one with `armtrack create-user NAME` "
                 "(same --data-dir/ARMTRACK_DATABASE_URL as this server), then sign in at "
                 "/signin")
-        if not settings.clinic_name:
+        if not settings.clinic_name and not settings.demo_mode:
             logging.getLogger("armtrack").warning(
                 "ARMTRACK_CLINIC_NAME is not set: session reports (PDF) print no clinic "
                 "name; set it to the name reports should carry (docs/operator.md)")

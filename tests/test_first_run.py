@@ -113,6 +113,9 @@ def test_the_demo_keeps_a_bounded_number_of_sessions(tmp_path):
             text = (tmp_path / "demo.log").read_text()
             assert demo.poll() is None, text
         assert text.count("demo: erased") >= 2, text
+        # ops20, the README's run command as a newcomer: the demo's first line told them
+        # to set ARMTRACK_CLINIC_NAME, a clinic's setting the demo has no use for
+        assert "ARMTRACK_CLINIC_NAME" not in text, text[:2000]
         server = ServerProcess(data)
         rows = server.sql("SELECT id, status FROM sessions ORDER BY id")
         closed = [r for r in rows if r[1] == "closed"]
