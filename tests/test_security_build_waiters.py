@@ -27,9 +27,10 @@ from server_support import ServerProcess
 
 #: While ``BUILD_GATE/hold-<session id>`` exists, that session's summary build (or, with
 #: ``hold-report-<session id>``, its report's build; ``hold-programs-<patient id>``, its
-#: programs' adherence) says so (``reached-…``) and waits until the file is gone. Each
-#: request counted in for a build (``Builds._enter``) says how many its caller then has
-#: building or waiting (``counted-<kind>-<id>-<n>``).
+#: programs' adherence; ``hold-flags-<patient id>``, the flags of their therapist) says so
+#: (``reached-…``) and waits until the file is gone. Each request counted in for a build
+#: (``Builds._enter``) says how many its caller then has building or waiting
+#: (``counted-<kind>-<id>-<n>``).
 BUILD_GATE = Path(tempfile.mkdtemp(prefix="armtrack-build-gate-"))
 GATE_HOOK = """
 import os as _os, sys as _sys, threading as _threading, time as _time
@@ -81,6 +82,13 @@ def _install(gate):
         wait(f"programs-{patient.id}")
         return programs_progress(db, patient, *args, **kwargs)
     adherence.patient_programs_progress = gated_programs
+    flags_by_patient = adherence.flags_by_patient
+
+    def gated_flags(db, patients, *args, **kwargs):
+        for patient_id in patients:
+            wait(f"flags-{patient_id}")
+        return flags_by_patient(db, patients, *args, **kwargs)
+    adherence.flags_by_patient = gated_flags
 
 
 if _os.environ.get("TEST_BUILD_GATE"):
@@ -307,3 +315,27 @@ def test_a_programs_adherence_made_while_its_patient_is_reassigned_is_not_sent(s
                           f"programs-{patient['id']}", reassign)
     assert answer.status_code == 404, answer.text[:200]
     assert answer.json()["detail"].startswith(f"no patient {patient['id']} among yours")
+
+
+def test_flags_made_while_a_patient_is_reassigned_leave_that_patient_out(server):
+    """The therapist's ``/flags`` (every patient's programs): a patient reassigned while
+    they were made is left out, as a request made then would leave them."""
+    alice, root = server.client("alice"), server.client("root")
+    carol = next(t for t in root.http.get("/api/admin/therapists").json()
+                 if t["username"] == "carol")
+    patient = alice.patient(name="Flagged")  # a program begun long ago, no session: flagged
+    program = alice.http.post(f"/api/patients/{patient['id']}/programs", json={
+        "name": "Daily", "start_date": "2026-01-05",
+        "exercises": [{"exercise": "elbow_flexion", "sets": 2,
+                       "repetitions": 10, "days_per_week": 5}]})
+    assert program.status_code == 201, program.text
+    flagged = [f["patient_id"] for f in alice.http.get("/api/flags").json()]
+    assert patient["id"] in flagged, flagged
+
+    def reassign() -> None:
+        moved = root.http.post(f"/api/admin/patients/{patient['id']}/reassign",
+                               json={"therapist_id": carol["id"]})
+        assert moved.status_code == 200, moved.text
+    answer = _held_answer(server, alice, "/api/flags", f"flags-{patient['id']}", reassign)
+    assert answer.status_code == 200, answer.text[:200]
+    assert patient["id"] not in [f["patient_id"] for f in answer.json()], answer.json()

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import threading
-from collections.abc import AsyncIterator, Callable, Iterator
+from collections.abc import AsyncIterator, Callable, Iterable, Iterator
 from datetime import UTC, datetime
 from typing import Annotated, Any, TypeVar
 
@@ -186,6 +186,16 @@ class Right:
     def held(self, answer: T) -> T:
         right_held(self.db, self.token, self.therapist, self.demo_mode)
         return answer
+
+    def theirs(self, patient_ids: Iterable[int]) -> set[int]:
+        """Of ``patient_ids`` (an answer about several patients, as ``/flags``), those
+        still the therapist's now; the sign-in ended meanwhile: its 401."""
+        watches = {p: Watch(hash_token(self.token or ""), self.therapist.id, p, None,
+                            close=lambda code, reason: None) for p in patient_ids}
+        refused = refusals(self.db, watches.values(), self.demo_mode)
+        if any(code == CLOSE_SIGNED_OUT for code, _ in refused.values()):
+            raise unauthorized("the sign-in has ended: sign in again")
+        return {p for p, watch in watches.items() if watch not in refused}
 
 
 Held = Annotated[Right, Depends()]

@@ -149,7 +149,8 @@ class PatientFlags(BaseModel):
 
 
 @router.get("/flags", response_model=list[PatientFlags])
-def get_flags(db: Db, therapist: Therapist, settings: SettingsDep) -> list[PatientFlags]:
+def get_flags(db: Db, therapist: Therapist, right: Held,
+              settings: SettingsDep) -> list[PatientFlags]:
     """The therapist's patients who need a look (``docs/programs.md``, "Flags"): no
     session for days, range falling, pain rising. Patients without a flag are left out,
     and discharged ones (docs/extensions/discharge.md: no session is expected of them).
@@ -160,7 +161,9 @@ def get_flags(db: Db, therapist: Therapist, settings: SettingsDep) -> list[Patie
         models.Patient.therapist_id == therapist.id, models.Patient.discharged_is(False))
         .order_by(models.Patient.id)))
     found = adherence.flags_by_patient(db, patients, settings)
-    return [PatientFlags(patient_id=p, flags=found[p]) for p in patients if p in found]
+    # read again as the answer goes: a patient reassigned or erased meanwhile is left out
+    theirs = right.theirs(found)
+    return [PatientFlags(patient_id=p, flags=found[p]) for p in patients if p in theirs]
 
 
 @router.get("/programs/{program_id}/careplan.fhir.json", response_class=JSONResponse,
