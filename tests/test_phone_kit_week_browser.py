@@ -207,13 +207,9 @@ def test_a_week_the_program_starts_in_says_why_it_asks_fewer_days(world):
         for width, height in ((390, 844), (1280, 900)):
             with chromium(playwright, width, height, phone=width < 500) as context:
                 page = first_page(context)
-                page.goto(f"{world['server'].url}/kit#token={token}")
-                line = page.locator("#this-week")
-                sync_api.expect(line).to_be_visible(timeout=30_000)
+                assert phone_week(page, {**world, "token": token},
+                                  f"w8-started-saturday-{width}.png") == expected
                 sync_api.expect(page.locator("body")).to_contain_text("5 days a week")
-                page.screenshot(path=str(world["shots"] / f"w8-started-saturday-{width}.png"),
-                                full_page=True)
-                assert line.inner_text() == expected
 
 
 def test_a_change_in_the_week_says_it_counts_from_the_next_week(world):
@@ -245,13 +241,9 @@ def test_a_change_in_the_week_says_it_counts_from_the_next_week(world):
           chromium(playwright, 1280, 900) as wide):
         for width, context in ((390, narrow), (1280, wide)):
             page = first_page(context)
-            page.goto(f"{world['server'].url}/kit#token={token}")
-            line = page.locator("#this-week")
-            sync_api.expect(line).to_be_visible(timeout=30_000)
+            assert phone_week(page, {**world, "token": token},
+                              f"c1-changed-{width}.png") == expected
             sync_api.expect(page.locator("body")).to_contain_text("3 days a week")
-            page.screenshot(path=str(world["shots"] / f"c1-changed-{width}.png"),
-                            full_page=True)
-            assert line.inner_text() == expected
             sign_in_as(page, world["server"].url, "alice")
             page.goto(f"{world['server'].url}/patients/{patient['id']}")
             row = page.locator('table.adherence tr[data-week="2026-W49"]')
