@@ -422,3 +422,28 @@ def test_the_operators_guide_says_where_the_compiled_kernels_are_cached(monkeypa
     assert "armtrack: compiled kernels ready (" in block.group(1)
     from armtrack.server.store import background
     assert "armtrack: compiled kernels ready (" in Path(background.__file__).read_text()
+
+
+def test_compose_passes_the_clinics_settings_to_the_app(monkeypatch):
+    """Found by user19 and ops20 reading docker/compose.yaml (no docker daemon here): the
+    single-machine app took only ARMTRACK_DATABASE_URL, so the https address phones use
+    (ARMTRACK_PUBLIC_URL), the trusted proxy and the clinic's name could not be given
+    without editing the file. They are passed from compose's shell when set there (a key
+    without a value), never as an empty string: an empty ARMTRACK_PUBLIC_URL or
+    ARMTRACK_CLINIC_TIMEZONE stops the server. (`docker-compose config` of docker-compose
+    1.29.2 accepts the file with each profile; checked by hand, not here.)"""
+    import yaml
+    from armtrack.server.settings import Settings
+
+    compose = yaml.safe_load((ROOT / "docker" / "compose.yaml").read_text("utf-8"))
+    environment = compose["services"]["app"]["environment"]
+    for name in ("ARMTRACK_PUBLIC_URL", "ARMTRACK_TRUSTED_PROXIES", "ARMTRACK_CLINIC_NAME",
+                 "ARMTRACK_CLINIC_TIMEZONE"):
+        assert name in environment, name
+    for name, value in environment.items():
+        assert name.startswith("ARMTRACK_"), name
+        assert name.removeprefix("ARMTRACK_").lower() in Settings.model_fields, name
+        assert value is None or value == f"${{{name}:-}}", (name, value)
+        if value is not None:  # compose gives "" when the shell has no such variable
+            monkeypatch.setenv(name, "")
+    Settings()  # what the app then starts with validates
