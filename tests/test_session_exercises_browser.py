@@ -278,12 +278,19 @@ def _stream_with_rating(server, token: str, recording, rating: dict) -> int:
 
 @pytest.fixture(scope="module")
 def rated_session(module_server):
-    """A streamed, processed session in which the patient rated the exercise."""
+    """A streamed, processed session in which the patient rated the exercise, then began
+    the next one (Turn the palm) and left: its set is never ended (user20's walk)."""
+    import dataclasses
+
+    from armtrack.estimator.recording import Mark
+
     api = module_server.client("alice")
     patient = api.patient("Rated Patient")
     token = api.device(patient["id"], "phone")["token"]
+    recording = _exercise("elbow_flexion", repetitions=2)
+    left = Mark(recording.marks[-1].t + 0.5, "exercise:pronation")  # no end:exercise:…
     session_id = _stream_with_rating(
-        module_server, token, _exercise("elbow_flexion", repetitions=2),
+        module_server, token, dataclasses.replace(recording, marks=(*recording.marks, left)),
         {"id": "r1", "exercise": "elbow_flexion", "t": 20.0, "effort": 4.5, "pain": 3})
     return api.wait_processed(session_id, timeout=120)
 
@@ -307,3 +314,30 @@ def test_the_session_page_says_how_hard_and_painful_the_patient_found_it(
             assert box["x"] + box["width"] <= card["x"] + card["width"] + 0.5, width
             page.screenshot(path=str(tmp_path / f"session-ratings-{width}.png"), full_page=True)
         print(f"\nscreenshots: {tmp_path}")
+
+
+def test_a_set_the_patient_left_part_way_says_so(module_server, rated_session, tmp_path):
+    """user20: the patient left part way through an exercise; its set showed as a bare
+    chip ("Pronation — set 2") under a session that said "Finished", nothing telling the
+    therapist it was never done. Its chip now says "stopped after N of 10" (the set's asked
+    repetitions: the catalogue's here) and the page says the patient stopped part way; the
+    finished set reads as before. Reuses the rated session (no second stream)."""
+    api = module_server.client("alice")
+    summary = api.http.get(f"/api/sessions/{rated_session['id']}/summary").json()
+    print("\n", summary["exercises"])
+    elbow, palm = summary["exercises"]
+    assert "unfinished" not in elbow and palm["unfinished"] is True and palm["asked"] == 10
+    with page_at(390) as page:
+        sign_in_as(page, module_server.url, "alice")
+        page.goto(f"{module_server.url}/sessions/{rated_session['id']}")
+        chips = page.locator("#exercises .chip")
+        sync_api.expect(chips).to_have_count(2)
+        sync_api.expect(chips.nth(0)).not_to_contain_text("stopped")
+        sync_api.expect(chips.nth(1)).to_contain_text(
+            f"Pronation: stopped after {palm['repetitions']} of 10 · ")
+        sync_api.expect(chips.nth(1)).to_have_class(re.compile(r"\bunfinished\b"))
+        sync_api.expect(page.locator("#stopped-part-way")).to_contain_text(
+            "The patient stopped part way")
+        print(chips.all_inner_texts())
+        page.screenshot(path=str(tmp_path / "stopped-part-way-390.png"), full_page=True)
+        print(f"screenshot: {tmp_path}")

@@ -96,11 +96,25 @@ def _periods(marks: list[tuple[float, str]], end_t: float | None
             open_[label] = t
     for label, start in open_.items():  # still open (live, or the kit never ended it)
         if label.startswith("exercise:"):
-            exercises.append({"name": label[9:], "start": start, "end": end_t})
+            exercises.append({"name": label[9:], "start": start, "end": end_t, "ended": False})
         elif end_t is not None:
             poses.append((start, end_t))
     exercises.sort(key=lambda e: e["start"])
     return exercises, poses
+
+
+def _asked_per_set(db: DbSession, session: models.Session, name: str) -> int | None:
+    """The repetitions a set of exercise ``name`` asked in ``session``: the followed
+    program version's, else the catalogue's; None for an exercise neither knows."""
+    from ..programs.catalogue import CATALOGUE
+    from ..programs.stream import followed_version
+
+    version = followed_version(db, session.id)
+    for entry in version.exercises if version is not None else ():
+        if entry.exercise == name:
+            return entry.repetitions
+    known = CATALOGUE.get(name)
+    return known.repetitions if known is not None else None
 
 
 def _rom(db: DbSession, session: models.Session, poses: list[tuple[float, float]]
@@ -202,6 +216,11 @@ def _summarise(db: DbSession, session: models.Session, key: tuple) -> dict[str, 
     exercises, poses = _periods(_marks(db, session.id), end_t)
     for exercise in exercises:
         exercise["source"] = "marks"
+        # a set the kit began and never ended in a session now closed: the patient left it
+        # part way (docs/therapist.md); how many a set asked, for "stopped after 4 of 10"
+        if exercise.pop("ended", True) is False and session.status == "closed":
+            exercise["unfinished"] = True
+            exercise["asked"] = _asked_per_set(db, session, exercise["name"])
     rom = _rom(db, session, poses) if session.estimate_columns else {}
     if session.estimate_columns and session.status == "closed":
         if exercises:

@@ -303,6 +303,14 @@ function exerciseNames(exercises) {
 
 // A set the kit marked in which the report counted no repetition (started and ended at
 // once, or nothing done): shown, as empty, not as an exercise "× 0".
+// A set the kit began and never ended in a closed session (summary's `unfinished`): the
+// patient left it part way, "stopped after 4 of 10" (of the set's asked repetitions).
+function stoppedWords(e) {
+  if (typeof e.repetitions !== "number") return "stopped part way";
+  return typeof e.asked === "number" ? `stopped after ${e.repetitions} of ${e.asked}`
+    : `stopped after ${e.repetitions}`;
+}
+
 function emptySet(e) {
   return e.source === "marks" && e.repetitions === 0;
 }
@@ -311,7 +319,8 @@ function emptySet(e) {
 // several), with the repetitions the report found; an empty set says so.
 function exerciseChipTexts(exercises) {
   const names = exerciseNames(exercises);
-  return exercises.map((e, k) => emptySet(e) ? `${names[k]}: empty (no repetition)`
+  return exercises.map((e, k) => e.unfinished ? `${names[k]}: ${stoppedWords(e)}`
+    : emptySet(e) ? `${names[k]}: empty (no repetition)`
     : typeof e.repetitions === "number" && (e.source !== "detected" || e.repetitions)
       ? `${names[k]} × ${e.repetitions}` : names[k]);
 }

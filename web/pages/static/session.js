@@ -560,9 +560,12 @@ async function showReplay() {
   card.hidden = false;
   clear(card,
     el("h2", {}, "Exercises"),
-    summary.exercises.length ? el("div", { id: "exercises" }, exerciseChipTexts(summary.exercises).map((text, k) => el("span", { class: emptySet(summary.exercises[k]) ? "chip empty" : "chip" },
+    summary.exercises.length ? el("div", { id: "exercises" }, exerciseChipTexts(summary.exercises).map((text, k) => el("span", { class: summary.exercises[k].unfinished ? "chip unfinished" : emptySet(summary.exercises[k]) ? "chip empty" : "chip" },
       text + ` · ${summary.exercises[k].start.toFixed(0)}–${summary.exercises[k].end === null ? "…" : summary.exercises[k].end.toFixed(0)} s`)))
       : el("p", { class: "muted" }, "No exercise was marked or found in this session."),
+    summary.exercises.some((e) => e.unfinished) ? el("p", { class: "note", id: "stopped-part-way" },
+      "The patient stopped part way: the session ended with a set begun and never finished "
+      + "on the kit (“stopped after …” above).") : null,
     ratingsNote(summary.ratings),
     el("h3", {}, "Calibration"),
     summary.calibration_poses.length
