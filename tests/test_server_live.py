@@ -534,3 +534,82 @@ def test_a_stopped_sensor_that_sends_again_is_stored_but_stays_out_of_the_live_v
     again = [w for w in last["warnings"] if "the hand sensor sends again" in w]
     assert len(again) == 1 and "shown live from the next session" in again[0]
     assert live.pipeline.held_rows() < 1000
+
+
+def test_the_live_page_titles_a_stopped_sensor_as_what_it_is(module_server, tmp_path):
+    """The hand stops at 80 s (after the default calibration) while the upper arm and
+    forearm go on 240 s more, sent at once (the held rows' rule leaves it out without
+    waiting 30 s of wall clock). The live page's box said "Calibrated, with warnings —
+    the angles may be less accurate" above the stopped-sensor warning; its title now says
+    what is true, at 390 and 1280 px."""
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
+    from browser_helpers import chromium, first_page, need_browser, sign_in_as
+
+    sync_api = need_browser()
+    api = module_server.client("alice")
+    patient = api.patient("Hana Hand")
+    token = api.device(patient["id"])["token"]
+    opened, done = threading.Event(), threading.Event()
+    ready = {}
+
+    async def kit():
+        async with connect(module_server.ws_url, max_size=None,
+                           additional_headers={"Authorization": f"Bearer {token}"}) as ws:
+            await ws.send(json.dumps({"type": "hello", "protocol": 1, "device": "kit",
+                                      "side": "right", "rate_hz": 100, "nine_axis": False,
+                                      "sensors": ["upper_arm", "forearm", "hand"],
+                                      "resume": None}))
+            ready.update(json.loads(await ws.recv()))
+            errors = []
+
+            async def read():  # acks; an error would be the test's fault
+                async for text in ws:
+                    if json.loads(text)["type"] == "error":
+                        errors.append(text)
+            reader = asyncio.create_task(read())
+            assert await asyncio.to_thread(opened.wait, 60)  # the page watches
+            seq = 0
+            for start in range(0, 32_000, 1000):  # the hand stops at 80 s (calibrated)
+                names = ("upper_arm", "forearm") + (("hand",) if start < 8000 else ())
+                t = (start + np.arange(1000)) / 100
+                rows = [[round(float(x), 2), 0, -9.81, 0, 0, 0, 0, None, None, None]
+                        for x in t]
+                for name in names:
+                    await ws.send(json.dumps({"type": "samples", "sensor": name,
+                                              "rows": rows, "seq": seq}))
+                    seq += 1
+            assert not errors, errors
+            await asyncio.to_thread(done.wait, 120)  # live until the page was read
+            assert not errors, errors
+            reader.cancel()
+
+    with (ThreadPoolExecutor(1) as pool, sync_api.sync_playwright() as playwright,
+          chromium(playwright, 390, 844, phone=True) as narrow,
+          chromium(playwright, 1280, 900) as wide):
+        streaming = pool.submit(asyncio.run, kit())
+        try:
+            pages = {390: first_page(narrow), 1280: first_page(wide)}
+            deadline = time.monotonic() + 60
+            while "session" not in ready and time.monotonic() < deadline:
+                time.sleep(0.05)
+            for page in pages.values():  # both watch before the kit sends (poses go by)
+                sign_in_as(page, module_server.url, "alice")
+                page.goto(f"{module_server.url}/sessions/{ready['session']}")
+                sync_api.expect(page.locator("#calibration-box")).to_be_visible(
+                    timeout=30_000)
+            opened.set()
+            for width, page in pages.items():
+                warnings = page.locator("#calibration-warnings")
+                sync_api.expect(warnings).to_contain_text(
+                    "the hand sensor stopped sending", timeout=60_000)
+                page.locator("#calibration-box").screenshot(
+                    path=str(tmp_path / f"stopped-{width}.png"))
+                title = page.locator("#calibration-box .title").inner_text()
+                print(f"\n{width} px: {title} | {warnings.inner_text()}")
+                assert title == "Live angles without the hand sensor: it stopped sending", title
+        finally:
+            opened.set()
+            done.set()
+            streaming.result(timeout=120)

@@ -318,8 +318,14 @@ function calibrationState(live) {
       poses: cal.poses, warnings };
   }
   if (estimating) {
+    // a sensor that stopped sending mid-session (docs/extensions/sensor-stopped.md): its
+    // angles are not shown, which is what the title says (not "less accurate")
+    const stopped = Object.keys((lastPose && lastPose.session_id === session.id
+      && lastPose.stopped_sensors) || {}).map((n) => (SENSOR_LABELS[n] || n).toLowerCase());
     return { phase: "done", kind: warnings.length ? "warn" : "done", icon: warnings.length ? "!" : "✓",
-      title: warnings.length ? "Calibrated, with warnings — the angles may be less accurate"
+      title: stopped.length ? `Live angles without the ${stopped.join(" and ")} sensor`
+          + `${stopped.length > 1 ? "s: they" : ": it"} stopped sending`
+        : warnings.length ? "Calibrated, with warnings — the angles may be less accurate"
         : "Calibrated — live angles are running",
       how: cal.poses.length ? null : session && session.carries_on != null
         ? `No calibration pose in this session: it carries on session ${session.carries_on}, where the patient held the poses; the default sensor mounting is used here.`
