@@ -95,7 +95,9 @@ def test_a_busy_port_is_named_with_what_to_do(tmp_path, command):
 
 def test_the_demo_keeps_a_bounded_number_of_sessions(tmp_path):
     """A demo left running erases its oldest sessions: with --keep 2, after four sessions
-    the database holds at most two closed ones (plus the one streaming)."""
+    the database holds at most two, the one streaming included — at every moment, not only
+    just after an erase (the bound was once kept only after the pause that followed a
+    close: a look in those 5 s saw three)."""
     from server_support import free_port
 
     port = free_port()
@@ -107,21 +109,21 @@ def test_the_demo_keeps_a_bounded_number_of_sessions(tmp_path):
                             stdout=log, stderr=subprocess.STDOUT)
     try:
         deadline = time.monotonic() + 240
-        text = ""
+        text, seen, rows = "", [], []
         while time.monotonic() < deadline and text.count("demo: erased") < 2:
-            time.sleep(1)
+            time.sleep(0.5)
             text = (tmp_path / "demo.log").read_text()
             assert demo.poll() is None, text
+            if "demo: the simulated patient" in text:  # the schema is made by then
+                rows = ServerProcess(data).sql("SELECT id, status FROM sessions ORDER BY id")
+                seen.append(rows)
+                assert len(rows) <= 2, (rows, text[-2000:])
         assert text.count("demo: erased") >= 2, text
         # ops20, the README's run command as a newcomer: the demo's first line told them
         # to set ARMTRACK_CLINIC_NAME, a clinic's setting the demo has no use for
         assert "ARMTRACK_CLINIC_NAME" not in text, text[:2000]
-        server = ServerProcess(data)
-        rows = server.sql("SELECT id, status FROM sessions ORDER BY id")
-        closed = [r for r in rows if r[1] == "closed"]
-        print(rows)
-        assert len(closed) <= 2 and len(rows) <= 3
-        assert rows[-1][0] >= 4  # older sessions were made, then erased
+        print(f"{len(seen)} looks, the last: {rows}")
+        assert rows[-1][0] >= 3  # older sessions were made, then erased
     finally:
         demo.terminate()
         demo.wait(30)

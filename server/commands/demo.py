@@ -28,9 +28,9 @@ DESCRIPTION = ("Starts the server (SQLite in ./armtrack-demo), makes a demo ther
                "real protocol in real time. Prints the address and the sign-in; Ctrl-C stops.")
 #: Pause between two sessions [s].
 PAUSE_S = 5.0
-#: Most sessions the demo keeps (two rounds of the default exercises, ~12 minutes, some
-#: 15 MB): older closed ones are erased as new ones come, so a demo left running for days
-#: holds no more than this.
+#: Most sessions the demo keeps, the one streaming included (two rounds of the default
+#: exercises, ~12 minutes, some 15 MB): before each new session the oldest closed ones are
+#: erased to make room, so a demo left running for days never holds more than this.
 KEEP_SESSIONS = 12
 #: How often the demo kit reports battery and signal [s].
 STATUS_EVERY_S = 5.0
@@ -181,6 +181,11 @@ async def _patient_loop(url: str, token: str, exercises: list[str], speed: float
             print(f"demo: the simulated patient calibrates (N-pose, T-pose), then does "
                   f"{exercise.replace('_', ' ')} "
                   f"({recording.sensors['forearm'].t[-1] / speed:.0f} s)", flush=True)
+            if services is not None:  # room for the session about to stream
+                erased = await asyncio.to_thread(_prune, services, patient_id, keep - 1)
+                if erased:
+                    print(f"demo: erased the oldest session(s) {', '.join(map(str, erased))}"
+                          f" (the demo keeps the newest {keep})", flush=True)
             kit = kit_class(recording, url, token, device="demo kit", speed=speed)
             try:
                 await kit.run()
@@ -188,11 +193,6 @@ async def _patient_loop(url: str, token: str, exercises: list[str], speed: float
                 print(f"demo: the kit stopped: {exc}", file=sys.stderr, flush=True)
                 await asyncio.sleep(PAUSE_S)
             await asyncio.sleep(PAUSE_S)
-            if services is not None:
-                erased = await asyncio.to_thread(_prune, services, patient_id, keep)
-                if erased:
-                    print(f"demo: erased the oldest session(s) {', '.join(map(str, erased))}"
-                          f" (the demo keeps the newest {keep})", flush=True)
         if once:
             next_recording.cancel()
             print("demo: every exercise streamed once; still serving (Ctrl-C stops)",
