@@ -301,8 +301,6 @@ function exerciseNames(exercises) {
   });
 }
 
-// A set the kit marked in which the report counted no repetition (started and ended at
-// once, or nothing done): shown, as empty, not as an exercise "× 0".
 // A set the kit began and never ended in a closed session (summary's `unfinished`): the
 // patient left it part way, "stopped after 4 of 10" (of the set's asked repetitions).
 function stoppedWords(e) {
@@ -311,6 +309,8 @@ function stoppedWords(e) {
     : `stopped after ${e.repetitions}`;
 }
 
+// A set the kit marked in which the report counted no repetition (started and ended at
+// once, or nothing done): shown, as empty, not as an exercise "× 0".
 function emptySet(e) {
   return e.source === "marks" && e.repetitions === 0;
 }
