@@ -609,6 +609,11 @@ def test_the_live_page_titles_a_stopped_sensor_as_what_it_is(module_server, tmp_
                 title = page.locator("#calibration-box .title").inner_text()
                 print(f"\n{width} px: {title} | {warnings.inner_text()}")
                 assert title == "Live angles without the hand sensor: it stopped sending", title
+                # the words get the box's width: at 390 px they once stood in a column about
+                # 100 px wide, squeezed between the icon and the buttons
+                what, box = (page.locator(f"#calibration-box{part}").bounding_box()["width"]
+                             for part in (" .what", ""))
+                assert what >= 0.6 * box, (width, what, box)
         finally:
             opened.set()
             done.set()
