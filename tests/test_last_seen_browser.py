@@ -23,7 +23,7 @@ server = server_fixture("last-seen", "alice")
 
 
 def broken_off(server, api, name: str, *, speed: str = "1", rows_per_message: str = "10",
-               samples: int = 1500) -> tuple[dict, float]:
+               samples: int = 1500, device: str = "armtrack-emulator") -> tuple[dict, float]:
     """A patient whose kit (``armtrack stream`` at ``speed`` times real time) streamed
     ``samples`` samples (1500: ~5 s of the three sensors) and was then killed (its power
     gone: no goodbye); the patient and the monotonic time of the kill."""
@@ -32,7 +32,7 @@ def broken_off(server, api, name: str, *, speed: str = "1", rows_per_message: st
     kit = subprocess.Popen(
         [sys.executable, "-m", "armtrack.server.cli", "stream", "--exercise", "elbow_flexion",
          "--side", "left", "--url", server.ws_url, "--token", token, "--quiet",
-         "--speed", speed, "--rows-per-message", rows_per_message],
+         "--speed", speed, "--rows-per-message", rows_per_message, "--device", device],
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         deadline = time.monotonic() + 60
@@ -94,6 +94,25 @@ def test_an_interrupted_session_is_closed_from_its_own_page(server):
     print(f"\nsession {session_id}: {session['status']}, processed {session['processed']}")
     assert session["status"] == "closed" and not session["processing_error"]
     assert width <= 390
+
+
+def test_a_phone_cut_off_is_said_to_keep_recording_before_close_is_offered(server):
+    """Found by user20: a phone that lost its connection for 12 s turned the live view to
+    "The stream is interrupted … If the patient has stopped, close the session" within
+    seconds, while the phone went on recording offline (it sends it all when back); a
+    therapist who closed then ended the patient's session mid-set. For a phone the box now
+    says so, and to wait before closing (390 px)."""
+    api = server.client("alice")
+    patient, _ = broken_off(server, api, "Phone Cut Off", device="phone kit")
+    session_id = api.http.get(f"/api/patients/{patient['id']}/sessions").json()[0]["id"]
+    with page_at(390) as page:
+        sign_in_as(page, server.url, "alice")
+        page.goto(f"{server.url}/sessions/{session_id}")
+        box = page.locator("#calibration-box")
+        sync_api.expect(box).to_contain_text("The stream is interrupted", timeout=30_000)
+        how = page.locator("#calibration-box .how").inner_text()
+    print(f"\n{how}")
+    assert "keeps recording" in how and "wait a few minutes" in how, how
 
 
 def test_an_interrupted_session_with_a_later_one_is_closed_from_its_own_page(server):

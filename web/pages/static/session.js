@@ -293,9 +293,17 @@ function calibrationState(live) {
         + "Close the session to estimate what was recorded.", closable: true, poses: cal.poses, warnings };
   }
   if (session.status !== "live") {
+    // a phone records on offline and sends it all when back: closing at once would end
+    // the patient's session mid-set (found by a new user after a 12-s outage)
+    const how = session.metadata.device === "phone kit"
+      ? "The patient's phone keeps recording while offline and sends it all when its "
+        + "connection is back, so the patient may still be exercising: wait a few minutes "
+        + "before closing. The data so far are stored. If the patient has stopped, close "
+        + "the session to estimate what was recorded."
+      : "The kit may reconnect and resume; the data so far are stored. If the patient has "
+        + "stopped, close the session to estimate what was recorded.";
     return { phase: "interrupted", kind: "warn", icon: "‖", title: "The stream is interrupted",
-      how: "The kit may reconnect and resume; the data so far are stored. If the patient has "
-        + "stopped, close the session to estimate what was recorded.", closable: true, poses: cal.poses, warnings };
+      how, closable: true, poses: cal.poses, warnings };
   }
   if (cal.holding) {
     const p = cal.holding;
