@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import re
 import time
+from datetime import date, timedelta
 
 import pytest
 from browser_helpers import dismissed_question, need_browser, page_at, sign_in_as
@@ -189,3 +190,41 @@ def test_readmit_clicked_while_the_page_still_loads_leaves_discharge_offered(mod
             route.continue_()
         sync_api.expect(page.locator("#record-card")).to_be_visible()
         sync_api.expect(page.get_by_role("button", name="Discharge…")).to_be_visible()
+
+
+@pytest.mark.parametrize("width", [390, 1280])
+def test_a_discharged_patients_program_says_the_discharge_stopped_it(module_server, width,
+                                                                    tmp_path):
+    """Before, a discharged patient's program still read "in force" on their page, with
+    "Change" and "New program" offered, while their phone said "Your therapist has
+    discharged you". Now the program says the discharge stopped it and that readmitting
+    takes it up again; readmitted (on the same page), it is in force again, with "Change"."""
+    api = module_server.client("alice")
+    patient = api.patient(f"Paul Programmed {width}")
+    made = api.http.post(f"/api/patients/{patient['id']}/programs", json={
+        "name": "Elbow", "start_date": (date.today() - timedelta(days=1)).isoformat(),
+        "exercises": [
+            {"exercise": "elbow_flexion", "sets": 2, "repetitions": 10, "days_per_week": 5}]})
+    assert made.status_code == 201, made.text
+    assert made.json()["active"]
+    api.http.post(f"/api/patients/{patient['id']}/discharge").raise_for_status()
+    with page_at(width) as page:
+        sign_in_as(page, module_server.url, "alice")
+        page.goto(f"{module_server.url}/patients/{patient['id']}")
+        program = page.locator(f"[data-program='{made.json()['id']}']")
+        badge = program.locator(".badge")
+        sync_api.expect(badge).to_have_text("not in force: discharged")
+        sync_api.expect(program.locator(".discharge-stopped")).to_contain_text(
+            "Readmit the patient")
+        sync_api.expect(program.get_by_role("button", name="Change")).to_have_count(0)
+        sync_api.expect(page.locator("#new-program")).to_have_count(0)
+        print("\nthe program says:", program.locator(".discharge-stopped").inner_text())
+        fits(page, tmp_path, "program-discharged", width)
+        page.screenshot(path=str(tmp_path / f"program-discharged-{width}.png"), full_page=True)
+
+        page.get_by_role("button", name="Readmit").click()
+        sync_api.expect(badge).to_have_text("in force")
+        sync_api.expect(program.locator(".discharge-stopped")).to_have_count(0)
+        sync_api.expect(program.get_by_role("button", name="Change")).to_be_visible()
+        sync_api.expect(page.locator("#new-program")).to_be_visible()
+        print(f"screenshots: {tmp_path}")

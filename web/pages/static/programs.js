@@ -35,30 +35,43 @@ async function mountPrograms(patientId, box) {
     catalogue = await api(`/api/programs/catalogue?patient_id=${encodeURIComponent(patientId)}`);
     cataloguePatient = patientId;
   }
-  const programs = await api(`/api/patients/${patientId}/programs`);
+  const [programs, patient] = await Promise.all([
+    api(`/api/patients/${patientId}/programs`), api(`/api/patients/${patientId}`)]);
+  // discharged (docs/extensions/discharge.md): the kits guide no program, as the phone
+  // says; readmitting takes it up again. The card is built again on either.
+  const discharged = patient.discharged_at;
+  if (!box.dataset.followsDischarge) {
+    box.dataset.followsDischarge = "1";
+    document.addEventListener("armtrack:patient", (event) => {
+      if (!!event.detail.discharged_at !== !!box.dataset.discharged) mountPrograms(patientId, box);
+    });
+  }
+  if (discharged) box.dataset.discharged = "1"; else delete box.dataset.discharged;
   const cards = [];
-  for (const p of programs) cards.push(await programCard(patientId, p, box));
+  for (const p of programs) cards.push(await programCard(patientId, p, box, discharged));
   clear(box, el("div", { class: "card", id: "programs-card" },
     el("div", { class: "row", style: "justify-content:space-between;align-items:center" },
       el("h2", { style: "margin:0" }, "Exercise programs"),
-      el("button", { id: "new-program", onclick: () => openEditor(patientId, box, null) },
+      discharged ? null : el("button", { id: "new-program", onclick: () => openEditor(patientId, box, null) },
         "New program")),
     programs.length ? cards : el("p", { class: "muted" },
       "No program yet. Prescribe one: the patient's kit then guides it, and you see here "
       + "whether it is done and whether it works.")));
 }
 
-async function programCard(patientId, p, box) {
+async function programCard(patientId, p, box, discharged) {
   const v = p.version;
   const adherence = await api(`/api/programs/${p.id}/adherence`);
   const dates = `from ${fmtDay(v.start_date)}` + (v.end_date ? ` to ${fmtDay(v.end_date)}` : "");
+  const stopped = discharged && p.active;  // in force but for the discharge
+  const force = stopped ? "not in force: discharged" : p.active ? "in force" : "not in force";
   return el("div", { class: "program", dataset: { program: p.id } },
     el("div", { class: "row", style: "justify-content:space-between;align-items:baseline;flex-wrap:wrap" },
       el("h3", { style: "margin:8px 0" }, p.name, " ",
-        el("span", { class: "badge " + (p.active ? "in-force" : "not-in-force") }, p.active ? "in force" : "not in force"),
+        el("span", { class: "badge " + (p.active && !stopped ? "in-force" : "not-in-force") }, force),
         " ", el("span", { class: "muted small" }, `version ${v.number}, ${dates}`)),
       el("div", { class: "row" },
-        el("button", { class: "secondary", onclick: () => openEditor(patientId, box, p) }, "Change"),
+        discharged ? null : el("button", { class: "secondary", onclick: () => openEditor(patientId, box, p) }, "Change"),
         el("button", { class: "secondary", title: "The program as FHIR R4 (CarePlan, Goals, ServiceRequests, Observations)",
           onclick: () => download(`/api/programs/${p.id}/careplan.fhir.json`, `program-${p.id}.fhir.json`) }, "FHIR"),
         el("button", { class: "secondary", title: "Progress report (PDF)",
@@ -68,6 +81,10 @@ async function programCard(patientId, p, box) {
           await api(`/api/programs/${p.id}/end`, { method: "POST" });
           mountPrograms(patientId, box);
         } }, "End"))),
+    stopped ? el("p", { class: "notice discharge-stopped" },
+      `The discharge on ${fmtDate(discharged, { dateOnly: true })} stopped this program: the patient's kit `
+      + "guides it no more and starts no session (their phone says they were discharged). "
+      + "Readmit the patient (at the top of the page) to take it up again or to change it.") : null,
     adherence.flags.length ? el("div", { class: "flags" }, adherence.flags.map((f) =>
       el("div", { class: "flag-line" }, flagChip(f), " ", f.message))) : null,
     v.note ? el("p", { class: "muted" }, v.note) : null,
