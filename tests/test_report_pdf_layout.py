@@ -289,3 +289,23 @@ def test_an_uploaded_sessions_date_says_so_within_the_frame():
     assert not problems
     for page in (1, 2):
         assert "uploaded; recording time unknown" in dates[page], (page, dates[page])
+
+
+def test_what_was_done_lists_a_set_left_part_way_that_the_report_has_no_estimate_in():
+    """A set the kit began as the recording ended has no estimate in it, so the report
+    leaves it out; the session page still says "Pronation: stopped part way" (summary's
+    ``unfinished``), and the PDF's "What was done" now says it too, in order, with the
+    set numbers the page gives."""
+    from armtrack.server.reports.pdf_summary import done_lines
+
+    report, *_ = worst_pages()
+    one = report.model_copy(update={"exercises": report.exercises[2:]})  # elbow, 100–130 s
+    lines = done_lines(one, [("elbow_flexion", 140.0, None, 10), ("pronation", 60.0, 3, 10)])
+    print("\n".join(lines))
+    assert lines == [
+        "Pronation: stopped after 3 of 10 (from 60 s into the session, begun on the kit "
+        "and never ended: the patient stopped part way)",
+        "Elbow flexion — set 1: 128 repetitions (100–130 s into the session, marked by the "
+        "kit)",
+        "Elbow flexion — set 2: stopped part way (from 140 s into the session, begun on the "
+        "kit and never ended: the patient stopped part way)"]

@@ -343,3 +343,29 @@ def test_a_set_the_patient_left_part_way_says_so(module_server, rated_session, t
         print(chips.all_inner_texts())
         page.screenshot(path=str(tmp_path / "stopped-part-way-390.png"), full_page=True)
         print(f"screenshot: {tmp_path}")
+
+
+def test_a_set_the_patient_left_part_way_says_so_in_the_pdf(module_server, rated_session,
+                                                           tmp_path):
+    """The session page says "Pronation: stopped after 0 of 10" of a set the kit began and
+    never ended; the PDF's "What was done" left that set out (its estimates ended before
+    it), so page and PDF disagreed (user20, fix20). The PDF now lists it in the page's
+    words. Reuses the rated session (no second stream)."""
+    import subprocess
+
+    if not shutil.which("pdftotext"):
+        pytest.skip("needs poppler-utils (pdftotext)")
+    api = module_server.client("alice")
+    _, palm = api.http.get(f"/api/sessions/{rated_session['id']}/summary").json()["exercises"]
+    pdf = api.http.get(f"/api/sessions/{rated_session['id']}/report.pdf")
+    assert pdf.status_code == 200, pdf.text[:300]
+    (tmp_path / "report.pdf").write_bytes(pdf.content)
+    text = subprocess.run(["pdftotext", "-layout", "-l", "1", str(tmp_path / "report.pdf"),
+                           "-"], capture_output=True, text=True, check=True).stdout
+    done = text[text.index("What was done"):text.index("Range of motion")]
+    print("\n", done)
+    lines = [" ".join(line.split()) for line in done.splitlines() if line.strip()]
+    assert any(line.startswith("• Elbow flexion: 2 repetitions (") for line in lines), lines
+    palm_line = f"• Pronation: stopped after {palm['repetitions']} of 10 ("
+    assert any(line.startswith(palm_line) for line in lines), lines
+    assert "the patient stopped part way" in " ".join(lines), lines

@@ -116,10 +116,21 @@ def _report_pdf(db: DbSession, therapist: models.Therapist, session_id: int,
         zone=settings.clinic_zone(), therapist=therapist.full_name or therapist.username,
         clinic_number=patient.clinic_number, date_of_birth=patient.date_of_birth,
         dated=dated_by(session), clock=settings.clinic_clock,
-        program=program_words(followed_version(db, session.id)))
+        program=program_words(followed_version(db, session.id)),
+        unfinished=_unfinished_sets(db, session))
     return _attachment(pdf.report_pdf(report, data, letterhead,
                                       _previous(db, session, PREVIOUS_IN_PDF)),
                        "application/pdf", f"session-{session_id}-report.pdf")
+
+
+def _unfinished_sets(db: DbSession, session: models.Session
+                    ) -> tuple[tuple[str, float, int | None, int | None], ...]:
+    """The sets the session page says the patient left part way ("stopped after 0 of
+    10"), for the PDF to say them alike: (name, start_s, repetitions, asked)."""
+    from .session_summary import summarise
+
+    return tuple((e["name"], float(e["start"]), e.get("repetitions"), e.get("asked"))
+                 for e in summarise(db, session)["exercises"] if e.get("unfinished"))
 
 
 def program_words(version: models.ProgramVersion | None) -> str | None:

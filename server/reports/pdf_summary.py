@@ -49,6 +49,10 @@ class Letterhead:
     #: what the session's start is: ``recorded``, ``uploaded`` (time unknown) or
     #: ``streamed`` (``SessionOut.dated``)
     dated: str = "streamed"
+    #: the sets the kit began and never ended in the closed session (the patient left
+    #: part way): ``(name, start_s, repetitions, asked)`` as the session page has them
+    #: (``GET /api/sessions/{id}/summary``'s ``unfinished`` sets)
+    unfinished: tuple[tuple[str, float, int | None, int | None], ...] = ()
 
 
 def style_table(table, fontsize: float = 8, names_left: bool = True) -> None:
@@ -86,20 +90,43 @@ def _percent(x: float | None) -> str:
     return "–" if x is None else f"{x:.0f} %"
 
 
-def done_lines(report: SessionReport) -> list[str]:
-    """What was done: each exercise with its repetitions and times."""
-    lines = []
-    names = set_words([e.name for e in report.exercises])
-    for e, name in zip(report.exercises, names, strict=True):
+def stopped_words(repetitions: int | None, asked: int | None) -> str:
+    """"stopped after 4 of 10", as the session page says it (``stoppedWords``)."""
+    if repetitions is None:
+        return "stopped part way"
+    return f"stopped after {repetitions}" + (f" of {asked}" if asked is not None else "")
+
+
+def done_lines(report: SessionReport,
+               unfinished: Sequence[tuple[str, float, int | None, int | None]] = ()
+               ) -> list[str]:
+    """What was done: each exercise with its repetitions and times; a set the patient left
+    part way (``unfinished``) says so as the session page does, also one the report has
+    no estimate in (begun as the recording ended)."""
+    left = {(name, round(start, 3)): (reps, asked) for name, start, reps, asked in unfinished}
+    rows: list[tuple[float, str, str]] = []  # (start, name, the line after "name: ")
+    for e in report.exercises:
         reps = max((a.repetitions for a in e.angles), default=0)
         how = "marked by the kit" if e.source == "marks" else "recognised in the movement"
+        when = f"{e.start_s:.0f}–{e.end_s:.0f} s into the session"
+        stopped = left.pop((e.name, round(e.start_s, 3)), None) if e.source == "marks" else None
+        if stopped is not None:
+            rows.append((e.start_s, e.name, f"{stopped_words(*stopped)} ({when}, begun on "
+                         "the kit and never ended: the patient stopped part way)"))
+            continue
         # a marked set with no repetition (started and ended at once) is listed, as empty
         done = ("empty (no repetition)" if e.source == "marks" and not reps
                 else f"{reps} repetition{'s' if reps != 1 else ''}")
-        lines.append(f"{name}: {done} "
-                     f"({e.start_s:.0f}–{e.end_s:.0f} s into the session, {how})")
-    return lines or ["No repeated exercise was found (the range below is over the whole "
-                     "session, calibration poses left out)."]
+        rows.append((e.start_s, e.name, f"{done} ({when}, {how})"))
+    for (name, start), stopped in left.items():  # no estimate in it: not in the report
+        rows.append((start, name, f"{stopped_words(*stopped)} (from {start:.0f} s into the "
+                     "session, begun on the kit and never ended: the patient stopped part "
+                     "way)"))
+    rows.sort(key=lambda row: row[0])
+    names = set_words([name for _, name, _ in rows])
+    return [f"{name}: {text}" for name, (_, _, text) in zip(names, rows, strict=True)] or [
+        "No repeated exercise was found (the range below is over the whole session, "
+        "calibration poses left out)."]
 
 
 def _previous_rom(previous: Sequence[tuple[datetime, SessionReport]], angle: str
@@ -183,7 +210,7 @@ def summary_page(fig: Figure, report: SessionReport, letterhead: Letterhead,
     y -= 0.015
     fig.text(0.06, y, "What was done", fontsize=11, weight="bold")
     y -= 0.022
-    done = done_lines(report)
+    done = done_lines(report, lh.unfinished)
     lines: list[str] = []
     for k, line in enumerate(done):
         wrapped = textwrap.wrap("• " + line, DONE_CHARS, subsequent_indent="   ")
