@@ -369,3 +369,25 @@ def test_a_set_the_patient_left_part_way_says_so_in_the_pdf(module_server, rated
     palm_line = f"• Pronation: stopped after {palm['repetitions']} of 10 ("
     assert any(line.startswith(palm_line) for line in lines), lines
     assert "the patient stopped part way" in " ".join(lines), lines
+
+
+def test_the_calibration_is_said_in_words_a_therapist_reads(module_server, rated_session,
+                                                           tmp_path):
+    """The session page's calibration read "2 pose(s) · method: two-pose" (the
+    estimator's name; user20). It now says which poses calibrated the angles, as the PDF
+    does, in the words the live view's guidance uses. Reuses the rated session."""
+    api = module_server.client("alice")
+    summary = api.http.get(f"/api/sessions/{rated_session['id']}/summary").json()
+    assert summary["quality"]["calibration_method"] == "two-pose", summary["quality"]
+    with page_at(390) as page:
+        sign_in_as(page, module_server.url, "alice")
+        page.goto(f"{module_server.url}/sessions/{rated_session['id']}")
+        words = page.locator("#calibration-words")
+        sync_api.expect(words).to_have_text(
+            "Calibrated from the two poses the patient held in this session: the arm "
+            "hanging (N-pose), then out sideways, palm down (T-pose).", timeout=30_000)
+        card = page.locator("#details-card")
+        sync_api.expect(card).not_to_contain_text("pose(s)")
+        sync_api.expect(card).not_to_contain_text("method:")
+        card.screenshot(path=str(tmp_path / "calibration-390.png"))
+        print(f"\nscreenshot: {tmp_path}")

@@ -541,6 +541,25 @@ function ratingsNote(ratings) {
       `${r.exercise.split(" + ").map(exerciseLabel).join(" + ")}: ${score(r.effort, "effort")}, ${score(r.pain, "pain")}`))));
 }
 
+/** Which poses calibrated the angles, in words (the estimator's method: two-pose,
+ * n-pose or default; the PDF says it alike, reports/words.py calibration_words). */
+function calibrationWords(method, held) {
+  if (method === "two-pose") {
+    return "Calibrated from the two poses the patient held in this session: the arm hanging "
+      + "(N-pose), then out sideways, palm down (T-pose).";
+  }
+  if (method === "n-pose") {
+    return "Calibrated from the one pose the patient held in this session, the arm hanging "
+      + "(N-pose); without the T-pose the rest is taken as the strapping guide places the sensors.";
+  }
+  const poses = `${held} calibration pose${held === 1 ? "" : "s"}`;
+  if (method === "default") {
+    return `${poses} held, but not used: each sensor is taken as the strapping guide places it `
+      + "(the warning below says why).";
+  }
+  return `${poses} held; the angles are not estimated yet.`;
+}
+
 /** The targets in force when the session was recorded, and how far each was reached. */
 function targetLines(report) {
   const names = ANGLES.filter((n) => report.rom[n] && report.rom[n].target_max !== null
@@ -583,7 +602,7 @@ async function showReplay() {
     ratingsNote(summary.ratings),
     el("h3", {}, "Calibration"),
     summary.calibration_poses.length
-      ? el("p", { style: "margin:4px 0" }, `${summary.calibration_poses.length} pose(s)` + (q.calibration_method ? ` · method: ${q.calibration_method}` : ""))
+      ? el("p", { style: "margin:4px 0", id: "calibration-words" }, calibrationWords(q.calibration_method, summary.calibration_poses.length))
       : noPosesWhy(),
     q.calibration_warnings.length ? el("ul", { class: "warnings", id: "calibration-warnings" },
       q.calibration_warnings.map((w) => el("li", {}, w))) : el("p", { class: "muted", style: "margin:4px 0" }, "No calibration warning."),
