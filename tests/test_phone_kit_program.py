@@ -17,7 +17,7 @@ rest between sets, and the effort/pain screen."""
 from __future__ import annotations
 
 import dataclasses
-from datetime import UTC, datetime
+from datetime import UTC, date, datetime
 
 import numpy as np
 import pytest
@@ -47,8 +47,28 @@ def week_words(week: dict) -> str:
     if done >= asked:
         return ("You have done your day this week — well done." if asked == 1
                 else f"You have done all {asked} days this week — well done.")
-    line = f"This week: {done} of {asked} {'day' if asked == 1 else 'days'} done."
+    line = (f"This week: {done} of {asked} {'day' if asked == 1 else 'days'} "
+            f"done{week_why(week)}.")
     return line if done else f"{line} Today is a good day to start."
+
+
+def week_why(week: dict) -> str:
+    """Why the week asks other days than "N days a week" (``KitProgram.why``): the program
+    starts on ``today``, so from Thursday to Sunday its first week asks fewer days (found
+    when CI ran on a Saturday: the kit said "(your program started on Saturday)")."""
+    def weekday(iso: str) -> str:
+        return date.fromisoformat(iso).strftime("%A")
+
+    shortened = week.get("shortened") or {}
+    parts = []
+    if shortened.get("starts_on"):
+        parts.append(f"your program started on {weekday(shortened['starts_on'])}")
+    elif shortened.get("ends_on"):
+        parts.append(f"your program ends on {weekday(shortened['ends_on'])}")
+    if week.get("changed_on"):
+        whose = "its" if parts else "your program's"
+        parts.append(f"{whose} change of {weekday(week['changed_on'])} counts from next week")
+    return f" ({'; '.join(parts)})" if parts else ""
 
 
 def program_body(today: str) -> dict:
