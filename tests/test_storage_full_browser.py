@@ -10,6 +10,7 @@ at 1280 px in Debian's chromium."""
 
 from __future__ import annotations
 
+import errno
 import os
 import shutil
 import subprocess
@@ -36,9 +37,22 @@ def small_disk(tmp_path):
 
 
 def fill(folder) -> None:
-    """Take every free byte of ``folder``'s file system."""
-    free = shutil.disk_usage(folder).free
-    subprocess.run(["fallocate", "-l", str(free), str(folder / "filler")], check=True)
+    """Take every free byte of ``folder``'s file system, written until it is full: the
+    server writes meanwhile (``fallocate`` of the free bytes read a moment before failed
+    with "No space left on device" on CI)."""
+    fd = os.open(folder / "filler", os.O_WRONLY | os.O_CREAT, 0o600)
+    try:
+        size = 1 << 20
+        while size >= 512:
+            try:
+                os.write(fd, b"\0" * size)
+            except OSError as exc:
+                if exc.errno != errno.ENOSPC:
+                    raise
+                size //= 2  # the last bytes, in smaller pieces
+    finally:
+        os.close(fd)
+    assert shutil.disk_usage(folder).free < 1 << 20, shutil.disk_usage(folder)
 
 
 def test_a_full_disk_is_said_to_the_therapist_and_the_monitor_and_loses_nothing(small_disk):

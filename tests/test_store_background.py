@@ -4,6 +4,7 @@ no child left behind when the server is killed."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import statistics
@@ -73,6 +74,8 @@ def test_the_child_stores_what_the_server_process_would(database):
         niceness = int(Path(f"/proc/{child}/stat").read_text().rsplit(")", 1)[1].split()[16])
         policies = {int(task.name): os.sched_getscheduler(int(task.name))
                     for task in Path(f"/proc/{child}/task").iterdir()}
+        names = {tid: Path(f"/proc/{child}/task/{tid}/comm").read_text().strip()
+                 for tid in policies}
     finally:
         processing.stop()
     here, there = _estimates(engine, first), _estimates(engine, second)
@@ -82,7 +85,10 @@ def test_the_child_stores_what_the_server_process_would(database):
     # the estimation on a thread of its own that takes only idle CPU; the main thread
     # (its database reads and write transaction) at an ordinary, lowest-nice policy
     assert policies[child] == os.SCHED_OTHER
-    assert sorted(policies.values()).count(os.SCHED_IDLE) == 1, policies
+    # idle: the estimation thread, and the kernels' warm-up while it lasts (1db6a41: with
+    # two idle threads the count of one this test made before failed on CI), nothing else
+    idle = {names[tid] for tid, policy in policies.items() if policy == os.SCHED_IDLE}
+    assert "armtrack-estima" in idle and idle <= {"armtrack-estima", "armtrack-warm"}, names
     assert _children_named(PROCESSING) == []  # stop() ended it
 
 
@@ -111,6 +117,16 @@ def test_a_killed_child_fails_its_job_and_a_new_one_takes_the_next(database):
         processing.stop()
 
 
+def _thread_names(pid: int) -> list[str]:
+    """The system names of process ``pid``'s threads (``background._only_idle_cpu`` gives
+    its idle threads their Python names)."""
+    names = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        with contextlib.suppress(OSError):  # a thread that ended meanwhile
+            names.append((task / "comm").read_text().strip())
+    return names
+
+
 def test_while_streams_are_live_the_child_rests_between_jobs(database):
     """Busy (streams live), at a share of 0.25 the child rests 3× each job's time before
     the next queued job; not busy, the jobs follow each other at once."""
@@ -132,6 +148,13 @@ def test_while_streams_are_live_the_child_rests_between_jobs(database):
 
     try:
         processing.submit(third, "qcf").result(timeout=120)  # warm
+        # the child's kernels' warm-up (1db6a41) over: its thread shares the interpreter
+        # and made jobs ~1.8× slower while it ran (29 → 50 ms), so the rest measured
+        # against them looked short (CI-identical run: 124 ms ≤ 2.5 × 60 ms)
+        [child] = _children_named(PROCESSING)
+        deadline = time.monotonic() + 300
+        while "armtrack-warm" in _thread_names(child) and time.monotonic() < deadline:
+            time.sleep(0.05)
         at_once = statistics.median(gap() for _ in range(3))  # the second job's time
         busy[0] = True
         # a rest of 3× the first's time, then the second's

@@ -44,6 +44,7 @@ from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from multiprocessing.connection import Connection
+from pathlib import Path
 from typing import Any
 
 from sqlalchemy.engine import make_url
@@ -284,7 +285,11 @@ def _only_idle_cpu() -> None:
     ``NICENESS`` elsewhere). The estimation thread of the processing child: the database
     reads and the write transaction stay on the child's main thread at ``NICENESS``, so a
     busy server can delay an estimate but never starve a transaction holding SQLite's
-    write lock (unprivileged, a thread cannot leave ``SCHED_IDLE`` again)."""
+    write lock (unprivileged, a thread cannot leave ``SCHED_IDLE`` again). The thread
+    takes its Python name in the system too (``top -H``, ``/proc/PID/task``), cut to the
+    15 characters Linux keeps: "armtrack-estima", "armtrack-warm"."""
+    with contextlib.suppress(OSError):
+        Path("/proc/thread-self/comm").write_text(threading.current_thread().name[:15])
     policy = getattr(os, "SCHED_IDLE", None)
     if policy is not None:
         with contextlib.suppress(OSError):
