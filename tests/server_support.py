@@ -17,6 +17,7 @@ from pathlib import Path
 
 import httpx
 import pytest
+from armtrack.server.processes import PROCESSING
 
 PASSWORD = "correct horse battery"
 
@@ -206,7 +207,7 @@ class ServerProcess:
                 self.kill()
                 return
             if TEARDOWN.active:
-                kill_children(self.process.pid, "armtrack-proc")
+                kill_children(self.process.pid, PROCESSING)
             time.sleep(0.02)
 
     def create_user(self, name: str, password: str = PASSWORD) -> None:

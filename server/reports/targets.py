@@ -23,6 +23,7 @@ from sqlalchemy.orm import Session as DbSession
 
 from ..db import models
 from ..plain_text import Note
+from ..programs.calendar import aware
 
 #: Angles can be set within this [deg].
 LIMIT_DEG = 180.0
@@ -83,8 +84,7 @@ def targets_in(history: Iterable[models.PatientTargetVersion], moment: datetime
     set after ``moment`` are passed over), for many moments from one read."""
     last: dict[str, models.PatientTargetVersion] = {}
     for row in history:
-        at = row.set_at if row.set_at.tzinfo else row.set_at.replace(tzinfo=UTC)
-        if at <= moment:  # SQLite gives naive datetimes back, stored in UTC
+        if aware(row.set_at) <= moment:
             last[row.angle] = row
     return {angle: _target(last[angle]) for angle in sorted(last)
             if last[angle].min_deg is not None and last[angle].max_deg is not None}
